@@ -1,0 +1,82 @@
+r"""The Kalman step every filter in zfusion shares.
+
+Predict::
+
+    x⁻ = F x,          P⁻ = F P Fᵀ + Q
+
+Update with innovation ν = z − h(x⁻) (angular components wrapped to (−π, π]) and
+measurement Jacobian H::
+
+    S = H P⁻ Hᵀ + R,   K = P⁻ Hᵀ S⁻¹,   x⁺ = x⁻ + K ν
+    P⁺ = (I − K H) P⁻ (I − K H)ᵀ + K R Kᵀ          (Joseph form)
+
+The Joseph form keeps P⁺ symmetric positive semi-definite under round-off and for
+any (even sub-optimal) gain; the result is symmetrised once more. NIS = νᵀ S⁻¹ ν.
+
+Filters (EKF variants, MEKF, IMM, the patent's methods) differ in how they form
+``ν`` and ``H``; they all call :func:`predict` and :func:`update` here.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+from scipy.linalg import cho_factor, cho_solve
+
+from .angles import wrap_pi
+
+
+class UpdateResult(NamedTuple):
+    x: np.ndarray
+    P: np.ndarray
+    nu: np.ndarray
+    S: np.ndarray
+    nis: float
+    K: np.ndarray
+
+
+def symmetrise(P: np.ndarray) -> np.ndarray:
+    return 0.5 * (P + P.T)
+
+
+def predict(x: np.ndarray, P: np.ndarray, F: np.ndarray, Q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Linear(ised) time update ``x⁻ = F x``, ``P⁻ = F P Fᵀ + Q``."""
+    return F @ x, symmetrise(F @ P @ F.T + Q)
+
+
+def innovation(z: np.ndarray, z_pred: np.ndarray, angles: np.ndarray | None = None) -> np.ndarray:
+    """``z − z_pred`` with the components flagged in ``angles`` wrapped to (−π, π]."""
+    nu = np.asarray(z, dtype=float) - np.asarray(z_pred, dtype=float)
+    if angles is not None and np.any(angles):
+        nu = np.where(angles, wrap_pi(nu), nu)
+    return nu
+
+
+def update(x: np.ndarray, P: np.ndarray, nu: np.ndarray, H: np.ndarray, R: np.ndarray) -> UpdateResult:
+    """Measurement update given an innovation ``nu`` (already wrapped) and Jacobian ``H``.
+
+    Uses a Cholesky solve for ``S⁻¹`` (S is SPD whenever R is) and the Joseph form.
+    """
+    nu = np.atleast_1d(np.asarray(nu, dtype=float))
+    H = np.atleast_2d(H)
+    R = np.atleast_2d(R)
+    PHt = P @ H.T
+    S = symmetrise(H @ PHt + R)
+    c = cho_factor(S, lower=True, check_finite=False)
+    K = cho_solve(c, PHt.T, check_finite=False).T
+    x_new = x + K @ nu
+    IKH = np.eye(P.shape[0]) - K @ H
+    P_new = symmetrise(IKH @ P @ IKH.T + K @ R @ K.T)
+    nis = float(nu @ cho_solve(c, nu, check_finite=False))
+    return UpdateResult(x_new, P_new, nu, S, nis, K)
+
+
+def gaussian_likelihood(nu: np.ndarray, S: np.ndarray) -> float:
+    """N(ν; 0, S), the model likelihood used by the IMM."""
+    nu = np.atleast_1d(nu)
+    S = np.atleast_2d(S)
+    c = cho_factor(S, lower=True, check_finite=False)
+    m = float(nu @ cho_solve(c, nu, check_finite=False))
+    log_det = 2.0 * float(np.sum(np.log(np.diag(c[0]))))
+    return float(np.exp(-0.5 * (m + log_det + nu.size * np.log(2.0 * np.pi))))

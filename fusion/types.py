@@ -1,0 +1,100 @@
+"""The two value types that cross every boundary of the library.
+
+A :class:`Measurement` is what a sensor reports; an :class:`Estimate` is what a
+tracker or fuser reports. Both are plain, immutable records in SI units and the
+conventions of :mod:`fusion.angles`. ``schemas/`` maps them to and from the wire.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+# Component order of ``Measurement.z`` for each measurement kind. The wire uses the
+# same names as fields, so the order is fixed here once.
+KIND_COMPONENTS: dict[str, tuple[str, ...]] = {
+    "bearing": ("az",),
+    "azel": ("az", "el"),
+    "range_az": ("az", "range"),
+    "az_el_range": ("az", "el", "range"),
+}
+ANGLE_COMPONENTS = frozenset({"az", "el"})
+
+
+def angle_mask(kind: str) -> np.ndarray:
+    """Boolean mask of the angular components of a measurement kind."""
+    return np.array([c in ANGLE_COMPONENTS for c in KIND_COMPONENTS[kind]], dtype=bool)
+
+
+@dataclass(frozen=True, eq=False)
+class Measurement:
+    """One report of one sensor.
+
+    Attributes:
+        t: time of validity, seconds of scenario time.
+        sensor: id of the reporting sensor.
+        kind: one of :data:`KIND_COMPONENTS`.
+        z: measured values in the order of ``KIND_COMPONENTS[kind]``; azimuth is
+            compass azimuth in [0, 2π), elevation in [-π/2, π/2], range in metres.
+        std: the sensor's stated noise standard deviation per component.
+        site: ENU position (3,) of the sensor at ``t`` (moves for airborne sensors).
+        seq: the sensor's message counter; ``(t, sensor, seq)`` orders a stream.
+    """
+
+    t: float
+    sensor: str
+    kind: str
+    z: np.ndarray
+    std: np.ndarray
+    site: np.ndarray
+    seq: int = 0
+
+    @property
+    def R(self) -> np.ndarray:
+        return np.diag(np.asarray(self.std, dtype=float) ** 2)
+
+    @property
+    def order_key(self) -> tuple[float, str, int]:
+        return (self.t, self.sensor, self.seq)
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, Measurement):
+            return NotImplemented
+        return (
+            self.t == other.t
+            and self.sensor == other.sensor
+            and self.kind == other.kind
+            and self.seq == other.seq
+            and np.array_equal(self.z, other.z)
+            and np.array_equal(self.std, other.std)
+            and np.array_equal(self.site, other.site)
+        )
+
+    __hash__ = None  # type: ignore[assignment]
+
+
+@dataclass(frozen=True, eq=False)
+class Estimate:
+    """A state estimate with its covariance, as produced by a tracker or fuser.
+
+    Attributes:
+        t: time of validity.
+        x: state vector; 3D targets ``[px py pz vx vy vz (ax ay az)]``, emitters ``[px py]``.
+        P: full covariance of ``x``.
+        method: the method that produced it (``SS``, ``HNV``, ``EKF``, ...).
+        node: the producing node (a sensor's local tracker id, or ``centre``).
+        track: track id.
+        nis: normalised innovation squared of the update that produced it, if any.
+        nis_dof: degrees of freedom of that NIS.
+    """
+
+    t: float
+    x: np.ndarray
+    P: np.ndarray
+    method: str
+    node: str = "centre"
+    track: str = "T1"
+    nis: float | None = None
+    nis_dof: int | None = None
+    extra: dict = field(default_factory=dict)
