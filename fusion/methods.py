@@ -1,0 +1,31 @@
+"""One registry of every estimation method, by its name (``SS``, ``HNV``, ``EKF``, ...).
+
+The 3D methods of the patent live in :mod:`fusion.patent`, the bearings-only methods of
+the theses in :mod:`fusion.df.methods`; both register factories ``make(config)``
+returning an object with ``process`` / ``advance`` / ``finish`` (see those modules).
+"""
+
+from __future__ import annotations
+
+from typing import Any, Callable
+
+
+def _registry() -> dict[str, Callable[[dict], Any]]:
+    from .df.methods import DF_METHODS
+    from .patent import PATENT_METHODS
+
+    clash = set(PATENT_METHODS) & set(DF_METHODS)
+    if clash:  # one name per concept
+        raise RuntimeError(f"method names registered twice: {sorted(clash)}")
+    return {**PATENT_METHODS, **DF_METHODS}
+
+
+def method_names() -> list[str]:
+    return list(_registry())
+
+
+def make_method(name: str, config: dict | None = None) -> Any:
+    reg = _registry()
+    if name not in reg:
+        raise ValueError(f"unknown method {name!r}; known: {', '.join(reg)}")
+    return reg[name](dict(config or {}))

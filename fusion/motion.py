@@ -1,0 +1,171 @@
+r"""Kinematic motion models for 3D targets.
+
+State layout (DESIGN.md): ``[px py pz vx vy vz ax ay az]`` for constant acceleration
+(CA), its first six for constant velocity (CV). The layout is *derivative-major*: index
+``3·d + axis`` holds the d-th derivative on ``axis`` (0 = east, 1 = north, 2 = up).
+Each axis follows the same independent 1D model, so with a per-axis block ``F₁``,
+``Q₁`` (size ``m × m``, m = 2 for CV, 3 for CA)::
+
+    F(dt) = F₁(dt) ⊗ I₃,        Q(dt) = Q₁(dt) ⊗ I₃
+
+Per-axis transition (Taylor series of the m-th order integrator)::
+
+    CV: F₁ = [[1, dt], [0, 1]]
+    CA: F₁ = [[1, dt, dt²/2], [0, 1, dt], [0, 0, 1]]
+
+Process noise, two standard families (Bar-Shalom, Li & Kirubarajan 2001, §6.2–6.3):
+
+``noise="continuous"`` — continuous-time white noise on the highest derivative with
+power spectral density ``q`` (white-noise acceleration for CV, q in m²/s³; white-noise
+jerk for CA, q in m²/s⁵), integrated exactly over dt::
+
+    CV: Q₁ = q [[dt³/3, dt²/2], [dt²/2, dt]]
+    CA: Q₁ = q [[dt⁵/20, dt⁴/8, dt³/6], [dt⁴/8, dt³/3, dt²/2], [dt³/6, dt²/2, dt]]
+
+``noise="discrete"`` — discrete white noise (DWNA for CV) / discrete Wiener-process
+acceleration (DWPA for CA): a piecewise-constant random increment per step with
+variance ``q`` enters through Γ::
+
+    CV: Γ = [dt²/2, dt]ᵀ,  CA: Γ = [dt²/2, dt, 1]ᵀ,   Q₁ = q Γ Γᵀ
+
+Here ``q`` is a per-step variance (m²/s⁴), not a spectral density, and Q₁ has rank
+one, so Q is singular (PSD) — that is the model, not a defect.
+
+:meth:`sample` draws the next true state from the very same ``F`` and ``Q``, so a
+simulated truth and the filter's model are matched by construction.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+NOISE_FORMS = ("continuous", "discrete")
+
+
+class KinematicModel:
+    """Shared core of :class:`ConstantVelocity` and :class:`ConstantAcceleration`.
+
+    Subclasses set ``order`` (number of per-axis derivatives kept, m) and ``name``.
+    """
+
+    order: int
+    name: str
+
+    def __init__(self, q: float, noise: str = "continuous"):
+        q = float(q)
+        if not np.isfinite(q) or q < 0.0:
+            raise ValueError(f"process noise q must be finite and >= 0, got {q!r}")
+        if noise not in NOISE_FORMS:
+            raise ValueError(f"process noise form must be one of {NOISE_FORMS}, got {noise!r}")
+        self.q = q
+        self.noise = noise
+        self.n_x = 3 * self.order
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}(q={self.q!r}, noise={self.noise!r})"
+
+    @staticmethod
+    def _check_dt(dt: float) -> float:
+        dt = float(dt)
+        if not np.isfinite(dt) or dt < 0.0:
+            raise ValueError(f"time step dt must be finite and >= 0, got {dt!r}")
+        return dt
+
+    # Per-axis blocks -------------------------------------------------------------
+    def F_axis(self, dt: float) -> np.ndarray:
+        """Per-axis transition ``F₁(dt)`` (m × m): ``F₁[i, j] = dt^(j−i)/(j−i)!``."""
+        dt = self._check_dt(dt)
+        m = self.order
+        F1 = np.eye(m)
+        term = 1.0
+        for k in range(1, m):
+            term = term * dt / k  # dt^k / k!
+            F1 += term * np.eye(m, k=k)
+        return F1
+
+    def noise_gain_axis(self, dt: float) -> np.ndarray | None:
+        """Γ for the discrete form (m × 1); ``None`` for the continuous form."""
+        if self.noise != "discrete":
+            return None
+        dt = self._check_dt(dt)
+        if self.order == 2:
+            return np.array([[0.5 * dt * dt], [dt]])
+        return np.array([[0.5 * dt * dt], [dt], [1.0]])
+
+    def Q_axis(self, dt: float) -> np.ndarray:
+        """Per-axis process-noise covariance ``Q₁(dt)`` (m × m)."""
+        dt = self._check_dt(dt)
+        G = self.noise_gain_axis(dt)
+        if G is not None:
+            return self.q * (G @ G.T)
+        # Continuous white noise on derivative m−1: Q₁[i, j] = q dt^(p_i+p_j+1) /
+        # ((p_i+p_j+1) p_i! p_j!) with p = m−1−i the power of dt in F₁'s last column.
+        m = self.order
+        p = (m - 1) - np.arange(m)
+        fact = np.array([1.0, 1.0, 2.0])[p]
+        s = p[:, None] + p[None, :] + 1
+        return self.q * dt ** s / (s * fact[:, None] * fact[None, :])
+
+    # Full 3D model ---------------------------------------------------------------
+    def F(self, dt: float) -> np.ndarray:
+        """State transition ``F(dt) = F₁(dt) ⊗ I₃`` (n_x × n_x)."""
+        return np.kron(self.F_axis(dt), np.eye(3))
+
+    def Q(self, dt: float) -> np.ndarray:
+        """Process-noise covariance ``Q(dt) = Q₁(dt) ⊗ I₃`` (n_x × n_x)."""
+        return np.kron(self.Q_axis(dt), np.eye(3))
+
+    def check_state(self, x: np.ndarray) -> np.ndarray:
+        x = np.asarray(x, dtype=float)
+        if x.shape[-1] != self.n_x:
+            raise ValueError(f"{self.name} state must have {self.n_x} components, got shape {x.shape}")
+        return x
+
+    def sample(self, x: np.ndarray, dt: float, rng: np.random.Generator) -> np.ndarray:
+        """Draw the next true state ``F x + w``, ``w ~ N(0, Q(dt))``.
+
+        ``x`` may be one state (n_x,) or a batch (..., n_x) — e.g. all Monte Carlo runs
+        at once; each row gets independent noise from ``rng``.
+        """
+        x = self.check_state(x)
+        F1 = self.F_axis(dt)
+        G = self.noise_gain_axis(dt)
+        if G is None:
+            # Cholesky of the per-axis block, padded for dt = 0 (Q = 0).
+            Q1 = self.Q_axis(dt)
+            L1 = np.linalg.cholesky(Q1) if dt > 0.0 and self.q > 0.0 else np.zeros_like(Q1)
+        else:
+            L1 = np.sqrt(self.q) * G
+        batch = x.shape[:-1]
+        m = self.order
+        # Rows of x reshaped to (..., m derivatives, 3 axes): F acts on the derivative index.
+        X = x.reshape(*batch, m, 3)
+        noise = rng.standard_normal((*batch, L1.shape[1], 3))
+        Xn = np.einsum("ij,...jk->...ik", F1, X) + np.einsum("ij,...jk->...ik", L1, noise)
+        return Xn.reshape(*batch, self.n_x)
+
+
+class ConstantVelocity(KinematicModel):
+    """3D constant velocity, state ``[px py pz vx vy vz]``; see the module docstring."""
+
+    order = 2
+    name = "cv"
+
+
+class ConstantAcceleration(KinematicModel):
+    """3D constant acceleration, state ``[px py pz vx vy vz ax ay az]``; see the module docstring."""
+
+    order = 3
+    name = "ca"
+
+
+MOTION_MODELS = {"cv": ConstantVelocity, "ca": ConstantAcceleration}
+
+
+def make_motion(name: str, q: float, noise: str = "continuous") -> KinematicModel:
+    """Build a motion model by name (``"ca"`` or ``"cv"``)."""
+    try:
+        cls = MOTION_MODELS[name]
+    except KeyError:
+        raise ValueError(f"motion model must be one of {sorted(MOTION_MODELS)}, got {name!r}") from None
+    return cls(q, noise)

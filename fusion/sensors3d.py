@@ -1,0 +1,273 @@
+r"""Measurement models of the 3D sensors, and the EKF step that uses them.
+
+Every 3D sensor measures some of three spherical quantities of the target position
+``p = x[:3]`` relative to a site ``s`` (ENU, metres), with ``d = p − s``,
+``ρ = √(d_e² + d_n²)`` (horizontal range) and ``r = |d|`` (slant range)::
+
+    az    = atan2(d_e, d_n)  mod 2π     compass azimuth, clockwise from north
+    el    = atan2(d_u, ρ)               elevation above the horizontal
+    range = r                           slant range
+
+and their gradients with respect to ``p`` (the state's other components do not enter)::
+
+    ∂az/∂p    = [ d_n, −d_e, 0 ] / ρ²
+    ∂el/∂p    = [ −d_e d_u / ρ, −d_n d_u / ρ, ρ ] / r²
+    ∂range/∂p = d / r
+
+A :class:`SphericalModel` is a list of rows, each one of these components seen from
+its own site, with independent noise ``R = diag(std²)``. The sensors are fixed
+selections — :class:`Radar2D` (kind ``range_az``: ``[az, range]``), :class:`AngleSensor`
+(kind ``azel``: ``[az, el]``), :class:`Radar3D` (kind ``az_el_range``) — and the
+patent's composite measurements (SS stacking, LCDD selection) are just other row lists
+(:meth:`SphericalModel.stack`, :meth:`SphericalModel.select`), so no method carries its
+own copy of the geometry.
+
+Singularities: azimuth and elevation are undefined (and their Jacobians unbounded)
+when the target is straight above/below a site (``ρ < MIN_HORIZONTAL_RANGE``); range's
+gradient is undefined at zero range (``r < MIN_RANGE``). Both raise ``ValueError``.
+"""
+
+from __future__ import annotations
+
+from typing import Sequence
+
+import numpy as np
+
+from . import kalman
+from .angles import TWO_PI
+from .types import KIND_COMPONENTS, Measurement
+
+MIN_HORIZONTAL_RANGE = 1e-3  # m: below this, azimuth/elevation of a target are undefined
+MIN_RANGE = 1e-3  # m: below this, range's gradient is undefined
+
+_CODES = {"az": 0, "el": 1, "range": 2}
+
+
+class SphericalModel:
+    """Rows of spherical components (``az``/``el``/``range``), each seen from a site.
+
+    Args:
+        components: component name per row.
+        sites: one ENU site (3,) for all rows, or one per row (n_z, 3).
+        std: noise standard deviation per row (rad for angles, m for range).
+        n_x: length of the state the Jacobian is written for (6 for CV, 9 for CA).
+    """
+
+    kind: str | None = None  # the Measurement kind this model is, if it is one
+
+    def __init__(self, components: Sequence[str], sites, std, n_x: int = 9):
+        components = tuple(components)
+        bad = [c for c in components if c not in _CODES]
+        if not components or bad:
+            raise ValueError(f"spherical components must be among {sorted(_CODES)}, got {components!r}")
+        n_z = len(components)
+        sites = np.asarray(sites, dtype=float)
+        if sites.shape == (3,):
+            sites = np.tile(sites, (n_z, 1))
+        if sites.shape != (n_z, 3) or not np.all(np.isfinite(sites)):
+            raise ValueError(f"sites must be a finite ENU 3-vector or one per row ({n_z}, 3), got shape {sites.shape}")
+        std = np.asarray(std, dtype=float).reshape(-1)
+        if std.shape != (n_z,) or not np.all(np.isfinite(std)) or np.any(std <= 0.0):
+            raise ValueError(f"std must be {n_z} finite positive values for {components}, got {std!r}")
+        n_x = int(n_x)
+        if n_x < 3:
+            raise ValueError(f"state length n_x must be >= 3 (position first), got {n_x}")
+        self.components = components
+        self.codes = np.array([_CODES[c] for c in components])
+        self.sites = sites
+        self.std = std
+        self.R = np.diag(std**2)
+        self.angles = self.codes != _CODES["range"]
+        self.n_z = n_z
+        self.n_x = n_x
+        self._needs_rho = self.angles
+        self._needs_r = ~self.angles
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}(components={self.components}, std={self.std.tolist()})"
+
+    @property
+    def site(self) -> np.ndarray:
+        """The site of a single-site model (ValueError if rows have different sites)."""
+        if not np.all(self.sites == self.sites[0]):
+            raise ValueError("this model's rows have different sites; use .sites")
+        return self.sites[0]
+
+    # Geometry ---------------------------------------------------------------------
+    def _geometry(self, x: np.ndarray):
+        x = np.asarray(x, dtype=float)
+        if x.shape[-1] != self.n_x:
+            raise ValueError(f"state must have {self.n_x} components, got shape {x.shape}")
+        d = x[..., None, :3] - self.sites  # (..., n_z, 3)
+        rho = np.hypot(d[..., 0], d[..., 1])
+        r = np.hypot(rho, d[..., 2])
+        if np.any((rho < MIN_HORIZONTAL_RANGE) & self._needs_rho):
+            raise ValueError(
+                f"target straight above/below a sensor site (horizontal range < {MIN_HORIZONTAL_RANGE} m): "
+                "azimuth/elevation undefined"
+            )
+        if np.any((r < MIN_RANGE) & self._needs_r):
+            raise ValueError(f"target at a sensor site (zero range < {MIN_RANGE} m): range gradient undefined")
+        return d, rho, r
+
+    def h(self, x: np.ndarray) -> np.ndarray:
+        """Predicted measurement for a state (n_x,) → (n_z,), or a batch (..., n_x) → (..., n_z)."""
+        d, rho, r = self._geometry(x)
+        az = np.mod(np.arctan2(d[..., 0], d[..., 1]), TWO_PI)
+        az = np.where(az >= TWO_PI, 0.0, az)
+        el = np.arctan2(d[..., 2], rho)
+        return np.choose(self.codes, (az, el, r))
+
+    def jacobian(self, x: np.ndarray) -> np.ndarray:
+        """Analytic ``∂h/∂x`` (n_z × n_x) at one state; only the position columns are non-zero."""
+        x = np.asarray(x, dtype=float)
+        if x.ndim != 1:
+            raise ValueError(f"jacobian takes one state vector, got shape {x.shape}")
+        d, rho, r = self._geometry(x)
+        de, dn, du = d[:, 0], d[:, 1], d[:, 2]
+        H = np.zeros((self.n_z, self.n_x))
+        for i, code in enumerate(self.codes):
+            if code == 0:
+                rho2 = rho[i] * rho[i]
+                H[i, :3] = (dn[i] / rho2, -de[i] / rho2, 0.0)
+            elif code == 1:
+                r2 = r[i] * r[i]
+                H[i, :3] = (-de[i] * du[i] / (rho[i] * r2), -dn[i] * du[i] / (rho[i] * r2), rho[i] / r2)
+            else:
+                H[i, :3] = d[i] / r[i]
+        return H
+
+    def innovation(self, z: np.ndarray, x: np.ndarray) -> np.ndarray:
+        """``z − h(x)`` with angular rows wrapped to (−π, π]."""
+        z = np.asarray(z, dtype=float)
+        if z.shape != (self.n_z,):
+            raise ValueError(f"measurement must have shape ({self.n_z},) for {self.components}, got {z.shape}")
+        return kalman.innovation(z, self.h(x), self.angles)
+
+    # Building composite models ----------------------------------------------------
+    @staticmethod
+    def stack(models: Sequence["SphericalModel"]) -> "SphericalModel":
+        """All rows of several models in one (the SS stacked measurement); R block-diagonal."""
+        if not models:
+            raise ValueError("cannot stack zero measurement models")
+        n_x = {m.n_x for m in models}
+        if len(n_x) != 1:
+            raise ValueError(f"cannot stack models written for different state lengths {sorted(n_x)}")
+        if len(models) == 1:
+            return models[0]
+        return SphericalModel(
+            [c for m in models for c in m.components],
+            np.vstack([m.sites for m in models]),
+            np.concatenate([m.std for m in models]),
+            n_x.pop(),
+        )
+
+    def select(self, rows: Sequence[int]) -> "SphericalModel":
+        """A model of some of this model's rows (in the given order)."""
+        rows = list(rows)
+        return SphericalModel([self.components[i] for i in rows], self.sites[rows], self.std[rows], self.n_x)
+
+    @classmethod
+    def from_measurement(cls, m: Measurement, n_x: int = 9) -> "SphericalModel":
+        """The model of an incoming :class:`Measurement` (site from ``m.site``, R from ``m.std``).
+
+        Called on :class:`SphericalModel` it dispatches on ``m.kind``; called on a
+        sensor class it also checks that the kind matches.
+        """
+        try:
+            model_cls = MODEL_BY_KIND[m.kind]
+        except KeyError:
+            raise ValueError(
+                f"measurement kind {m.kind!r} from sensor {m.sensor!r} is not a 3D sensor kind "
+                f"(expected one of {sorted(MODEL_BY_KIND)})"
+            ) from None
+        if cls is not SphericalModel and model_cls is not cls:
+            raise ValueError(f"{cls.__name__} models kind {cls.kind!r}, got a {m.kind!r} measurement")
+        z = np.asarray(m.z, dtype=float)
+        if z.shape != (len(KIND_COMPONENTS[m.kind]),) or not np.all(np.isfinite(z)):
+            raise ValueError(f"measurement z from sensor {m.sensor!r} must be {KIND_COMPONENTS[m.kind]}, got {m.z!r}")
+        return model_cls(m.site, m.std, n_x)
+
+
+class _SensorModel(SphericalModel):
+    """A physical sensor: one site, the components of its measurement kind."""
+
+    def __init__(self, site, std, n_x: int = 9):
+        super().__init__(KIND_COMPONENTS[self.kind], site, std, n_x)
+
+
+class Radar2D(_SensorModel):
+    """2D radar, kind ``range_az``: ``z = [az, slant range]``, ``std = [σ_az, σ_range]``."""
+
+    kind = "range_az"
+
+
+class AngleSensor(_SensorModel):
+    """Angle sensor (e.g. electro-optical), kind ``azel``: ``z = [az, el]``, ``std = [σ_az, σ_el]``."""
+
+    kind = "azel"
+
+
+class Radar3D(_SensorModel):
+    """3D radar, kind ``az_el_range``: ``z = [az, el, range]``, ``std = [σ_az, σ_el, σ_range]``."""
+
+    kind = "az_el_range"
+
+
+MODEL_BY_KIND: dict[str, type[_SensorModel]] = {c.kind: c for c in (Radar2D, AngleSensor, Radar3D)}
+
+
+def from_measurement(m: Measurement, n_x: int = 9) -> SphericalModel:
+    """Shorthand for :meth:`SphericalModel.from_measurement`."""
+    return SphericalModel.from_measurement(m, n_x)
+
+
+# The EKF step ----------------------------------------------------------------------
+def ekf_predict(motion, x: np.ndarray, P: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """Time update over ``dt`` with a motion model (``F(dt)``, ``Q(dt)``) via :func:`kalman.predict`."""
+    if dt == 0.0:
+        return x, P
+    return kalman.predict(x, P, motion.F(dt), motion.Q(dt))
+
+
+def ekf_update(model: SphericalModel, x: np.ndarray, P: np.ndarray, z: np.ndarray) -> kalman.UpdateResult:
+    """Measurement update linearised at ``x``: ``H = ∂h/∂x(x)``, wrapped ``ν = z − h(x)``,
+    Joseph form and NIS via :func:`kalman.update`."""
+    return kalman.update(x, P, model.innovation(z, x), model.jacobian(x), model.R)
+
+
+class TrackEKF:
+    r"""Extended Kalman filter of one 3D track.
+
+    Holds ``(x, P, t)``. :meth:`predict` moves it to a later time with the motion
+    model (``x ← F x``, ``P ← F P Fᵀ + Q``); :meth:`update` linearises a
+    :class:`SphericalModel` at the predicted state and applies the shared Kalman step
+    (angle-wrapped innovation, Joseph form, NIS; see :mod:`fusion.kalman`).
+    """
+
+    def __init__(self, motion, x: np.ndarray, P: np.ndarray, t: float):
+        self.motion = motion
+        self.set_state(x, P, t)
+
+    def set_state(self, x: np.ndarray, P: np.ndarray, t: float) -> None:
+        x = self.motion.check_state(x)
+        P = np.asarray(P, dtype=float)
+        if P.shape != (x.size, x.size):
+            raise ValueError(f"covariance must be {x.size}×{x.size}, got shape {P.shape}")
+        self.x, self.P, self.t = x, P, float(t)
+
+    def predicted(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """The prediction to time ``t`` (>= the filter's time), without changing the filter."""
+        if t < self.t:
+            raise ValueError(f"cannot predict backwards from t={self.t} to t={t}")
+        return ekf_predict(self.motion, self.x, self.P, t - self.t)
+
+    def predict(self, t: float) -> None:
+        self.x, self.P = self.predicted(t)
+        self.t = float(t)
+
+    def update(self, model: SphericalModel, z: np.ndarray) -> kalman.UpdateResult:
+        """Update at the filter's current time; returns the Kalman step's result (ν, S, NIS, K)."""
+        res = ekf_update(model, self.x, self.P, z)
+        self.x, self.P = res.x, res.P
+        return res

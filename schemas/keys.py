@@ -1,0 +1,74 @@
+"""The Zenoh key space, in one place (DESIGN.md, "Key space").
+
+Every key lives under ``zf/<deployment>/``. Ids (sensors, nodes, processes, targets)
+become single key chunks, so they are restricted to ``[A-Za-z0-9_.+-]``: no ``/`` and
+none of Zenoh's wildcard or verbatim characters.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+
+ROOT = "zf"
+DEFAULT_DEPLOYMENT = "default"
+_ID = re.compile(r"^[A-Za-z0-9_.+-]{1,64}$")
+
+
+def check_id(value: str, what: str = "id") -> str:
+    if not isinstance(value, str) or not _ID.match(value):
+        raise ValueError(f"{what} {value!r}: must be 1-64 characters of [A-Za-z0-9_.+-]")
+    return value
+
+
+@dataclass(frozen=True)
+class KeySpace:
+    deployment: str = DEFAULT_DEPLOYMENT
+
+    def __post_init__(self) -> None:
+        check_id(self.deployment, "deployment")
+
+    @property
+    def prefix(self) -> str:
+        return f"{ROOT}/{self.deployment}"
+
+    def _key(self, family: str, ident: str | None = None) -> str:
+        if ident is None:
+            return f"{self.prefix}/{family}"
+        return f"{self.prefix}/{family}/{check_id(ident)}"
+
+    def meas(self, sensor: str) -> str:
+        return self._key("meas", sensor)
+
+    def jam(self, jammer: str) -> str:
+        return self._key("jam", jammer)
+
+    def local(self, node: str) -> str:
+        return self._key("local", node)
+
+    def feedback(self, node: str) -> str:
+        return self._key("feedback", node)
+
+    def fused(self) -> str:
+        return self._key("fused")
+
+    def truth(self, target: str) -> str:
+        return self._key("truth", target)
+
+    def status(self, process: str) -> str:
+        return self._key("status", process)
+
+    def alive(self, process: str) -> str:
+        """Liveliness token of a process: present while its session is open."""
+        return self._key("alive", process)
+
+    def all(self, family: str | None = None) -> str:
+        """Wildcard over one family (``meas``, ``status``, ...) or the whole deployment."""
+        return f"{self.prefix}/{family}/**" if family else f"{self.prefix}/**"
+
+    def family_and_id(self, key: str) -> tuple[str, str | None]:
+        """Split a concrete key of this deployment into (family, id)."""
+        parts = key.split("/")
+        if len(parts) < 3 or parts[0] != ROOT or parts[1] != self.deployment:
+            raise ValueError(f"key {key!r} is not under {self.prefix}/")
+        return parts[2], (parts[3] if len(parts) > 3 else None)

@@ -1,0 +1,352 @@
+"""Wire messages: msgpack maps with an envelope and a validated payload.
+
+Every message is a msgpack map::
+
+    {"v": 1, "kind": "<kind>", "src": "<process id>", "seq": <int>, "t": <float>, ...payload}
+
+``t`` is the time of validity in seconds of scenario time. Arrays travel as (nested)
+lists of floats — msgpack packs Python floats as float64, so values round-trip bit for
+bit, and a list is as readable to other tools as it is to us. Shapes are validated.
+
+:func:`decode` is strict: it checks the schema version, the kind, every field's type,
+finiteness, range (angles, std > 0, ...) and shape, and raises :class:`SchemaError`
+naming the field and a short *cause* (used to count and rate-limit rejections).
+:func:`encode` validates too, so a process can never publish what others would reject.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, Callable
+
+import msgpack
+import numpy as np
+
+from fusion.types import KIND_COMPONENTS, Estimate, Measurement
+
+from .keys import check_id
+
+SCHEMA_VERSION = 1
+MAX_BYTES = 1 << 20  # 1 MiB: far above any real message, stops memory abuse
+MAX_DIM = 64  # largest state / array dimension accepted
+TWO_PI = 2.0 * math.pi
+
+MEASUREMENT_KINDS = tuple(KIND_COMPONENTS)
+KINDS = MEASUREMENT_KINDS + ("watermark", "track", "prediction", "jam_state", "truth", "status")
+
+
+class SchemaError(ValueError):
+    """A message failed validation. ``cause`` is short and stable (for counters)."""
+
+    def __init__(self, cause: str, field: str | None, detail: str):
+        self.cause = cause
+        self.field = field
+        where = f"field '{field}': " if field else ""
+        super().__init__(f"{cause}: {where}{detail}")
+
+
+@dataclass(frozen=True)
+class Message:
+    """A decoded, validated message: envelope plus payload ``body`` (kind-specific)."""
+
+    kind: str
+    src: str
+    seq: int
+    t: float
+    body: dict[str, Any]
+    v: int = SCHEMA_VERSION
+
+
+# ---------------------------------------------------------------- field checkers
+
+
+def _num(d: dict, f: str, *, lo: float = -math.inf, hi: float = math.inf, lo_open: bool = False,
+         hi_open: bool = False, optional: bool = False) -> float | None:
+    if f not in d or d[f] is None:
+        if optional:
+            return None
+        raise SchemaError("missing", f, "required")
+    x = d[f]
+    if isinstance(x, bool) or not isinstance(x, (int, float)):
+        raise SchemaError("type", f, f"expected a number, got {type(x).__name__}")
+    x = float(x)
+    if not math.isfinite(x):
+        raise SchemaError("non-finite", f, f"{x!r} is not finite")
+    if x < lo or x > hi or (lo_open and x == lo) or (hi_open and x == hi):
+        lb = "(" if lo_open else "["
+        rb = ")" if hi_open else "]"
+        raise SchemaError("range", f, f"{x!r} outside {lb}{lo:g}, {hi:g}{rb}")
+    return x
+
+
+def _int(d: dict, f: str, *, lo: int = 0, hi: int = 2**63 - 1) -> int:
+    if f not in d:
+        raise SchemaError("missing", f, "required")
+    x = d[f]
+    if isinstance(x, bool) or not isinstance(x, int):
+        raise SchemaError("type", f, f"expected an integer, got {type(x).__name__}")
+    if not lo <= x <= hi:
+        raise SchemaError("range", f, f"{x} outside [{lo}, {hi}]")
+    return x
+
+
+def _str(d: dict, f: str, *, ident: bool = False, choices: tuple[str, ...] | None = None,
+         optional: bool = False) -> str | None:
+    if f not in d or d[f] is None:
+        if optional:
+            return None
+        raise SchemaError("missing", f, "required")
+    x = d[f]
+    if not isinstance(x, str):
+        raise SchemaError("type", f, f"expected a string, got {type(x).__name__}")
+    if ident:
+        try:
+            check_id(x, f)
+        except ValueError as e:
+            raise SchemaError("value", f, str(e)) from None
+    if choices is not None and x not in choices:
+        raise SchemaError("value", f, f"{x!r} not one of {', '.join(choices)}")
+    return x
+
+
+def _bool(d: dict, f: str, *, default: bool | None = None) -> bool:
+    if f not in d:
+        if default is not None:
+            return default
+        raise SchemaError("missing", f, "required")
+    if not isinstance(d[f], bool):
+        raise SchemaError("type", f, f"expected a boolean, got {type(d[f]).__name__}")
+    return d[f]
+
+
+def _array(d: dict, f: str, shape: tuple[int | None, ...], *, optional: bool = False) -> np.ndarray | None:
+    """A finite float array of the given shape (``None`` = any size up to MAX_DIM)."""
+    if f not in d or d[f] is None:
+        if optional:
+            return None
+        raise SchemaError("missing", f, "required")
+    raw = d[f]
+    if not isinstance(raw, (list, tuple)):
+        raise SchemaError("type", f, f"expected a list, got {type(raw).__name__}")
+    try:
+        a = np.array(raw, dtype=float)
+    except (TypeError, ValueError):
+        raise SchemaError("type", f, "expected a (nested) list of numbers") from None
+    if raw and any(isinstance(v, bool) for v in (raw if a.ndim == 1 else ())):
+        raise SchemaError("type", f, "booleans are not numbers")
+    if a.ndim != len(shape) or any(s is not None and s != n for s, n in zip(shape, a.shape)) \
+            or any(n > MAX_DIM for n in a.shape) or a.size == 0:
+        want = "×".join("n" if s is None else str(s) for s in shape)
+        raise SchemaError("shape", f, f"expected shape {want}, got {'×'.join(map(str, a.shape)) or 'scalar'}")
+    if not np.all(np.isfinite(a)):
+        raise SchemaError("non-finite", f, "contains NaN or inf")
+    return a
+
+
+def _no_extra(d: dict, allowed: set[str]) -> None:
+    extra = set(d) - allowed
+    if extra:
+        raise SchemaError("unknown-field", sorted(map(str, extra))[0], "not part of this message kind")
+
+
+# ---------------------------------------------------------------- payload schemas
+
+ENVELOPE = {"v", "kind", "src", "seq", "t"}
+_STD = {"az": "std_az", "el": "std_el", "range": "std_range"}
+_LIMITS = {"az": (0.0, TWO_PI, False, True), "el": (-math.pi / 2, math.pi / 2, False, False),
+           "range": (0.0, math.inf, True, False)}
+
+
+def _check_measurement(kind: str, d: dict) -> dict:
+    comps = KIND_COMPONENTS[kind]
+    body: dict[str, Any] = {"sensor": _str(d, "sensor", ident=True), "site": _array(d, "site", (3,))}
+    for c in comps:
+        lo, hi, lo_open, hi_open = _LIMITS[c]
+        body[c] = _num(d, c, lo=lo, hi=hi, lo_open=lo_open, hi_open=hi_open)
+        body[_STD[c]] = _num(d, _STD[c], lo=0.0, lo_open=True)
+    _no_extra(d, ENVELOPE | {"sensor", "site"} | set(comps) | {_STD[c] for c in comps})
+    return body
+
+
+def _check_watermark(d: dict) -> dict:
+    _no_extra(d, ENVELOPE | {"final"})
+    return {"final": _bool(d, "final", default=False)}
+
+
+def _check_track(d: dict) -> dict:
+    x = _array(d, "x", (None,))
+    P = _array(d, "P", (x.size, x.size))
+    if not np.allclose(P, P.T, rtol=1e-9, atol=1e-9 * max(1.0, float(np.max(np.abs(P))))):
+        raise SchemaError("value", "P", "covariance is not symmetric")
+    if np.any(np.diag(P) < 0):
+        raise SchemaError("value", "P", "covariance has a negative variance")
+    body = {
+        "track": _str(d, "track", ident=True),
+        "node": _str(d, "node", ident=True),
+        "method": _str(d, "method"),
+        "x": x,
+        "P": P,
+        "nis": _num(d, "nis", lo=0.0, optional=True),
+        "nis_dof": None,
+        "extra": {},
+    }
+    if d.get("nis_dof") is not None:
+        body["nis_dof"] = _int(d, "nis_dof", lo=1, hi=MAX_DIM)
+    extra = d.get("extra", {})
+    if not isinstance(extra, dict):
+        raise SchemaError("type", "extra", "expected a map")
+    for k in extra:
+        if not isinstance(k, str):
+            raise SchemaError("type", "extra", "keys must be strings")
+        body["extra"][k] = _array(extra, k, (None, None)) if isinstance(extra[k], list) and extra[k] \
+            and isinstance(extra[k][0], list) else _array(extra, k, (None,))
+    _no_extra(d, ENVELOPE | {"track", "node", "method", "x", "P", "nis", "nis_dof", "extra"})
+    return body
+
+
+def _check_truth(d: dict) -> dict:
+    body = {"target": _str(d, "target", ident=True), "x": _array(d, "x", (None,))}
+    _no_extra(d, ENVELOPE | {"target", "x"})
+    return body
+
+
+def _check_jam_state(d: dict) -> dict:
+    aff = d.get("affects", [])
+    if not isinstance(aff, list) or not all(isinstance(a, str) for a in aff):
+        raise SchemaError("type", "affects", "expected a list of sensor ids")
+    body = {
+        "pos": _array(d, "pos", (3,)),
+        "on": _bool(d, "on"),
+        "mode": _str(d, "mode", choices=("barrage", "spot")),
+        "power": _num(d, "power", lo=0.0),
+        "law": _str(d, "law", choices=("uniform", "laplacian")),
+        "affects": list(aff),
+    }
+    _no_extra(d, ENVELOPE | set(body))
+    return body
+
+
+def _check_status(d: dict) -> dict:
+    counters = d.get("counters", {})
+    if not isinstance(counters, dict) or not all(
+            isinstance(k, str) and isinstance(v, (int, float)) and not isinstance(v, bool)
+            for k, v in counters.items()):
+        raise SchemaError("type", "counters", "expected a map of string -> number")
+    events = d.get("events", [])
+    if not isinstance(events, list) or not all(isinstance(e, str) for e in events):
+        raise SchemaError("type", "events", "expected a list of strings")
+    sources = d.get("sources", {})
+    if not isinstance(sources, dict) or not all(
+            isinstance(k, str) and isinstance(v, dict) for k, v in sources.items()):
+        raise SchemaError("type", "sources", "expected a map of source id -> map")
+    for k, v in sources.items():
+        iv = v.get("dead_intervals", [])
+        if not isinstance(iv, list) or not all(
+                isinstance(p, list) and len(p) == 2 and all(
+                    x is None or (isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x))
+                    for x in p) for p in iv):
+            raise SchemaError("type", "sources", f"{k}.dead_intervals must be a list of [start, end|null]")
+        if not isinstance(v.get("rejected", 0), int) or set(v) - {"dead_intervals", "rejected"}:
+            raise SchemaError("type", "sources", f"{k}: expected dead_intervals and rejected only")
+    body = {
+        "state": _str(d, "state", choices=("starting", "ready", "running", "done", "stopped")),
+        "role": _str(d, "role"),
+        "counters": dict(counters),
+        "events": list(events),
+        "sources": sources,
+    }
+    _no_extra(d, ENVELOPE | set(body))
+    return body
+
+
+_CHECKERS: dict[str, Callable[[dict], dict]] = {
+    **{k: (lambda d, k=k: _check_measurement(k, d)) for k in MEASUREMENT_KINDS},
+    "watermark": _check_watermark,
+    "track": _check_track,
+    "prediction": _check_track,
+    "truth": _check_truth,
+    "jam_state": _check_jam_state,
+    "status": _check_status,
+}
+
+
+def validate(d: Any) -> Message:
+    """Validate a decoded msgpack object; return the :class:`Message` or raise."""
+    if not isinstance(d, dict):
+        raise SchemaError("not-a-map", None, f"top level is {type(d).__name__}, expected a map")
+    if "v" not in d:
+        raise SchemaError("missing", "v", "schema version required")
+    if d["v"] != SCHEMA_VERSION or isinstance(d["v"], bool):
+        raise SchemaError("version", "v", f"schema version {d['v']!r}, this build speaks {SCHEMA_VERSION}")
+    kind = _str(d, "kind")
+    if kind not in _CHECKERS:
+        raise SchemaError("kind", "kind", f"unknown message kind {kind!r}")
+    src = _str(d, "src", ident=True)
+    seq = _int(d, "seq")
+    t = _num(d, "t")
+    return Message(kind=kind, src=src, seq=seq, t=t, body=_CHECKERS[kind](d))
+
+
+def decode(data: bytes) -> Message:
+    """Bytes off the wire -> validated :class:`Message` (or :class:`SchemaError`)."""
+    if len(data) > MAX_BYTES:
+        raise SchemaError("too-large", None, f"{len(data)} bytes > {MAX_BYTES}")
+    try:
+        obj = msgpack.unpackb(data, raw=False, strict_map_key=False)
+    except Exception as e:  # msgpack raises several unrelated types
+        raise SchemaError("malformed", None, f"not valid msgpack ({type(e).__name__})") from None
+    return validate(obj)
+
+
+def _plain(v: Any) -> Any:
+    if isinstance(v, np.ndarray):
+        return v.tolist()
+    if isinstance(v, np.generic):
+        return v.item()
+    return v
+
+
+def encode(kind: str, src: str, seq: int, t: float, **payload: Any) -> bytes:
+    """Build, validate and pack a message."""
+    d = {"v": SCHEMA_VERSION, "kind": kind, "src": src, "seq": int(seq), "t": float(t)}
+    for k, v in payload.items():
+        if k == "extra" and isinstance(v, dict):
+            d[k] = {kk: _plain(vv) for kk, vv in v.items()}
+        else:
+            d[k] = _plain(v)
+    validate(d)
+    return msgpack.packb(d, use_bin_type=True)
+
+
+# ---------------------------------------------------------------- typed conversions
+
+
+def encode_measurement(m: Measurement, src: str) -> bytes:
+    comps = KIND_COMPONENTS[m.kind]
+    payload: dict[str, Any] = {"sensor": m.sensor, "site": m.site}
+    for i, c in enumerate(comps):
+        payload[c] = float(m.z[i])
+        payload[_STD[c]] = float(m.std[i])
+    return encode(m.kind, src, m.seq, m.t, **payload)
+
+
+def to_measurement(msg: Message) -> Measurement:
+    comps = KIND_COMPONENTS[msg.kind]
+    b = msg.body
+    return Measurement(
+        t=msg.t, sensor=b["sensor"], kind=msg.kind,
+        z=np.array([b[c] for c in comps]), std=np.array([b[_STD[c]] for c in comps]),
+        site=b["site"], seq=msg.seq,
+    )
+
+
+def encode_estimate(e: Estimate, src: str, seq: int, kind: str = "track") -> bytes:
+    return encode(kind, src, seq, e.t, track=e.track, node=e.node, method=e.method, x=e.x, P=e.P,
+                  nis=e.nis, nis_dof=e.nis_dof, extra=dict(e.extra))
+
+
+def to_estimate(msg: Message) -> Estimate:
+    b = msg.body
+    return Estimate(t=msg.t, x=b["x"], P=b["P"], method=b["method"], node=b["node"], track=b["track"],
+                    nis=b["nis"], nis_dof=b["nis_dof"], extra=dict(b["extra"]))

@@ -1,0 +1,223 @@
+"""The loaded scenario: immutable records in SI units (metres, seconds, radians).
+
+:func:`sensors_sim.loader.load_scenario` builds these from a TOML file; everything else
+in ``sensors_sim`` (truth, sensors, jammers) is a pure function of them. Positions are
+local ENU metres around ``Scenario.origin``; azimuths are compass (clockwise from
+north) in [0, 2π).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from fusion.types import KIND_COMPONENTS
+
+if TYPE_CHECKING:
+    from .trajectories import Segment
+
+# Sensor kind -> the Measurement kind it reports (fusion.types.KIND_COMPONENTS).
+SENSOR_KINDS: dict[str, str] = {
+    "df": "bearing",
+    "airborne_df": "bearing",
+    "radar2d": "range_az",
+    "angle": "azel",
+    "radar3d": "az_el_range",
+}
+# Active sensors see their own echo (two-way path loss); the others are passive.
+ACTIVE_KINDS = frozenset({"radar2d", "radar3d"})
+# Sensors that may report bearings on a jammer (it is an emitter).
+DF_KINDS = frozenset({"df", "airborne_df"})
+TOPOLOGIES = ("centralised", "distributed", "feedback", "two-stage")
+JAM_MODES = ("barrage", "spot")
+TRUTH_PROCESS = "truth"
+
+
+class ScenarioError(ValueError):
+    """A scenario file that cannot be used; the message reads ``file:line: field: why``."""
+
+
+@dataclass(frozen=True, eq=False)
+class Site:
+    """Where a sensor or jammer is: a fixed point, or a timed path flown straight
+    (piecewise linear) between its points and held at its ends.
+
+    Attributes:
+        points: (n, 3) ENU positions; n = 1 for a fixed site.
+        times: (n,) strictly increasing times of the points, or None for a fixed site.
+    """
+
+    points: np.ndarray
+    times: np.ndarray | None = None
+
+    @property
+    def fixed(self) -> bool:
+        return self.times is None
+
+    def position(self, t: float) -> np.ndarray:
+        if self.times is None:
+            return self.points[0].copy()
+        return np.array([np.interp(t, self.times, self.points[:, i]) for i in range(3)])
+
+
+@dataclass(frozen=True, eq=False)
+class TargetSpec:
+    """A target: initial state ``x0 = [p, v, a]`` (9,), motion segments, and the PSD
+    ``jerk_psd`` (m²/s⁵) of the white-noise jerk added on top (0: deterministic)."""
+
+    id: str
+    x0: np.ndarray
+    segments: tuple[Segment, ...]
+    jerk_psd: float = 0.0
+
+
+@dataclass(frozen=True, eq=False)
+class SensorSpec:
+    """One sensor process.
+
+    Attributes:
+        kind: one of :data:`SENSOR_KINDS`.
+        site: its position (fixed, or a flight path for an airborne DF).
+        period, start: scans at ``start + k·period`` up to the scenario's duration.
+        std: stated noise standard deviations, in the order of
+            ``KIND_COMPONENTS[measurement_kind]`` (rad, m).
+        p_detect: probability of detecting a target in coverage, per scan.
+        fov_az: (first azimuth, width) of the azimuth sector, clockwise (rad).
+        fov_el: (lowest, highest) elevation seen (rad).
+        max_range: instrumented range (m), ``inf`` for none.
+        band: frequency band, which a spot jammer must find; None: no band given.
+        signal_power: power received from a target 1 km away, in the jammer's units
+            (only ratios matter; see :mod:`sensors_sim.jammer`).
+        targets: ids of what it observes: targets, and for DF kinds also jammers.
+    """
+
+    id: str
+    kind: str
+    site: Site
+    period: float
+    start: float
+    std: np.ndarray
+    p_detect: float = 1.0
+    fov_az: tuple[float, float] = (0.0, 2.0 * np.pi)
+    fov_el: tuple[float, float] = (-np.pi / 2.0, np.pi / 2.0)
+    max_range: float = np.inf
+    band: str | None = None
+    signal_power: float = 1.0
+    targets: tuple[str, ...] = ()
+
+    @property
+    def measurement_kind(self) -> str:
+        return SENSOR_KINDS[self.kind]
+
+    @property
+    def components(self) -> tuple[str, ...]:
+        return KIND_COMPONENTS[self.measurement_kind]
+
+    @property
+    def active(self) -> bool:
+        return self.kind in ACTIVE_KINDS
+
+
+@dataclass(frozen=True, eq=False)
+class JammerSpec:
+    """One jammer process (see :mod:`sensors_sim.jammer` for its effect).
+
+    Attributes:
+        mode: ``barrage`` (every sensor in reach) or ``spot`` (sensors on ``band``,
+            once found: ``search_delay`` after each switch-on).
+        band: the victim band of a spot jammer; None for barrage.
+        power: its power received 1 km away (same units as ``SensorSpec.signal_power``).
+        reach: distance beyond which it affects nothing (m).
+        schedule: on-intervals ``(t_on, t_off)``, sorted and disjoint; on in [t_on, t_off).
+        outlier_law, outlier_std: law and std of angular outliers (rad).
+        outlier_std_range: std of range outliers (m), or None: ranges get no outliers.
+        p_outlier: a fixed outlier probability (the IMM thesis's p), or None to derive
+            it from the jamming-to-signal ratio.
+        period: period of its published jamming state (s).
+    """
+
+    id: str
+    site: Site
+    mode: str
+    band: str | None
+    power: float
+    reach: float
+    schedule: tuple[tuple[float, float], ...]
+    search_delay: float
+    outlier_law: str
+    outlier_std: float
+    outlier_std_range: float | None
+    p_outlier: float | None
+    period: float
+
+
+@dataclass(frozen=True)
+class Defaults:
+    """What ``zfusion run`` uses when the command line does not say."""
+
+    topology: str
+    method: str
+
+
+@dataclass(frozen=True, eq=False)
+class Scenario:
+    """A loaded scenario. ``eq=False``: compared and hashed by identity (the truth cache
+    keys on it); two loads of one file are two scenarios.
+
+    Attributes:
+        name: built-in name or file stem.
+        description: one line, for ``zfusion scenarios``.
+        seed: scenario seed (``--seed`` replaces it: ``dataclasses.replace``).
+        duration: last scenario time (s); scans run up to and including it.
+        origin: (lat °, lon °, alt m), WGS-84, of the local ENU frame.
+        targets, sensors, jammers: id -> spec, in file order.
+        tracker: the ``[tracker]`` table, untouched (the estimation methods validate it).
+        defaults: default topology and method.
+        truth_dt: step of the truth's process-noise grid (s), or None if no target has
+            process noise.
+        source: the file it came from (for messages).
+    """
+
+    name: str
+    description: str
+    seed: int
+    duration: float
+    origin: tuple[float, float, float]
+    targets: dict[str, TargetSpec]
+    sensors: dict[str, SensorSpec]
+    jammers: dict[str, JammerSpec]
+    tracker: dict
+    defaults: Defaults
+    truth_dt: float | None = None
+    source: str = ""
+
+    def process_ids(self) -> list[str]:
+        """Ids of every source process: sensors, jammers, then ``truth``."""
+        return [*self.sensors, *self.jammers, TRUTH_PROCESS]
+
+    def kind_of(self, sensor_id: str) -> str:
+        """The sensor kind (``df``, ``airborne_df``, ``radar2d``, ``angle``, ``radar3d``)."""
+        return self.sensor(sensor_id).kind
+
+    def sensor(self, sensor_id: str) -> SensorSpec:
+        try:
+            return self.sensors[sensor_id]
+        except KeyError:
+            raise KeyError(f"scenario {self.name!r} has no sensor {sensor_id!r}; "
+                           f"sensors: {', '.join(self.sensors)}") from None
+
+    def jammer(self, jammer_id: str) -> JammerSpec:
+        try:
+            return self.jammers[jammer_id]
+        except KeyError:
+            raise KeyError(f"scenario {self.name!r} has no jammer {jammer_id!r}; "
+                           f"jammers: {', '.join(self.jammers) or 'none'}") from None
+
+    def target(self, target_id: str) -> TargetSpec:
+        try:
+            return self.targets[target_id]
+        except KeyError:
+            raise KeyError(f"scenario {self.name!r} has no target {target_id!r}; "
+                           f"targets: {', '.join(self.targets)}") from None

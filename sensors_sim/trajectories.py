@@ -1,0 +1,251 @@
+r"""Ground truth: targets moving along motion segments, plus optional white-noise jerk.
+
+A target starts from ``x0 = [p, v, a]`` (ENU, 9 states) and flies its segments one
+after another, each starting from the state the previous one ended in:
+
+* ``Static``: ``p(τ) = p₀``, ``v = a = 0`` (emitters).
+* ``ConstantVelocity``: ``p(τ) = p₀ + v τ``, ``a = 0`` (``vel`` replaces ``v`` at the start).
+* ``ConstantAcceleration``: ``p(τ) = p₀ + v₀ τ + a τ²/2``, ``v(τ) = v₀ + a τ``
+  (``acc`` replaces ``a`` at the start).
+* ``CoordinatedTurn``: constant speed and turn rate ω in the horizontal plane
+  (ω > 0 turns right, i.e. the compass heading grows), constant climb rate; with
+  Ω = −ω the counter-clockwise rate, ``v_h(τ) = Rot(Ωτ) v_h₀``,
+  ``p_h(τ) = p_h₀ + [sin Ωτ, −(1 − cos Ωτ); 1 − cos Ωτ, sin Ωτ] v_h₀ / Ω``,
+  ``a_h = Ω·[−v_y, v_x]``.
+* ``Waypoints``: straight legs at constant speed through the given points (``a = 0``).
+
+The last segment runs on past its duration (to the end of the scenario and beyond).
+
+Process noise. If the target's ``jerk_psd`` q > 0, the truth is
+``x(t) = x_nom(t) + e(t)`` with ``e`` the white-noise-jerk process of
+:mod:`sensors_sim.noise` started at ``e(0) = 0`` and drawn on the grid
+``t_k = k·truth_dt``. On a constant-acceleration segment this *is* the CA model with
+white jerk; ``q·Q₁(dt)`` is its exact discretisation, so any sensor sampling on the
+grid sees exactly that law at its own period. Between grid nodes the deviation is
+carried forward without new noise (``e(t) = F(t − t_k) e_k``); the loader requires
+every sensor's scans to fall on the grid, so nothing is measured there.
+
+The noise comes from ``process_rng(seed, "truth", run)``; targets draw from it in file
+order (a target without noise draws nothing). The truth is thus a deterministic
+function of (scenario, run): every process computes the same truth on its own.
+"""
+
+from __future__ import annotations
+
+import math
+from bisect import bisect_right
+from dataclasses import dataclass
+from functools import lru_cache
+from typing import Callable, Iterator, NamedTuple
+
+import numpy as np
+
+from .noise import jerk_deviation, jerk_transition, process_rng
+from .spec import TRUTH_PROCESS, Scenario, TargetSpec
+
+# Relative tolerance for "this time is on that grid node" (float round-off of k·dt).
+_TIME_TOL = 1e-9
+
+
+def sample_times(start: float, period: float, end: float) -> np.ndarray:
+    """``start + k·period`` for k = 0, 1, ... up to and including ``end`` (round-off
+    tolerant). Computed by multiplication, so there is no drift over long runs."""
+    if period <= 0:
+        raise ValueError(f"period must be > 0, got {period}")
+    if start > end * (1 + _TIME_TOL) + _TIME_TOL:
+        return np.empty(0)
+    n = math.floor((end - start) / period + _TIME_TOL) + 1
+    return start + period * np.arange(n)
+
+
+# --- motion segments --------------------------------------------------------------------
+
+
+class Piece(NamedTuple):
+    """A segment planned from its start state: duration (None: open-ended) and the
+    state at local time τ ≥ 0."""
+
+    duration: float | None
+    state: Callable[[float], np.ndarray]
+
+
+def _state(p, v, a) -> np.ndarray:
+    return np.concatenate([p, v, a]).astype(float)
+
+
+_ZERO3 = np.zeros(3)
+
+
+@dataclass(frozen=True)
+class Static:
+    duration: float | None = None
+
+    def plan(self, x: np.ndarray) -> Piece:
+        x0 = _state(x[:3], _ZERO3, _ZERO3)
+        return Piece(self.duration, lambda tau: x0.copy())
+
+
+@dataclass(frozen=True)
+class ConstantVelocity:
+    duration: float | None = None
+    vel: np.ndarray | None = None
+
+    def plan(self, x: np.ndarray) -> Piece:
+        p0 = x[:3].copy()
+        v = x[3:6].copy() if self.vel is None else np.asarray(self.vel, dtype=float)
+        return Piece(self.duration, lambda tau: _state(p0 + v * tau, v, _ZERO3))
+
+
+@dataclass(frozen=True)
+class ConstantAcceleration:
+    duration: float | None = None
+    acc: np.ndarray | None = None
+
+    def plan(self, x: np.ndarray) -> Piece:
+        p0, v0 = x[:3].copy(), x[3:6].copy()
+        a = x[6:9].copy() if self.acc is None else np.asarray(self.acc, dtype=float)
+        return Piece(self.duration, lambda tau: _state(p0 + v0 * tau + 0.5 * a * tau * tau, v0 + a * tau, a))
+
+
+@dataclass(frozen=True)
+class CoordinatedTurn:
+    rate: float  # rad/s, > 0 turns right (clockwise seen from above)
+    duration: float | None = None
+
+    def plan(self, x: np.ndarray) -> Piece:
+        p0, v0 = x[:3].copy(), x[3:6].copy()
+        om = -self.rate  # counter-clockwise rate in the ENU (math) plane
+
+        def state(tau: float) -> np.ndarray:
+            c, s = math.cos(om * tau), math.sin(om * tau)
+            vx, vy = v0[0], v0[1]
+            v = np.array([c * vx - s * vy, s * vx + c * vy, v0[2]])
+            dp = np.array([(s * vx - (1.0 - c) * vy) / om, ((1.0 - c) * vx + s * vy) / om, v0[2] * tau])
+            a = np.array([-om * v[1], om * v[0], 0.0])
+            return _state(p0 + dp, v, a)
+
+        return Piece(self.duration, state)
+
+
+@dataclass(frozen=True, eq=False)
+class Waypoints:
+    points: np.ndarray  # (n, 3) ENU
+    speed: float  # m/s
+
+    def plan(self, x: np.ndarray) -> Piece:
+        p = np.vstack([x[:3], self.points])
+        legs = np.diff(p, axis=0)
+        lengths = np.linalg.norm(legs, axis=1)
+        keep = lengths > 0.0  # a repeated point is a leg of zero length: skip it
+        starts, legs, lengths = p[:-1][keep], legs[keep], lengths[keep]
+        if len(lengths) == 0:  # already at the only point: hold still
+            return Static().plan(x)
+        vels = legs / lengths[:, None] * self.speed
+        t_leg = np.concatenate([[0.0], np.cumsum(lengths / self.speed)])
+
+        def state(tau: float) -> np.ndarray:
+            i = min(bisect_right(t_leg, tau) - 1, len(vels) - 1)  # past the end: fly on
+            return _state(starts[i] + vels[i] * (tau - t_leg[i]), vels[i], _ZERO3)
+
+        return Piece(float(t_leg[-1]), state)
+
+
+Segment = Static | ConstantVelocity | ConstantAcceleration | CoordinatedTurn | Waypoints
+
+
+# --- trajectories -----------------------------------------------------------------------
+
+
+class Trajectory:
+    """The true state of one target at any scenario time ``t ≥ 0``.
+
+    Args:
+        target: the target's spec.
+        deviation: (N+1, 9) process-noise deviation on the grid ``k·dt``, or None.
+        dt: the grid step (needed with ``deviation``).
+    """
+
+    def __init__(self, target: TargetSpec, deviation: np.ndarray | None = None, dt: float | None = None):
+        if deviation is not None and not (dt and dt > 0):
+            raise ValueError("a process-noise deviation needs its grid step dt > 0")
+        self.target = target.id
+        self._deviation = deviation
+        self._dt = dt
+        self._starts: list[float] = []
+        self._pieces: list[Piece] = []
+        x, t = np.asarray(target.x0, dtype=float), 0.0
+        for seg in target.segments:
+            piece = seg.plan(x)
+            self._starts.append(t)
+            self._pieces.append(piece)
+            if piece.duration is None:  # open-ended: nothing after it can start
+                break
+            x, t = piece.state(piece.duration), t + piece.duration
+
+    def nominal(self, t: float) -> np.ndarray:
+        """The deterministic (segment) part of the state."""
+        i = bisect_right(self._starts, t) - 1
+        return self._pieces[i].state(t - self._starts[i])
+
+    def deviation(self, t: float) -> np.ndarray:
+        """The process-noise part of the state (zeros without process noise)."""
+        if self._deviation is None:
+            return np.zeros(9)
+        dt = self._dt
+        k = min(math.floor(t / dt + _TIME_TOL), len(self._deviation) - 1)
+        tau = t - k * dt
+        e = self._deviation[k]
+        if abs(tau) <= _TIME_TOL * dt:
+            return e.copy()
+        # no new noise between nodes: carry the node's deviation forward
+        return (jerk_transition(tau) @ e.reshape(3, 3)).reshape(9)
+
+    def state(self, t: float) -> np.ndarray:
+        """``[px py pz vx vy vz ax ay az]`` at scenario time ``t``."""
+        if not t >= 0.0:
+            raise ValueError(f"truth of {self.target!r} asked at t = {t}; scenario time starts at 0")
+        return self.nominal(t) + self.deviation(t)
+
+    def position(self, t: float) -> np.ndarray:
+        return self.state(t)[:3]
+
+    def states(self, times) -> np.ndarray:
+        return np.array([self.state(float(t)) for t in np.atleast_1d(times)])
+
+
+@lru_cache(maxsize=16)
+def truth_trajectories(scenario: Scenario, run: int = 0) -> dict[str, Trajectory]:
+    """Every target's trajectory for one run (cached: the scenario is immutable)."""
+    rng = process_rng(scenario.seed, TRUTH_PROCESS, run)
+    out = {}
+    for tid, spec in scenario.targets.items():  # file order: fixes who draws what
+        deviation = None
+        if spec.jerk_psd > 0.0:
+            dt = scenario.truth_dt
+            steps = math.ceil(scenario.duration / dt - _TIME_TOL)
+            deviation = jerk_deviation(rng, spec.jerk_psd, dt, steps)
+        out[tid] = Trajectory(spec, deviation, scenario.truth_dt)
+    return out
+
+
+def truth_trajectory(scenario: Scenario, target_id: str, run: int = 0) -> Trajectory:
+    """The trajectory of ``target_id`` in Monte Carlo run ``run`` (0: distributed run)."""
+    scenario.target(target_id)  # a clear KeyError for an unknown id
+    return truth_trajectories(scenario, run)[target_id]
+
+
+class TruthSample(NamedTuple):
+    t: float
+    target: str
+    x: np.ndarray
+
+
+def truth_events(scenario: Scenario, run: int = 0, period: float | None = None) -> Iterator[TruthSample]:
+    """Every target's true state at ``0, period, 2·period, ...`` up to the duration
+    (default period: the fastest sensor's), in time order, targets in file order."""
+    if period is None:
+        period = min(s.period for s in scenario.sensors.values())
+    trajectories = truth_trajectories(scenario, run)
+    for t in sample_times(0.0, period, scenario.duration):
+        for tid, traj in trajectories.items():
+            yield TruthSample(float(t), tid, traj.state(float(t)))

@@ -1,0 +1,185 @@
+"""The ``zfusion`` command line (contract: DESIGN.md, "Command line")."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import shutil
+import sys
+from pathlib import Path
+
+from schemas import KeySpace
+from schemas.keys import DEFAULT_DEPLOYMENT
+
+from .node import ZenohOptions, setup_logging
+
+
+def _ids(text: str) -> list[str]:
+    return [s for s in text.split(",") if s]
+
+
+def _speed(text: str) -> str:
+    if text != "max":
+        try:
+            if not float(text) > 0 or not math.isfinite(float(text)):
+                raise ValueError
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"--speed takes a positive number or 'max', not {text!r}") from None
+    return text
+
+
+def _fabric(p: argparse.ArgumentParser) -> None:
+    g = p.add_argument_group("Zenoh fabric (default: peer-to-peer on loopback, no router)")
+    g.add_argument("--connect", action="append", metavar="ENDPOINT",
+                   help="dial this Zenoh endpoint (router or peer), e.g. tcp/127.0.0.1:7447; repeatable")
+    g.add_argument("--zenoh-config", metavar="FILE", help="a Zenoh JSON5 config file (TLS, access control, ...)")
+    g.add_argument("--deployment", default=DEFAULT_DEPLOYMENT, help="key prefix zf/<deployment>/ (default: %(default)s)")
+    p.add_argument("-v", "--verbose", action="store_true", help="log at debug level")
+
+
+def _zopts(args) -> ZenohOptions:
+    return ZenohOptions(connect=args.connect or [], config_file=args.zenoh_config)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(prog="zfusion", description="Real-time multi-sensor fusion over Zenoh.")
+    sub = ap.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    p = sub.add_parser("run", help="run a scenario end to end as separate processes over Zenoh")
+    p.add_argument("--scenario", required=True, help="built-in scenario name or path to a .toml file")
+    p.add_argument("--topology", choices=("centralised", "distributed", "feedback", "two-stage"))
+    p.add_argument("--method", help="estimation method (default: the scenario's)")
+    p.add_argument("--fusion-rule", choices=("naive", "bar-shalom-campo", "ci", "info"))
+    p.add_argument("--speed", type=_speed, default="1", help="scenario seconds per wall second, or 'max' (default 1)")
+    p.add_argument("--seed", type=int, help="replace the scenario's seed")
+    p.add_argument("--rrd", help="recording path (default runs/<scenario>-<topology>-<time>.rrd)")
+    p.add_argument("--json", help="write the summary JSON here")
+    _fabric(p)
+
+    p = sub.add_parser("eval", help="Monte Carlo evaluation in-process, with the services' own estimators")
+    p.add_argument("--scenario", required=True)
+    p.add_argument("--runs", type=int, required=True)
+    p.add_argument("--methods", nargs="+", help="methods to evaluate (default: the scenario's default method)")
+    p.add_argument("--fusion-rule", choices=("naive", "bar-shalom-campo", "ci", "info"))
+    p.add_argument("--seed", type=int)
+    p.add_argument("--json")
+    p.add_argument("--report", metavar="DIR", help="(not available yet)")
+    p.add_argument("-v", "--verbose", action="store_true")
+
+    sub.add_parser("scenarios", help="list the built-in scenarios")
+
+    p = sub.add_parser("view", help="open a recording in the Rerun viewer")
+    p.add_argument("path")
+
+    p = sub.add_parser("router", help="run a Zenoh router (tests and small sites; production: zenohd)")
+    p.add_argument("--listen", action="append", default=None, metavar="ENDPOINT",
+                   help="endpoint to listen on (default tcp/127.0.0.1:7447); repeatable")
+    p.add_argument("-v", "--verbose", action="store_true")
+
+    p = sub.add_parser("sensor", help="one source process: a sensor, the truth clock or a jammer")
+    p.add_argument("--scenario", required=True)
+    p.add_argument("--id", required=True, help="sensor, jammer or 'truth'")
+    p.add_argument("--speed", type=_speed, default="1")
+    p.add_argument("--start-at", type=float, help="wall-clock epoch of scenario time 0 (default: when ready)")
+    p.add_argument("--wait-for", type=_ids, default=[], help="comma-separated processes to wait for")
+    p.add_argument("--seed", type=int)
+    p.add_argument("--run", type=int, default=0, help=argparse.SUPPRESS)
+    _fabric(p)
+
+    p = sub.add_parser("fuser", help="the command-centre fuser process")
+    p.add_argument("--scenario", required=True)
+    p.add_argument("--method", help="estimation method (default: the scenario's)")
+    p.add_argument("--fusion-rule", choices=("naive", "bar-shalom-campo", "ci", "info"))
+    p.add_argument("--id", default="fuser")
+    p.add_argument("--source-timeout", type=float, default=5.0, help="seconds of silence before a source is dead")
+    p.add_argument("--start-grace", type=float, default=30.0, help="seconds a never-heard source gets at start")
+    p.add_argument("--seed", type=int)
+    _fabric(p)
+
+    p = sub.add_parser("record", help="the recorder process: everything into a Rerun .rrd file")
+    p.add_argument("--rrd", required=True)
+    p.add_argument("--id", default="recorder")
+    p.add_argument("--expect", type=_ids, default=[],
+                   help="stop once these processes have reported done (default: run until signalled)")
+    _fabric(p)
+    return ap
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    setup_logging(getattr(args, "verbose", False))
+    if args.command == "run":
+        from .launcher import run
+
+        return run(args)
+    if args.command == "eval":
+        return _eval(args)
+    if args.command == "scenarios":
+        from sensors_sim import list_scenarios
+
+        rows = list_scenarios()
+        width = max(len(n) for n, _ in rows)
+        for name, line in rows:
+            print(f"{name:<{width}}  {line}")
+        return 0
+    if args.command == "view":
+        if not Path(args.path).is_file():
+            raise SystemExit(f"zfusion view: no such recording: {args.path}")
+        exe = shutil.which("rerun") or str(Path(sys.executable).with_name("rerun"))
+        os.execv(exe, [exe, args.path])
+    if args.command == "router":
+        from .router import run as router
+
+        return router(args.listen or ["tcp/127.0.0.1:7447"])
+    keys = KeySpace(args.deployment)
+    if args.command == "sensor":
+        from .source import run as source
+
+        speed = math.inf if args.speed == "max" else float(args.speed)
+        return source(args.id, args.scenario, keys, _zopts(args), speed, args.start_at, args.wait_for,
+                      run_index=args.run, seed=args.seed)
+    if args.command == "fuser":
+        from .fuser import run as fuser
+        from .node import load
+
+        method = args.method or load(args.scenario).defaults.get("method")
+        overrides = {"fusion_rule": args.fusion_rule} if args.fusion_rule else {}
+        return fuser(args.id, args.scenario, method, overrides, keys, _zopts(args), args.source_timeout,
+                     args.start_grace, seed=args.seed)
+    if args.command == "record":
+        from .recorder import run as record
+
+        Path(args.rrd).parent.mkdir(parents=True, exist_ok=True)
+        return record(args.id, keys, _zopts(args), args.rrd, args.expect)
+    raise AssertionError(args.command)
+
+
+def _eval(args) -> int:
+    from .evaluation import run_method
+    from .node import load
+    from .summary import format_table, method_summary, summary, truth_function
+
+    if args.report:
+        raise SystemExit("zfusion eval: --report is not available yet")
+    if args.runs < 1:
+        raise SystemExit("zfusion eval: --runs must be >= 1")
+    scenario = load(args.scenario, args.seed)
+    methods = args.methods or [scenario.defaults.get("method")]
+    overrides = {"fusion_rule": args.fusion_rule} if args.fusion_rule else {}
+    truth = truth_function(scenario)
+    results = {}
+    for name in methods:
+        runs = [run_method(scenario, name, overrides, run=r) for r in range(args.runs)]
+        results[name] = method_summary(runs, truth)
+    doc = summary(scenario, "in-process", args.fusion_rule or scenario.tracker.get("fusion_rule"), scenario.seed,
+                  args.runs, results)
+    print(format_table(doc))
+    if args.json:
+        Path(args.json).write_text(json.dumps(doc, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

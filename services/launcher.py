@@ -1,0 +1,205 @@
+"""``zfusion run``: one scenario as separate OS processes over Zenoh.
+
+The launcher opens a Zenoh peer that listens on a free loopback port (the "hub"
+endpoint the children dial; they then find each other by gossip, no router involved),
+starts the fuser and the recorder, waits until they have announced themselves, starts
+every source (sensors, truth, jammers) with a common start time, collects the fused
+estimates, and when the fuser is done stops everything, scores the estimates against
+truth and writes the summary.
+
+Children are started with ``PR_SET_PDEATHSIG`` so that even a launcher killed with
+SIGKILL leaves none behind; on SIGINT/SIGTERM the launcher stops them in order (SIGTERM,
+then SIGKILL after a grace period) and exits.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import datetime as _dt
+import json
+import logging
+import math
+import os
+import queue
+import signal
+import socket
+import subprocess
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from fusion.types import Estimate
+from schemas import KeySpace, SchemaError, decode, to_estimate
+
+from .node import Node, ZenohOptions, load
+from .summary import format_table, method_summary, summary, truth_function
+
+log = logging.getLogger("zfusion")
+
+FUSER_ID = "fuser"
+RECORDER_ID = "recorder"
+LAUNCHER_ID = "launcher"
+TOPOLOGIES = ("centralised", "distributed", "feedback", "two-stage")
+
+
+def free_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _die_with_parent() -> None:  # runs in the child between fork and exec
+    try:
+        ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
+    except OSError:
+        pass
+
+
+@dataclass
+class Children:
+    procs: dict[str, subprocess.Popen] = field(default_factory=dict)
+
+    def start(self, name: str, argv: list[str]) -> None:
+        cmd = [sys.executable, "-m", "services.cli", *argv]
+        log.debug("starting %s: %s", name, " ".join(cmd))
+        self.procs[name] = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, preexec_fn=_die_with_parent)
+
+    def wait(self, name: str, timeout: float) -> int | None:
+        try:
+            return self.procs[name].wait(timeout)
+        except subprocess.TimeoutExpired:
+            return None
+
+    def stop_all(self, grace: float = 5.0) -> None:
+        live = [p for p in self.procs.values() if p.poll() is None]
+        for p in live:
+            p.send_signal(signal.SIGTERM)
+        deadline = time.monotonic() + grace
+        for p in live:
+            try:
+                p.wait(max(0.0, deadline - time.monotonic()))
+            except subprocess.TimeoutExpired:
+                p.kill()
+                p.wait()
+
+
+def default_rrd(scenario: str, topology: str) -> str:
+    stamp = _dt.datetime.now().strftime("%Y%m%d-%H%M%S")
+    return str(Path("runs") / f"{scenario}-{topology}-{stamp}.rrd")
+
+
+def run(args) -> int:
+    scenario = load(args.scenario, args.seed)
+    topology = args.topology or scenario.defaults.get("topology", "centralised")
+    if topology != "centralised":
+        raise SystemExit(f"zfusion run: topology {topology!r} is not available yet in this build "
+                         f"(available: centralised)")
+    method = args.method or scenario.defaults.get("method")
+    if not method:
+        raise SystemExit("zfusion run: no --method given and the scenario names no default method")
+    from fusion.methods import make_method
+
+    overrides = {"fusion_rule": args.fusion_rule} if args.fusion_rule else {}
+    make_method(method, {**scenario.tracker, **overrides})  # fail here, with a clear error, not in a child
+    speed = math.inf if args.speed == "max" else float(args.speed)
+    if not speed > 0:
+        raise SystemExit("zfusion run: --speed must be > 0 or 'max'")
+    rrd = args.rrd or default_rrd(scenario.name, topology)
+    Path(rrd).parent.mkdir(parents=True, exist_ok=True)
+
+    keys = KeySpace(args.deployment)
+    if args.connect or args.zenoh_config:
+        mine = ZenohOptions(connect=args.connect or [], config_file=args.zenoh_config)
+        theirs = mine
+    else:
+        hub = f"tcp/127.0.0.1:{free_port()}"
+        mine = ZenohOptions(listen=[hub])
+        theirs = ZenohOptions(connect=[hub])
+    common = ["--deployment", args.deployment, *theirs.to_args(), "--seed", str(scenario.seed)] + (
+        ["-v"] if args.verbose else [])
+    sources = list(scenario.process_ids())
+    max_period = max([getattr(s, "period", 1.0) for s in scenario.sensors.values()] + [1.0])
+    timeout = 5.0 if math.isinf(speed) else max(3.0, 3.0 * max_period / speed)
+
+    inbox: queue.SimpleQueue[tuple[str, bytes]] = queue.SimpleQueue()
+    estimates: list[Estimate] = []
+    statuses: dict[str, dict] = {}
+    children = Children()
+    interrupted = False
+    with Node(LAUNCHER_ID, "launcher", keys, mine) as node:
+        node.subscribe(keys.fused(), lambda s: inbox.put((str(s.key_expr), s.payload.to_bytes())))
+        node.subscribe(keys.all("status"), lambda s: inbox.put((str(s.key_expr), s.payload.to_bytes())))
+        node.announce()
+
+        def drain(block: float = 0.0) -> None:
+            try:
+                while True:
+                    key, data = inbox.get(timeout=block) if block else inbox.get_nowait()
+                    block = 0.0
+                    try:
+                        msg = decode(data)
+                    except SchemaError as e:
+                        node.reject(key.rsplit("/", 1)[-1], e.cause, str(e))
+                        continue
+                    if msg.kind == "track" and key == keys.fused():
+                        estimates.append(to_estimate(msg))
+                    elif msg.kind == "status":
+                        statuses[msg.src] = msg.body
+            except queue.Empty:
+                pass
+
+        try:
+            children.start(FUSER_ID, ["fuser", "--scenario", args.scenario, "--method", method, "--id", FUSER_ID,
+                                      "--source-timeout", str(timeout), *(
+                                          ["--fusion-rule", args.fusion_rule] if args.fusion_rule else []), *common])
+            children.start(RECORDER_ID, ["record", "--rrd", rrd, "--id", RECORDER_ID,
+                                         "--expect", ",".join([FUSER_ID, *sources]), *common])
+            node.wait_for([FUSER_ID, RECORDER_ID], timeout=60.0)
+            start_at = time.time() + (0.0 if math.isinf(speed) else 0.5)
+            for sid in sources:
+                children.start(sid, ["sensor", "--scenario", args.scenario, "--id", sid, "--speed", str(args.speed),
+                                     "--start-at", repr(start_at),
+                                     "--wait-for", ",".join([FUSER_ID, RECORDER_ID, LAUNCHER_ID]), *common])
+            while not node.stop.is_set():
+                drain(0.1)
+                code = children.procs[FUSER_ID].poll()
+                if code is not None:
+                    break
+            interrupted = node.stop.is_set()
+            if not interrupted:
+                for sid in sources:
+                    children.wait(sid, 10.0)
+                children.wait(RECORDER_ID, 30.0)
+                drain(0.2)
+        except TimeoutError as e:
+            log.error("%s", e)
+            interrupted = True
+        finally:
+            children.stop_all()
+    codes = {n: p.returncode for n, p in children.procs.items()}
+    if interrupted:
+        print("zfusion run: interrupted; all processes stopped", file=sys.stderr)
+        return 130
+    if codes.get(FUSER_ID) != 0:
+        print(f"zfusion run: the fuser failed (exit {codes.get(FUSER_ID)})", file=sys.stderr)
+        return 1
+    fuser_status = statuses.get(FUSER_ID, {})
+    src_report = dict(fuser_status.get("sources", {}))
+    for sid in sources:  # processes the fuser does not consume (truth, jammers) are reported too
+        src_report.setdefault(sid, {"dead_intervals": [], "rejected": 0})
+    truth = truth_function(scenario)
+    doc = summary(scenario, topology, args.fusion_rule or scenario.tracker.get("fusion_rule"), scenario.seed, 1,
+                  {method: method_summary([estimates], truth)}, sources=src_report)
+    doc["recording"] = rrd
+    doc["exit_codes"] = codes
+    print(format_table(doc))
+    print(f"recording: {rrd}")
+    if args.json:
+        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.json).write_text(json.dumps(doc, indent=1))
+    bad = {n: c for n, c in codes.items() if c != 0}
+    if bad:
+        print(f"zfusion run: processes ended with errors: {bad}", file=sys.stderr)
+        return 1
+    return 0

@@ -1,0 +1,245 @@
+"""What every zfusion process has: a Zenoh session, a liveliness token, a status
+publisher, a stop flag wired to SIGINT/SIGTERM, and counted, rate-limited rejections.
+
+Lifetimes are explicit, as in the zenoh-python examples: a :class:`Node` is a context
+manager; leaving it undeclares everything and closes the session (an open session can
+hang the interpreter at exit).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import signal
+import sys
+import threading
+import time
+from collections import Counter
+from dataclasses import dataclass, field
+from typing import Any, Callable, Iterable
+
+import zenoh
+
+from schemas import KeySpace, SchemaError, encode
+
+log = logging.getLogger("zfusion")
+
+LOOPBACK_LISTEN = "tcp/127.0.0.1:0"
+
+
+@dataclass
+class ZenohOptions:
+    """How a process joins the fabric.
+
+    Default: a Zenoh *peer* on loopback with multicast scouting off, so that test runs
+    on one machine never see each other. ``connect`` lists endpoints to dial (the
+    launcher's hub, a router, another peer); ``config_file`` replaces all of it with a
+    Zenoh JSON5 configuration (TLS, access control, client mode, ...).
+    """
+
+    connect: list[str] = field(default_factory=list)
+    listen: list[str] = field(default_factory=lambda: [LOOPBACK_LISTEN])
+    config_file: str | None = None
+    mode: str = "peer"
+
+    def to_config(self) -> zenoh.Config:
+        if self.config_file:
+            return zenoh.Config.from_file(self.config_file)
+        c = zenoh.Config()
+        c.insert_json5("mode", json.dumps(self.mode))
+        c.insert_json5("listen/endpoints", json.dumps(self.listen))
+        c.insert_json5("connect/endpoints", json.dumps(self.connect))
+        c.insert_json5("scouting/multicast/enabled", "false")
+        return c
+
+    def to_args(self) -> list[str]:
+        """Command-line form, for the launcher to hand down to its children."""
+        if self.config_file:
+            return ["--zenoh-config", self.config_file]
+        return [a for e in self.connect for a in ("--connect", e)]
+
+
+class RejectLog:
+    """Counts rejected messages by (source, cause); logs the first of each pair, then
+    at most one summary line per ``interval`` seconds, so garbage cannot flood logs."""
+
+    def __init__(self, process: str, interval: float = 10.0, clock: Callable[[], float] = time.monotonic):
+        self.process = process
+        self.by_cause: Counter[str] = Counter()
+        self.by_pair: Counter[tuple[str, str]] = Counter()
+        self._interval = interval
+        self._clock = clock
+        self._last_summary = clock()
+        self._since_summary = 0
+
+    def __call__(self, src: str, cause: str, detail: str) -> None:
+        self.by_cause[cause] += 1
+        self.by_pair[(src, cause)] += 1
+        if self.by_pair[(src, cause)] == 1:
+            log.warning("%s: dropped message from %s: %s", self.process, src, detail)
+            return
+        self._since_summary += 1
+        now = self._clock()
+        if now - self._last_summary >= self._interval:
+            log.warning("%s: %d more messages dropped in the last %.0f s (totals by cause: %s)", self.process,
+                        self._since_summary, now - self._last_summary, dict(self.by_cause))
+            self._since_summary = 0
+            self._last_summary = now
+
+    @property
+    def total(self) -> int:
+        return sum(self.by_cause.values())
+
+    def rejected_by_source(self) -> dict[str, int]:
+        out: Counter[str] = Counter()
+        for (src, _), n in self.by_pair.items():
+            out[src] += n
+        return dict(out)
+
+
+class Node:
+    """A zfusion process on the fabric."""
+
+    def __init__(self, process_id: str, role: str, keys: KeySpace, zopts: ZenohOptions):
+        self.id = process_id
+        self.role = role
+        self.keys = keys
+        self.zopts = zopts
+        self.stop = threading.Event()
+        self.counters: dict[str, float] = {}
+        self.events: list[str] = []
+        self.reject = RejectLog(process_id)
+        self._status_seq = 0
+        self._declared: list[Any] = []
+        self.session: zenoh.Session | None = None
+
+    # -- lifetime ---------------------------------------------------------------------
+
+    def __enter__(self) -> "Node":
+        self.install_signal_handlers()
+        self.session = zenoh.open(self.zopts.to_config())
+        self._status_pub = self.publisher(self.keys.status(self.id), reliable=False)
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def close(self) -> None:
+        if self.session is None:
+            return
+        for d in reversed(self._declared):
+            try:
+                d.undeclare()
+            except Exception:  # already gone with a broken session: nothing left to free
+                pass
+        self._declared.clear()
+        self.session.close()
+        self.session = None
+
+    def install_signal_handlers(self) -> None:
+        if threading.current_thread() is not threading.main_thread():
+            return
+
+        def on_signal(signum: int, _frame: object) -> None:
+            if self.stop.is_set():  # second signal: the user means it
+                raise KeyboardInterrupt
+            log.info("%s: %s received, stopping", self.id, signal.Signals(signum).name)
+            self.stop.set()
+
+        signal.signal(signal.SIGINT, on_signal)
+        signal.signal(signal.SIGTERM, on_signal)
+
+    # -- declarations -------------------------------------------------------------------
+
+    def publisher(self, key: str, reliable: bool = True) -> zenoh.Publisher:
+        """Fusion-path publishers are reliable and block under congestion (nothing is lost
+        silently); status and recording traffic may be dropped under load."""
+        if reliable:
+            pub = self.session.declare_publisher(key, congestion_control=zenoh.CongestionControl.BLOCK,
+                                                 reliability=zenoh.Reliability.RELIABLE)
+        else:
+            pub = self.session.declare_publisher(key, congestion_control=zenoh.CongestionControl.DROP)
+        self._declared.append(pub)
+        return pub
+
+    def subscribe(self, key: str, callback: Callable[[zenoh.Sample], None]) -> zenoh.Subscriber:
+        sub = self.session.declare_subscriber(key, callback)
+        self._declared.append(sub)
+        return sub
+
+    def announce(self) -> None:
+        """Declare this process alive (after its subscribers, so a peer that sees the
+        token knows they are declared)."""
+        self._declared.append(self.session.liveliness().declare_token(self.keys.alive(self.id)))
+
+    def wait_for(self, process_ids: Iterable[str], timeout: float) -> None:
+        """Block until every named process has announced itself (or raise)."""
+        wanted = set(process_ids)
+        if not wanted:
+            return
+        seen: set[str] = set()
+        cond = threading.Condition()
+
+        def on_token(sample: zenoh.Sample) -> None:
+            if sample.kind == zenoh.SampleKind.PUT:
+                with cond:
+                    seen.add(str(sample.key_expr).rsplit("/", 1)[-1])
+                    cond.notify_all()
+
+        sub = self.session.liveliness().declare_subscriber(self.keys.all("alive"), on_token, history=True)
+        try:
+            deadline = time.monotonic() + timeout
+            with cond:
+                while not wanted <= seen:
+                    left = deadline - time.monotonic()
+                    if left <= 0 or self.stop.is_set():
+                        raise TimeoutError(f"{self.id}: gave up after {timeout:.0f} s waiting for "
+                                           f"{', '.join(sorted(wanted - seen))}")
+                    cond.wait(min(left, 0.1))
+        finally:
+            sub.undeclare()
+
+    # -- status ---------------------------------------------------------------------------
+
+    def count(self, name: str, n: int = 1) -> None:
+        self.counters[name] = self.counters.get(name, 0) + n
+
+    def event(self, text: str) -> None:
+        log.info("%s: %s", self.id, text)
+        self.events.append(text)
+
+    def publish_status(self, state: str, t: float = 0.0, extra: dict[str, float] | None = None,
+                       sources: dict | None = None) -> None:
+        counters = {**self.counters, **{f"rejected.{c}": n for c, n in self.reject.by_cause.items()}}
+        counters["rejected"] = self.reject.total
+        if extra:
+            counters.update(extra)
+        events, self.events = self.events, []
+        self._status_seq += 1
+        self._status_pub.put(encode("status", self.id, self._status_seq, t, state=state, role=self.role,
+                                    counters=counters, events=events, sources=sources or {}))
+
+
+def setup_logging(verbose: bool = False) -> None:
+    logging.basicConfig(level=logging.DEBUG if verbose else logging.INFO, stream=sys.stderr,
+                        format="%(asctime)s %(levelname)s %(message)s", datefmt="%H:%M:%S")
+
+
+def decode_or_count(node: Node, data: bytes, src_hint: str, decode: Callable[[bytes], Any]) -> Any | None:
+    """Decode a sample; on failure count it, log it (rate-limited) and return None."""
+    try:
+        return decode(data)
+    except SchemaError as e:
+        node.reject(src_hint, e.cause, str(e))
+        return None
+
+
+def load(scenario_ref: str, seed: int | None = None):
+    """Load a scenario, with ``--seed`` (if given) replacing the file's seed. Every process
+    of a run gets the same value from the launcher, so they all draw consistently."""
+    import dataclasses
+
+    from sensors_sim import load_scenario
+
+    scenario = load_scenario(scenario_ref)
+    return scenario if seed is None else dataclasses.replace(scenario, seed=int(seed))

@@ -1,0 +1,154 @@
+"""Source processes: a sensor emulator, the scenario's truth clock, a jammer.
+
+Each plays its part of the scenario (``sensors_sim``) in scenario time, paced against
+the wall clock: the item for time ``t`` goes out at ``start_at + t / speed`` (or at once
+with ``--speed max``). A sensor publishes each scan's measurements on ``meas/<id>`` and
+then a watermark for that time, so consumers can order sources; its last watermark is
+marked final. Noise comes from the process's own generator, seeded by
+``(scenario seed, process id)``, so a distributed run draws exactly what the in-process
+evaluation draws.
+
+Sources wait until the consumers named by ``wait_for`` have announced themselves (their
+subscribers are declared), so nothing is published into the void.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from typing import Iterator
+
+from schemas import KeySpace, encode, encode_measurement
+
+from .node import Node, load
+
+
+class Pacer:
+    """Sleeps until scenario time ``t`` is due; ``speed = inf`` never sleeps."""
+
+    def __init__(self, node: Node, start_at: float, speed: float):
+        self.node = node
+        self.start_at = start_at
+        self.speed = speed
+
+    def wait(self, t: float) -> bool:
+        """Returns False if the process was asked to stop meanwhile."""
+        if math.isinf(self.speed):
+            return not self.node.stop.is_set()
+        due = self.start_at + t / self.speed
+        while True:
+            left = due - time.time()
+            if left <= 0 or self.node.stop.is_set():
+                return not self.node.stop.is_set()
+            self.node.stop.wait(min(left, 0.5))
+
+
+def run(process_id: str, scenario_ref: str, keys: KeySpace, zopts, speed: float, start_at: float | None,
+        wait_for: list[str], run_index: int = 0, wait_timeout: float = 60.0,
+        seed: int | None = None) -> int:
+    scenario = load(scenario_ref, seed)
+    if process_id == "truth":
+        role = "truth"
+    elif process_id in scenario.sensors:
+        role = "sensor"
+    elif process_id in scenario.jammers:
+        role = "jammer"
+    else:
+        raise SystemExit(f"zfusion sensor: {process_id!r} is not a source of scenario {scenario.name} "
+                         f"(sources: {', '.join(scenario.process_ids())})")
+    with Node(process_id, role, keys, zopts) as node:
+        node.announce()
+        node.publish_status("starting")
+        try:
+            node.wait_for(wait_for, wait_timeout)
+        except TimeoutError as e:
+            node.event(str(e))
+            node.publish_status("stopped")
+            return 2
+        pacer = Pacer(node, start_at if start_at is not None else time.time(), speed)
+        play = {"sensor": _play_sensor, "truth": _play_truth, "jammer": _play_jammer}[role]
+        t_last = play(node, scenario, pacer, run_index)
+        node.publish_status("done" if not node.stop.is_set() else "stopped", t_last)
+    return 0
+
+
+def _status_every(node: Node, period: float = 1.0) -> Iterator[None]:
+    last = 0.0
+    while True:
+        now = time.monotonic()
+        if now - last >= period:
+            last = now
+            node.publish_status("running")
+        yield
+
+
+def _play_sensor(node: Node, scenario, pacer: Pacer, run_index: int) -> float:
+    from sensors_sim import sensor_events
+
+    meas_pub = node.publisher(node.keys.meas(node.id))
+    wm_seq = 0
+    t_open: float | None = None  # the scan whose watermark is still owed
+    status = _status_every(node)
+
+    def watermark(t: float, final: bool) -> None:
+        nonlocal wm_seq
+        wm_seq += 1
+        # Watermarks have their own counter: ``seq`` of measurements counts measurements.
+        meas_pub.put(encode("watermark", node.id, wm_seq, t, final=final))
+
+    for ev in sensor_events(scenario, node.id, run=run_index):
+        if t_open is not None and ev.t > t_open:
+            watermark(t_open, False)
+        if not pacer.wait(ev.t):
+            return ev.t
+        t_open = ev.t
+        node.count("scans")
+        node.count("jammed", int(ev.jammed))
+        node.count("outliers", int(ev.outlier))
+        node.count("missed", int(ev.measurement is None))
+        if ev.measurement is not None:
+            meas_pub.put(encode_measurement(ev.measurement, node.id))
+            node.count("published")
+        next(status)
+    t_end = max(t_open if t_open is not None else 0.0, scenario.duration)
+    watermark(t_end, True)
+    return t_end
+
+
+def _play_truth(node: Node, scenario, pacer: Pacer, run_index: int) -> float:
+    from sensors_sim import truth_events
+
+    pubs: dict[str, object] = {}
+    seq = 0
+    t = 0.0
+    status = _status_every(node)
+    for s in truth_events(scenario, run=run_index):
+        if not pacer.wait(s.t):
+            return s.t
+        if s.target not in pubs:
+            pubs[s.target] = node.publisher(node.keys.truth(s.target), reliable=False)
+        seq += 1
+        pubs[s.target].put(encode("truth", node.id, seq, s.t, target=s.target, x=s.x))
+        node.count("published")
+        t = s.t
+        next(status)
+    return t
+
+
+def _play_jammer(node: Node, scenario, pacer: Pacer, run_index: int) -> float:
+    from sensors_sim import jam_events
+
+    pub = node.publisher(node.keys.jam(node.id))
+    seq = 0
+    t = 0.0
+    status = _status_every(node)
+    for js in jam_events(scenario, node.id):
+        if not pacer.wait(js.t):
+            return js.t
+        seq += 1
+        pub.put(encode("jam_state", node.id, seq, js.t, pos=js.pos, on=bool(js.on), mode=js.mode,
+                       power=float(js.power), law=js.law, affects=list(js.affects)))
+        node.count("published")
+        t = js.t
+        next(status)
+    return t
