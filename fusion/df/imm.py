@@ -1,0 +1,117 @@
+r"""Interacting Multiple Model estimator (Bar-Shalom), as used against jamming (seed 003).
+
+Two bearing EKFs (EKFT) with the same ``Φ = I`` and ``Q`` but different bearing noise —
+model 1 ``R₁ = σ₁²`` (clean), model 2 ``R₂ = σ₂²`` (outlier) — and a Markov transition
+matrix ``Π[i, j] = P(model j now | model i before)``. One cycle per bearing:
+
+1. predicted mode probabilities  ``c̄ⱼ = Σᵢ Π[i,j] μᵢ``
+2. mixing  ``μᵢ|ⱼ = Π[i,j] μᵢ / c̄ⱼ``,  ``x₀ⱼ = Σᵢ μᵢ|ⱼ xᵢ``,
+   ``P₀ⱼ = Σᵢ μᵢ|ⱼ (Pᵢ + (xᵢ − x₀ⱼ)(xᵢ − x₀ⱼ)ᵀ)``
+3. model-matched filtering from ``(x₀ⱼ, P₀ⱼ)``: innovation ``νⱼ``, ``Sⱼ``, likelihood
+   ``Λⱼ = N(νⱼ; 0, Sⱼ)``
+4. mode update with the *predicted* probabilities: ``μⱼ ∝ Λⱼ c̄ⱼ`` (the thesis's text
+   multiplies by the previous ``μⱼ``; its code, and Bar-Shalom, use ``c̄ⱼ``)
+5. output ``x = Σ μⱼ xⱼ``, ``P = Σ μⱼ (Pⱼ + (xⱼ − x)(xⱼ − x)ᵀ)``.
+
+Step 4 is done in the log domain (``log Λⱼ = −½(νᵀS⁻¹ν + log det 2πS)``, the log of
+:func:`fusion.kalman.gaussian_likelihood`) so that a wild outlier, whose likelihood
+underflows under every model, cannot make the normalisation 0/0.
+
+Transition forms: ``"symmetric"`` ``[[1−p, p], [p, 1−p]]`` (the seeds: modes persist)
+and ``"iid"`` ``[[1−p, p], [1−p, p]]`` (each bearing is an outlier with probability p
+independently of the last; then ``c̄ = [1−p, p]`` always).
+"""
+
+from __future__ import annotations
+
+from typing import Callable, Sequence
+
+import numpy as np
+
+from ..kalman import UpdateResult
+from .filters import BearingEKF
+
+TRANSITIONS = ("symmetric", "iid")
+
+
+def transition_matrix(p: float, form: str = "symmetric") -> np.ndarray:
+    """Two-mode Markov matrix (rows: from, columns: to) for outlier probability ``p``."""
+    if not 0.0 < p < 1.0:
+        raise ValueError(f"IMM transition probability p must be in (0, 1), got {p}")
+    if form == "symmetric":
+        return np.array([[1.0 - p, p], [p, 1.0 - p]])
+    if form == "iid":
+        return np.array([[1.0 - p, p], [1.0 - p, p]])
+    raise ValueError(f"unknown IMM transition form {form!r}; expected one of {TRANSITIONS}")
+
+
+def log_likelihood(res: UpdateResult) -> float:
+    """``log N(ν; 0, S)`` of an update (``res.nis = νᵀS⁻¹ν``)."""
+    _, logdet = np.linalg.slogdet(2.0 * np.pi * np.atleast_2d(res.S))
+    return -0.5 * (res.nis + logdet)
+
+
+def _moments(w: np.ndarray, xs: np.ndarray, Ps: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    x = w @ xs
+    d = xs - x
+    P = np.einsum("j,jab->ab", w, Ps) + np.einsum("j,ja,jb->ab", w, d, d)
+    return x, 0.5 * (P + P.T)
+
+
+class IMM:
+    """Generic IMM over model-matched filter steps.
+
+    Args:
+        x0s, P0s: initial state and covariance of each model.
+        Pi: transition matrix (rows sum to 1).
+        mu0: initial mode probabilities.
+    The filters are supplied per step as callables ``(x, P) -> UpdateResult`` (one
+    predict + update each, see :meth:`step`), so the IMM itself knows no measurement.
+    """
+
+    def __init__(self, x0s: Sequence[np.ndarray], P0s: Sequence[np.ndarray], Pi: np.ndarray, mu0: Sequence[float]):
+        self.xs = np.array(x0s, dtype=float)
+        self.Ps = np.array(P0s, dtype=float)
+        self.Pi = np.asarray(Pi, dtype=float)
+        self.mu = np.asarray(mu0, dtype=float)
+        m = len(self.mu)
+        if self.xs.shape[0] != m or self.Ps.shape[0] != m or self.Pi.shape != (m, m):
+            raise ValueError("IMM: models, covariances, transition matrix and mode probabilities disagree in size")
+        if np.any(self.mu <= 0) or abs(self.mu.sum() - 1.0) > 1e-12:
+            raise ValueError(f"IMM: initial mode probabilities must be > 0 and sum to 1, got {self.mu}")
+        if np.any(self.Pi < 0) or np.any(np.abs(self.Pi.sum(axis=1) - 1.0) > 1e-12):
+            raise ValueError("IMM: transition matrix rows must be probabilities summing to 1")
+        self.x, self.P = _moments(self.mu, self.xs, self.Ps)
+
+    def step(self, model_steps: Sequence[Callable[[np.ndarray, np.ndarray], UpdateResult]]) -> list[UpdateResult]:
+        """One IMM cycle; returns the model-matched update results."""
+        cbar = self.mu @ self.Pi
+        mix = self.Pi * self.mu[:, None] / cbar[None, :]  # mix[i, j] = μ_{i|j}
+        results = []
+        for j, f in enumerate(model_steps):
+            x0, P0 = _moments(mix[:, j], self.xs, self.Ps)
+            results.append(f(x0, P0))
+        logw = np.log(cbar) + np.array([log_likelihood(r) for r in results])
+        w = np.exp(logw - logw.max())
+        self.mu = w / w.sum()
+        self.xs = np.array([r.x for r in results])
+        self.Ps = np.array([r.P for r in results])
+        self.x, self.P = _moments(self.mu, self.xs, self.Ps)
+        return results
+
+
+class BearingIMM(IMM):
+    """IMM of two (or more) EKFT bearing filters differing only in bearing noise.
+
+    ``step(site, beta, sigmas)`` runs one cycle with model ``j`` assuming std
+    ``sigmas[j]``.
+    """
+
+    def __init__(self, x0s, P0s, Q: np.ndarray, Pi: np.ndarray, mu0: Sequence[float]):
+        super().__init__(x0s, P0s, Pi, mu0)
+        self._ekf = BearingEKF(self.xs[0], self.Ps[0], Q, "EKFT")
+
+    def step(self, site: np.ndarray, beta: float, sigmas: Sequence[float]) -> list[UpdateResult]:  # type: ignore[override]
+        return super().step([
+            (lambda x, P, s=s: self._ekf.run(x, P, site, beta, s)) for s in sigmas
+        ])

@@ -1,0 +1,152 @@
+r"""Track initialisation from the first scan — one initialiser for every 3D method.
+
+A scan is the list of measurements a method treats as simultaneous (see
+:mod:`fusion.patent`). From it we take, per spherical component, the best source:
+
+* direction: azimuth from the measurement with the smallest σ_az, taken at that
+  sensor's site ``s``; elevation from the best elevation-measuring sensor at the same
+  site (the angle sensor itself, normally), else from the prior ``(el, el_std)``;
+* range: from the range-measuring sensor with the smallest σ_range, else from the
+  prior ``(range, range_std)``.
+
+With a 2D radar and an angle sensor in the first scan this is the angle sensor's az/el
+and the radar's range — the same initial state for every fused method, so comparisons
+are fair. Position is the spherical → Cartesian conversion ``p = s + t·u(az, el)`` with
+``u = [cos el sin az, cos el cos az, sin el]`` (compass azimuth, ENU) and ``t`` the
+distance along the ray; its covariance is the converted one, ``J diag(σ_az², σ_el², σ_t²) Jᵀ``
+with ``J = ∂p/∂(az, el, range)`` analytic. When the range comes from a sensor at another
+site ``s_r``, ``t`` is where the ray meets the sphere ``|p − s_r| = r``
+(``t = −b + √(b² − c)``, ``b = u·(s − s_r)``, ``c = |s − s_r|² − r²``), and ``J`` includes
+``t``'s dependence on the angles and on r; if the ray misses that sphere the range
+measurement is not used (prior instead).
+
+Velocity and acceleration start at zero with prior standard deviations
+``vel_std``/``acc_std`` per axis, uncorrelated with position.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+
+from .types import KIND_COMPONENTS, Measurement
+
+INIT_KINDS = ("range_az", "azel", "az_el_range")
+_SAME_SITE_TOL = 1e-6  # m
+
+
+@dataclass(frozen=True)
+class InitPriors:
+    """Priors for what the first scan does not give.
+
+    Defaults (generic surveillance values, not fitted to any scenario):
+        range = 10 000 m, range_std = 5 000 m — slant range when no sensor measures it;
+        el = 0.1 rad (≈ 5.7°), el_std = 0.1 rad — elevation when no sensor measures it;
+        vel_std = 200 m/s, acc_std = 5 m/s² — per axis, around zero.
+    """
+
+    range: float = 10_000.0
+    range_std: float = 5_000.0
+    el: float = 0.1
+    el_std: float = 0.1
+    vel_std: float = 200.0
+    acc_std: float = 5.0
+
+    def __post_init__(self):
+        for name in ("range", "range_std", "el_std", "vel_std", "acc_std"):
+            v = getattr(self, name)
+            if not np.isfinite(v) or v <= 0.0:
+                raise ValueError(f"init prior {name} must be finite and > 0, got {v!r}")
+        if not np.isfinite(self.el) or abs(self.el) >= np.pi / 2:
+            raise ValueError(f"init prior el must lie in (-π/2, π/2), got {self.el!r}")
+
+
+def _component(m: Measurement, name: str) -> tuple[float, float] | None:
+    comps = KIND_COMPONENTS[m.kind]
+    if name not in comps:
+        return None
+    i = comps.index(name)
+    return float(m.z[i]), float(m.std[i])
+
+
+def _best(scan: Sequence[Measurement], name: str, site=None) -> tuple[Measurement, float, float] | None:
+    """The measurement giving component ``name`` with the smallest std (first on ties)."""
+    best = None
+    for m in scan:
+        c = _component(m, name)
+        if c is None or (site is not None and np.max(np.abs(np.asarray(m.site, float) - site)) > _SAME_SITE_TOL):
+            continue
+        if best is None or c[1] < best[2]:
+            best = (m, c[0], c[1])
+    return best
+
+
+def spherical_to_position(site, az: float, el: float, rng: float, range_site=None):
+    """``p = s + t·u(az, el)`` and ``J = ∂p/∂(az, el, range)`` (3 × 3); see the module docstring.
+
+    ``range_site`` (default: ``site``) is where ``rng`` is measured from. Returns
+    ``None`` if the ray from ``site`` misses the range sphere around ``range_site``.
+    """
+    s = np.asarray(site, dtype=float)
+    ce, se, ca, sa = np.cos(el), np.sin(el), np.cos(az), np.sin(az)
+    u = np.array([ce * sa, ce * ca, se])
+    u_az = np.array([ce * ca, -ce * sa, 0.0])
+    u_el = np.array([-se * sa, -se * ca, ce])
+    w = s - (s if range_site is None else np.asarray(range_site, dtype=float))
+    if not np.any(w):
+        return s + rng * u, np.column_stack([rng * u_az, rng * u_el, u])
+    b = float(u @ w)
+    disc = b * b - (float(w @ w) - rng * rng)
+    if disc <= 0.0:
+        return None
+    t = -b + np.sqrt(disc)
+    if t <= 0.0:
+        return None
+    # From t² + 2bt + c = 0: (t + b) dt = r dr − t db, db = w·du.
+    tb = t + b
+    J = np.column_stack(
+        [
+            t * u_az - u * t * float(w @ u_az) / tb,
+            t * u_el - u * t * float(w @ u_el) / tb,
+            u * rng / tb,
+        ]
+    )
+    return s + t * u, J
+
+
+def initial_state(scan: Sequence[Measurement], n_x: int, priors: InitPriors = InitPriors()):
+    """Initial ``(x, P)`` (n_x = 6 or 9) from the first scan; see the module docstring."""
+    if n_x not in (6, 9):
+        raise ValueError(f"3D track state length must be 6 (CV) or 9 (CA), got {n_x}")
+    scan = list(scan)
+    for m in scan:
+        if m.kind not in INIT_KINDS:
+            raise ValueError(f"cannot initialise a 3D track from a {m.kind!r} measurement (sensor {m.sensor!r})")
+    az_src = _best(scan, "az")
+    if az_src is None:
+        raise ValueError("cannot initialise a 3D track from an empty scan")
+    m_dir, az, s_az = az_src
+    site = np.asarray(m_dir.site, dtype=float)
+    el_src = _best(scan, "el", site)
+    el, s_el = (el_src[1], el_src[2]) if el_src else (priors.el, priors.el_std)
+
+    conv = None
+    rng_src = _best(scan, "range")
+    if rng_src is not None:
+        conv = spherical_to_position(site, az, el, rng_src[1], rng_src[0].site)
+        s_r = rng_src[2]
+    if conv is None:  # no range sensor, or its sphere misses the ray: prior range from the direction site
+        conv = spherical_to_position(site, az, el, priors.range)
+        s_r = priors.range_std
+    p, J = conv
+
+    x = np.zeros(n_x)
+    x[:3] = p
+    P = np.zeros((n_x, n_x))
+    P[:3, :3] = J @ np.diag([s_az**2, s_el**2, s_r**2]) @ J.T
+    P[3:6, 3:6] = priors.vel_std**2 * np.eye(3)
+    if n_x == 9:
+        P[6:9, 6:9] = priors.acc_std**2 * np.eye(3)
+    return x, 0.5 * (P + P.T)

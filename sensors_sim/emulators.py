@@ -1,0 +1,110 @@
+r"""Sensor emulators: the measurement stream of one sensor, as a pure function of
+(scenario, sensor, run).
+
+A sensor scans at ``start + k·period`` up to the scenario's duration. At each scan, for
+each object it observes (targets; for DF kinds also jammers, which are emitters while
+on), in its configured order, it yields one :class:`SensorEvent`:
+
+1. draw the scan's variates (:class:`sensors_sim.noise.ScanDraws`: always the same
+   pattern, so streams stay aligned whatever is detected or jammed);
+2. coverage: the true offset must lie in the azimuth sector, elevation limits and
+   instrumented range (and a jammer must be on to be seen);
+3. detection: ``u_detect < P_D``;
+4. noise: ``z = h(x) + σ_J·n`` with ``σ_J = σ·√gain`` when jammed
+   (:mod:`sensors_sim.jammer`), else ``σ``; with probability ``p_outlier`` (when
+   jammed) the components are replaced by outliers;
+5. azimuth wrapped to [0, 2π), elevation clipped to [−π/2, π/2].
+
+The published :class:`fusion.types.Measurement` carries the sensor's *stated* std (the
+trackers must not know about the jamming); the contamination shows only in
+``SensorEvent.jammed`` / ``.outlier``. ``seq`` counts published measurements from 0.
+Bearings on a jammer are never contaminated: the jammer's own signal is what is
+being measured.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Iterator
+
+import numpy as np
+
+from fusion.types import Measurement
+
+from .geometry import finish_measurement, in_coverage, observe
+from .jammer import jam_effect, switched_on_at
+from .noise import ScanDraws, outlier_from_uniform, process_rng
+from .spec import Scenario
+from .trajectories import sample_times, truth_trajectories
+
+
+@dataclass(frozen=True, eq=False)
+class SensorEvent:
+    """One scan of one object by one sensor.
+
+    Attributes:
+        t: scan time.
+        measurement: what is published, or None (missed, out of coverage).
+        jammed: a jammer acted on this scan of this object.
+        outlier: the published measurement is a jamming outlier.
+        detected: a measurement was produced (in coverage and the detection draw won).
+        target: the observed object (target or jammer id).
+        in_coverage: the object was in the field of view and range (before P_D).
+    """
+
+    t: float
+    measurement: Measurement | None
+    jammed: bool
+    outlier: bool
+    detected: bool
+    target: str = ""
+    in_coverage: bool = True
+
+
+def scan_times(scenario: Scenario, sensor_id: str) -> np.ndarray:
+    """The sensor's scan times: ``start + k·period`` up to the duration."""
+    s = scenario.sensor(sensor_id)
+    return sample_times(s.start, s.period, scenario.duration)
+
+
+def sensor_events(scenario: Scenario, sensor_id: str, run: int = 0) -> Iterator[SensorEvent]:
+    """The sensor's events in time order (see the module docstring)."""
+    sensor = scenario.sensor(sensor_id)
+    kind = sensor.measurement_kind
+    is_range = np.array([c == "range" for c in sensor.components])
+    n = len(sensor.components)
+    rng = process_rng(scenario.seed, sensor_id, run)
+    truths = truth_trajectories(scenario, run)
+    seq = 0
+    for t in scan_times(scenario, sensor_id):
+        t = float(t)
+        site = sensor.site.position(t)
+        for obj in sensor.targets:
+            draws = ScanDraws(rng, n)
+            if obj in truths:
+                position, emitting = truths[obj].position(t), True
+                effect = jam_effect(scenario, sensor_id, t, position)
+            else:  # a jammer, seen by a DF only while it transmits
+                jammer = scenario.jammers[obj]
+                position, emitting = jammer.site.position(t), switched_on_at(jammer, t) is not None
+                effect = None
+            d = position - site
+            covered = emitting and in_coverage(sensor, d)
+            detected = covered and draws.detect < sensor.p_detect
+            outlier = detected and effect is not None and draws.outlier < effect.p_outlier
+            measurement = None
+            if detected:
+                gain = 1.0 if effect is None else math.sqrt(effect.variance_gain)
+                error = sensor.std * gain * draws.gauss
+                if outlier:
+                    std2 = np.where(is_range, effect.outlier_std_range or 0.0, effect.outlier_std)
+                    replaced = ~is_range | (effect.outlier_std_range is not None)
+                    error = np.where(replaced, outlier_from_uniform(draws.law, std2, effect.outlier_law), error)
+                measurement = Measurement(
+                    t=t, sensor=sensor_id, kind=kind,
+                    z=finish_measurement(kind, observe(kind, d) + error),
+                    std=sensor.std.copy(), site=site, seq=seq,
+                )
+                seq += 1
+            yield SensorEvent(t, measurement, effect is not None, outlier, detected, obj, covered)

@@ -1,0 +1,181 @@
+r"""Noise jammers: their state, and their effect on the sensors.
+
+Both are pure functions of the scenario and the time, so a sensor process computes how
+it is jammed from the scenario alone (not from ``jam/*`` messages): a distributed run
+and an in-process run contaminate identically.
+
+Who is affected (seed 003: barrage vs spot)
+-------------------------------------------
+A jammer is on during its schedule intervals ``[t_on, t_off)``. While on, it affects a
+sensor within its reach (distance ≤ ``reach``) if
+
+* ``barrage``: always (wide band: every sensor in reach);
+* ``spot``: the sensor works on the jammer's victim ``band`` and the jammer has found
+  it, i.e. ``t ≥ t_on + search_delay`` (the search restarts at every switch-on).
+
+Jamming law
+-----------
+The jamming-to-signal ratio at sensor s, observing a target at distance ``d_t``, with
+jammer j at distance ``d_j`` (both floored at 1 m), powers referred to 1 km (d₀)::
+
+    ρ_j = (P_j / P_s) · (d_t / d₀)^k / (d_j / d₀)²
+
+with ``k = 2`` for passive sensors (one-way: DF, angle sensors) and ``k = 4`` for radars
+(the echo travels both ways; the jammer's noise only one way). ``P_j`` is the jammer's
+``power_w`` and ``P_s`` the sensor's ``signal_power_w``; only their ratio matters.
+
+* Noise: the jamming power adds to the receiver noise, so the Gaussian error variance
+  grows as ``σ_J² = σ²·(1 + Σ_j ρ_j)`` (the stated σ is the unjammed noise floor).
+* Outliers: a measurement is replaced by an outlier with probability
+  ``p_j = 1 − exp(−ρ_j)``, which is ≈ ρ_j for weak jamming, 63 % at J/S = 0 dB and
+  → 1 as J/S grows.
+* A jammer may instead fix ``p_outlier`` (the IMM thesis: p, σ₂, Laplacian or
+  uniform); then it does not raise the Gaussian noise, whatever its power: the
+  measurement is the thesis's mixture ``(1 − p)·N(0, σ²) + p·outlier(σ₂)``.
+* Several jammers act independently: ``p = 1 − Π_j (1 − p_j)``; the outlier's law and
+  std are those of the jammer with the largest ``p_j`` (the first on a tie).
+
+An outlier replaces the angular components by truth + outlier noise of std
+``outlier_std`` (law ``laplacian`` or ``uniform``, :mod:`sensors_sim.noise`), and range
+components by truth + outlier noise of std ``outlier_std_range`` if the jammer gives
+one (else ranges keep their jammed Gaussian noise).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Iterator
+
+import numpy as np
+
+from .spec import JammerSpec, Scenario, SensorSpec
+from .trajectories import sample_times
+
+_D_REF = 1000.0  # m: the distance powers are referred to
+_D_MIN = 1.0  # m: floor of distances in the J/S ratio (a jammer flying over a sensor)
+
+
+@dataclass(frozen=True, eq=False)
+class JamState:
+    """What a jammer is doing at time ``t`` (published on ``jam/<jammer>``).
+
+    ``band`` is the victim band of a spot jammer (None: barrage, every band);
+    ``searching`` is True while a spot jammer that is on has not yet found its band;
+    ``affected`` lists the sensors it currently jams (in scenario order).
+    """
+
+    jammer: str
+    t: float
+    position: np.ndarray
+    on: bool
+    mode: str
+    band: str | None
+    power: float
+    reach: float
+    outlier_law: str
+    outlier_std: float
+    p_outlier: float | None
+    searching: bool
+    affected: tuple[str, ...]
+
+
+def switched_on_at(jammer: JammerSpec, t: float) -> float | None:
+    """Start of the schedule interval containing ``t``, or None if the jammer is off."""
+    for t_on, t_off in jammer.schedule:
+        if t_on <= t < t_off:
+            return t_on
+    return None
+
+
+def _has_found(jammer: JammerSpec, t: float) -> bool:
+    t_on = switched_on_at(jammer, t)
+    return t_on is not None and (jammer.mode == "barrage" or t >= t_on + jammer.search_delay)
+
+
+def affects(jammer: JammerSpec, sensor: SensorSpec, t: float) -> bool:
+    """Whether ``jammer`` jams ``sensor`` at time ``t`` (schedule, mode, band, reach)."""
+    if not _has_found(jammer, t):
+        return False
+    if jammer.mode == "spot" and sensor.band != jammer.band:
+        return False
+    return float(np.linalg.norm(sensor.site.position(t) - jammer.site.position(t))) <= jammer.reach
+
+
+def jam_state(scenario: Scenario, jammer_id: str, t: float) -> JamState:
+    """The state of ``jammer_id`` at scenario time ``t``."""
+    j = scenario.jammer(jammer_id)
+    on = switched_on_at(j, t) is not None
+    return JamState(
+        jammer=j.id, t=float(t), position=j.site.position(t), on=on, mode=j.mode, band=j.band,
+        power=j.power, reach=j.reach, outlier_law=j.outlier_law, outlier_std=j.outlier_std,
+        p_outlier=j.p_outlier, searching=on and not _has_found(j, t),
+        affected=tuple(s.id for s in scenario.sensors.values() if affects(j, s, t)),
+    )
+
+
+def jam_events(scenario: Scenario, jammer_id: str) -> Iterator[JamState]:
+    """The jammer's state every ``period`` from 0 up to the duration, for publishing."""
+    j = scenario.jammer(jammer_id)
+    for t in sample_times(0.0, j.period, scenario.duration):
+        yield jam_state(scenario, jammer_id, float(t))
+
+
+def jam_to_signal(jammer: JammerSpec, sensor: SensorSpec, d_jammer: float, d_target: float) -> float:
+    """ρ = (P_j/P_s)·(d_t/d₀)^k/(d_j/d₀)², k = 4 for radars, 2 otherwise (module doc)."""
+    k = 4 if sensor.active else 2
+    d_t = max(d_target, _D_MIN) / _D_REF
+    d_j = max(d_jammer, _D_MIN) / _D_REF
+    return jammer.power / sensor.signal_power * d_t**k / d_j**2
+
+
+def outlier_probability(rho: float) -> float:
+    """``p = 1 − exp(−ρ)``: the outlier probability at jamming-to-signal ratio ρ."""
+    return -math.expm1(-rho)
+
+
+@dataclass(frozen=True)
+class JamEffect:
+    """How the jammers acting on one sensor contaminate one measurement.
+
+    ``variance_gain`` multiplies the Gaussian error variance; ``p_outlier`` is the
+    probability of an outlier of law ``outlier_law`` and std ``outlier_std`` (angles)
+    / ``outlier_std_range`` (ranges; None: none); ``jammers`` are the ids acting.
+    """
+
+    p_outlier: float
+    variance_gain: float
+    outlier_law: str
+    outlier_std: float
+    outlier_std_range: float | None
+    jammers: tuple[str, ...]
+
+
+def jam_effect(scenario: Scenario, sensor_id: str, t: float, target_position: np.ndarray) -> JamEffect | None:
+    """The combined effect of every jammer on ``sensor_id`` observing a target at
+    ``target_position`` at time ``t``; None if no jammer affects it."""
+    sensor = scenario.sensor(sensor_id)
+    site = sensor.site.position(t)
+    d_target = float(np.linalg.norm(np.asarray(target_position) - site))
+    acting, p_each, gain = [], [], 1.0
+    for j in scenario.jammers.values():
+        if not affects(j, sensor, t):
+            continue
+        if j.p_outlier is not None:
+            p = j.p_outlier
+        else:
+            rho = jam_to_signal(j, sensor, float(np.linalg.norm(j.site.position(t) - site)), d_target)
+            p, gain = outlier_probability(rho), gain + rho
+        acting.append(j)
+        p_each.append(p)
+    if not acting:
+        return None
+    lead = acting[int(np.argmax(p_each))]  # argmax: first on a tie
+    return JamEffect(
+        p_outlier=1.0 - math.prod(1.0 - p for p in p_each),
+        variance_gain=gain,
+        outlier_law=lead.outlier_law,
+        outlier_std=lead.outlier_std,
+        outlier_std_range=lead.outlier_std_range,
+        jammers=tuple(j.id for j in acting),
+    )

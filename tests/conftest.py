@@ -1,0 +1,21 @@
+"""Shared fixtures: every test that talks Zenoh gets its own deployment and free ports."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import uuid
+
+import pytest
+
+
+@pytest.fixture
+def deployment() -> str:
+    return f"t{uuid.uuid4().hex[:10]}"
+
+
+def zfusion(*args: str, **kw) -> subprocess.Popen:
+    """Start ``zfusion ARGS`` with this interpreter (the installed console script's code)."""
+    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+    return subprocess.Popen([sys.executable, "-m", "services.cli", *args], env=env, **kw)
