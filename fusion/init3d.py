@@ -20,8 +20,9 @@ site ``s_r``, ``t`` is where the ray meets the sphere ``|p − s_r| = r``
 ``t``'s dependence on the angles and on r; if the ray misses that sphere the range
 measurement is not used (prior instead).
 
-Velocity and acceleration start at zero with prior standard deviations
-``vel_std``/``acc_std`` per axis, uncorrelated with position.
+Velocity and acceleration start at zero with prior standard deviations per axis
+(horizontal ``vel_std``/``acc_std``, vertical ``vel_std_up``/``acc_std_up``),
+uncorrelated with position.
 """
 
 from __future__ import annotations
@@ -41,10 +42,15 @@ _SAME_SITE_TOL = 1e-6  # m
 class InitPriors:
     """Priors for what the first scan does not give.
 
-    Defaults (generic surveillance values, not fitted to any scenario):
+    Defaults (generic air-surveillance values, not fitted to any scenario):
         range = 10 000 m, range_std = 5 000 m — slant range when no sensor measures it;
         el = 0.1 rad (≈ 5.7°), el_std = 0.1 rad — elevation when no sensor measures it;
-        vel_std = 200 m/s, acc_std = 5 m/s² — per axis, around zero.
+        vel_std = 200 m/s, acc_std = 10 m/s² (≈ 1 g) — per horizontal axis (east, north);
+        vel_std_up = 20 m/s, acc_std_up = 1 m/s² — vertical: air targets climb and
+        dive far more slowly than they fly. This matters for local trackers that
+        cannot observe the vertical (a 2D radar alone): an unobservable component
+        keeps its prior uncertainty, and a 200 m/s vertical prior drives a 2D radar's
+        EKF out of its linear regime within seconds.
     """
 
     range: float = 10_000.0
@@ -52,10 +58,12 @@ class InitPriors:
     el: float = 0.1
     el_std: float = 0.1
     vel_std: float = 200.0
-    acc_std: float = 5.0
+    vel_std_up: float = 20.0
+    acc_std: float = 10.0
+    acc_std_up: float = 1.0
 
     def __post_init__(self):
-        for name in ("range", "range_std", "el_std", "vel_std", "acc_std"):
+        for name in ("range", "range_std", "el_std", "vel_std", "vel_std_up", "acc_std", "acc_std_up"):
             v = getattr(self, name)
             if not np.isfinite(v) or v <= 0.0:
                 raise ValueError(f"init prior {name} must be finite and > 0, got {v!r}")
@@ -146,7 +154,7 @@ def initial_state(scan: Sequence[Measurement], n_x: int, priors: InitPriors = In
     x[:3] = p
     P = np.zeros((n_x, n_x))
     P[:3, :3] = J @ np.diag([s_az**2, s_el**2, s_r**2]) @ J.T
-    P[3:6, 3:6] = priors.vel_std**2 * np.eye(3)
+    P[3:6, 3:6] = np.diag([priors.vel_std**2, priors.vel_std**2, priors.vel_std_up**2])
     if n_x == 9:
-        P[6:9, 6:9] = priors.acc_std**2 * np.eye(3)
+        P[6:9, 6:9] = np.diag([priors.acc_std**2, priors.acc_std**2, priors.acc_std_up**2])
     return x, 0.5 * (P + P.T)

@@ -60,6 +60,7 @@ class KinematicModel:
         self.q = q
         self.noise = noise
         self.n_x = 3 * self.order
+        self._cache: dict[float, tuple[np.ndarray, np.ndarray]] = {}  # dt -> (F, Q), read-only
 
     def __repr__(self) -> str:
         return f"{type(self).__name__}(q={self.q!r}, noise={self.noise!r})"
@@ -107,13 +108,27 @@ class KinematicModel:
         return self.q * dt ** s / (s * fact[:, None] * fact[None, :])
 
     # Full 3D model ---------------------------------------------------------------
+    def _FQ(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
+        # Filters predict over the same few intervals again and again: cache them
+        # (bounded; the arrays are read-only so a cached matrix cannot be altered).
+        FQ = self._cache.get(dt)
+        if FQ is None:
+            F = np.kron(self.F_axis(dt), np.eye(3))
+            Q = np.kron(self.Q_axis(dt), np.eye(3))
+            F.setflags(write=False)
+            Q.setflags(write=False)
+            if len(self._cache) >= 64:
+                self._cache.clear()
+            FQ = self._cache[float(dt)] = (F, Q)
+        return FQ
+
     def F(self, dt: float) -> np.ndarray:
-        """State transition ``F(dt) = F₁(dt) ⊗ I₃`` (n_x × n_x)."""
-        return np.kron(self.F_axis(dt), np.eye(3))
+        """State transition ``F(dt) = F₁(dt) ⊗ I₃`` (n_x × n_x), read-only."""
+        return self._FQ(dt)[0]
 
     def Q(self, dt: float) -> np.ndarray:
-        """Process-noise covariance ``Q(dt) = Q₁(dt) ⊗ I₃`` (n_x × n_x)."""
-        return np.kron(self.Q_axis(dt), np.eye(3))
+        """Process-noise covariance ``Q(dt) = Q₁(dt) ⊗ I₃`` (n_x × n_x), read-only."""
+        return self._FQ(dt)[1]
 
     def check_state(self, x: np.ndarray) -> np.ndarray:
         x = np.asarray(x, dtype=float)

@@ -29,6 +29,7 @@ gradient is undefined at zero range (``r < MIN_RANGE``). Both raise ``ValueError
 
 from __future__ import annotations
 
+from functools import lru_cache
 from typing import Sequence
 
 import numpy as np
@@ -80,8 +81,10 @@ class SphericalModel:
         self.angles = self.codes != _CODES["range"]
         self.n_z = n_z
         self.n_x = n_x
-        self._needs_rho = self.angles
-        self._needs_r = ~self.angles
+        self._rho_rows = np.flatnonzero(self.angles)  # rows needing ρ > 0 (az, el)
+        self._r_rows = np.flatnonzero(~self.angles)  # rows needing r > 0 (range)
+        for a in (self.codes, self.sites, self.std, self.R, self.angles):
+            a.setflags(write=False)  # models are shared (cached): keep them immutable
 
     def __repr__(self) -> str:
         return f"{type(self).__name__}(components={self.components}, std={self.std.tolist()})"
@@ -101,12 +104,12 @@ class SphericalModel:
         d = x[..., None, :3] - self.sites  # (..., n_z, 3)
         rho = np.hypot(d[..., 0], d[..., 1])
         r = np.hypot(rho, d[..., 2])
-        if np.any((rho < MIN_HORIZONTAL_RANGE) & self._needs_rho):
+        if self._rho_rows.size and rho[..., self._rho_rows].min() < MIN_HORIZONTAL_RANGE:
             raise ValueError(
                 f"target straight above/below a sensor site (horizontal range < {MIN_HORIZONTAL_RANGE} m): "
                 "azimuth/elevation undefined"
             )
-        if np.any((r < MIN_RANGE) & self._needs_r):
+        if self._r_rows.size and r[..., self._r_rows].min() < MIN_RANGE:
             raise ValueError(f"target at a sensor site (zero range < {MIN_RANGE} m): range gradient undefined")
         return d, rho, r
 
@@ -155,12 +158,7 @@ class SphericalModel:
             raise ValueError(f"cannot stack models written for different state lengths {sorted(n_x)}")
         if len(models) == 1:
             return models[0]
-        return SphericalModel(
-            [c for m in models for c in m.components],
-            np.vstack([m.sites for m in models]),
-            np.concatenate([m.std for m in models]),
-            n_x.pop(),
-        )
+        return _stack(tuple(models))
 
     def select(self, rows: Sequence[int]) -> "SphericalModel":
         """A model of some of this model's rows (in the given order)."""
@@ -186,7 +184,14 @@ class SphericalModel:
         z = np.asarray(m.z, dtype=float)
         if z.shape != (len(KIND_COMPONENTS[m.kind]),) or not np.all(np.isfinite(z)):
             raise ValueError(f"measurement z from sensor {m.sensor!r} must be {KIND_COMPONENTS[m.kind]}, got {m.z!r}")
-        return model_cls(m.site, m.std, n_x)
+        site = np.asarray(m.site, dtype=float).reshape(-1)
+        std = np.asarray(m.std, dtype=float).reshape(-1)
+        if site.shape != (3,) or std.shape != z.shape:
+            raise ValueError(
+                f"measurement from sensor {m.sensor!r} needs a 3-vector site and {z.size} stds, "
+                f"got site {m.site!r}, std {m.std!r}"
+            )
+        return _sensor_model(model_cls, tuple(site.tolist()), tuple(std.tolist()), int(n_x))
 
 
 class _SensorModel(SphericalModel):
@@ -217,6 +222,22 @@ class Radar3D(_SensorModel):
 MODEL_BY_KIND: dict[str, type[_SensorModel]] = {c.kind: c for c in (Radar2D, AngleSensor, Radar3D)}
 
 
+# A sensor sends the same site and std scan after scan: build each model once.
+@lru_cache(maxsize=1024)
+def _sensor_model(model_cls, site: tuple, std: tuple, n_x: int) -> _SensorModel:
+    return model_cls(site, std, n_x)
+
+
+@lru_cache(maxsize=1024)
+def _stack(models: tuple) -> SphericalModel:
+    return SphericalModel(
+        [c for m in models for c in m.components],
+        np.vstack([m.sites for m in models]),
+        np.concatenate([m.std for m in models]),
+        models[0].n_x,
+    )
+
+
 def from_measurement(m: Measurement, n_x: int = 9) -> SphericalModel:
     """Shorthand for :meth:`SphericalModel.from_measurement`."""
     return SphericalModel.from_measurement(m, n_x)
@@ -230,10 +251,15 @@ def ekf_predict(motion, x: np.ndarray, P: np.ndarray, dt: float) -> tuple[np.nda
     return kalman.predict(x, P, motion.F(dt), motion.Q(dt))
 
 
+def _ekf_update(model, x, P, z) -> tuple[kalman.UpdateResult, np.ndarray]:
+    H = model.jacobian(x)
+    return kalman.update(x, P, model.innovation(z, x), H, model.R), H
+
+
 def ekf_update(model: SphericalModel, x: np.ndarray, P: np.ndarray, z: np.ndarray) -> kalman.UpdateResult:
     """Measurement update linearised at ``x``: ``H = ∂h/∂x(x)``, wrapped ``ν = z − h(x)``,
     Joseph form and NIS via :func:`kalman.update`."""
-    return kalman.update(x, P, model.innovation(z, x), model.jacobian(x), model.R)
+    return _ekf_update(model, x, P, z)[0]
 
 
 class TrackEKF:
@@ -267,7 +293,10 @@ class TrackEKF:
         self.t = float(t)
 
     def update(self, model: SphericalModel, z: np.ndarray) -> kalman.UpdateResult:
-        """Update at the filter's current time; returns the Kalman step's result (ν, S, NIS, K)."""
-        res = ekf_update(model, self.x, self.P, z)
+        """Update at the filter's current time; returns the Kalman step's result (ν, S, NIS, K).
+
+        The Jacobian used is kept in ``self.H`` (a local track reports ``K·H``).
+        """
+        res, self.H = _ekf_update(model, self.x, self.P, z)
         self.x, self.P = res.x, res.P
         return res

@@ -137,11 +137,15 @@ class Reader:
     def has(self, key: str) -> bool:
         return key in self.data
 
+    def allow(self, *keys: str) -> None:
+        """Declare keys valid here even if this read path did not use them."""
+        self._known.update(keys)
+
     def raw(self, key: str, default=REQUIRED):
         self._known.add(key)
         if key not in self.data:
             if default is REQUIRED:
-                raise self.error(f"missing field {key!r}")
+                raise self.error("missing (required)", key)
             return default
         return self.data[key]
 
@@ -161,7 +165,7 @@ class Reader:
         if not outer.data and required:
             raise self.error("must define at least one entry", key)
         for name, v in outer.data.items():
-            outer._used.add(name)
+            outer._known.add(name)
             if not isinstance(v, dict):
                 raise outer.error("must be a table", name)
             yield name, Reader(v, outer.path + (name,), self.source)
@@ -221,8 +225,8 @@ class Reader:
             raise self.error(f"give only one of {', '.join(given)}", given[1])
         if not given:
             if required:
-                names = " or ".join(f"{base}_{u}" for u in units)
-                raise self.error(f"missing field {names}")
+                alternatives = f"; or {' or '.join(variants[1:])}" if len(variants) > 1 else ""
+                raise self.error(f"missing (required{alternatives})", variants[0])
             return None
         return given[0]
 
@@ -236,10 +240,12 @@ class Reader:
         return self._number(key, self.data[key], allow_inf, **bounds) * factor
 
     def vector(self, key: str, lengths: tuple[int, ...], factor: float = 1.0,
-               min_rows: int | None = None) -> np.ndarray:
+               min_rows: int | None = None, default=REQUIRED) -> np.ndarray:
         """A list of numbers (``min_rows`` None) or a list of such lists, each of one of
         ``lengths``; 2-vectors where 3 are allowed get a zero third component."""
-        v = self.raw(key)
+        v = self.raw(key, default)
+        if v is default and default is not REQUIRED:
+            return v
         rows = [v] if min_rows is None else v
         if min_rows is not None and (not isinstance(v, list) or len(v) < min_rows):
             raise self.error(f"must be a list of at least {min_rows} points", key)

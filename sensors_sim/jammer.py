@@ -58,26 +58,28 @@ _D_MIN = 1.0  # m: floor of distances in the J/S ratio (a jammer flying over a s
 
 @dataclass(frozen=True, eq=False)
 class JamState:
-    """What a jammer is doing at time ``t`` (published on ``jam/<jammer>``).
+    """What a jammer is doing at time ``t`` (published on ``jam/<jammer>``; the fields
+    the ``jam_state`` message carries have its names: pos, on, mode, power, law, affects).
 
-    ``band`` is the victim band of a spot jammer (None: barrage, every band);
-    ``searching`` is True while a spot jammer that is on has not yet found its band;
-    ``affected`` lists the sensors it currently jams (in scenario order).
+    ``pos`` is its ENU position; ``law`` the outlier law; ``band`` the victim band of a
+    spot jammer (None: barrage, every band); ``searching`` is True while a spot jammer
+    that is on has not yet found its band; ``affects`` lists the sensors it currently
+    jams (in scenario order).
     """
 
     jammer: str
     t: float
-    position: np.ndarray
+    pos: np.ndarray
     on: bool
     mode: str
     band: str | None
     power: float
     reach: float
-    outlier_law: str
+    law: str
     outlier_std: float
     p_outlier: float | None
     searching: bool
-    affected: tuple[str, ...]
+    affects: tuple[str, ...]
 
 
 def switched_on_at(jammer: JammerSpec, t: float) -> float | None:
@@ -107,10 +109,10 @@ def jam_state(scenario: Scenario, jammer_id: str, t: float) -> JamState:
     j = scenario.jammer(jammer_id)
     on = switched_on_at(j, t) is not None
     return JamState(
-        jammer=j.id, t=float(t), position=j.site.position(t), on=on, mode=j.mode, band=j.band,
-        power=j.power, reach=j.reach, outlier_law=j.outlier_law, outlier_std=j.outlier_std,
+        jammer=j.id, t=float(t), pos=j.site.position(t), on=on, mode=j.mode, band=j.band,
+        power=j.power, reach=j.reach, law=j.outlier_law, outlier_std=j.outlier_std,
         p_outlier=j.p_outlier, searching=on and not _has_found(j, t),
-        affected=tuple(s.id for s in scenario.sensors.values() if affects(j, s, t)),
+        affects=tuple(s.id for s in scenario.sensors.values() if affects(j, s, t)),
     )
 
 

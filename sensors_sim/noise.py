@@ -17,6 +17,7 @@ Laws
       F  = [[1, dt, dt²/2], [0, 1, dt], [0, 0, 1]]
       Q₁ = [[dt⁵/20, dt⁴/8, dt³/6], [dt⁴/8, dt³/3, dt²/2], [dt³/6, dt²/2, dt]]
 
+  (``fusion.motion.ConstantAcceleration``'s per-axis F₁ and continuous-noise Q₁).
   ``q`` is the power spectral density of the jerk (m²/s⁵). ``q·Q₁(dt)`` is the *exact*
   discretisation of continuous white jerk, so sampling the process on a grid of step
   ``dt`` and keeping every n-th node has exactly the law of sampling it at ``n·dt``.
@@ -37,6 +38,8 @@ import zlib
 
 import numpy as np
 
+from fusion.motion import ConstantAcceleration
+
 OUTLIER_LAWS = ("laplacian", "uniform")
 
 
@@ -53,27 +56,15 @@ def process_rng(seed: int, process_id: str, run: int = 0) -> np.random.Generator
 # --- white-noise jerk ------------------------------------------------------------------
 
 
-def jerk_transition(dt: float) -> np.ndarray:
-    """Per-axis transition ``F`` of the constant-acceleration model (3×3)."""
-    return np.array([[1.0, dt, dt * dt / 2.0], [0.0, 1.0, dt], [0.0, 0.0, 1.0]])
-
-
-def jerk_covariance(q: float, dt: float) -> np.ndarray:
-    """Per-axis process-noise covariance ``q·Q₁(dt)`` of white jerk with PSD ``q`` (3×3)."""
-    d2, d3, d4, d5 = dt**2, dt**3, dt**4, dt**5
-    return q * np.array(
-        [[d5 / 20.0, d4 / 8.0, d3 / 6.0], [d4 / 8.0, d3 / 3.0, d2 / 2.0], [d3 / 6.0, d2 / 2.0, dt]]
-    )
-
-
 def jerk_deviation(rng: np.random.Generator, q: float, dt: float, steps: int) -> np.ndarray:
     """A white-noise-jerk path from zero: ``e_0 = 0``, ``e_{k+1} = F e_k + w_k``.
 
     Returns ``(steps + 1, 9)`` states in the layout ``[px py pz vx vy vz ax ay az]``.
     Consumes exactly ``steps·9`` standard normals (one ``(steps, 3, 3)`` call).
     """
-    F = jerk_transition(dt)
-    L = np.linalg.cholesky(jerk_covariance(q, dt))
+    model = ConstantAcceleration(q)  # the trackers' CA model: the same F and Q₁
+    F = model.F_axis(dt)
+    L = np.linalg.cholesky(model.Q_axis(dt))
     w = rng.standard_normal((steps, 3, 3)) @ L.T  # [step, axis, (p, v, a)]
     e = np.zeros((steps + 1, 3, 3))
     for k in range(steps):

@@ -153,14 +153,6 @@ class JammerSpec:
     period: float
 
 
-@dataclass(frozen=True)
-class Defaults:
-    """What ``zfusion run`` uses when the command line does not say."""
-
-    topology: str
-    method: str
-
-
 @dataclass(frozen=True, eq=False)
 class Scenario:
     """A loaded scenario. ``eq=False``: compared and hashed by identity (the truth cache
@@ -174,7 +166,8 @@ class Scenario:
         origin: (lat °, lon °, alt m), WGS-84, of the local ENU frame.
         targets, sensors, jammers: id -> spec, in file order.
         tracker: the ``[tracker]`` table, untouched (the estimation methods validate it).
-        defaults: default topology and method.
+        defaults: ``{"topology": ..., "method": ...}``, what ``zfusion run`` uses when
+            the command line does not say.
         truth_dt: step of the truth's process-noise grid (s), or None if no target has
             process noise.
         source: the file it came from (for messages).
@@ -189,7 +182,7 @@ class Scenario:
     sensors: dict[str, SensorSpec]
     jammers: dict[str, JammerSpec]
     tracker: dict
-    defaults: Defaults
+    defaults: dict
     truth_dt: float | None = None
     source: str = ""
 

@@ -40,9 +40,12 @@ from typing import Callable, Iterator, NamedTuple
 
 import numpy as np
 
-from .noise import jerk_deviation, jerk_transition, process_rng
+from fusion.motion import ConstantAcceleration as _CA
+
+from .noise import jerk_deviation, process_rng
 from .spec import TRUTH_PROCESS, Scenario, TargetSpec
 
+_CA_TRANSITION = _CA(0.0)  # only its F₁(τ) is used, to carry the deviation between nodes
 # Relative tolerance for "this time is on that grid node" (float round-off of k·dt).
 _TIME_TOL = 1e-9
 
@@ -198,7 +201,7 @@ class Trajectory:
         if abs(tau) <= _TIME_TOL * dt:
             return e.copy()
         # no new noise between nodes: carry the node's deviation forward
-        return (jerk_transition(tau) @ e.reshape(3, 3)).reshape(9)
+        return (_CA_TRANSITION.F_axis(tau) @ e.reshape(3, 3)).reshape(9)
 
     def state(self, t: float) -> np.ndarray:
         """``[px py pz vx vy vz ax ay az]`` at scenario time ``t``."""

@@ -116,8 +116,8 @@ def run(args) -> int:
         hub = f"tcp/127.0.0.1:{free_port()}"
         mine = ZenohOptions(listen=[hub])
         theirs = ZenohOptions(connect=[hub])
-    common = ["--deployment", args.deployment, *theirs.to_args(), "--seed", str(scenario.seed)] + (
-        ["-v"] if args.verbose else [])
+    common = ["--deployment", args.deployment, *theirs.to_args()] + (["-v"] if args.verbose else [])
+    seed = ["--seed", str(scenario.seed)]
     sources = list(scenario.process_ids())
     max_period = max([getattr(s, "period", 1.0) for s in scenario.sensors.values()] + [1.0])
     timeout = 5.0 if math.isinf(speed) else max(3.0, 3.0 * max_period / speed)
@@ -151,7 +151,7 @@ def run(args) -> int:
 
         try:
             children.start(FUSER_ID, ["fuser", "--scenario", args.scenario, "--method", method, "--id", FUSER_ID,
-                                      "--source-timeout", str(timeout), *(
+                                      "--source-timeout", str(timeout), *seed, *(
                                           ["--fusion-rule", args.fusion_rule] if args.fusion_rule else []), *common])
             children.start(RECORDER_ID, ["record", "--rrd", rrd, "--id", RECORDER_ID,
                                          "--expect", ",".join([FUSER_ID, *sources]), *common])
@@ -159,7 +159,7 @@ def run(args) -> int:
             start_at = time.time() + (0.0 if math.isinf(speed) else 0.5)
             for sid in sources:
                 children.start(sid, ["sensor", "--scenario", args.scenario, "--id", sid, "--speed", str(args.speed),
-                                     "--start-at", repr(start_at),
+                                     "--start-at", repr(start_at), *seed,
                                      "--wait-for", ",".join([FUSER_ID, RECORDER_ID, LAUNCHER_ID]), *common])
             while not node.stop.is_set():
                 drain(0.1)

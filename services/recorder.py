@@ -81,11 +81,13 @@ class Recorder:
         self.sites_logged: set[str] = set()
         self.last_fix: np.ndarray | None = None
         self.rows: dict[str, int] = {}
+        # Truth and estimates come from different processes, so either may arrive first:
+        # estimates wait here (bounded) for the truth sample of their time.
+        self.unscored: OrderedDict[tuple[float, str, str], object] = OrderedDict()
 
     def _log(self, path: str, t: float, *archetypes: object) -> None:
         self.rec.set_time("sim_time", duration=t)
-        for a in archetypes:
-            self.rec.log(path, a)
+        self.rec.log(path, *archetypes)  # one row per message
         self.rows[path] = self.rows.get(path, 0) + 1
 
     def handle(self, family: str, msg: Message) -> None:
@@ -125,6 +127,8 @@ class Recorder:
         cache[msg.t] = x
         while len(cache) > TRUTH_CACHE:
             cache.popitem(last=False)
+        for key in [k for k in self.unscored if k[0] == msg.t]:
+            self._score(self.unscored.pop(key), cache)
         pos = _pos3(x)
         self.paths.setdefault(tgt, []).append(pos.tolist())
         self._log(f"world/truth/{tgt}", msg.t, rr.Points3D([pos], labels=[tgt], radii=[80.0], colors=[[0, 200, 0]]),
@@ -143,20 +147,27 @@ class Recorder:
         self._log(f"world/tracks/{e.node}/{e.track}", e.t,
                   rr.Points3D([pos], labels=[f"{e.method}:{e.track}"], radii=[60.0]),
                   rr.Ellipsoids3D(centers=[pos], half_sizes=[half], quaternions=[quat]))
-        truth = self.truth.get(e.track) or (next(iter(self.truth.values())) if len(self.truth) == 1 else None)
-        if e.node != "centre" and e.extra.get("local"):
-            return
+        if e.node != "centre":
+            return  # metrics are for fused output; local tracks are drawn only
         if e.nis is not None and e.nis_dof:
             self._series(f"metrics/nis/{e.method}", e.t, e.nis, e.nis_dof)
+        truth = self.truth.get(e.track) or (next(iter(self.truth.values())) if len(self.truth) == 1 else None)
         if truth is not None and e.t in truth:
-            xt = truth[e.t][: e.x.size]
-            err = e.x - xt
-            self._log(f"metrics/error_pos/{e.method}", e.t, rr.Scalars([float(np.linalg.norm(err[:d]))]))
-            try:
-                nees = float(err @ np.linalg.solve(e.P, err))
-            except np.linalg.LinAlgError:
-                return
-            self._series(f"metrics/nees/{e.method}", e.t, nees, e.x.size)
+            self._score(e, truth)
+        else:
+            self.unscored[(e.t, e.method, e.track)] = e
+            while len(self.unscored) > TRUTH_CACHE:
+                self.unscored.popitem(last=False)
+
+    def _score(self, e, truth: OrderedDict) -> None:
+        err = e.x - truth[e.t][: e.x.size]
+        d = 3 if e.x.size >= 6 else 2
+        self._log(f"metrics/error_pos/{e.method}", e.t, rr.Scalars([float(np.linalg.norm(err[:d]))]))
+        try:
+            nees = float(err @ np.linalg.solve(e.P, err))
+        except np.linalg.LinAlgError:
+            return
+        self._series(f"metrics/nees/{e.method}", e.t, nees, e.x.size)
 
     _on_prediction = _on_track
 

@@ -25,7 +25,7 @@ from services.node import ZenohOptions
 from services.summary import method_summary, truth_function
 from sensors_sim import load_scenario
 
-from .conftest import zfusion
+from conftest import zfusion
 
 pytestmark = pytest.mark.slow
 
@@ -60,6 +60,23 @@ def test_run_patent_3d_max_speed(tmp_path, deployment):
     assert "SS" in p.stdout and "rmse_pos" in p.stdout
     v = subprocess.run([_rerun(), "rrd", "verify", str(rrd)], capture_output=True, text=True)
     assert v.returncode == 0, v.stderr
+    rows = rrd_rows(rrd)
+    # one row per measurement and per fused update, read back from the file
+    assert rows["/world/meas/radar2d"] == rows["/world/meas/angle"] == 31
+    assert rows["/world/tracks/centre/T1"] == rows["/metrics/error_pos/SS"] == 31
+    assert rows["/metrics/nees/SS"] == rows["/metrics/nees/SS/hi"] == 31
+    assert rows["/world/truth/T1"] == 31
+
+
+def rrd_rows(path: Path) -> dict[str, int]:
+    """Rows per entity path of a recording, read from the file."""
+    from rerun.chunk import RrdReader
+
+    rows: dict[str, int] = {}
+    for chunk in RrdReader(path).stream():
+        if not chunk.is_static:
+            rows[chunk.entity_path] = rows.get(chunk.entity_path, 0) + chunk.num_rows
+    return rows
 
 
 @pytest.mark.parametrize("speed", ["max", "5"])
@@ -134,7 +151,13 @@ def test_garbage_on_the_wire_changes_nothing(tmp_path, deployment):
                            "--deployment", deployment, "--connect", ep, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
         pub = session.declare_publisher(keys.meas("radar2d"), congestion_control=zenoh.CongestionControl.BLOCK)
         spoof = session.declare_publisher(keys.meas("mallory"), congestion_control=zenoh.CongestionControl.BLOCK)
-        time.sleep(3.0)  # the run is going
+        fused = []
+        sub = session.declare_subscriber(keys.fused(), lambda s: fused.append(1))
+        deadline = time.monotonic() + 60
+        while not fused and time.monotonic() < deadline:  # inject only once the run is going
+            time.sleep(0.05)
+        assert fused, "no fused output within 60 s"
+        sub.undeclare()
         good = dict(v=1, kind="range_az", src="radar2d", seq=0, t=1.0, sensor="radar2d", site=[0.0, 0.0, 0.0],
                     az=0.5, std_az=0.01, range=1e4, std_range=20.0)
         bad = [b"\xc1\xc1", b"", msgpack.packb([1, 2, 3]), msgpack.packb({**good, "v": 99}),

@@ -43,6 +43,10 @@ from .models import bearing, bearing_jacobian, bearing_of, stated_sigma
 PARALLEL_TOL = 1e-9
 
 
+class GeometryError(ValueError):
+    """The bearings do not fix a position: parallel, diverging or collinear geometry."""
+
+
 class Fix(NamedTuple):
     """A position fix: ``x`` (m), covariance ``P`` (m²), the number of iterations run,
     whether the iteration converged, the weighted residual cost (χ² with n−2 dof for
@@ -78,14 +82,14 @@ def _ranges(site1, beta1, site2, beta2):
 def intersect_bearings(site1, beta1, site2, beta2):
     """Intersection of two bearing rays (broadcasts over leading axes).
 
-    Raises ValueError when the bearings are parallel or the rays do not meet ahead of
+    Raises :class:`GeometryError` when the bearings are parallel or the rays do not meet ahead of
     both sites (diverging bearings: no fix in the direction either DF looks).
     """
     s, r1, r2, u1, _ = _ranges(site1, beta1, site2, beta2)
     if np.any(np.abs(s) < PARALLEL_TOL):
-        raise ValueError("intersect_bearings: the two bearings are parallel (no intersection)")
+        raise GeometryError("intersect_bearings: the two bearings are parallel (no intersection)")
     if np.any(r1 <= 0.0) or np.any(r2 <= 0.0):
-        raise ValueError("intersect_bearings: the bearing rays diverge (they meet behind a site)")
+        raise GeometryError("intersect_bearings: the bearing rays diverge (they meet behind a site)")
     return np.asarray(site1, dtype=float)[..., :2] + r1[..., None] * u1
 
 
@@ -93,7 +97,7 @@ def intersection_jacobian(site1, beta1, site2, beta2):
     """``F = [∂p/∂β₁, ∂p/∂β₂]`` (shape ``(..., 2, 2)``, columns per bearing)."""
     s, r1, r2, u1, u2 = _ranges(site1, beta1, site2, beta2)
     if np.any(np.abs(s) < PARALLEL_TOL):
-        raise ValueError("intersection_jacobian: the two bearings are parallel")
+        raise GeometryError("intersection_jacobian: the two bearings are parallel")
     c1 = r1[..., None] * u2 / s[..., None]
     c2 = -r2[..., None] * u1 / s[..., None]
     return np.stack([c1, c2], axis=-1)
@@ -103,7 +107,7 @@ def ipu(site1, beta1, sigma1: float, site2, beta2, sigma2: float, diagonal: bool
     """Initial position and uncertainty from two bearings: ``(p, P)``.
 
     ``P = F diag(σ₁², σ₂²) Fᵀ`` in full; ``diagonal=True`` keeps only its diagonal, as
-    the thesis did. Raises ValueError for parallel or diverging bearings.
+    the thesis did. Raises :class:`GeometryError` (a ValueError) for parallel or diverging bearings.
     """
     if not (sigma1 > 0 and sigma2 > 0):
         raise ValueError(f"ipu: bearing std must be > 0, got {sigma1}, {sigma2}")
@@ -140,7 +144,7 @@ def pairwise_intersection_mean(sites, betas) -> np.ndarray:
     s, r1, r2, u1, _ = _ranges(sites[i], betas[i], sites[j], betas[j])
     ok = (np.abs(s) >= PARALLEL_TOL) & (r1 > 0) & (r2 > 0) & np.any(sites[i] != sites[j], axis=1)
     if not np.any(ok):
-        raise ValueError("pairwise_intersection_mean: no pair of bearings intersects ahead of its sites")
+        raise GeometryError("pairwise_intersection_mean: no pair of bearings intersects ahead of its sites")
     return np.mean(sites[i][ok] + r1[ok, None] * u1[ok], axis=0)
 
 
@@ -158,7 +162,7 @@ def _chol(A, what):
     try:
         return cho_factor(A, lower=True)
     except np.linalg.LinAlgError:
-        raise ValueError(f"{what}: the bearings do not determine a position (collinear geometry)") from None
+        raise GeometryError(f"{what}: the bearings do not determine a position (collinear geometry)") from None
 
 
 def torrieri(sites, betas, sigmas, x0=None, iterations: int = 0, max_iter: int = 100,
@@ -290,7 +294,7 @@ def leave_one_out(sites, betas, sigmas, gate: float, x0=None, iterations: int = 
         keep = np.flatnonzero(used)
         try:
             fix = torrieri(sites[keep], betas[keep], sigmas[keep], x0=fix.x, iterations=iterations)
-        except ValueError:  # the rest no longer fixes a position: keep this bearing, stop
+        except GeometryError:  # the rest no longer fixes a position: keep this bearing, stop
             used[dropped] = True
             break
     return fix._replace(used=used)

@@ -1,0 +1,436 @@
+r"""The bearings-only localisation methods as streaming Methods.
+
+Every method follows the library's streaming interface::
+
+    process(m) -> list[Estimate]   # bearings, in (t, sensor, seq) order
+    advance(t) -> list[Estimate]   # watermark: nothing with time <= t will come
+    finish()   -> list[Estimate]   # end of stream
+
+**Epochs.** Bearings whose times lie within ``pair_tol`` of the first bearing of the
+current group form one *epoch* (one scan of the DF network; one bearing per epoch for a
+single moving observer). An epoch is closed by the first later bearing
+(``t > t₀ + pair_tol``), by a watermark ``≥ t₀ + pair_tol``, or by :meth:`finish`; on
+closing, its bearings are processed (sequentially, in arrival order) and one
+:class:`~fusion.types.Estimate` of the emitter position ``[px, py]`` (ENU m) with its
+covariance is emitted, stamped with the epoch's latest bearing time — from the first
+epoch where a fix exists. A watermark only lets an epoch out earlier; the output
+sequence depends on the bearings alone. If an epoch is incomplete (a station's
+bearing missing), whatever arrived is processed: the recursive filters update
+sequentially on it, KF+TR reuses the missing stations' latest smoothed bearings.
+
+**Methods** (``DF_METHODS[name](config)``):
+
+========== ===========================================================================
+EKF        EKFT on raw bearings, one predict(+Q)/scalar update per bearing
+MEKF1..5   two cross-fed filters (EKFT/SKF, EKFT/EKFS, EKFT/EKFT, EKFS/EKFS, EKFS/EKFT)
+IMM        two EKFTs (clean σ, outlier σ₂) with Bar-Shalom mixing
+TORRIERI   batch: Torrieri's weighted LS on *all* bearings so far, at every epoch
+KF+TR      per-station scalar KF bearing smoothers; Torrieri on their latest outputs
+MKF+TR     as KF+TR with two cross-fed KFs per station
+========== ===========================================================================
+
+**Initialisation** of the recursive filters (EKF, MEKF, IMM): ``ipu`` — the
+intersection of the first two bearings from distinct sites whose rays meet ahead of
+both in a well-conditioned fix (``ipu_max_rel``; for a single moving observer: two
+epochs), covariance ``F diag(σ₁², σ₂²) Fᵀ``.
+Those two bearings are consumed by the initialisation (not used again); bearings that
+arrived before a usable pair are replayed, in arrival order, right after it. The IMM
+starts both models at the ``ipu`` fix, model ``j``'s covariance computed with model
+``j``'s bearing std.
+
+**Config** (the scenario's ``[tracker]`` table; every DF method accepts every key
+below, so one table can drive several methods; any other key is an error):
+
+====================== ========== ========================================================
+key                    default    meaning
+====================== ========== ========================================================
+q22                    625.0      process noise on y (m²) added before every bearing
+                                  (the theses' 0.025² km²); 0 = static-emitter model
+q11                    0.0        process noise on x (m²); the theses have 0
+sigma                  0.0175     bearing std assumed by the filters (rad), or
+                                  ``"sensor"`` to use each measurement's stated std
+pair_tol               1e-6       epoch grouping tolerance (s)
+ipu_cov                "full"     ``"full"`` or ``"diagonal"`` (the thesis's) initial covariance
+ipu_max_rel            1.0        refuse an ``ipu`` fix whose 1σ semi-major axis exceeds this
+                                  multiple of its range (ill-conditioned crossing); 0 = accept any
+mekf_handoff           "swap"     MEKF/MKF hand-over: ``"swap"`` (states and covariances) or
+                                  ``"printed"`` (the thesis listing: A2's covariance stays P₀)
+imm_p                  0.1        IMM mode-switch/outlier probability p, in (0, 1)
+imm_sigma2             0.25       IMM outlier-model bearing std σ₂ (rad; a std, not a variance)
+imm_transition         "symmetric" ``"symmetric"`` [[1−p,p],[p,1−p]] or ``"iid"`` [[1−p,p],[1−p,p]]
+imm_mu0                0.05       initial probability of the outlier model (the thesis's 0.05)
+torrieri_iterations    0          0 = Gauss–Newton to convergence; k ≥ 1 = k Torrieri steps
+smoother_q             0.0        KF/MKF bearing-smoother process noise (rad² per bearing)
+gate                   0.0        leave-one-out bound (studentised residual, in σ) for
+                                  TORRIERI and the KF+TR/MKF+TR centre; 0 = off
+====================== ========== ========================================================
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+from typing import Callable
+
+import numpy as np
+
+from ..types import Estimate, Measurement
+from .filters import MEKF, MEKF_VARIANTS, BearingEKF, CrossFed
+from .imm import TRANSITIONS, BearingIMM, transition_matrix
+from .models import THESIS_Q22, THESIS_SIGMA, bearing_of, emitter_Q, stated_sigma
+from .smoothing import BearingSmoother, CrossFedBearingSmoother
+from .triangulation import GeometryError, fix_from_bearings, ipu, leave_one_out, pairwise_intersection_mean
+
+#: sites closer than this (m) count as one site when pairing bearings for ``ipu``.
+SAME_SITE = 1e-6
+
+
+@dataclass(frozen=True)
+class DFConfig:
+    """Validated ``[tracker]`` table of the DF methods (see the module docstring)."""
+
+    q22: float = THESIS_Q22
+    q11: float = 0.0
+    sigma: float | str = THESIS_SIGMA
+    pair_tol: float = 1e-6
+    ipu_cov: str = "full"
+    ipu_max_rel: float = 1.0
+    mekf_handoff: str = "swap"
+    imm_p: float = 0.1
+    imm_sigma2: float = 0.25
+    imm_transition: str = "symmetric"
+    imm_mu0: float = 0.05
+    torrieri_iterations: int = 0
+    smoother_q: float = 0.0
+    gate: float = 0.0
+
+    @classmethod
+    def from_dict(cls, config: dict | None) -> "DFConfig":
+        config = dict(config or {})
+        known = {f.name for f in fields(cls)}
+        for key in config:
+            if key not in known:
+                raise ValueError(f"unknown DF tracker config key {key!r}; known keys: {sorted(known)}")
+        kw = {}
+        for key, value in config.items():
+            if key in ("ipu_cov", "mekf_handoff", "imm_transition"):
+                if not isinstance(value, str):
+                    raise ValueError(f"config {key!r} must be a string, got {value!r}")
+                kw[key] = value
+            elif key == "sigma" and isinstance(value, str):
+                if value != "sensor":
+                    raise ValueError(f"config 'sigma' must be a positive number or \"sensor\", got {value!r}")
+                kw[key] = value
+            else:
+                if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value):
+                    raise ValueError(f"config {key!r} must be a finite number, got {value!r}")
+                kw[key] = value
+        cfg = cls(**kw)
+        cfg._validate()
+        return cfg
+
+    def _validate(self) -> None:
+        def need(ok: bool, key: str, what: str) -> None:
+            if not ok:
+                raise ValueError(f"config {key!r} = {getattr(self, key)!r}: {what}")
+
+        need(self.q22 >= 0, "q22", "must be >= 0")
+        need(self.q11 >= 0, "q11", "must be >= 0")
+        need(self.sigma == "sensor" or self.sigma > 0, "sigma", "must be > 0 or \"sensor\"")
+        need(self.pair_tol >= 0, "pair_tol", "must be >= 0")
+        need(self.ipu_cov in ("full", "diagonal"), "ipu_cov", "must be \"full\" or \"diagonal\"")
+        need(self.ipu_max_rel >= 0, "ipu_max_rel", "must be >= 0")
+        need(self.mekf_handoff in CrossFed.HANDOFFS, "mekf_handoff", f"must be one of {CrossFed.HANDOFFS}")
+        need(0 < self.imm_p < 1, "imm_p", "must be in (0, 1)")
+        need(self.imm_sigma2 > 0, "imm_sigma2", "must be > 0")
+        need(self.imm_transition in TRANSITIONS, "imm_transition", f"must be one of {TRANSITIONS}")
+        need(0 < self.imm_mu0 < 1, "imm_mu0", "must be in (0, 1)")
+        need(float(self.torrieri_iterations).is_integer() and self.torrieri_iterations >= 0,
+             "torrieri_iterations", "must be an integer >= 0")
+        need(self.smoother_q >= 0, "smoother_q", "must be >= 0")
+        need(self.gate >= 0, "gate", "must be >= 0")
+
+    @property
+    def Q(self) -> np.ndarray:
+        return emitter_Q(self.q22, self.q11)
+
+
+class DFMethod:
+    """Base of the DF methods: config, stream checks and epoch grouping.
+
+    Subclasses implement :meth:`_epoch`, which processes one closed epoch and returns
+    an Estimate or None (no fix yet).
+    """
+
+    name: str = "DF"
+
+    def __init__(self, config: dict | None = None):
+        self.config = DFConfig.from_dict(config)
+        self._group: list[Measurement] = []
+        self._last_key: tuple | None = None
+        self._watermark = -np.inf
+        self._finished = False
+
+    # -- streaming interface -------------------------------------------------------
+    def process(self, m: Measurement) -> list[Estimate]:
+        if self._finished:
+            raise ValueError(f"{self.name}: process() after finish()")
+        if not np.isfinite(m.t):
+            raise ValueError(f"{self.name}: measurement from {m.sensor!r} has non-finite time {m.t}")
+        bearing_of(m)  # validate early, so a bad message fails at its arrival
+        if m.t <= self._watermark:
+            raise ValueError(f"{self.name}: late measurement from {m.sensor!r}: t={m.t} <= watermark {self._watermark}")
+        if self._last_key is not None and m.order_key <= self._last_key:
+            raise ValueError(f"{self.name}: measurement {m.order_key} out of (t, sensor, seq) order after {self._last_key}")
+        self._last_key = m.order_key
+        out = []
+        if self._group and m.t > self._group[0].t + self.config.pair_tol:
+            out = self._close()
+        self._group.append(m)
+        return out
+
+    def advance(self, t: float) -> list[Estimate]:
+        if not np.isfinite(t):
+            raise ValueError(f"{self.name}: watermark must be finite, got {t}")
+        self._watermark = max(self._watermark, float(t))
+        if self._group and self._watermark >= self._group[0].t + self.config.pair_tol:
+            return self._close()
+        return []
+
+    def finish(self) -> list[Estimate]:
+        out = self._close() if self._group else []
+        self._finished = True
+        return out
+
+    # -- helpers ---------------------------------------------------------------------
+    def _close(self) -> list[Estimate]:
+        group, self._group = self._group, []
+        est = self._epoch(group)
+        return [] if est is None else [est]
+
+    def _sigma(self, m: Measurement) -> float:
+        return stated_sigma(m) if self.config.sigma == "sensor" else float(self.config.sigma)
+
+    def _estimate(self, group: list[Measurement], x, P, nis=None, nis_dof=None, **extra) -> Estimate:
+        return Estimate(t=max(m.t for m in group), x=np.array(x, dtype=float), P=np.array(P, dtype=float),
+                        method=self.name, nis=nis, nis_dof=nis_dof, extra=extra)
+
+    def _epoch(self, group: list[Measurement]) -> Estimate | None:
+        raise NotImplementedError
+
+
+class _RecursiveMethod(DFMethod):
+    """EKF, MEKF and IMM: ``ipu`` initialisation, then one filter step per bearing."""
+
+    def __init__(self, config: dict | None = None):
+        super().__init__(config)
+        self._filter = None
+        self._pending: list[tuple[np.ndarray, float, float]] = []
+        self._n = 0
+
+    def _ipu(self, a, b, sa: float, sb: float, check: bool = True):
+        """``ipu`` of bearings ``a``, ``b`` (site, β, σ); with ``check``, refuse (GeometryError)
+        a fix whose 1σ semi-major axis exceeds ``ipu_max_rel`` × its range from the nearer
+        site: such an intersection says nothing about range, and an EKF linearised there
+        is meaningless."""
+        p, P = ipu(a[0], a[1], sa, b[0], b[1], sb)
+        k = self.config.ipu_max_rel
+        if check and k > 0:
+            r = min(np.linalg.norm(p - a[0]), np.linalg.norm(p - b[0]))
+            if np.sqrt(np.linalg.eigvalsh(P)[-1]) > k * r:
+                raise GeometryError(f"ipu: ill-conditioned fix (1σ axis > {k} × range {r:.0f} m)")
+        return p, (np.diag(np.diag(P)) if self.config.ipu_cov == "diagonal" else P)
+
+    def _build(self, a, b):
+        raise NotImplementedError
+
+    def _step(self, site, beta, sigma) -> float | None:
+        raise NotImplementedError
+
+    def _ingest(self, bearing) -> list[float | None]:
+        if self._filter is not None:
+            self._n += 1
+            return [self._step(*bearing)]
+        for i, a in enumerate(self._pending):
+            if np.linalg.norm(a[0] - bearing[0]) <= SAME_SITE:
+                continue
+            try:
+                self._filter = self._build(a, bearing)
+            except GeometryError:
+                continue
+            self._n = 2
+            rest = self._pending[:i] + self._pending[i + 1:]
+            self._pending = []
+            return [r for b in rest for r in self._ingest(b)]
+        self._pending.append(bearing)
+        return []
+
+    def _epoch(self, group):
+        nis = []
+        for m in group:
+            site, beta = bearing_of(m)
+            nis += self._ingest((site, beta, self._sigma(m)))
+        if self._filter is None:
+            return None
+        nis = [v for v in nis if v is not None]
+        return self._estimate(group, self._filter.x, self._filter.P,
+                              nis=float(sum(nis)) if nis else None, nis_dof=len(nis) if nis else None,
+                              n_bearings=self._n, **self._extra())
+
+    def _extra(self) -> dict:
+        return {}
+
+
+class EKFMethod(_RecursiveMethod):
+    """EKF (= EKFT): the proper bearing EKF of the theses."""
+
+    name = "EKF"
+
+    def _build(self, a, b):
+        p, P = self._ipu(a, b, a[2], b[2])
+        return BearingEKF(p, P, self.config.Q, "EKFT")
+
+    def _step(self, site, beta, sigma):
+        return self._filter.step(site, beta, sigma).nis
+
+
+class MEKFMethod(_RecursiveMethod):
+    """MEKF#k: two cross-fed bearing filters (:data:`fusion.df.filters.MEKF_VARIANTS`)."""
+
+    def __init__(self, variant: int, config: dict | None = None):
+        if variant not in MEKF_VARIANTS:
+            raise ValueError(f"unknown MEKF variant {variant!r}")
+        self.variant = variant
+        self.name = f"MEKF{variant}"
+        super().__init__(config)
+
+    def _build(self, a, b):
+        p, P = self._ipu(a, b, a[2], b[2])
+        return MEKF(self.variant, p, P, self.config.Q, self.config.mekf_handoff)
+
+    def _step(self, site, beta, sigma):
+        return self._filter.step(site, beta, sigma).nis
+
+    def _extra(self):
+        return {"fallbacks": self._filter.n_fallbacks}
+
+
+class IMMMethod(_RecursiveMethod):
+    """IMM of a clean-noise and an outlier-noise EKFT (:mod:`fusion.df.imm`)."""
+
+    name = "IMM"
+
+    def _build(self, a, b):
+        c = self.config
+        self._ipu(a, b, a[2], b[2])  # conditioning judged on the clean model, as for the EKF
+        mix = [np.sqrt((1.0 - c.imm_mu0) * s ** 2 + c.imm_mu0 * c.imm_sigma2 ** 2) for s in (a[2], b[2])]
+        p, P = self._ipu(a, b, mix[0], mix[1], check=False)
+        return BearingIMM([p, p], [P, P], c.Q, transition_matrix(c.imm_p, c.imm_transition),
+                          [1.0 - c.imm_mu0, c.imm_mu0])
+
+    def _step(self, site, beta, sigma):
+        self._filter.step(site, beta, (sigma, self.config.imm_sigma2))
+        return None
+
+    def _extra(self):
+        return {"mode_probs": self._filter.mu.tolist()}
+
+
+class TorrieriMethod(DFMethod):
+    """TORRIERI: at every epoch, Torrieri's weighted LS on all bearings so far.
+
+    Reference point: the previous epoch's fix (the pairwise-intersection average at the
+    first fix). With ``torrieri_iterations = 1`` this is Torrieri's one-step estimator
+    about that reference; with 0, the converged (ML) fix. ``gate > 0`` applies
+    leave-one-out rejection to the whole batch at every epoch.
+    """
+
+    name = "TORRIERI"
+
+    def __init__(self, config: dict | None = None):
+        super().__init__(config)
+        self._sites: list[np.ndarray] = []
+        self._betas: list[float] = []
+        self._sigmas: list[float] = []
+        self._x = None
+
+    def _epoch(self, group):
+        for m in group:
+            site, beta = bearing_of(m)
+            self._sites.append(site)
+            self._betas.append(beta)
+            self._sigmas.append(self._sigma(m))
+        sites, betas, sigmas = np.array(self._sites), np.array(self._betas), np.array(self._sigmas)
+        if len(betas) < 2:
+            return None
+        try:  # GeometryError: one site only, or no two bearings intersect yet
+            x0 = self._x if self._x is not None else pairwise_intersection_mean(sites, betas)
+            fix = leave_one_out(sites, betas, sigmas, self.config.gate, x0=x0,
+                                iterations=int(self.config.torrieri_iterations))
+        except GeometryError:
+            return None
+        self._x = fix.x
+        return self._estimate(group, fix.x, fix.P, n_bearings=len(betas), n_used=int(fix.used.sum()),
+                              chi2=fix.chi2, iterations=fix.iterations, converged=fix.converged)
+
+
+class SmootherTorrieriMethod(DFMethod):
+    """KF+TR / MKF+TR: per-station bearing smoothers, Torrieri at the centre.
+
+    The smoothers (:class:`~fusion.df.smoothing.BearingSmoother` or its cross-fed MKF
+    form) are exactly what a station's local tracker runs in the distributed topology;
+    the centre is :func:`~fusion.df.triangulation.fix_from_bearings` on the latest
+    smoothed bearing of every station (sorted by sensor id), weighted by the smoothed
+    variances, warm-started at the previous fix.
+    """
+
+    def __init__(self, cross_fed: bool, config: dict | None = None):
+        self.name = "MKF+TR" if cross_fed else "KF+TR"
+        self.cross_fed = cross_fed
+        super().__init__(config)
+        self._smoothers: dict[str, BearingSmoother] = {}
+        self._latest: dict[str, Measurement] = {}
+        self._x = None
+
+    def make_smoother(self) -> BearingSmoother:
+        """A station smoother configured like this method's (for a local tracker)."""
+        c = self.config
+        sigma = None if c.sigma == "sensor" else float(c.sigma)
+        if self.cross_fed:
+            return CrossFedBearingSmoother(c.smoother_q, sigma, c.mekf_handoff)
+        return BearingSmoother(c.smoother_q, sigma)
+
+    def _epoch(self, group):
+        for m in group:
+            if m.sensor not in self._smoothers:
+                self._smoothers[m.sensor] = self.make_smoother()
+            self._latest[m.sensor] = self._smoothers[m.sensor].update(m)
+        if len(self._latest) < 2:
+            return None
+        try:
+            fix = fix_from_bearings([self._latest[k] for k in sorted(self._latest)], sigma=None,
+                                    gate=self.config.gate, x0=self._x,
+                                    iterations=int(self.config.torrieri_iterations))
+        except GeometryError:
+            return None
+        self._x = fix.x
+        return self._estimate(group, fix.x, fix.P, n_stations=len(self._latest), n_used=int(fix.used.sum()),
+                              chi2=fix.chi2, iterations=fix.iterations, converged=fix.converged)
+
+
+Method = DFMethod
+
+DF_METHODS: dict[str, Callable[[dict], DFMethod]] = {
+    "EKF": EKFMethod,
+    **{f"MEKF{k}": (lambda config, k=k: MEKFMethod(k, config)) for k in sorted(MEKF_VARIANTS)},
+    "IMM": IMMMethod,
+    "TORRIERI": TorrieriMethod,
+    "KF+TR": lambda config: SmootherTorrieriMethod(False, config),
+    "MKF+TR": lambda config: SmootherTorrieriMethod(True, config),
+}
+
+
+def make(name: str, config: dict | None = None) -> DFMethod:
+    """Build DF method ``name`` from a ``[tracker]`` table."""
+    if name not in DF_METHODS:
+        raise ValueError(f"unknown DF method {name!r}; expected one of {sorted(DF_METHODS)}")
+    return DF_METHODS[name](config or {})

@@ -1,0 +1,521 @@
+r"""The patent's six 3D fusion methods (SEEDS.md §2) and single-sensor baselines.
+
+Sensors: 2D radars (kind ``range_az``: azimuth, slant range) and angle sensors (kind
+``azel``: azimuth, elevation); 3D radars (``az_el_range``) for the baseline. A
+sensor's role is decided by its measurement kind, never by its id. All methods share
+one motion model (:mod:`fusion.motion`), one measurement geometry
+(:mod:`fusion.sensors3d`), one EKF step, and one initialiser (:mod:`fusion.init3d`).
+
+Methods (each a streaming :class:`Method`, built by a factory in :data:`PATENT_METHODS`):
+
+=========  ================================================================================
+LCDD       one EKF at the centre; per scan ``z = [az_i, el_i, range_r]`` (the angle
+           sensor's angles, the radar's range; the radar's azimuth is discarded)
+HNDD       one EKF; ``z = [az_f, el_i, range_r]``, ``az_f`` the inverse-variance fusion of
+           the two azimuths (``σ_f² = (σ_i⁻² + σ_r⁻²)⁻¹``). Needs co-located sensors.
+SS         one EKF; stacked ``z = [az_i, el_i, az_r, range_r]``, ``R = blkdiag(R_i, R_r)``
+HNV        a :class:`LocalTracker` (EKF) per sensor; a :class:`~fusion.track_fusion.TrackFuser`
+           at the centre fuses the local estimates
+PHHNV      HNV, and the fused estimate is fed back as every local tracker's next prior
+DDHNV      local trackers only predict (from the fed-back fused estimate); stage 1 fuses
+           the local predictions; the centre updates that fused prediction with each
+           sensor's measurement separately; stage 2 fuses those updated estimates
+RADAR2D,   one EKF on one kind of sensor only (``range_az``, ``azel``, ``az_el_range``);
+ANGLE,     measurements of other kinds are ignored
+RADAR3D
+=========  ================================================================================
+
+HNDD and SS are the same linearised update (inverse-variance pre-fusion of two
+measurements of one quantity equals stacking them), so from the same initial state
+they agree to round-off. With the ``info`` rule PHHNV and DDHNV equal SS (every local
+update starts from one shared prior, which the rule counts once).
+
+Streaming and scans. Measurements arrive in ``(t, sensor, seq)`` order. A *scan* is the
+group of measurements whose times lie within ``pair_tol`` of the scan's first
+measurement, at most one per sensor. A scan closes when (a) a measurement arrives that
+cannot join it, (b) a watermark ``advance(t)`` with ``t − t_first > pair_tol`` proves no
+member can still come, (c) it holds a measurement of every sensor seen so far (after
+the first scan), or (d) ``finish()``. All three depend only on the measurement
+sequence, so the emitted estimates never depend on when ``advance`` is called. A scan
+is processed at the time of its first measurement (time offsets within ``pair_tol``
+are neglected; keep ``pair_tol`` ≪ σ/speed). Sequential fallback: a scan holding only
+one sensor (asynchronous sensors, a dropped report) is processed with that sensor's
+measurement alone at its own time; measurements a method cannot pair (LCDD/HNDD given
+a second radar, a 3D radar, ...) are applied one after another, each with its own
+model, after the paired update. The first scan initialises the track
+(:func:`fusion.init3d.initial_state`) and is emitted as the first estimate (no NIS).
+
+Output: every method emits one estimate per scan with ``node="centre"`` (the one to
+score); HNV/PHHNV/DDHNV additionally emit each local node's report (``node`` = sensor
+id; DDHNV's local reports are predictions) before the centre estimate. ``nis`` is the
+sum of the scan's update NIS values, ``nis_dof`` the sum of their dimensions.
+
+Configuration (the scenario's ``[tracker]`` table; unknown keys are an error; keys a
+method does not use are accepted and ignored so one table serves every method):
+
+===============  =========================  =============================================
+key              default                    meaning
+===============  =========================  =============================================
+motion           ``"ca"``                   ``"ca"`` (9 states) or ``"cv"`` (6 states)
+q                0.01                       process-noise PSD (m²/s⁵ CA, m²/s³ CV)
+process_noise    ``"continuous"``           ``"continuous"`` or ``"discrete"`` (motion.py)
+fusion_rule      ``"info"``                 ``naive``, ``bar-shalom-campo``, ``ci``, ``info``
+ci_criterion     ``"trace"``                ``trace`` or ``det`` (for ``ci``)
+pair_tol         0.001                      s, scan grouping tolerance
+init_range       10000.0                    m, slant range prior (no range sensor)
+init_range_std   5000.0                     m
+init_el          0.1                        rad, elevation prior (no elevation sensor)
+init_el_std      0.1                        rad
+init_vel_std     200.0                      m/s per horizontal axis, around zero
+init_vel_std_up  20.0                       m/s vertical, around zero
+init_acc_std     10.0                       m/s² per horizontal axis, around zero (CA)
+init_acc_std_up  1.0                        m/s² vertical, around zero (CA)
+===============  =========================  =============================================
+
+Distributed use (issue 6): a local-tracker process owns a :class:`LocalTracker`
+(``initialise``/``accept_prior`` on messages from the centre, ``update``/``predict`` on
+its sensor's measurements, publishing the returned :class:`Estimate`); the fuser owns a
+:class:`~fusion.track_fusion.TrackFuser` and, for DDHNV, runs the centre-side updates
+with a :class:`LocalTracker` per measurement exactly as :class:`DistributedMethod` does.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+from functools import partial
+from typing import Callable, Protocol, Sequence
+
+import numpy as np
+
+from .angles import wrap_2pi, wrap_pi
+from .init3d import InitPriors, initial_state
+from .motion import make_motion, NOISE_FORMS
+from .sensors3d import SphericalModel, TrackEKF
+from .track_fusion import CI_CRITERIA, FUSION_RULES, TrackFuser
+from .types import KIND_COMPONENTS, Estimate, Measurement
+
+KINDS_3D = frozenset({"range_az", "azel", "az_el_range"})
+COLOCATED_TOL = 1e-3  # m: HNDD fuses two azimuths only if they are measured from one point
+
+
+class Method(Protocol):
+    """The streaming interface every method (patent, DF, IMM, ...) implements."""
+
+    name: str
+
+    def process(self, m: Measurement) -> list[Estimate]: ...
+    def advance(self, t: float) -> list[Estimate]: ...
+    def finish(self) -> list[Estimate]: ...
+
+
+# Configuration -----------------------------------------------------------------------
+@dataclass(frozen=True)
+class TrackerConfig:
+    """The ``[tracker]`` table of a scenario; see the module docstring for the keys."""
+
+    motion: str = "ca"
+    q: float = 0.01
+    process_noise: str = "continuous"
+    fusion_rule: str = "info"
+    ci_criterion: str = "trace"
+    pair_tol: float = 1e-3
+    init_range: float = 10_000.0
+    init_range_std: float = 5_000.0
+    init_el: float = 0.1
+    init_el_std: float = 0.1
+    init_vel_std: float = 200.0
+    init_vel_std_up: float = 20.0
+    init_acc_std: float = 10.0
+    init_acc_std_up: float = 1.0
+
+    @classmethod
+    def from_dict(cls, config: dict | None) -> "TrackerConfig":
+        config = dict(config or {})
+        known = {f.name: f for f in fields(cls)}
+        for key in config:
+            if key not in known:
+                raise ValueError(f"unknown tracker config key {key!r} (known: {', '.join(sorted(known))})")
+        values = {}
+        for key, value in config.items():
+            default = known[key].default
+            if isinstance(default, str):
+                if not isinstance(value, str):
+                    raise ValueError(f"tracker config {key!r} must be a string, got {value!r}")
+            else:
+                if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value):
+                    raise ValueError(f"tracker config {key!r} must be a finite number, got {value!r}")
+                value = float(value)
+            values[key] = value
+        cfg = cls(**values)
+        cfg._validate()
+        return cfg
+
+    def _validate(self) -> None:
+        if self.motion not in ("ca", "cv"):
+            raise ValueError(f"tracker config 'motion' must be 'ca' or 'cv', got {self.motion!r}")
+        if self.process_noise not in NOISE_FORMS:
+            raise ValueError(f"tracker config 'process_noise' must be one of {NOISE_FORMS}, got {self.process_noise!r}")
+        if self.fusion_rule not in FUSION_RULES:
+            raise ValueError(f"tracker config 'fusion_rule' must be one of {FUSION_RULES}, got {self.fusion_rule!r}")
+        if self.ci_criterion not in CI_CRITERIA:
+            raise ValueError(f"tracker config 'ci_criterion' must be one of {CI_CRITERIA}, got {self.ci_criterion!r}")
+        if self.q < 0.0:
+            raise ValueError(f"tracker config 'q' must be >= 0, got {self.q}")
+        if self.pair_tol < 0.0:
+            raise ValueError(f"tracker config 'pair_tol' must be >= 0, got {self.pair_tol}")
+        try:
+            self.priors()
+        except ValueError as e:
+            raise ValueError(f"tracker config: {e}") from None
+
+    def motion_model(self):
+        return make_motion(self.motion, self.q, self.process_noise)
+
+    def priors(self) -> InitPriors:
+        return InitPriors(
+            range=self.init_range,
+            range_std=self.init_range_std,
+            el=self.init_el,
+            el_std=self.init_el_std,
+            vel_std=self.init_vel_std,
+            vel_std_up=self.init_vel_std_up,
+            acc_std=self.init_acc_std,
+            acc_std_up=self.init_acc_std_up,
+        )
+
+
+# Scans -------------------------------------------------------------------------------
+class ScanGrouper:
+    """Groups a time-ordered measurement stream into scans (module docstring, "Streaming")."""
+
+    def __init__(self, pair_tol: float):
+        if pair_tol < 0.0:
+            raise ValueError(f"pair_tol must be >= 0, got {pair_tol}")
+        self.pair_tol = float(pair_tol)
+        self._open: list[Measurement] = []
+        self._seen: set[str] = set()
+        self._closed = 0
+        self._last_key: tuple | None = None
+        self._watermark = -np.inf
+
+    def _close(self) -> list[list[Measurement]]:
+        if not self._open:
+            return []
+        scan, self._open = self._open, []
+        self._closed += 1
+        return [scan]
+
+    def push(self, m: Measurement) -> list[list[Measurement]]:
+        key = m.order_key
+        if self._last_key is not None and key <= self._last_key:
+            raise ValueError(f"measurement {key} out of order (after {self._last_key})")
+        if m.t <= self._watermark:
+            raise ValueError(f"measurement at t={m.t} from {m.sensor!r} arrived after watermark {self._watermark}")
+        self._last_key = key
+        out = []
+        if self._open and (m.t - self._open[0].t > self.pair_tol or any(o.sensor == m.sensor for o in self._open)):
+            out += self._close()
+        self._open.append(m)
+        self._seen.add(m.sensor)
+        if self._closed and self._seen <= {o.sensor for o in self._open}:
+            out += self._close()
+        return out
+
+    def advance(self, t: float) -> list[list[Measurement]]:
+        self._watermark = max(self._watermark, float(t))
+        if self._open and self._watermark - self._open[0].t > self.pair_tol:
+            return self._close()
+        return []
+
+    def finish(self) -> list[list[Measurement]]:
+        return self._close()
+
+
+class ScanMethod:
+    """Base of the patent methods: streaming interface on top of :class:`ScanGrouper`.
+
+    Subclasses implement ``_process_scan(scan) -> list[Estimate]``.
+    """
+
+    kinds: frozenset = KINDS_3D  # kinds used; other 3D kinds are ignored
+
+    def __init__(self, name: str, config: TrackerConfig, track: str = "T1"):
+        self.name = name
+        self.config = config
+        self.track = track
+        self.motion = config.motion_model()
+        self.n_x = self.motion.n_x
+        self.priors = config.priors()
+        self._grouper = ScanGrouper(config.pair_tol)
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}({self.name!r})"
+
+    def process(self, m: Measurement) -> list[Estimate]:
+        if m.kind not in KINDS_3D:
+            raise ValueError(f"{self.name} cannot use a {m.kind!r} measurement (sensor {m.sensor!r})")
+        if m.kind not in self.kinds:
+            return []
+        return self._run(self._grouper.push(m))
+
+    def advance(self, t: float) -> list[Estimate]:
+        return self._run(self._grouper.advance(t))
+
+    def finish(self) -> list[Estimate]:
+        return self._run(self._grouper.finish())
+
+    def _run(self, scans: list[list[Measurement]]) -> list[Estimate]:
+        out: list[Estimate] = []
+        for scan in scans:
+            out += self._process_scan(scan)
+        return out
+
+    def _process_scan(self, scan: list[Measurement]) -> list[Estimate]:
+        raise NotImplementedError
+
+
+# Centralised methods: how a scan becomes measurement updates --------------------------
+Piece = tuple[SphericalModel, np.ndarray]
+
+
+def _model(m: Measurement, n_x: int) -> Piece:
+    return SphericalModel.from_measurement(m, n_x), np.asarray(m.z, dtype=float)
+
+
+def _component(m: Measurement, name: str) -> tuple[float, float]:
+    i = KIND_COMPONENTS[m.kind].index(name)
+    return float(m.z[i]), float(m.std[i])
+
+
+def _pair(scan: Sequence[Measurement]):
+    """The first angle sensor and first 2D radar of a scan, and the rest."""
+    angle = next((m for m in scan if m.kind == "azel"), None)
+    radar = next((m for m in scan if m.kind == "range_az"), None)
+    if angle is None or radar is None:
+        return None, None, list(scan)
+    return angle, radar, [m for m in scan if m is not angle and m is not radar]
+
+
+def pieces_stacked(scan: Sequence[Measurement], n_x: int) -> list[Piece]:
+    """SS: every measurement of the scan in one stacked update."""
+    models = [_model(m, n_x) for m in scan]
+    return [(SphericalModel.stack([p[0] for p in models]), np.concatenate([p[1] for p in models]))]
+
+
+def pieces_lcdd(scan: Sequence[Measurement], n_x: int) -> list[Piece]:
+    """LCDD: ``[az_i, el_i, range_r]`` (each row from its own sensor's site), then the rest."""
+    angle, radar, rest = _pair(scan)
+    pieces = []
+    if angle is not None:
+        (az, s_az), (el, s_el), (rg, s_rg) = _component(angle, "az"), _component(angle, "el"), _component(radar, "range")
+        model = SphericalModel(("az", "el", "range"), [angle.site, angle.site, radar.site], [s_az, s_el, s_rg], n_x)
+        pieces.append((model, np.array([az, el, rg])))
+    return pieces + [_model(m, n_x) for m in rest]
+
+
+def pieces_hndd(scan: Sequence[Measurement], n_x: int) -> list[Piece]:
+    """HNDD: ``[az_f, el_i, range_r]`` with the inverse-variance fused azimuth, then the rest."""
+    angle, radar, rest = _pair(scan)
+    pieces = []
+    if angle is not None:
+        gap = float(np.max(np.abs(np.asarray(angle.site, float) - np.asarray(radar.site, float))))
+        if gap > COLOCATED_TOL:
+            raise ValueError(
+                f"HNDD fuses the azimuths of {angle.sensor!r} and {radar.sensor!r}, which needs co-located "
+                f"sensors; their sites differ by {gap:.3g} m (use LCDD or SS)"
+            )
+        (az_i, s_i), (el, s_el), (az_r, s_r), (rg, s_rg) = (
+            _component(angle, "az"),
+            _component(angle, "el"),
+            _component(radar, "az"),
+            _component(radar, "range"),
+        )
+        w_r = s_i**2 / (s_i**2 + s_r**2)
+        az_f = wrap_2pi(az_i + w_r * wrap_pi(az_r - az_i))
+        s_f = s_i * s_r / np.hypot(s_i, s_r)
+        model = SphericalModel(("az", "el", "range"), angle.site, [s_f, s_el, s_rg], n_x)
+        pieces.append((model, np.array([az_f, el, rg])))
+    return pieces + [_model(m, n_x) for m in rest]
+
+
+class CentralisedMethod(ScanMethod):
+    """One EKF at the centre; ``pieces(scan, n_x)`` turns a scan into updates applied in turn.
+
+    LCDD, HNDD, SS and the single-sensor baselines are this class with different
+    ``pieces`` and ``kinds``.
+    """
+
+    def __init__(self, name, config, pieces: Callable[[Sequence[Measurement], int], list[Piece]], kinds=KINDS_3D):
+        super().__init__(name, config)
+        self.kinds = frozenset(kinds)
+        self._pieces = pieces
+        self.ekf: TrackEKF | None = None
+
+    def _process_scan(self, scan):
+        t = scan[0].t
+        if self.ekf is None:
+            x, P = initial_state(scan, self.n_x, self.priors)
+            self.ekf = TrackEKF(self.motion, x, P, t)
+            return [Estimate(t, x, P, self.name, "centre", self.track)]
+        self.ekf.predict(t)
+        nis, dof = 0.0, 0
+        for model, z in self._pieces(scan, self.n_x):
+            nis += self.ekf.update(model, z).nis
+            dof += model.n_z
+        return [Estimate(t, self.ekf.x, self.ekf.P, self.name, "centre", self.track, nis, dof)]
+
+
+# Distributed methods: local trackers + centre fuser ------------------------------------
+class LocalTracker:
+    """The per-sensor EKF of HNV/PHHNV/DDHNV, as a local-tracker process would run it.
+
+    * :meth:`initialise` / :meth:`accept_prior`: (re)start from an estimate sent by the
+      centre (the shared initial state, or the fused estimate fed back);
+    * :meth:`update`: predict to ``t`` and update with this sensor's measurement;
+    * :meth:`predict`: predict to ``t`` without a measurement.
+
+    Both return the local report (an :class:`Estimate`, ``node`` = sensor id) with the
+    ``extra`` fields every fusion rule needs (:mod:`fusion.track_fusion`): ``prior_x``,
+    ``prior_P`` (the prediction the update started from), ``KH`` (``K·H``, zero for a
+    prediction), ``feedback_t`` (time of the centre estimate it was restarted from since
+    its previous report, else ``None``) and ``prediction`` (bool).
+    """
+
+    def __init__(self, sensor: str, motion, method: str = "HNV", track: str = "T1"):
+        self.sensor = sensor
+        self.motion = motion
+        self.method = method
+        self.track = track
+        self.ekf: TrackEKF | None = None
+        self._feedback_t: float | None = None
+
+    @property
+    def initialised(self) -> bool:
+        return self.ekf is not None
+
+    def initialise(self, x: np.ndarray, P: np.ndarray, t: float) -> None:
+        self.ekf = TrackEKF(self.motion, x, P, t)
+        self._feedback_t = float(t)
+
+    accept_prior = initialise  # feedback: the centre's estimate becomes the next prior
+
+    def _report(self, prior_x, prior_P, KH, nis=None, dof=None) -> Estimate:
+        extra = {
+            "prior_x": prior_x,
+            "prior_P": prior_P,
+            "KH": KH,
+            "feedback_t": self._feedback_t,
+            "prediction": nis is None,
+        }
+        self._feedback_t = None
+        e = self.ekf
+        return Estimate(e.t, e.x, e.P, self.method, self.sensor, self.track, nis, dof, extra)
+
+    def _require(self):
+        if self.ekf is None:
+            raise ValueError(f"local tracker {self.sensor!r} has no prior yet (initialise it from the centre)")
+
+    def predict(self, t: float) -> Estimate:
+        self._require()
+        self.ekf.predict(t)
+        return self._report(self.ekf.x, self.ekf.P, np.zeros((self.ekf.x.size,) * 2))
+
+    def update(self, m: Measurement, t: float | None = None) -> Estimate:
+        """Update with this sensor's measurement at time ``t`` (default ``m.t``; the scan time in-process)."""
+        self._require()
+        if m.sensor != self.sensor:
+            raise ValueError(f"local tracker {self.sensor!r} got a measurement of sensor {m.sensor!r}")
+        self.ekf.predict(m.t if t is None else t)
+        prior_x, prior_P = self.ekf.x, self.ekf.P
+        model, z = _model(m, self.ekf.x.size)
+        res = self.ekf.update(model, z)
+        return self._report(prior_x, prior_P, res.K @ self.ekf.H, res.nis, model.n_z)
+
+
+class DistributedMethod(ScanMethod):
+    """HNV (``feedback=False``), PHHNV (``feedback=True``), DDHNV (``two_stage=True``).
+
+    Thin composition of one :class:`LocalTracker` per sensor and a
+    :class:`~fusion.track_fusion.TrackFuser`. All local trackers start from the one
+    initial state of the first scan (so comparisons with the centralised methods are
+    fair); a sensor first seen later starts from the centre's last fused estimate.
+    """
+
+    def __init__(self, name: str, config: TrackerConfig, feedback: bool, two_stage: bool = False):
+        super().__init__(name, config)
+        self.feedback = feedback or two_stage  # DDHNV's local predictors run from the fed-back estimate
+        self.two_stage = two_stage
+        self.fuser = TrackFuser(config.fusion_rule, self.motion, config.ci_criterion, name, self.track)
+        self.locals: dict[str, LocalTracker] = {}
+
+    def _local(self, sensor: str) -> LocalTracker:
+        loc = self.locals.get(sensor)
+        if loc is None:
+            loc = self.locals[sensor] = LocalTracker(sensor, self.motion, self.name, self.track)
+            loc.initialise(self.fuser.x, self.fuser.P, self.fuser.t)
+        return loc
+
+    def _process_scan(self, scan):
+        t = scan[0].t
+        if not self.fuser.initialised:
+            x, P = initial_state(scan, self.n_x, self.priors)
+            self.fuser.initialise(x, P, t)
+            for m in scan:
+                self._local(m.sensor)
+            return [Estimate(t, x, P, self.name, "centre", self.track)]
+        by_sensor = {m.sensor: m for m in scan}
+        for s in by_sensor:
+            self._local(s)
+        names = sorted(self.locals)
+        if self.two_stage:
+            reports = [self.locals[s].predict(t) for s in names]
+            stage1 = self.fuser.fuse(t, reports)
+            updates = []
+            for s, m in by_sensor.items():  # the centre's updates of the fused prediction
+                c = LocalTracker(s, self.motion, self.name, self.track)
+                c.accept_prior(stage1.x, stage1.P, t)
+                updates.append(c.update(m, t))
+            fused = self.fuser.fuse(t, updates)
+            nis_from = updates
+        else:
+            reports = [self.locals[s].update(by_sensor[s], t) if s in by_sensor else self.locals[s].predict(t) for s in names]
+            fused = self.fuser.fuse(t, reports)
+            nis_from = [r for r in reports if r.nis is not None]
+        if self.feedback:
+            for loc in self.locals.values():
+                loc.accept_prior(fused.x, fused.P, t)
+        nis = sum(r.nis for r in nis_from) if nis_from else None
+        dof = sum(r.nis_dof for r in nis_from) if nis_from else None
+        centre = Estimate(t, fused.x, fused.P, self.name, "centre", self.track, nis, dof, fused.extra)
+        return [*reports, centre]
+
+
+# Factories ---------------------------------------------------------------------------
+def _centralised(name, pieces, kinds, config: dict | None) -> CentralisedMethod:
+    return CentralisedMethod(name, TrackerConfig.from_dict(config), pieces, kinds)
+
+
+def _distributed(name, feedback, two_stage, config: dict | None) -> DistributedMethod:
+    return DistributedMethod(name, TrackerConfig.from_dict(config), feedback, two_stage)
+
+
+PATENT_METHODS: dict[str, Callable[[dict], ScanMethod]] = {
+    "LCDD": partial(_centralised, "LCDD", pieces_lcdd, KINDS_3D),
+    "HNDD": partial(_centralised, "HNDD", pieces_hndd, KINDS_3D),
+    "SS": partial(_centralised, "SS", pieces_stacked, KINDS_3D),
+    "HNV": partial(_distributed, "HNV", False, False),
+    "PHHNV": partial(_distributed, "PHHNV", True, False),
+    "DDHNV": partial(_distributed, "DDHNV", True, True),
+    "RADAR2D": partial(_centralised, "RADAR2D", pieces_stacked, {"range_az"}),
+    "ANGLE": partial(_centralised, "ANGLE", pieces_stacked, {"azel"}),
+    "RADAR3D": partial(_centralised, "RADAR3D", pieces_stacked, {"az_el_range"}),
+}
+
+
+def make(name: str, config: dict | None = None) -> ScanMethod:
+    """Build a patent method by name with the scenario's ``[tracker]`` table."""
+    try:
+        factory = PATENT_METHODS[name]
+    except KeyError:
+        raise ValueError(f"unknown patent method {name!r} (known: {', '.join(PATENT_METHODS)})") from None
+    return factory(config)

@@ -1,0 +1,380 @@
+r"""Track-to-track fusion rules, and the centre-side fuser that runs them.
+
+All rules fuse N ≥ 1 estimates ``(x_i, P_i)`` of the same state at the same time.
+
+``naive`` — the patent's "MMSE" rule, exact only for *independent* estimates::
+
+    P_f = (Σ P_i⁻¹)⁻¹,   x_f = P_f Σ P_i⁻¹ x_i
+
+``bar-shalom-campo`` — best linear unbiased fusion given the cross-covariances
+``P_ij = Cov(e_i, e_j)``. With ``d_j = x_j − x_1`` (j ≥ 2), ``C = [P_1j − P_11]_j`` and
+``D = [P_jk − P_j1 − P_1k + P_11]_jk``::
+
+    x_f = x_1 − C D⁺ d,   P_f = P_11 − C D⁺ Cᵀ
+
+which for N = 2 is Bar-Shalom & Campo (1986)::
+
+    x_f = x_1 + (P_1 − P_12)(P_1 + P_2 − P_12 − P_21)⁻¹ (x_2 − x_1)
+    P_f = P_1 − (P_1 − P_12)(P_1 + P_2 − P_12 − P_21)⁻¹ (P_1 − P_21)
+
+``D⁺`` is a pseudo-inverse: D is singular when tracks share their prior (their
+difference lies in the span of the gains) and zero for identical tracks.
+The cross-covariance recursion for local EKFs driven by the same process noise, with
+``A_i = I − K_i H_i`` of each local update (``A_i = I`` for a prediction)::
+
+    P_ij ← A_i (F P_ij Fᵀ + Q) A_jᵀ
+
+``ci`` — covariance intersection, consistent for any unknown correlation::
+
+    P_f⁻¹ = Σ ω_i P_i⁻¹,   P_f⁻¹ x_f = Σ ω_i P_i⁻¹ x_i,   ω on the simplex
+
+with ω minimising ``tr P_f`` or ``det P_f`` (``criterion``). For N = 2 both objectives
+are scalar functions of ω through the generalised eigenproblem ``P_1⁻¹v = λ P_2⁻¹v``
+(convex; solved by a root search on the derivative); for N > 2 by SLSQP on the simplex.
+
+``info`` — subtract the information each track shares with the centre's prior.
+Each local track i carries the prior it was updated from, ``(x̄_i, P̄_i)``; the
+centre has its own prior ``(x_c, P_c)`` (its last fused estimate predicted to now)::
+
+    P_f⁻¹       = P_c⁻¹ + Σ (P_i⁻¹ − P̄_i⁻¹)
+    P_f⁻¹ x_f   = P_c⁻¹ x_c + Σ (P_i⁻¹ x_i − P̄_i⁻¹ x̄_i)
+
+With feedback or two-stage fusion every ``P̄_i = P_c``, and this is
+``P_f⁻¹ = Σ P_i⁻¹ − (N − 1) P_c⁻¹``: for linear(ised) updates from one prior it equals
+the centralised filter exactly. Without feedback (HNV) each increment
+``P_i⁻¹ − P̄_i⁻¹ = H_iᵀ R_i⁻¹ H_i`` is still the local measurement's information
+(Chong–Mori–Chang hierarchical fusion), exact for linear models; EKF linearisation
+at the local rather than the central prediction makes it approximate.
+
+Numerics: inverses are taken after equilibration (diagonal scaling), and information
+vectors are formed about a reference point, because positions of ~10⁴ m next to
+accelerations of ~10⁻² m/s² would otherwise cost many digits.
+
+What a local track (an :class:`~fusion.types.Estimate`) must carry in ``extra`` for
+:class:`TrackFuser`, per rule:
+
+=====================  ==============================================================
+naive, ci              nothing beyond ``x``, ``P``, ``t``
+info                   ``prior_x``, ``prior_P``: the prediction the local update started
+                       from (a prediction-only report: the prediction itself)
+bar-shalom-campo       ``KH``: ``K·H`` of the local update at ``t`` (zeros for a
+                       prediction); ``feedback_t``: time of the centre's fused estimate
+                       the track was (re)started from since its previous report
+                       (initialisation or feedback), else ``None``
+=====================  ==============================================================
+"""
+
+from __future__ import annotations
+
+from typing import Sequence
+
+import numpy as np
+from scipy.linalg import eigh
+from scipy.optimize import brentq, minimize
+
+from .kalman import symmetrise
+from .types import Estimate
+
+FUSION_RULES = ("naive", "bar-shalom-campo", "ci", "info")
+CI_CRITERIA = ("trace", "det")
+_PINV_RTOL = 1e-10  # eigenvalues of an equilibrated PSD matrix below this count as zero
+
+
+# Linear-algebra helpers ------------------------------------------------------------
+def _inv_spd(P: np.ndarray, what: str = "covariance") -> np.ndarray:
+    """Inverse of an SPD matrix via equilibration + Cholesky."""
+    d = np.sqrt(np.diag(P))
+    if not np.all(d > 0.0) or not np.all(np.isfinite(d)):
+        raise ValueError(f"{what} is not positive definite (diagonal {np.diag(P)})")
+    s = 1.0 / d
+    try:
+        L = np.linalg.cholesky(P * s[:, None] * s[None, :])
+    except np.linalg.LinAlgError:
+        raise ValueError(f"{what} is not positive definite") from None
+    Linv = np.linalg.inv(L)  # triangular, condition number √cond of the equilibrated matrix
+    return (Linv.T @ Linv) * s[:, None] * s[None, :]
+
+
+def _pinv_psd(D: np.ndarray) -> np.ndarray:
+    """A generalised inverse of a PSD matrix: pseudo-inverse of its equilibrated form."""
+    d = np.sqrt(np.clip(np.diag(D), 0.0, None))
+    scale = np.where(d > 1e-300, d, 1.0)
+    Ds = D / scale[:, None] / scale[None, :]
+    w, V = np.linalg.eigh(symmetrise(Ds))
+    keep = w > _PINV_RTOL * max(float(w.max(initial=0.0)), 1e-300)
+    Dp = (V[:, keep] / w[keep]) @ V[:, keep].T
+    return Dp / scale[:, None] / scale[None, :]
+
+
+def _check(xs, Ps):
+    xs = [np.asarray(x, dtype=float) for x in xs]
+    Ps = [np.asarray(P, dtype=float) for P in Ps]
+    if not xs or len(xs) != len(Ps):
+        raise ValueError(f"need one or more estimates with one covariance each, got {len(xs)} and {len(Ps)}")
+    n = xs[0].size
+    for x, P in zip(xs, Ps):
+        if x.shape != (n,) or P.shape != (n, n):
+            raise ValueError(f"estimates must all be ({n},) with ({n}, {n}) covariances, got {x.shape}, {P.shape}")
+    return xs, Ps
+
+
+# The rules ---------------------------------------------------------------------------
+def fuse_naive(xs: Sequence[np.ndarray], Ps: Sequence[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """Independent-estimates (the patent's "MMSE") fusion."""
+    xs, Ps = _check(xs, Ps)
+    if len(xs) == 1:
+        return xs[0], Ps[0]
+    ref = xs[0]
+    Ys = [_inv_spd(P) for P in Ps]
+    Pf = _inv_spd(sum(Ys), "fused information")
+    xf = ref + Pf @ sum(Y @ (x - ref) for Y, x in zip(Ys, xs))
+    return xf, Pf
+
+
+def fuse_bar_shalom_campo(xs, Ps, cross) -> tuple[np.ndarray, np.ndarray, list[np.ndarray]]:
+    """Best linear unbiased fusion with cross-covariances ``cross[i][j] = Cov(e_i, e_j)``.
+
+    ``cross`` is any object indexable as ``cross[i][j]`` for i ≠ j (a nested list, or
+    a dict of dicts). Returns ``x_f``, ``P_f`` and the weights ``W_i`` (``x_f = Σ W_i x_i``,
+    ``Σ W_i = I``).
+    """
+    xs, Ps = _check(xs, Ps)
+    N, n = len(xs), xs[0].size
+    if N == 1:
+        return xs[0], Ps[0], [np.eye(n)]
+
+    def Pij(i, j):
+        return Ps[i] if i == j else np.asarray(cross[i][j], dtype=float)
+
+    m = N - 1
+    C = np.hstack([Pij(0, j) - Ps[0] for j in range(1, N)])  # Cov(e_1, d)
+    D = np.empty((m * n, m * n))
+    for a, j in enumerate(range(1, N)):
+        for b, k in enumerate(range(1, N)):
+            D[a * n : (a + 1) * n, b * n : (b + 1) * n] = Pij(j, k) - Pij(j, 0) - Pij(0, k) + Ps[0]
+    d = np.concatenate([xs[j] - xs[0] for j in range(1, N)])
+    G = -C @ _pinv_psd(symmetrise(D))  # x_f = x_1 + G d
+    xf = xs[0] + G @ d
+    Pf = symmetrise(Ps[0] + G @ C.T)
+    Gs = [G[:, a * n : (a + 1) * n] for a in range(m)]
+    return xf, Pf, [np.eye(n) - sum(Gs)] + Gs
+
+
+def ci_weights(Ps: Sequence[np.ndarray], criterion: str = "trace") -> np.ndarray:
+    """The covariance-intersection weights ω minimising ``tr P_f`` or ``det P_f``."""
+    return _ci_weights([_inv_spd(P) for P in Ps], criterion)
+
+
+def _ci_weights(Ys: Sequence[np.ndarray], criterion: str) -> np.ndarray:
+    if criterion not in CI_CRITERIA:
+        raise ValueError(f"ci criterion must be one of {CI_CRITERIA}, got {criterion!r}")
+    N = len(Ys)
+    if N == 1:
+        return np.ones(1)
+    if N == 2:
+        # Y1 v = λ Y2 v with Vᵀ Y2 V = I: ω Y1 + (1−ω) Y2 = V⁻ᵀ diag(1 + ω(λ−1)) V⁻¹.
+        lam, V = eigh(Ys[0], Ys[1])
+        a = lam - 1.0
+        if criterion == "det":  # minimise −Σ log(1 + ω a)
+            def grad(w):
+                return -np.sum(a / (1.0 + w * a))
+        else:  # minimise Σ c/(1 + ω a), c = |v|²
+            c = np.sum(V * V, axis=0)
+
+            def grad(w):
+                return -np.sum(c * a / (1.0 + w * a) ** 2)
+        g0, g1 = grad(0.0), grad(1.0)
+        if g0 >= 0.0:
+            w = 0.0
+        elif g1 <= 0.0:
+            w = 1.0
+        else:
+            w = brentq(grad, 0.0, 1.0, xtol=1e-14, rtol=4 * np.finfo(float).eps)
+        return np.array([w, 1.0 - w])
+
+    def objective(w):
+        M = sum(wi * Y for wi, Y in zip(w, Ys))
+        if criterion == "det":
+            return -np.linalg.slogdet(M)[1]
+        return float(np.trace(np.linalg.inv(M)))
+
+    res = minimize(
+        objective,
+        np.full(N, 1.0 / N),
+        method="SLSQP",
+        bounds=[(0.0, 1.0)] * N,
+        constraints=[{"type": "eq", "fun": lambda w: np.sum(w) - 1.0}],
+        options={"ftol": 1e-12, "maxiter": 200},
+    )
+    w = np.clip(res.x, 0.0, 1.0)
+    return w / w.sum()
+
+
+def fuse_ci(xs, Ps, criterion: str = "trace") -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Covariance intersection; returns ``x_f``, ``P_f`` and ω."""
+    xs, Ps = _check(xs, Ps)
+    Ys = [_inv_spd(P) for P in Ps]
+    w = _ci_weights(Ys, criterion)
+    ref = xs[0]
+    Pf = _inv_spd(sum(wi * Y for wi, Y in zip(w, Ys)), "CI information")
+    xf = ref + Pf @ sum(wi * (Y @ (x - ref)) for wi, Y, x in zip(w, Ys, xs))
+    return xf, Pf, w
+
+
+def fuse_info(xs, Ps, prior_xs, prior_Ps, x_c, P_c) -> tuple[np.ndarray, np.ndarray]:
+    """Information fusion subtracting each track's prior; see the module docstring."""
+    xs, Ps = _check(xs, Ps)
+    prior_xs, prior_Ps = _check(prior_xs, prior_Ps)
+    if len(prior_xs) != len(xs):
+        raise ValueError(f"info fusion needs one prior per track, got {len(prior_xs)} for {len(xs)}")
+    x_c = np.asarray(x_c, dtype=float)
+    Y = _inv_spd(np.asarray(P_c, dtype=float), "centre prior covariance")
+    y = np.zeros_like(x_c)  # information vector about x_c
+    for x, P, xb, Pb in zip(xs, Ps, prior_xs, prior_Ps):
+        if (xb is x or np.array_equal(xb, x)) and (Pb is P or np.array_equal(Pb, P)):
+            continue  # a prediction-only report: no new information
+        Yi = _inv_spd(P)
+        Ybi = _inv_spd(Pb, "local prior covariance")
+        Y = Y + (Yi - Ybi)
+        y = y + Yi @ (x - x_c) - Ybi @ (xb - x_c)
+    Pf = _inv_spd(symmetrise(Y), "info-fused information (prior subtracted more than it was counted?)")
+    return x_c + Pf @ y, Pf
+
+
+# The centre-side fuser --------------------------------------------------------------
+class TrackFuser:
+    """Centre-side fusion of local tracks with the bookkeeping each rule needs.
+
+    Keeps the last fused estimate ``(x, P, t)`` (the ``info`` rule's centre prior,
+    predicted with ``motion``) and, for ``bar-shalom-campo``, the cross-covariances
+    between every pair of local nodes and between the fused track and each node, so
+    that tracks re-started from the fused estimate (feedback, two-stage) are handled
+    exactly. Local tracks are :class:`Estimate` objects carrying the ``extra`` fields
+    listed in the module docstring; they must all be at the fusion time.
+
+    Every known node is assumed to report at every fusion time (a node with no
+    measurement reports its prediction); a node that does not is propagated as a pure
+    prediction (``A = I``) in the cross-covariance bookkeeping.
+    """
+
+    def __init__(self, rule: str, motion, ci_criterion: str = "trace", method: str = "HNV", track: str = "T1"):
+        if rule not in FUSION_RULES:
+            raise ValueError(f"fusion rule must be one of {FUSION_RULES}, got {rule!r}")
+        if ci_criterion not in CI_CRITERIA:
+            raise ValueError(f"ci criterion must be one of {CI_CRITERIA}, got {ci_criterion!r}")
+        self.rule = rule
+        self.motion = motion
+        self.ci_criterion = ci_criterion
+        self.method = method
+        self.track = track
+        self.x = self.P = self.t = None
+        self._P_nodes: dict[str, np.ndarray] = {}  # Cov(e_a, e_a) at self.t
+        self._cross: dict[tuple[str, str], np.ndarray] = {}  # Cov(e_a, e_b), a < b, at self.t
+        self._cross_fused: dict[str, np.ndarray] = {}  # Cov(e_f, e_a) at self.t
+
+    @property
+    def initialised(self) -> bool:
+        return self.t is not None
+
+    def initialise(self, x: np.ndarray, P: np.ndarray, t: float) -> None:
+        """Start from a shared initial estimate (every local tracker starts from it too)."""
+        self.x, self.P, self.t = np.asarray(x, float), np.asarray(P, float), float(t)
+        self._P_nodes.clear()
+        self._cross.clear()
+        self._cross_fused.clear()
+
+    def predicted(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """The last fused estimate predicted to ``t`` (the centre prior)."""
+        if not self.initialised:
+            raise ValueError("fuser not initialised")
+        dt = float(t) - self.t
+        if dt < 0.0:
+            raise ValueError(f"cannot fuse at t={t}: the fuser is already at t={self.t}")
+        if dt == 0.0:
+            return self.x, self.P
+        F = self.motion.F(dt)
+        return F @ self.x, symmetrise(F @ self.P @ F.T + self.motion.Q(dt))
+
+    def fuse(self, t: float, tracks: Sequence[Estimate]) -> Estimate:
+        """Fuse the local tracks (all at time ``t``) into the centre's estimate at ``t``."""
+        if not tracks:
+            raise ValueError("nothing to fuse")
+        t = float(t)
+        nodes = [e.node for e in tracks]
+        if len(set(nodes)) != len(nodes):
+            raise ValueError(f"two tracks from one node in one fusion: {nodes}")
+        for e in tracks:
+            if abs(e.t - t) > 1e-9:
+                raise ValueError(f"track from node {e.node!r} is at t={e.t}, fusion time is {t}")
+        x_c, P_c = self.predicted(t)
+        xs = [np.asarray(e.x, float) for e in tracks]
+        Ps = [np.asarray(e.P, float) for e in tracks]
+        extra: dict = {"rule": self.rule, "nodes": nodes}
+        if self.rule == "naive":
+            xf, Pf = fuse_naive(xs, Ps)
+        elif self.rule == "ci":
+            xf, Pf, w = fuse_ci(xs, Ps, self.ci_criterion)
+            extra["omega"] = w
+        elif self.rule == "info":
+            try:
+                pxs = [e.extra["prior_x"] for e in tracks]
+                pPs = [e.extra["prior_P"] for e in tracks]
+            except KeyError:
+                raise ValueError("info fusion needs prior_x and prior_P in every local track's extra") from None
+            xf, Pf = fuse_info(xs, Ps, pxs, pPs, x_c, P_c)
+        else:
+            xf, Pf = self._fuse_bsc(t, tracks, xs, Ps, P_c)
+        self.x, self.P, self.t = xf, Pf, t
+        return Estimate(t=t, x=xf, P=Pf, method=self.method, node="centre", track=self.track, extra=extra)
+
+    def _fuse_bsc(self, t, tracks, xs, Ps, P_c):
+        dt = t - self.t
+        F, Q = self.motion.F(dt), self.motion.Q(dt)
+        n = xs[0].size
+        A, fb = {}, {}
+        for e in tracks:
+            try:
+                KH = np.asarray(e.extra["KH"], float)
+                feedback_t = e.extra["feedback_t"]
+            except KeyError:
+                raise ValueError("bar-shalom-campo fusion needs KH and feedback_t in every local track's extra") from None
+            A[e.node] = np.eye(n) - KH
+            fb[e.node] = feedback_t is not None and abs(float(feedback_t) - self.t) <= 1e-9
+            if not fb[e.node] and e.node not in self._P_nodes:
+                raise ValueError(
+                    f"bar-shalom-campo: no cross-covariance for node {e.node!r}; a local track must start "
+                    "from the centre's fused estimate (initialisation or feedback)"
+                )
+        reported = {e.node: P for e, P in zip(tracks, Ps)}
+        nodes = sorted(set(self._P_nodes) | set(reported))
+        for a in nodes:
+            A.setdefault(a, np.eye(n))
+            fb.setdefault(a, False)
+
+        def prior_cross(a, b):  # Cov(e_a, e_b) of the priors at t (before the updates at t)
+            if fb[a] and fb[b]:
+                return P_c
+            if fb[a]:
+                return F @ self._cross_fused[b] @ F.T + Q
+            if fb[b]:
+                return (F @ self._cross_fused[a] @ F.T + Q).T
+            C = self._cross[(a, b)] if a < b else self._cross[(b, a)].T
+            return F @ C @ F.T + Q
+
+        P_nodes = {a: reported.get(a) if a in reported else symmetrise(F @ self._P_nodes[a] @ F.T + Q) for a in nodes}
+        cross = {}
+        for i, a in enumerate(nodes):
+            for b in nodes[i + 1 :]:
+                cross[(a, b)] = A[a] @ prior_cross(a, b) @ A[b].T
+
+        def Pab(a, b):
+            if a == b:
+                return P_nodes[a]
+            return cross[(a, b)] if a < b else cross[(b, a)].T
+
+        rep = [e.node for e in tracks]
+        xf, Pf, W = fuse_bar_shalom_campo(xs, Ps, [[Pab(a, b) for b in rep] for a in rep])
+        self._P_nodes = P_nodes
+        self._cross = cross
+        self._cross_fused = {b: sum(Wi @ Pab(a, b) for Wi, a in zip(W, rep)) for b in nodes}
+        return xf, Pf

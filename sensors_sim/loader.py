@@ -1,0 +1,357 @@
+"""Scenario files: find, parse, validate, convert to SI (the format is in README.md).
+
+Every problem raises :class:`ScenarioError` naming the file, the line and the field,
+e.g. ``patent-3d.toml:14: sensors.radar2d.std_range_m: must be > 0 (got -20)``.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import re
+import tomllib
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+
+from fusion.geodetic import geodetic_to_enu
+from fusion.types import KIND_COMPONENTS
+
+from ._toml import ANGLE, LENGTH, RATE, TIME, Reader, TomlSource
+from .noise import OUTLIER_LAWS
+from .spec import (
+    DF_KINDS,
+    JAM_MODES,
+    SENSOR_KINDS,
+    TOPOLOGIES,
+    TRUTH_PROCESS,
+    JammerSpec,
+    Scenario,
+    ScenarioError,
+    SensorSpec,
+    Site,
+    TargetSpec,
+)
+from .trajectories import (
+    ConstantAcceleration,
+    ConstantVelocity,
+    CoordinatedTurn,
+    Static,
+    Waypoints,
+)
+
+_ID = re.compile(r"^[A-Za-z0-9_-]+$")  # ids become Zenoh key chunks: no '/', '*', ...
+_MIN_SEPARATION = 1.0  # m: a sensor closer than this to a target or jammer is "at" it
+_GRID_TOL = 1e-9
+
+
+# --- finding files ----------------------------------------------------------------------
+
+
+def _builtin_dir():
+    return resources.files("sensors_sim").joinpath("scenarios")
+
+
+def list_scenarios() -> list[tuple[str, str]]:
+    """The built-in scenarios: (name, one-line description), sorted by name."""
+    out = []
+    for entry in sorted(_builtin_dir().iterdir(), key=lambda e: e.name.removesuffix(".toml")):
+        if entry.name.endswith(".toml"):
+            try:
+                description = tomllib.loads(entry.read_text(encoding="utf-8")).get("description", "")
+            except tomllib.TOMLDecodeError:
+                description = "(unreadable: run load_scenario for details)"
+            out.append((entry.name[: -len(".toml")], str(description)))
+    return out
+
+
+def load_scenario(name_or_path: str | os.PathLike) -> Scenario:
+    """Load a built-in scenario by name (``patent-3d``) or a TOML file by path."""
+    text, name, display = _read(name_or_path)
+    source = TomlSource(text, display)
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as e:
+        m = re.search(r"line (\d+)", str(e))
+        raise ScenarioError(f"{display}:{m.group(1) if m else 1}: invalid TOML: {e}") from None
+    return _scenario(Reader(data, (), source), name, display)
+
+
+def _read(name_or_path) -> tuple[str, str, str]:
+    """(text, scenario name, name used in messages)."""
+    s = os.fspath(name_or_path)
+    looks_like_path = s.endswith(".toml") or os.sep in s or (os.altsep and os.altsep in s) or os.path.exists(s)
+    if looks_like_path:
+        p = Path(s)
+        try:
+            return p.read_text(encoding="utf-8"), p.stem, s
+        except OSError as e:
+            raise ScenarioError(f"{s}: cannot read scenario file: {e.strerror}") from None
+    entry = _builtin_dir().joinpath(f"{s}.toml")
+    if not entry.is_file():
+        names = ", ".join(n for n, _ in list_scenarios())
+        raise ScenarioError(f"unknown scenario {s!r}: not a file, and not a built-in ({names})")
+    return entry.read_text(encoding="utf-8"), s, f"{s}.toml"
+
+
+# --- the file, table by table -----------------------------------------------------------
+
+
+def _scenario(root: Reader, name: str, display: str) -> Scenario:
+    description = root.string("description")
+    seed = root.integer("seed", ge=0)
+    duration = root.quantity("duration", TIME, gt=0)
+    truth_dt = root.quantity("truth_dt", TIME, default=None, gt=0)
+    origin_r = root.table("origin")
+    origin = (
+        origin_r.number("lat_deg", ge=-90, le=90),
+        origin_r.number("lon_deg", ge=-180, le=180),
+        origin_r.number("alt_m"),
+    )
+    origin_r.finish()
+    defaults_r = root.table("defaults")
+    # the method name is checked by the CLI against fusion.methods (sensors_sim does
+    # not depend on the estimation methods)
+    defaults = {"topology": defaults_r.string("topology", choices=TOPOLOGIES),
+                "method": defaults_r.string("method")}
+    defaults_r.finish()
+    tracker = root.raw("tracker", {})
+    if not isinstance(tracker, dict):
+        raise root.error("must be a table", "tracker")
+
+    targets = {tid: _target(r, origin) for tid, r in root.tables("targets")}
+    jammers = {jid: _jammer(r, origin) for jid, r in root.tables("jammers", required=False)}
+    sensors, sensor_pos_keys = {}, {}
+    for sid, r in root.tables("sensors"):
+        sensors[sid], sensor_pos_keys[sid] = _sensor(r, origin, targets)
+    root.finish()
+
+    src = root.source
+    _check_ids(src, targets, sensors, jammers)
+    for sid, s in sensors.items():
+        _check_targets(src, s, targets, jammers)
+        if s.start > duration * (1 + _GRID_TOL):
+            raise src.error(("sensors", sid, "start_s"), f"first scan after the end (duration {duration:g} s)")
+        _check_apart(src, ("sensors", sid, sensor_pos_keys[sid]), s.site,
+                     {**{t: ts.x0[:3] for t, ts in targets.items()},
+                      **{j: js.site.points for j, js in jammers.items()}})
+    noisy = [tid for tid, t in targets.items() if t.jerk_psd > 0]
+    if noisy and truth_dt is None:
+        raise src.error(("targets", noisy[0], "jerk_psd"), "process noise needs truth_dt_s (the truth grid step)")
+    if noisy:
+        for sid, s in sensors.items():
+            for key, value in (("start_s", s.start), ("period_s", s.period)):
+                if not _on_grid(value, truth_dt):
+                    raise src.error(("sensors", sid, key), f"scans must fall on the truth grid: must be a "
+                                    f"multiple of truth_dt_s = {truth_dt:g}")
+    return Scenario(
+        name=name, description=description, seed=seed, duration=duration, origin=origin,
+        targets=targets, sensors=sensors, jammers=jammers, tracker=tracker, defaults=defaults,
+        truth_dt=truth_dt if noisy else None, source=display,
+    )
+
+
+def _on_grid(value: float, step: float) -> bool:
+    k = round(value / step)
+    return abs(value - k * step) <= _GRID_TOL * max(step, abs(value))
+
+
+# --- positions --------------------------------------------------------------------------
+
+
+def _geodetic_to_enu(lat: float, lon: float, alt: float, origin: tuple[float, float, float]) -> np.ndarray:
+    return np.array(geodetic_to_enu(lat, lon, alt, *origin, deg=True), dtype=float)
+
+
+def _point(r: Reader, origin) -> tuple[np.ndarray, str]:
+    """A fixed ENU position from ``pos_m`` / ``pos_km`` or ``lat_deg, lon_deg, alt_m``."""
+    r.allow("lat_deg", "lon_deg", "alt_m")
+    geodetic = [k for k in ("lat_deg", "lon_deg", "alt_m") if r.has(k)]
+    enu_key = r.unit_key("pos", LENGTH, required=not geodetic)
+    if enu_key and geodetic:
+        raise r.error(f"give either {enu_key} or lat_deg/lon_deg/alt_m, not both", geodetic[0])
+    if enu_key:
+        return r.vector(enu_key, (2, 3), LENGTH[enu_key[4:]]), enu_key
+    lat, lon = r.number("lat_deg", ge=-90, le=90), r.number("lon_deg", ge=-180, le=180)
+    return _geodetic_to_enu(lat, lon, r.number("alt_m"), origin), "lat_deg"
+
+
+def _site(r: Reader, origin, require_path: bool = False) -> tuple[Site, str]:
+    """A fixed point, or a path: ``path_m`` / ``path_km`` with ``path_t_s``."""
+    r.allow("path_t_s")
+    path, key = r.unit_vector("path", LENGTH, (2, 3), required=require_path, min_rows=2)
+    if path is None:
+        if r.has("path_t_s"):
+            raise r.error("path_t_s needs path_m or path_km", "path_t_s")
+        point, key = _point(r, origin)
+        return Site(point[None, :]), key
+    if any(r.has(k) for k in ("pos_m", "pos_km", "lat_deg", "lon_deg", "alt_m")):
+        raise r.error("give either a position or a path, not both", key)
+    times = r.vector("path_t_s", (len(path),))  # one time per point
+    if times[0] < 0 or np.any(np.diff(times) <= 0):
+        raise r.error("must be >= 0 and strictly increasing", "path_t_s")
+    return Site(path, times), key
+
+
+def _check_apart(src: TomlSource, path: tuple, site: Site, others: dict[str, np.ndarray]) -> None:
+    for oid, pts in others.items():
+        d = np.linalg.norm(site.points[:, None, :] - np.atleast_2d(pts)[None, :, :], axis=-1)
+        if np.min(d) < _MIN_SEPARATION:
+            raise src.error(path, f"at the same place as {oid!r} (closer than {_MIN_SEPARATION:g} m)")
+
+
+# --- targets ----------------------------------------------------------------------------
+
+
+def _target(r: Reader, origin) -> TargetSpec:
+    p0, _ = _point(r, origin)
+    v0 = r.vector("vel_mps", (2, 3), default=np.zeros(3))
+    a0 = r.vector("acc_mps2", (2, 3), default=np.zeros(3))
+    jerk_psd = r.number("jerk_psd", 0.0, ge=0)
+    seg_readers = r.array_of_tables("segments")
+    segments = tuple(_segment(s, origin, last=(i == len(seg_readers) - 1))
+                     for i, s in enumerate(seg_readers)) if seg_readers else (ConstantAcceleration(),)
+    r.finish()
+    return TargetSpec(r.path[-1], np.concatenate([p0, v0, a0]), segments, jerk_psd)
+
+
+_SEGMENT_TYPES = ("static", "cv", "ca", "turn", "waypoints")
+
+
+def _segment(r: Reader, origin, last: bool):
+    kind = r.string("type", choices=_SEGMENT_TYPES)
+    if kind == "waypoints":
+        points, _ = r.unit_vector("points", LENGTH, (2, 3), min_rows=1)
+        seg = Waypoints(points, r.number("speed_mps", gt=0))
+    else:
+        duration = r.quantity("duration", TIME, default=None, gt=0)
+        if duration is None and not last:
+            raise r.error("missing (only the last segment may omit it)", "duration_s")
+        if kind == "static":
+            seg = Static(duration)
+        elif kind == "cv":
+            seg = ConstantVelocity(duration, r.vector("vel_mps", (2, 3), default=None))
+        elif kind == "ca":
+            seg = ConstantAcceleration(duration, r.vector("acc_mps2", (2, 3), default=None))
+        else:
+            seg = CoordinatedTurn(r.quantity("turn_rate", RATE, ne=0), duration)
+    r.finish()
+    return seg
+
+
+# --- sensors ----------------------------------------------------------------------------
+
+# Measurement component -> (key base, units) of its noise std.
+_STD_KEYS = {"az": ("std_az", ANGLE), "el": ("std_el", ANGLE), "range": ("std_range", LENGTH)}
+
+
+def _sensor(r: Reader, origin, targets: dict) -> tuple[SensorSpec, str]:
+    kind = r.string("kind", choices=tuple(SENSOR_KINDS))
+    site, pos_key = _site(r, origin, require_path=(kind == "airborne_df"))
+    period = r.quantity("period", TIME, gt=0)
+    start = r.quantity("start", TIME, default=0.0, ge=0)
+    std = np.array([r.quantity(*_STD_KEYS[c], gt=0) for c in KIND_COMPONENTS[SENSOR_KINDS[kind]]])
+    p_detect = r.number("p_detect", 1.0, gt=0, le=1)
+    fov_az = (0.0, 2 * math.pi)
+    key = r.unit_key("fov_az", ANGLE, required=False)
+    if key:
+        first, last = r.vector(key, (2,), ANGLE[key[7:]])
+        width = (last - first) % (2 * math.pi)
+        fov_az = (first % (2 * math.pi), width if width > 0 else 2 * math.pi)  # [0, 360]: all round
+    fov_el = (-math.pi / 2, math.pi / 2)
+    key = r.unit_key("fov_el", ANGLE, required=False)
+    if key:
+        lo, hi = r.vector(key, (2,), ANGLE[key[7:]])
+        if not (-math.pi / 2 - 1e-12 <= lo < hi <= math.pi / 2 + 1e-12):
+            raise r.error("must be [lowest, highest] with -90° <= lowest < highest <= 90°", key)
+        fov_el = (lo, hi)
+    max_range = r.quantity("max_range", LENGTH, default=math.inf, gt=0)
+    band = r.string("band", None)
+    signal_power = r.number("signal_power_w", 1.0, gt=0)
+    refs = r.raw("targets", None)
+    if refs is not None and (not isinstance(refs, list) or not refs or not all(isinstance(x, str) for x in refs)
+                             or len(set(refs)) != len(refs)):
+        raise r.error("must be a non-empty list of distinct ids", "targets")
+    r.finish()
+    spec = SensorSpec(
+        id=r.path[-1], kind=kind, site=site, period=period, start=start, std=std, p_detect=p_detect,
+        fov_az=fov_az, fov_el=fov_el, max_range=max_range, band=band, signal_power=signal_power,
+        targets=tuple(refs) if refs is not None else tuple(targets),
+    )
+    return spec, pos_key
+
+
+def _check_targets(src, sensor: SensorSpec, targets: dict, jammers: dict) -> None:
+    path = ("sensors", sensor.id, "targets")
+    for ref in sensor.targets:
+        if ref in jammers:
+            if sensor.kind not in DF_KINDS:
+                raise src.error(path, f"{ref!r} is a jammer: only DF sensors ({', '.join(sorted(DF_KINDS))}) "
+                                "report bearings on jammers")
+        elif ref not in targets:
+            raise src.error(path, f"unknown target {ref!r} (targets: {', '.join(targets)}; "
+                            f"jammers: {', '.join(jammers) or 'none'})")
+
+
+def _check_ids(src, targets, sensors, jammers) -> None:
+    seen: dict[str, str] = {}
+    for table, ids in (("targets", targets), ("jammers", jammers), ("sensors", sensors)):
+        for i in ids:
+            if not _ID.match(i):
+                raise src.error((table, i), "ids may use only letters, digits, '_' and '-'")
+            if i == TRUTH_PROCESS:
+                raise src.error((table, i), f"{TRUTH_PROCESS!r} is the truth process's id")
+            if i in seen:
+                raise src.error((table, i), f"id already used in [{seen[i]}]: ids must be unique")
+            seen[i] = table
+
+
+# --- jammers ----------------------------------------------------------------------------
+
+
+def _jammer(r: Reader, origin) -> JammerSpec:
+    site, _ = _site(r, origin)
+    mode = r.string("mode", choices=JAM_MODES)
+    band = r.string("band", None)
+    if mode == "spot" and band is None:
+        raise r.error("missing (a spot jammer jams one band)", "band")
+    if mode == "barrage" and band is not None:
+        raise r.error("a barrage jammer jams every band: remove 'band'", "band")
+    search_delay = r.quantity("search_delay", TIME, default=0.0, ge=0)
+    if mode == "barrage" and r.has("search_delay_s"):
+        raise r.error("only a spot jammer searches", "search_delay_s")
+    schedule = _schedule(r)
+    p_outlier = r.number("p_outlier", None, ge=0, le=1)
+    spec = JammerSpec(
+        id=r.path[-1], site=site, mode=mode, band=band,
+        power=r.number("power_w", 1.0, gt=0),
+        reach=r.quantity("range", LENGTH, default=math.inf, gt=0, allow_inf=True),
+        schedule=schedule, search_delay=search_delay,
+        outlier_law=r.string("outlier_law", "laplacian", choices=OUTLIER_LAWS),
+        outlier_std=r.quantity("outlier_std", ANGLE, gt=0),
+        outlier_std_range=r.quantity("outlier_std_range", LENGTH, default=None, gt=0),
+        p_outlier=p_outlier,
+        period=r.quantity("period", TIME, default=1.0, gt=0),
+    )
+    r.finish()
+    return spec
+
+
+def _schedule(r: Reader) -> tuple[tuple[float, float], ...]:
+    """``schedule_s = [[on, off], ...]``: sorted, disjoint, on < off (off may be inf)."""
+    raw = r.raw("schedule_s", None)
+    if raw is None:
+        return ((0.0, math.inf),)
+    ok = isinstance(raw, list) and raw and all(
+        isinstance(iv, list) and len(iv) == 2 and all(isinstance(x, (int, float)) and not isinstance(x, bool)
+                                                      and not math.isnan(x) for x in iv) for iv in raw)
+    if not ok:
+        raise r.error("must be a non-empty list of [on, off] pairs of numbers (s)", "schedule_s")
+    out, prev_off = [], -math.inf
+    for on, off in raw:
+        if not (0 <= on < off) or on < prev_off or math.isinf(on):
+            raise r.error("intervals need 0 <= on < off, sorted and not overlapping", "schedule_s")
+        out.append((float(on), float(off)))
+        prev_off = off
+    return tuple(out)

@@ -1,0 +1,133 @@
+"""Built-in scenarios: all load and produce data; the decided parameters are as agreed."""
+
+from __future__ import annotations
+
+import math
+import shutil
+from importlib import resources
+
+import numpy as np
+import pytest
+
+from sensors_sim import (
+    jam_state,
+    list_scenarios,
+    load_scenario,
+    scan_times,
+    sensor_events,
+    truth_events,
+    truth_trajectory,
+)
+
+BUILTINS = [name for name, _ in list_scenarios()]
+REQUIRED = ["patent-3d", "patent-3d-60", "patent-3d-separated", "patent-3d-radar3d",
+            *(f"thesis-fixed-c{i}" for i in range(1, 7)), "thesis-moving-2", "thesis-moving-9", "jammed-df"]
+
+
+def test_listing_has_every_required_scenario_with_a_description():
+    files = sorted(p.name[:-5] for p in resources.files("sensors_sim").joinpath("scenarios").iterdir()
+                   if p.name.endswith(".toml"))
+    assert sorted(BUILTINS) == files
+    assert set(REQUIRED) <= set(BUILTINS)
+    for name, description in list_scenarios():
+        assert description and "\n" not in description, name
+
+
+@pytest.mark.parametrize("name", BUILTINS)
+def test_builtin_loads_and_every_sensor_produces_measurements(name):
+    sc = load_scenario(name)
+    assert sc.name == name and sc.source == f"{name}.toml"
+    assert sc.process_ids()[-1] == "truth"
+    for sid in sc.sensors:
+        events = list(sensor_events(sc, sid))
+        assert len(events) == len(scan_times(sc, sid)) * len(sc.sensors[sid].targets) > 0
+        assert any(e.measurement is not None for e in events), sid
+    for jid in sc.jammers:
+        assert jam_state(sc, jid, sc.duration).jammer == jid
+    assert next(truth_events(sc)).t == 0.0
+
+
+def test_patent_3d_decided_parameters():
+    sc = load_scenario("patent-3d")
+    assert (sc.duration, sc.origin) == (30.0, (21.0285, 105.8542, 10.0))
+    assert sc.process_ids() == ["radar2d", "angle", "truth"]  # no 3D radar in the fusion run
+    assert sc.defaults == {"topology": "centralised", "method": "SS"}
+    assert sc.tracker == {"motion": "ca", "q": 0.01}
+    t1 = sc.targets["T1"]
+    np.testing.assert_array_equal(t1.x0, [6000, 8000, 2000, -120, -60, 5, 0.5, 1.0, -0.05])
+    assert t1.jerk_psd == 0.01
+    r, a = sc.sensors["radar2d"], sc.sensors["angle"]
+    np.testing.assert_allclose(r.std, [math.radians(1.0), 20.0])
+    np.testing.assert_allclose(a.std, [math.radians(0.05), math.radians(0.05)])
+    for s in (r, a):
+        np.testing.assert_array_equal(s.site.position(0.0), [0.0, 0.0, 0.0])
+        np.testing.assert_array_equal(scan_times(sc, s.id), np.arange(31.0))  # t = 0..30
+    np.testing.assert_array_equal(truth_trajectory(sc, "T1").state(0.0), t1.x0)
+
+
+def test_patent_variants_differ_only_where_they_say():
+    base, long = load_scenario("patent-3d"), load_scenario("patent-3d-60")
+    assert long.duration == 60.0 and len(scan_times(long, "radar2d")) == 61
+    np.testing.assert_array_equal(long.targets["T1"].x0, base.targets["T1"].x0)
+    sep = load_scenario("patent-3d-separated")
+    d = sep.sensors["angle"].site.position(0.0) - sep.sensors["radar2d"].site.position(0.0)
+    assert np.linalg.norm(d) == pytest.approx(5000.0)
+    r3 = load_scenario("patent-3d-radar3d")
+    assert r3.process_ids() == ["radar3d", "truth"] and r3.kind_of("radar3d") == "radar3d"
+    np.testing.assert_allclose(r3.sensors["radar3d"].std, [math.radians(1.0), math.radians(1.0), 20.0])
+    np.testing.assert_array_equal(r3.targets["T1"].x0, base.targets["T1"].x0)
+    # same seed and target: the three-sensor-set variants share one truth
+    np.testing.assert_array_equal(truth_trajectory(r3, "T1").state(30.0), truth_trajectory(base, "T1").state(30.0))
+
+
+STATIONS = {1: [(0, 0), (20, 0)], 2: [(20, 0), (40, 0)], 3: [(0, 0), (20, 0), (30, 0)],
+            4: [(20, 0), (40, 0), (60, 0)], 5: [(0, 0), (20, 0), (30, 0), (40, 0)],
+            6: [(20, 0), (40, 0), (60, 0), (80, 0)]}
+
+
+@pytest.mark.parametrize("case", sorted(STATIONS))
+def test_thesis_fixed_cases(case):
+    sc = load_scenario(f"thesis-fixed-c{case}")
+    np.testing.assert_array_equal(sc.targets["E1"].x0, [15e3, 15e3, 0, 0, 0, 0, 0, 0, 0])
+    sites = [tuple(s.site.position(0.0)[:2] / 1e3) for s in sc.sensors.values()]
+    assert sites == STATIONS[case]
+    for s in sc.sensors.values():
+        assert s.kind == "df" and s.std.tolist() == [0.0175]
+        np.testing.assert_array_equal(scan_times(sc, s.id), np.arange(1.0, 41.0))  # 40 epochs
+    assert sc.defaults["method"] == "EKF" and sc.tracker == {"q22": 625.0, "sigma": 0.0175}
+
+
+@pytest.mark.parametrize("name, n", [("thesis-moving-2", 2), ("thesis-moving-9", 9)])
+def test_thesis_moving_observer(name, n):
+    sc = load_scenario(name)
+    np.testing.assert_array_equal(sc.targets["E1"].x0[:3], [141e3, 141e3, 0])
+    events = list(sensor_events(sc, "adf"))
+    assert [e.t for e in events] == [300.0 * k for k in range(n)]
+    np.testing.assert_allclose([e.measurement.site[:2] for e in events],
+                               [[(130 + 30 * k) * 1e3, (11 + 30 * k) * 1e3] for k in range(n)])
+    assert all(e.measurement.kind == "bearing" and e.measurement.std[0] == 0.0175 for e in events)
+
+
+def test_jammed_df_is_the_imm_thesis_setup():
+    sc = load_scenario("jammed-df")
+    assert sc.process_ids() == ["df1", "df2", "df3", "jammer", "truth"]
+    assert [tuple(s.site.position(0.0)[:2] / 1e3) for s in sc.sensors.values()] == [(0, 0), (10, 0), (20, 0)]
+    j = sc.jammers["jammer"]
+    assert (j.mode, j.p_outlier, j.outlier_law, j.outlier_std) == ("barrage", 0.3, "laplacian", 0.25)
+    assert jam_state(sc, "jammer", 1.0).affects == ("df1", "df2", "df3")
+    assert sc.defaults["method"] == "IMM"
+    events = [e for sid in sc.sensors for e in sensor_events(sc, sid)]
+    assert len(events) == 120 and all(e.jammed for e in events)
+    assert 0 < sum(e.outlier for e in events) < 120
+
+
+def test_a_builtin_copied_to_a_path_loads_the_same(tmp_path):
+    src = resources.files("sensors_sim").joinpath("scenarios", "patent-3d.toml")
+    dst = tmp_path / "my-copy.toml"
+    with resources.as_file(src) as f:
+        shutil.copy(f, dst)
+    a, b = load_scenario("patent-3d"), load_scenario(str(dst))
+    assert b.name == "my-copy"
+    za = [e.measurement.z for e in sensor_events(a, "angle")]
+    zb = [e.measurement.z for e in sensor_events(b, "angle")]
+    np.testing.assert_array_equal(za, zb)
