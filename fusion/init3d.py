@@ -42,15 +42,17 @@ _SAME_SITE_TOL = 1e-6  # m
 class InitPriors:
     """Priors for what the first scan does not give.
 
-    Defaults (generic air-surveillance values, not fitted to any scenario):
+    Defaults (generic, deliberately uninformative, not fitted to any scenario):
         range = 10 000 m, range_std = 5 000 m — slant range when no sensor measures it;
         el = 0.1 rad (≈ 5.7°), el_std = 0.1 rad — elevation when no sensor measures it;
-        vel_std = 200 m/s, acc_std = 10 m/s² (≈ 1 g) — per horizontal axis (east, north);
-        vel_std_up = 20 m/s, acc_std_up = 1 m/s² — vertical: air targets climb and
-        dive far more slowly than they fly. This matters for local trackers that
-        cannot observe the vertical (a 2D radar alone): an unobservable component
-        keeps its prior uncertainty, and a 200 m/s vertical prior drives a 2D radar's
-        EKF out of its linear regime within seconds.
+        vel_std = vel_std_up = 200 m/s, acc_std = acc_std_up = 10 m/s² (≈ 1 g) — per
+        axis, horizontal (east, north) and vertical.
+    Broad priors let the data dominate within a few scans. The vertical ones are
+    separate because a tracker that cannot observe the vertical (a 2D radar alone, or
+    HNV's radar-local EKF) keeps the vertical prior uncertainty, and an EKF with a
+    large uncertainty along an unobservable direction gains spurious information as
+    its linearisation point moves; a physical vertical prior (e.g. 20 m/s, 1 m/s² for
+    air targets) keeps such a tracker in its linear regime.
     """
 
     range: float = 10_000.0
@@ -58,9 +60,9 @@ class InitPriors:
     el: float = 0.1
     el_std: float = 0.1
     vel_std: float = 200.0
-    vel_std_up: float = 20.0
+    vel_std_up: float = 200.0
     acc_std: float = 10.0
-    acc_std_up: float = 1.0
+    acc_std_up: float = 10.0
 
     def __post_init__(self):
         for name in ("range", "range_std", "el_std", "vel_std", "vel_std_up", "acc_std", "acc_std_up"):

@@ -67,9 +67,9 @@ init_range_std   5000.0                     m
 init_el          0.1                        rad, elevation prior (no elevation sensor)
 init_el_std      0.1                        rad
 init_vel_std     200.0                      m/s per horizontal axis, around zero
-init_vel_std_up  20.0                       m/s vertical, around zero
+init_vel_std_up  200.0                      m/s vertical, around zero
 init_acc_std     10.0                       m/s² per horizontal axis, around zero (CA)
-init_acc_std_up  1.0                        m/s² vertical, around zero (CA)
+init_acc_std_up  10.0                       m/s² vertical, around zero (CA)
 ===============  =========================  =============================================
 
 Distributed use (issue 6): a local-tracker process owns a :class:`LocalTracker`
@@ -124,9 +124,9 @@ class TrackerConfig:
     init_el: float = 0.1
     init_el_std: float = 0.1
     init_vel_std: float = 200.0
-    init_vel_std_up: float = 20.0
+    init_vel_std_up: float = 200.0
     init_acc_std: float = 10.0
-    init_acc_std_up: float = 1.0
+    init_acc_std_up: float = 10.0
 
     @classmethod
     def from_dict(cls, config: dict | None) -> "TrackerConfig":

@@ -83,16 +83,16 @@ _PINV_RTOL = 1e-10  # eigenvalues of an equilibrated PSD matrix below this count
 # Linear-algebra helpers ------------------------------------------------------------
 def _inv_spd(P: np.ndarray, what: str = "covariance") -> np.ndarray:
     """Inverse of an SPD matrix via equilibration + Cholesky."""
-    d = np.sqrt(np.diag(P))
-    if not np.all(d > 0.0) or not np.all(np.isfinite(d)):
-        raise ValueError(f"{what} is not positive definite (diagonal {np.diag(P)})")
-    s = 1.0 / d
+    d = np.diag(P)
+    if not d.min() > 0.0:  # also catches NaN
+        raise ValueError(f"{what} is not positive definite (diagonal {d})")
+    ss = np.outer(1.0 / np.sqrt(d), 1.0 / np.sqrt(d))
     try:
-        L = np.linalg.cholesky(P * s[:, None] * s[None, :])
+        L = np.linalg.cholesky(P * ss)
     except np.linalg.LinAlgError:
         raise ValueError(f"{what} is not positive definite") from None
     Linv = np.linalg.inv(L)  # triangular, condition number √cond of the equilibrated matrix
-    return (Linv.T @ Linv) * s[:, None] * s[None, :]
+    return (Linv.T @ Linv) * ss
 
 
 def _pinv_psd(D: np.ndarray) -> np.ndarray:
@@ -213,6 +213,11 @@ def _ci_weights(Ys: Sequence[np.ndarray], criterion: str) -> np.ndarray:
 def fuse_ci(xs, Ps, criterion: str = "trace") -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Covariance intersection; returns ``x_f``, ``P_f`` and ω."""
     xs, Ps = _check(xs, Ps)
+    if all(np.array_equal(P, Ps[0]) for P in Ps[1:]):
+        # Equal covariances: every ω gives P_f = P; take equal weights.
+        if criterion not in CI_CRITERIA:
+            raise ValueError(f"ci criterion must be one of {CI_CRITERIA}, got {criterion!r}")
+        return sum(xs) / len(xs), Ps[0], np.full(len(xs), 1.0 / len(xs))
     Ys = [_inv_spd(P) for P in Ps]
     w = _ci_weights(Ys, criterion)
     ref = xs[0]

@@ -1,0 +1,35 @@
+"""Command-line contract: listing, and clear errors for bad arguments."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+
+def zf(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "services.cli", *args], capture_output=True, text=True, timeout=60)
+
+
+def test_scenarios_lists_each_builtin_on_one_line():
+    from sensors_sim import list_scenarios
+
+    p = zf("scenarios")
+    assert p.returncode == 0
+    lines = p.stdout.strip().splitlines()
+    names = [n for n, _ in list_scenarios()]
+    assert len(lines) == len(names)
+    assert any(line.split()[0] == "patent-3d" and len(line.split()) > 2 for line in lines)
+    for required in ["patent-3d", "thesis-fixed-c1", "thesis-fixed-c6", "thesis-moving-2", "thesis-moving-9",
+                     "jammed-df"]:
+        assert required in names
+
+
+def test_bad_arguments_are_refused_clearly():
+    p = zf("run", "--scenario", "patent-3d", "--speed", "-3")
+    assert p.returncode != 0 and "--speed" in p.stderr
+    p = zf("run", "--scenario", "no-such-scenario", "--speed", "max")
+    assert p.returncode != 0 and "no-such-scenario" in p.stderr
+    p = zf("run", "--scenario", "patent-3d", "--method", "NOPE", "--speed", "max")
+    assert p.returncode != 0 and "NOPE" in p.stderr
+    p = zf("view", "/nonexistent.rrd")
+    assert p.returncode != 0 and "no such recording" in p.stderr
