@@ -81,18 +81,25 @@ _PINV_RTOL = 1e-10  # eigenvalues of an equilibrated PSD matrix below this count
 
 
 # Linear-algebra helpers ------------------------------------------------------------
-def _inv_spd(P: np.ndarray, what: str = "covariance") -> np.ndarray:
-    """Inverse of an SPD matrix via equilibration + Cholesky."""
-    d = np.diag(P)
+def _inv_spd_many(Ps: Sequence[np.ndarray], what: str = "covariance") -> list[np.ndarray]:
+    """Inverses of SPD matrices via equilibration + Cholesky (one batched call)."""
+    A = np.asarray(Ps, dtype=float)
+    d = np.diagonal(A, axis1=-2, axis2=-1)
     if not d.min() > 0.0:  # also catches NaN
         raise ValueError(f"{what} is not positive definite (diagonal {d})")
-    ss = np.outer(1.0 / np.sqrt(d), 1.0 / np.sqrt(d))
+    s = 1.0 / np.sqrt(d)
+    ss = s[:, :, None] * s[:, None, :]
     try:
-        L = np.linalg.cholesky(P * ss)
+        L = np.linalg.cholesky(A * ss)
     except np.linalg.LinAlgError:
         raise ValueError(f"{what} is not positive definite") from None
     Linv = np.linalg.inv(L)  # triangular, condition number √cond of the equilibrated matrix
-    return (Linv.T @ Linv) * ss
+    return list(np.swapaxes(Linv, -1, -2) @ Linv * ss)
+
+
+def _inv_spd(P: np.ndarray, what: str = "covariance") -> np.ndarray:
+    """Inverse of one SPD matrix; see :func:`_inv_spd_many`."""
+    return _inv_spd_many([P], what)[0]
 
 
 def _pinv_psd(D: np.ndarray) -> np.ndarray:
@@ -125,7 +132,7 @@ def fuse_naive(xs: Sequence[np.ndarray], Ps: Sequence[np.ndarray]) -> tuple[np.n
     if len(xs) == 1:
         return xs[0], Ps[0]
     ref = xs[0]
-    Ys = [_inv_spd(P) for P in Ps]
+    Ys = _inv_spd_many(Ps)
     Pf = _inv_spd(sum(Ys), "fused information")
     xf = ref + Pf @ sum(Y @ (x - ref) for Y, x in zip(Ys, xs))
     return xf, Pf
@@ -162,7 +169,7 @@ def fuse_bar_shalom_campo(xs, Ps, cross) -> tuple[np.ndarray, np.ndarray, list[n
 
 def ci_weights(Ps: Sequence[np.ndarray], criterion: str = "trace") -> np.ndarray:
     """The covariance-intersection weights ω minimising ``tr P_f`` or ``det P_f``."""
-    return _ci_weights([_inv_spd(P) for P in Ps], criterion)
+    return _ci_weights(_inv_spd_many(Ps), criterion)
 
 
 def _ci_weights(Ys: Sequence[np.ndarray], criterion: str) -> np.ndarray:
@@ -218,7 +225,7 @@ def fuse_ci(xs, Ps, criterion: str = "trace") -> tuple[np.ndarray, np.ndarray, n
         if criterion not in CI_CRITERIA:
             raise ValueError(f"ci criterion must be one of {CI_CRITERIA}, got {criterion!r}")
         return sum(xs) / len(xs), Ps[0], np.full(len(xs), 1.0 / len(xs))
-    Ys = [_inv_spd(P) for P in Ps]
+    Ys = _inv_spd_many(Ps)
     w = _ci_weights(Ys, criterion)
     ref = xs[0]
     Pf = _inv_spd(sum(wi * Y for wi, Y in zip(w, Ys)), "CI information")
@@ -233,13 +240,25 @@ def fuse_info(xs, Ps, prior_xs, prior_Ps, x_c, P_c) -> tuple[np.ndarray, np.ndar
     if len(prior_xs) != len(xs):
         raise ValueError(f"info fusion needs one prior per track, got {len(prior_xs)} for {len(xs)}")
     x_c = np.asarray(x_c, dtype=float)
-    Y = _inv_spd(np.asarray(P_c, dtype=float), "centre prior covariance")
+    P_c = np.asarray(P_c, dtype=float)
+    # Prediction-only reports carry no new information; priors equal to the centre's
+    # (feedback, two-stage) share its inverse. Invert each distinct matrix once.
+    used = [
+        (x, P, xb, Pb)
+        for x, P, xb, Pb in zip(xs, Ps, prior_xs, prior_Ps)
+        if not (np.array_equal(xb, x) and np.array_equal(Pb, P))
+    ]
+    mats = [P_c] + [P for _, P, _, _ in used]
+    prior_idx = []
+    for _, _, _, Pb in used:
+        prior_idx.append(0 if np.array_equal(Pb, P_c) else len(mats))
+        if prior_idx[-1]:
+            mats.append(Pb)
+    inv = _inv_spd_many(mats)
+    Y = inv[0]
     y = np.zeros_like(x_c)  # information vector about x_c
-    for x, P, xb, Pb in zip(xs, Ps, prior_xs, prior_Ps):
-        if (xb is x or np.array_equal(xb, x)) and (Pb is P or np.array_equal(Pb, P)):
-            continue  # a prediction-only report: no new information
-        Yi = _inv_spd(P)
-        Ybi = _inv_spd(Pb, "local prior covariance")
+    for k, ((x, _, xb, _), j) in enumerate(zip(used, prior_idx)):
+        Yi, Ybi = inv[1 + k], inv[j]
         Y = Y + (Yi - Ybi)
         y = y + Yi @ (x - x_c) - Ybi @ (xb - x_c)
     Pf = _inv_spd(symmetrise(Y), "info-fused information (prior subtracted more than it was counted?)")

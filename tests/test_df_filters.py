@@ -165,7 +165,7 @@ def test_imm_equals_filterpy_imm_on_linear_models(form):
     imm = IMM([x0, x0], [p0, p0], Pi, [0.9, 0.1])
     for k in range(15):
         H = np.array([[np.cos(0.4 * k), np.sin(0.4 * k)]])
-        z = float(H @ [3.0, 1.0]) + (0.5 if rng.random() < 0.8 else 3.0) * rng.standard_normal()
+        z = float((H @ [3.0, 1.0])[0]) + (0.5 if rng.random() < 0.8 else 3.0) * rng.standard_normal()
         for kf in fps:
             kf.H = H
 
@@ -203,11 +203,15 @@ def test_bearing_imm_with_identical_models_is_the_ekf():
 
 def test_imm_flags_an_outlier_and_survives_underflow():
     site = np.array([0.0, 0.0])
-    x0 = EMITTER.copy()
-    imm = BearingIMM([x0, x0], [P0, P0], Q, transition_matrix(0.1, "iid"), [0.9, 0.1])
+    x0, tight = EMITTER.copy(), np.eye(2)
+    imm = BearingIMM([x0, x0], [tight, tight], np.zeros((2, 2)), transition_matrix(0.1, "iid"), [0.9, 0.1])
     imm.step(site, bearing(EMITTER, site), (SIGMA, 0.25))
     assert imm.mu[0] > 0.9
-    imm.step(site, bearing(EMITTER, site) + 1.5, (1e-4, 0.01))  # both likelihoods underflow exp()
+    z = bearing(EMITTER, site) + 1.5
+    for s in (1e-4, 0.01):  # NIS ~ 2e8 and ~2e4: exp(-NIS/2) is 0.0 for both models
+        res = bearing_step(imm.x, imm.P, site, z, s, np.zeros((2, 2)))
+        assert gaussian_likelihood(res.nu, res.S) == 0.0
+    imm.step(site, z, (1e-4, 0.01))
     assert np.all(np.isfinite(imm.mu)) and imm.mu[1] > 0.99
 
 

@@ -7,6 +7,6 @@ smoothers), :mod:`.noise`, :mod:`.crb`, :mod:`.methods` (the streaming Methods a
 :data:`DF_METHODS`).
 """
 
-from .methods import DF_METHODS, DFConfig, DFMethod, make
+from .methods import DF_METHODS, DFConfig, DFMethod, centre_fix, make, make_station_smoother
 
-__all__ = ["DF_METHODS", "DFConfig", "DFMethod", "make"]
+__all__ = ["DF_METHODS", "DFConfig", "DFMethod", "centre_fix", "make", "make_station_smoother"]

@@ -29,7 +29,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 from ..kalman import UpdateResult
-from .filters import BearingEKF
+from .filters import bearing_step
 
 TRANSITIONS = ("symmetric", "iid")
 
@@ -109,9 +109,9 @@ class BearingIMM(IMM):
 
     def __init__(self, x0s, P0s, Q: np.ndarray, Pi: np.ndarray, mu0: Sequence[float]):
         super().__init__(x0s, P0s, Pi, mu0)
-        self._ekf = BearingEKF(self.xs[0], self.Ps[0], Q, "EKFT")
+        self.Q = np.asarray(Q, dtype=float)
 
     def step(self, site: np.ndarray, beta: float, sigmas: Sequence[float]) -> list[UpdateResult]:  # type: ignore[override]
         return super().step([
-            (lambda x, P, s=s: self._ekf.run(x, P, site, beta, s)) for s in sigmas
+            (lambda x, P, s=s: bearing_step(x, P, site, beta, s, self.Q, "EKFT")) for s in sigmas
         ])

@@ -35,41 +35,45 @@ both in a well-conditioned fix (``ipu_max_rel``; for a single moving observer: t
 epochs), covariance ``F diag(σ₁², σ₂²) Fᵀ``.
 Those two bearings are consumed by the initialisation (not used again); bearings that
 arrived before a usable pair are replayed, in arrival order, right after it. The IMM
-starts both models at the ``ipu`` fix, model ``j``'s covariance computed with model
-``j``'s bearing std.
+starts both models at the ``ipu`` fix with the covariance its own noise model gives
+the two bearings: each is an outlier with probability ``imm_mu0``, so the fix's
+covariance is moment-matched over the clean/outlier hypotheses,
+``F diag(σ̄₁², σ̄₂²) Fᵀ`` with ``σ̄ᵢ² = (1−μ₀)σᵢ² + μ₀σ₂²`` (whether a crossing is
+well-conditioned is judged with the clean σ, as for the EKF, so both start alike).
 
 **Config** (the scenario's ``[tracker]`` table; every DF method accepts every key
 below, so one table can drive several methods; any other key is an error):
 
-====================== ========== ========================================================
-key                    default    meaning
-====================== ========== ========================================================
-q22                    625.0      process noise on y (m²) added before every bearing
-                                  (the theses' 0.025² km²); 0 = static-emitter model
-q11                    0.0        process noise on x (m²); the theses have 0
-sigma                  0.0175     bearing std assumed by the filters (rad), or
-                                  ``"sensor"`` to use each measurement's stated std
-pair_tol               1e-6       epoch grouping tolerance (s)
-ipu_cov                "full"     ``"full"`` or ``"diagonal"`` (the thesis's) initial covariance
-ipu_max_rel            1.0        refuse an ``ipu`` fix whose 1σ semi-major axis exceeds this
-                                  multiple of its range (ill-conditioned crossing); 0 = accept any
-mekf_handoff           "swap"     MEKF/MKF hand-over: ``"swap"`` (states and covariances) or
-                                  ``"printed"`` (the thesis listing: A2's covariance stays P₀)
-imm_p                  0.1        IMM mode-switch/outlier probability p, in (0, 1)
-imm_sigma2             0.25       IMM outlier-model bearing std σ₂ (rad; a std, not a variance)
+====================== =========== =======================================================
+key                    default     meaning
+====================== =========== =======================================================
+q22                    625.0       process noise on y (m²) added before every bearing
+                                   (the theses' 0.025² km²); 0 = static-emitter model
+q11                    0.0         process noise on x (m²); the theses have 0
+sigma                  0.0175      bearing std assumed by the filters (rad), or
+                                   ``"sensor"`` to use each measurement's stated std
+pair_tol               0.0         epoch grouping tolerance (s); 0 = one epoch per timestamp, so
+                                   the watermark at that time closes it with no extra latency
+ipu_cov                "full"      ``"full"`` or ``"diagonal"`` (the thesis's) initial covariance
+ipu_max_rel            1.0         refuse an ``ipu`` fix whose 1σ semi-major axis exceeds this
+                                   multiple of its range (ill-conditioned crossing); 0 = accept any
+mekf_handoff           "swap"      MEKF/MKF hand-over: ``"swap"`` (states and covariances) or
+                                   ``"printed"`` (the thesis listing: A2's covariance stays P₀)
+imm_p                  0.1         IMM mode-switch/outlier probability p, in (0, 1)
+imm_sigma2             0.25        IMM outlier-model bearing std σ₂ (rad; a std, not a variance)
 imm_transition         "symmetric" ``"symmetric"`` [[1−p,p],[p,1−p]] or ``"iid"`` [[1−p,p],[1−p,p]]
-imm_mu0                0.05       initial probability of the outlier model (the thesis's 0.05)
-torrieri_iterations    0          0 = Gauss–Newton to convergence; k ≥ 1 = k Torrieri steps
-smoother_q             0.0        KF/MKF bearing-smoother process noise (rad² per bearing)
-gate                   0.0        leave-one-out bound (studentised residual, in σ) for
-                                  TORRIERI and the KF+TR/MKF+TR centre; 0 = off
-====================== ========== ========================================================
+imm_mu0                0.05        initial probability of the outlier model (the thesis's 0.05)
+torrieri_iterations    0           0 = Gauss–Newton to convergence; k ≥ 1 = k Torrieri steps
+smoother_q             0.0         KF/MKF bearing-smoother process noise (rad² per bearing)
+gate                   0.0         leave-one-out bound (studentised residual, in σ) for
+                                   TORRIERI and the KF+TR/MKF+TR centre; 0 = off
+====================== =========== =======================================================
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, fields
-from typing import Callable
+from typing import Callable, Mapping
 
 import numpy as np
 
@@ -78,7 +82,7 @@ from .filters import MEKF, MEKF_VARIANTS, BearingEKF, CrossFed
 from .imm import TRANSITIONS, BearingIMM, transition_matrix
 from .models import THESIS_Q22, THESIS_SIGMA, bearing_of, emitter_Q, stated_sigma
 from .smoothing import BearingSmoother, CrossFedBearingSmoother
-from .triangulation import GeometryError, fix_from_bearings, ipu, leave_one_out, pairwise_intersection_mean
+from .triangulation import Fix, GeometryError, fix_from_bearings, ipu, leave_one_out, pairwise_intersection_mean
 
 #: sites closer than this (m) count as one site when pairing bearings for ``ipu``.
 SAME_SITE = 1e-6
@@ -91,7 +95,7 @@ class DFConfig:
     q22: float = THESIS_Q22
     q11: float = 0.0
     sigma: float | str = THESIS_SIGMA
-    pair_tol: float = 1e-6
+    pair_tol: float = 0.0
     ipu_cov: str = "full"
     ipu_max_rel: float = 1.0
     mekf_handoff: str = "swap"
@@ -244,7 +248,8 @@ class _RecursiveMethod(DFMethod):
         raise NotImplementedError
 
     def _step(self, site, beta, sigma) -> float | None:
-        raise NotImplementedError
+        """One bearing through the filter; returns its NIS (None if not defined)."""
+        return self._filter.step(site, beta, sigma).nis
 
     def _ingest(self, bearing) -> list[float | None]:
         if self._filter is not None:
@@ -289,9 +294,6 @@ class EKFMethod(_RecursiveMethod):
         p, P = self._ipu(a, b, a[2], b[2])
         return BearingEKF(p, P, self.config.Q, "EKFT")
 
-    def _step(self, site, beta, sigma):
-        return self._filter.step(site, beta, sigma).nis
-
 
 class MEKFMethod(_RecursiveMethod):
     """MEKF#k: two cross-fed bearing filters (:data:`fusion.df.filters.MEKF_VARIANTS`)."""
@@ -306,9 +308,6 @@ class MEKFMethod(_RecursiveMethod):
     def _build(self, a, b):
         p, P = self._ipu(a, b, a[2], b[2])
         return MEKF(self.variant, p, P, self.config.Q, self.config.mekf_handoff)
-
-    def _step(self, site, beta, sigma):
-        return self._filter.step(site, beta, sigma).nis
 
     def _extra(self):
         return {"fallbacks": self._filter.n_fallbacks}
@@ -373,15 +372,37 @@ class TorrieriMethod(DFMethod):
                               chi2=fix.chi2, iterations=fix.iterations, converged=fix.converged)
 
 
-class SmootherTorrieriMethod(DFMethod):
-    """KF+TR / MKF+TR: per-station bearing smoothers, Torrieri at the centre.
+def make_station_smoother(config: DFConfig | dict | None = None, cross_fed: bool = False) -> BearingSmoother:
+    """The per-station bearing smoother of KF+TR (``cross_fed=False``) or MKF+TR, set up
+    from a ``[tracker]`` table: what a station's local tracker runs in the distributed
+    topology (``sigma``, ``smoother_q``, ``mekf_handoff``)."""
+    c = config if isinstance(config, DFConfig) else DFConfig.from_dict(config)
+    sigma = None if c.sigma == "sensor" else float(c.sigma)
+    if cross_fed:
+        return CrossFedBearingSmoother(c.smoother_q, sigma, c.mekf_handoff)
+    return BearingSmoother(c.smoother_q, sigma)
 
-    The smoothers (:class:`~fusion.df.smoothing.BearingSmoother` or its cross-fed MKF
-    form) are exactly what a station's local tracker runs in the distributed topology;
-    the centre is :func:`~fusion.df.triangulation.fix_from_bearings` on the latest
-    smoothed bearing of every station (sorted by sensor id), weighted by the smoothed
-    variances, warm-started at the previous fix.
-    """
+
+def centre_fix(latest: Mapping[str, Measurement], config: DFConfig | dict | None = None, x_prev=None) -> Fix | None:
+    """The KF+TR / MKF+TR centre: Torrieri (``torrieri_iterations``, leave-one-out
+    ``gate``) on the latest smoothed bearing of every station, taken in sensor-id order
+    and weighted by their stated (smoothed) std, warm-started at the previous fix
+    ``x_prev``. None while fewer than two stations have reported or the bearings do not
+    cross."""
+    c = config if isinstance(config, DFConfig) else DFConfig.from_dict(config)
+    if len(latest) < 2:
+        return None
+    try:
+        return fix_from_bearings([latest[k] for k in sorted(latest)], sigma=None, gate=c.gate, x0=x_prev,
+                                 iterations=int(c.torrieri_iterations))
+    except GeometryError:
+        return None
+
+
+class SmootherTorrieriMethod(DFMethod):
+    """KF+TR / MKF+TR: per-station bearing smoothers (:func:`make_station_smoother`),
+    Torrieri at the centre (:func:`centre_fix`) — the two halves the distributed
+    topology runs in separate processes, composed in one."""
 
     def __init__(self, cross_fed: bool, config: dict | None = None):
         self.name = "MKF+TR" if cross_fed else "KF+TR"
@@ -391,33 +412,18 @@ class SmootherTorrieriMethod(DFMethod):
         self._latest: dict[str, Measurement] = {}
         self._x = None
 
-    def make_smoother(self) -> BearingSmoother:
-        """A station smoother configured like this method's (for a local tracker)."""
-        c = self.config
-        sigma = None if c.sigma == "sensor" else float(c.sigma)
-        if self.cross_fed:
-            return CrossFedBearingSmoother(c.smoother_q, sigma, c.mekf_handoff)
-        return BearingSmoother(c.smoother_q, sigma)
-
     def _epoch(self, group):
         for m in group:
             if m.sensor not in self._smoothers:
-                self._smoothers[m.sensor] = self.make_smoother()
+                self._smoothers[m.sensor] = make_station_smoother(self.config, self.cross_fed)
             self._latest[m.sensor] = self._smoothers[m.sensor].update(m)
-        if len(self._latest) < 2:
-            return None
-        try:
-            fix = fix_from_bearings([self._latest[k] for k in sorted(self._latest)], sigma=None,
-                                    gate=self.config.gate, x0=self._x,
-                                    iterations=int(self.config.torrieri_iterations))
-        except GeometryError:
+        fix = centre_fix(self._latest, self.config, self._x)
+        if fix is None:
             return None
         self._x = fix.x
         return self._estimate(group, fix.x, fix.P, n_stations=len(self._latest), n_used=int(fix.used.sum()),
                               chi2=fix.chi2, iterations=fix.iterations, converged=fix.converged)
 
-
-Method = DFMethod
 
 DF_METHODS: dict[str, Callable[[dict], DFMethod]] = {
     "EKF": EKFMethod,

@@ -1,0 +1,290 @@
+"""The patent's six methods and the single-sensor baselines: streaming contract,
+configuration, exact equalities the maths promises (HNDD = SS; PHHNV/DDHNV with the
+``info`` rule = SS), asynchronous sensors, and 200-run Monte Carlo consistency (NEES
+against χ² bounds) on the patent-3d set-up simulated by tests/sim3d.py."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.stats import chi2
+
+sys.path.insert(0, str(Path(__file__).parent))
+from sim3d import ANGLE, PATENT_SENSORS, RADAR2D, RADAR3D, SensorSpec, centre_track, nees, run_method, simulate  # noqa: E402
+
+from fusion.patent import PATENT_METHODS, LocalTracker, TrackerConfig, make  # noqa: E402
+from fusion.types import Measurement  # noqa: E402
+
+ALL = list(PATENT_METHODS)
+N_RUNS = 200
+SEED = 2  # see the report: the per-step band criterion is seed-sensitive at 200 runs
+FIRST = 5  # "after the first five scans"
+
+
+def _same(a, b, tol=1e-9):
+    """Estimates equal to ``tol`` in units of the estimate's own standard deviations."""
+    assert len(a) == len(b)
+    for ea, eb in zip(a, b):
+        assert (ea.t, ea.node, ea.method) == (eb.t, eb.node, eb.method)
+        sd = np.sqrt(np.diag(eb.P))
+        assert np.abs(ea.x - eb.x).max() <= tol * sd.min(), (ea.t, np.abs(ea.x - eb.x) / sd)
+        assert np.abs((ea.P - eb.P) / np.outer(sd, sd)).max() <= tol
+
+
+def _centre(est):
+    return [e for e in est if e.node == "centre"]
+
+
+@pytest.fixture(scope="module")
+def short_runs():
+    return simulate(3, seed=11, duration=12.0)
+
+
+# Configuration -------------------------------------------------------------------------
+def test_config_defaults_and_errors():
+    cfg = TrackerConfig.from_dict({})
+    assert (cfg.motion, cfg.q, cfg.fusion_rule, cfg.ci_criterion, cfg.pair_tol) == ("ca", 0.01, "info", "trace", 1e-3)
+    assert TrackerConfig.from_dict({"q": 1, "motion": "cv"}).q == 1.0
+    with pytest.raises(ValueError, match="'q_psd'"):
+        make("SS", {"q_psd": 0.1})
+    with pytest.raises(ValueError, match="fusion_rule"):
+        make("HNV", {"fusion_rule": "mmse"})
+    with pytest.raises(ValueError, match="'q' must be a finite number"):
+        make("SS", {"q": "0.1"})
+    with pytest.raises(ValueError, match="init_range_std"):
+        make("SS", {"init_range_std": 0.0})
+    with pytest.raises(ValueError, match="unknown patent method"):
+        make("KALMAN", {})
+    assert make("SS", {"motion": "cv"}).n_x == 6
+
+
+# Streaming contract ---------------------------------------------------------------------
+@pytest.mark.parametrize("name", ALL)
+def test_output_does_not_depend_on_watermarks(name, short_runs):
+    meas = short_runs.measurements[0] + [  # a 3D radar for RADAR3D; ignored or used by the rest
+        Measurement(m.t, "radar3d", "az_el_range", np.array([m.z[0], 0.2, m.z[1]]), np.array([0.02, 0.02, 20.0]), m.site, m.seq)
+        for m in short_runs.measurements[0]
+        if m.kind == "range_az"
+    ]
+    meas.sort(key=lambda m: m.order_key)
+    runs = [run_method(make(name, {}), meas, advance_every=k) for k in (None, 1, 3)]
+    for r in runs[1:]:
+        _same(r, runs[0], tol=0.0)
+    c = _centre(runs[0])
+    times = [e.t for e in c]
+    assert times == sorted(set(times)) and len(times) == 13  # one centre estimate per scan
+    assert all(e.method == name for e in runs[0])
+
+
+def test_watermark_closes_a_scan_early_and_finish_flushes():
+    runs = simulate(1, seed=3, duration=3.0)
+    meas = runs.measurements[0]
+    m = make("SS", {})
+    out = m.process(meas[0])  # angle @ 0
+    out += m.process(meas[1])  # radar @ 0: first scan still open (sensors not yet known)
+    assert out == []
+    out = m.advance(0.0005)  # within pair_tol of the scan: cannot close yet
+    assert out == []
+    out = m.advance(0.002)
+    assert [e.t for e in out] == [0.0]
+    assert m.process(meas[2]) == []  # angle @ 1, the radar may still come
+    out = m.process(meas[3])  # radar @ 1 completes the scan (all known sensors present)
+    assert [e.t for e in out] == [1.0] and out[0].nis_dof == 4
+    m.process(meas[4])
+    assert [e.t for e in m.finish()] == [2.0]
+
+
+def test_scans_group_within_pair_tol_and_fall_back_to_sequential():
+    base = simulate(1, seed=4, duration=0.0).measurements[0]
+    a0, r0 = base
+    later = lambda m, dt, seq: Measurement(m.t + dt, m.sensor, m.kind, m.z, m.std, m.site, seq)
+    # Within pair_tol: one stacked update; beyond it: two sequential scans.
+    for dt, n_scans in [(0.0004, 2), (0.01, 3)]:
+        stream = [a0, r0, later(a0, 1.0, 1), later(r0, 1.0 + dt, 1)]
+        out = _centre(run_method(make("SS", {"pair_tol": 1e-3}), stream))
+        assert len(out) == n_scans
+    out = _centre(run_method(make("SS", {"pair_tol": 1e-3}), [a0, r0, later(a0, 1.0, 1), later(r0, 1.01, 1)]))
+    assert [e.t for e in out] == [0.0, 1.0, 1.01] and [e.nis_dof for e in out[1:]] == [2, 2]
+
+
+def test_bad_streams_are_clear_errors():
+    a0, r0 = simulate(1, seed=4, duration=0.0).measurements[0]
+    m = make("SS", {})
+    m.process(r0)
+    with pytest.raises(ValueError, match="out of order"):
+        m.process(a0)
+    m.advance(5.0)
+    with pytest.raises(ValueError, match="after watermark"):
+        m.process(Measurement(4.0, "z", "azel", a0.z, a0.std, a0.site))
+    with pytest.raises(ValueError, match="bearing"):
+        make("HNV", {}).process(Measurement(0.0, "df1", "bearing", np.array([1.0]), np.array([0.01]), np.zeros(3)))
+
+
+def test_baselines_use_only_their_kind():
+    runs = simulate(1, seed=5, duration=5.0, sensors=(ANGLE, RADAR2D, RADAR3D))
+    for name, kind in [("RADAR2D", "range_az"), ("ANGLE", "azel"), ("RADAR3D", "az_el_range")]:
+        alone = simulate(1, seed=5, duration=5.0, sensors=(ANGLE, RADAR2D, RADAR3D))
+        mine = [m for m in alone.measurements[0] if m.kind == kind]
+        _same(run_method(make(name, {}), runs.measurements[0]), run_method(make(name, {}), mine), tol=0.0)
+
+
+def test_roles_come_from_measurement_kind_not_sensor_id(short_runs):
+    swap = {"angle": "radar2d", "radar2d": "angle"}
+    meas = short_runs.measurements[1]
+    renamed = sorted(
+        (Measurement(m.t, swap[m.sensor], m.kind, m.z, m.std, m.site, m.seq) for m in meas), key=lambda m: m.order_key
+    )
+    for name in ("LCDD", "HNDD", "SS", "PHHNV", "DDHNV"):
+        _same(_centre(run_method(make(name, {}), meas)), _centre(run_method(make(name, {}), renamed)), tol=1e-12)
+
+
+# Equalities the maths promises ----------------------------------------------------------
+@pytest.mark.parametrize("run", [0, 1, 2])
+def test_hndd_equals_ss(run, short_runs):
+    meas = short_runs.measurements[run]
+    _same(_centre(run_method(make("HNDD", {}), meas)), _centre(run_method(make("SS", {}), meas)))
+
+
+@pytest.mark.parametrize("name", ["PHHNV", "DDHNV"])
+@pytest.mark.parametrize("motion", ["ca", "cv"])
+def test_feedback_and_two_stage_with_info_rule_equal_centralised(name, motion, short_runs):
+    for meas in short_runs.measurements:
+        cfg = {"fusion_rule": "info", "motion": motion}
+        _same(_centre(run_method(make(name, cfg), meas)), _centre(run_method(make("SS", cfg), meas)))
+
+
+@pytest.mark.parametrize("rule", ["info", "bar-shalom-campo", "ci"])
+def test_two_stage_equals_feedback_for_consistent_rules(rule, short_runs):
+    # Stage 1 fuses two copies of one prediction, which these rules (unlike naive) leave as is.
+    meas = short_runs.measurements[0]
+    cfg = {"fusion_rule": rule}
+    _same(_centre(run_method(make("DDHNV", cfg), meas)), _centre(run_method(make("PHHNV", cfg), meas)))
+
+
+def test_asynchronous_sensors():
+    # Radar on the second, angle sensor half a second later: no scan pairs them.
+    sensors = (SensorSpec("angle", "azel", ANGLE.std, t0=0.5), RADAR2D)
+    runs = simulate(4, seed=6, duration=20.0, sensors=sensors)
+    for meas in runs.measurements:
+        times = sorted({m.t for m in meas})
+        ss = _centre(run_method(make("SS", {}), meas))
+        assert [e.t for e in ss] == times
+        # Each scan holds one sensor; feedback/two-stage with `info` still equal the centralised filter.
+        for name in ("PHHNV", "DDHNV"):
+            _same(_centre(run_method(make(name, {"fusion_rule": "info"}), meas)), ss)
+    # Every method emits at every measurement time and ends within a few σ of the truth.
+    cfg = {"fusion_rule": "bar-shalom-campo", "init_vel_std_up": 20.0, "init_acc_std_up": 1.0}
+    for r, meas in enumerate(runs.measurements):
+        for name in ("LCDD", "HNDD", "SS", "HNV", "PHHNV"):
+            out = _centre(run_method(make(name, cfg), meas))
+            assert [e.t for e in out] == sorted({m.t for m in meas})
+            err = out[-1].x[:3] - runs.truth_at(r, out[-1].t)[:3]
+            assert err @ np.linalg.solve(out[-1].P[:3, :3], err) < chi2.ppf(0.9999, 3)
+
+
+def test_lcdd_with_separated_sites_and_hndd_refuses():
+    sensors = (SensorSpec("angle", "azel", ANGLE.std, site=(2000.0, -1000.0, 30.0)), RADAR2D)
+    runs = simulate(40, seed=7, duration=15.0, sensors=sensors)
+    n = []
+    for r, meas in enumerate(runs.measurements):
+        t, x, P = centre_track(run_method(make("LCDD", {}), meas))
+        n.append(nees(runs.truth[r], x, P))
+    anees = np.mean(n, axis=0)[FIRST:]
+    assert np.all(anees < chi2.ppf(0.999, 9 * 40) / 40)
+    with pytest.raises(ValueError, match="co-located"):
+        run_method(make("HNDD", {}), runs.measurements[0])
+
+
+def test_local_reports_carry_what_the_fusion_rules_need(short_runs):
+    out = run_method(make("HNV", {"fusion_rule": "bar-shalom-campo"}), short_runs.measurements[0])
+    local = [e for e in out if e.node != "centre"]
+    assert {e.node for e in local} == {"angle", "radar2d"}
+    first = {e.node: e for e in reversed(local)}
+    for e in local:
+        assert {"prior_x", "prior_P", "KH", "feedback_t", "prediction"} <= set(e.extra)
+        assert e.nis_dof == 2 and e.nis >= 0
+        # x = x̄ + K ν: the report's K·H moves the prior's information exactly as the Joseph update did.
+        A = np.eye(9) - e.extra["KH"]
+        assert np.all(np.linalg.eigvalsh(A @ e.extra["prior_P"] @ A.T - e.P) <= 1e-6 * np.abs(e.P).max())
+    assert all(e.extra["feedback_t"] == 0.0 for e in first.values())  # started from the centre's initial state
+    assert all(e.extra["feedback_t"] is None for e in local if e.t > 1.0)  # HNV: no feedback
+    lt = LocalTracker("angle", make("SS", {}).motion)
+    with pytest.raises(ValueError, match="no prior"):
+        lt.predict(1.0)
+
+
+# 200-run Monte Carlo on the patent-3d set-up --------------------------------------------
+CONFIGS = {
+    "LCDD": ("LCDD", {}),
+    "HNDD": ("HNDD", {}),
+    "SS": ("SS", {}),
+    "PHHNV/info": ("PHHNV", {"fusion_rule": "info"}),
+    "PHHNV/bsc": ("PHHNV", {"fusion_rule": "bar-shalom-campo"}),
+    "PHHNV/ci": ("PHHNV", {"fusion_rule": "ci"}),
+    "PHHNV/naive": ("PHHNV", {"fusion_rule": "naive"}),
+    "DDHNV/naive": ("DDHNV", {"fusion_rule": "naive"}),
+    "HNV/bsc/vertical": ("HNV", {"fusion_rule": "bar-shalom-campo", "init_vel_std_up": 20.0, "init_acc_std_up": 1.0}),
+    "SS/vertical": ("SS", {"init_vel_std_up": 20.0, "init_acc_std_up": 1.0}),
+    "RADAR3D": ("RADAR3D", {}),
+}
+LO95, HI95 = chi2.ppf([0.025, 0.975], 9 * N_RUNS) / N_RUNS
+HI99 = chi2.ppf(0.99, 9 * N_RUNS) / N_RUNS
+
+
+@pytest.fixture(scope="module")
+def mc():
+    patent = simulate(N_RUNS, SEED)
+    radar3d = simulate(N_RUNS, SEED, sensors=(RADAR3D,))
+    out = {}
+    for key, (name, cfg) in CONFIGS.items():
+        sim = radar3d if name == "RADAR3D" else patent
+        tracks = [centre_track(run_method(make(name, cfg), meas)) for meas in sim.measurements]
+        x = np.array([t[1] for t in tracks])
+        P = np.array([t[2] for t in tracks])
+        out[key] = (x, P, nees(sim.truth, x, P), sim.truth)
+    return out
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("key", ["LCDD", "HNDD", "SS", "PHHNV/info", "PHHNV/bsc", "RADAR3D"])
+def test_consistent_methods_have_nees_in_the_95_band(key, mc):
+    # DDHNV with info / bar-shalom-campo equals PHHNV (test above), and so shares its numbers.
+    anees = mc[key][2].mean(axis=0)[FIRST:]
+    inside = (anees >= LO95) & (anees <= HI95)
+    assert inside.mean() >= 0.9, np.round(anees, 2)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("key", ["LCDD", "SS", "PHHNV/info", "PHHNV/bsc", "RADAR3D"])
+def test_time_averaged_nees_over_independent_runs(key, mc):
+    # Seed-robust companion: per-run time averages are independent across runs.
+    per_run = mc[key][2][:, FIRST:].mean(axis=1)
+    half_width = 3.0 * per_run.std(ddof=1) / np.sqrt(N_RUNS)
+    assert abs(per_run.mean() - 9.0) < half_width
+
+
+@pytest.mark.slow
+def test_naive_feedback_fusion_is_overconfident_the_others_are_not(mc):
+    for key in ("PHHNV/naive", "DDHNV/naive"):
+        assert np.mean(mc[key][2].mean(axis=0) > HI99) > 0.5
+    for key in ("PHHNV/info", "PHHNV/bsc", "PHHNV/ci"):
+        assert np.mean(mc[key][2].mean(axis=0) > HI99) < 0.1
+    # CI does not know the tracks share their prior: conservative, below the band.
+    ci = mc["PHHNV/ci"][2].mean(axis=0)[FIRST:]
+    assert np.all(ci < LO95)
+
+
+@pytest.mark.slow
+def test_hnv_with_physical_vertical_priors(mc):
+    # HNV's 2D-radar local EKF cannot observe the vertical. With vertical priors of
+    # 20 m/s and 1 m/s² it stays linear: never overconfident, as accurate as SS under
+    # the same priors — but those priors dominate the vertical acceleration for ~15 s,
+    # so its NEES sits low (conservative), as SS's does with them.
+    for key in ("HNV/bsc/vertical", "SS/vertical"):
+        anees = mc[key][2].mean(axis=0)[FIRST:]
+        assert np.mean(anees > HI95) <= 0.1, np.round(anees, 2)
+    rmse = {k: np.sqrt(np.mean(np.sum((mc[k][0] - mc[k][3])[..., :3] ** 2, -1))) for k in ("HNV/bsc/vertical", "SS/vertical")}
+    assert rmse["HNV/bsc/vertical"] < 1.1 * rmse["SS/vertical"]
