@@ -163,10 +163,11 @@ class TrackerConfig:
             raise ValueError(f"tracker config 'q' must be >= 0, got {self.q}")
         if self.pair_tol < 0.0:
             raise ValueError(f"tracker config 'pair_tol' must be >= 0, got {self.pair_tol}")
-        try:
-            self.priors()
-        except ValueError as e:
-            raise ValueError(f"tracker config: {e}") from None
+        for key in ("init_range", "init_range_std", "init_el_std", "init_vel_std", "init_vel_std_up", "init_acc_std", "init_acc_std_up"):
+            if getattr(self, key) <= 0.0:
+                raise ValueError(f"tracker config {key!r} must be > 0, got {getattr(self, key)}")
+        if abs(self.init_el) >= np.pi / 2:
+            raise ValueError(f"tracker config 'init_el' must lie in (-π/2, π/2) rad, got {self.init_el}")
 
     def motion_model(self):
         return make_motion(self.motion, self.q, self.process_noise)

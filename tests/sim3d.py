@@ -82,12 +82,14 @@ def simulate(n_runs: int, seed: int, sensors=PATENT_SENSORS, x0=X0, q=Q, duratio
 
 def run_method(method, measurements, advance_every: int | None = None) -> list[Estimate]:
     """Drive a streaming method over one run; optionally send a watermark after every
-    ``advance_every``-th measurement (at that measurement's time)."""
+    ``advance_every``-th measurement: halfway to the next measurement time, when that
+    is later (a watermark promises that nothing at or before it will still come)."""
     out: list[Estimate] = []
     for i, m in enumerate(measurements):
         out += method.process(m)
-        if advance_every and (i + 1) % advance_every == 0:
-            out += method.advance(m.t)
+        nxt = measurements[i + 1].t if i + 1 < len(measurements) else m.t + 1.0
+        if advance_every and (i + 1) % advance_every == 0 and nxt > m.t:
+            out += method.advance(0.5 * (m.t + nxt))
     out += method.finish()
     return out
 
