@@ -35,7 +35,7 @@ group of measurements whose times lie within ``pair_tol`` of the scan's first
 measurement, at most one per sensor. A scan closes when (a) a measurement arrives that
 cannot join it, (b) a watermark ``advance(t)`` with ``t − t_first > pair_tol`` proves no
 member can still come, (c) it holds a measurement of every sensor seen so far (after
-the first scan), or (d) ``finish()``. All three depend only on the measurement
+the first scan), or (d) ``finish()``. Each of these depends only on the measurement
 sequence, so the emitted estimates never depend on when ``advance`` is called. A scan
 is processed at the time of its first measurement (time offsets within ``pair_tol``
 are neglected; keep ``pair_tol`` ≪ σ/speed). Sequential fallback: a scan holding only

@@ -15,7 +15,7 @@ from scipy.stats import chi2
 sys.path.insert(0, str(Path(__file__).parent))
 from sim3d import ANGLE, PATENT_SENSORS, RADAR2D, RADAR3D, SensorSpec, centre_track, nees, run_method, simulate  # noqa: E402
 
-from fusion.patent import PATENT_METHODS, LocalTracker, TrackerConfig, make  # noqa: E402
+from fusion.patent import PATENT_METHODS, LocalTracker, TrackerConfig, make, pieces_hndd, pieces_lcdd  # noqa: E402
 from fusion.types import Measurement  # noqa: E402
 
 ALL = list(PATENT_METHODS)
@@ -127,8 +127,7 @@ def test_bad_streams_are_clear_errors():
 def test_baselines_use_only_their_kind():
     runs = simulate(1, seed=5, duration=5.0, sensors=(ANGLE, RADAR2D, RADAR3D))
     for name, kind in [("RADAR2D", "range_az"), ("ANGLE", "azel"), ("RADAR3D", "az_el_range")]:
-        alone = simulate(1, seed=5, duration=5.0, sensors=(ANGLE, RADAR2D, RADAR3D))
-        mine = [m for m in alone.measurements[0] if m.kind == kind]
+        mine = [m for m in runs.measurements[0] if m.kind == kind]
         _same(run_method(make(name, {}), runs.measurements[0]), run_method(make(name, {}), mine), tol=0.0)
 
 
@@ -140,6 +139,20 @@ def test_roles_come_from_measurement_kind_not_sensor_id(short_runs):
     )
     for name in ("LCDD", "HNDD", "SS", "PHHNV", "DDHNV"):
         _same(_centre(run_method(make(name, {}), meas)), _centre(run_method(make(name, {}), renamed)))
+
+
+def test_hndd_fuses_azimuths_across_north():
+    s_i, s_r = 1e-3, 1e-2
+    ang = Measurement(0.0, "a", "azel", np.array([0.001, 0.2]), np.array([s_i, s_i]), np.zeros(3))
+    rad = Measurement(0.0, "r", "range_az", np.array([2 * np.pi - 0.003, 9000.0]), np.array([s_r, 20.0]), np.zeros(3))
+    (model, z), = pieces_hndd([ang, rad], 9)
+    unwrapped = (0.001 / s_i**2 + (-0.003) / s_r**2) / (1 / s_i**2 + 1 / s_r**2)
+    assert z[0] == pytest.approx(unwrapped % (2 * np.pi), abs=1e-15)
+    assert model.std[0] == pytest.approx((s_i**-2 + s_r**-2) ** -0.5)
+    np.testing.assert_array_equal(z[1:], [0.2, 9000.0])
+    (model, z), = pieces_lcdd([ang, rad], 9)
+    assert model.components == ("az", "el", "range")
+    np.testing.assert_array_equal(z, [0.001, 0.2, 9000.0])
 
 
 # Equalities the maths promises ----------------------------------------------------------
