@@ -158,9 +158,12 @@ def run(args) -> int:
             node.wait_for([FUSER_ID, RECORDER_ID], timeout=60.0)
             start_at = time.time() + (0.0 if math.isinf(speed) else 0.5)
             for sid in sources:
+                # A source waits only for its consumers: the fuser may finish (and vanish)
+                # before a truth or jammer process discovers it, so they must not wait for it.
+                consumers = [FUSER_ID, RECORDER_ID] if sid in scenario.sensors else [RECORDER_ID]
                 children.start(sid, ["sensor", "--scenario", args.scenario, "--id", sid, "--speed", str(args.speed),
                                      "--start-at", repr(start_at), *seed,
-                                     "--wait-for", ",".join([FUSER_ID, RECORDER_ID, LAUNCHER_ID]), *common])
+                                     "--wait-for", ",".join([*consumers, LAUNCHER_ID]), *common])
             while not node.stop.is_set():
                 drain(0.1)
                 code = children.procs[FUSER_ID].poll()
