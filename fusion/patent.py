@@ -72,11 +72,9 @@ init_acc_std     10.0                       m/s² per horizontal axis, around ze
 init_acc_std_up  10.0                       m/s² vertical, around zero (CA)
 ===============  =========================  =============================================
 
-Distributed use (issue 6): a local-tracker process owns a :class:`LocalTracker`
-(``initialise``/``accept_prior`` on messages from the centre, ``update``/``predict`` on
-its sensor's measurements, publishing the returned :class:`Estimate`); the fuser owns a
-:class:`~fusion.track_fusion.TrackFuser` and, for DDHNV, runs the centre-side updates
-with a :class:`LocalTracker` per measurement exactly as :class:`DistributedMethod` does.
+HNV, PHHNV and DDHNV are split into local nodes and a centre in :mod:`fusion.network`,
+which the tracker and fuser processes run; the in-process methods registered here are
+those same nodes and centre wired back to back (:class:`fusion.network.NetworkMethod`).
 """
 
 from __future__ import annotations
@@ -230,6 +228,10 @@ class ScanGrouper:
 
     def finish(self) -> list[list[Measurement]]:
         return self._close()
+
+    def held_since(self) -> float | None:
+        """Time of the open scan's first member (None when no scan is open)."""
+        return self._open[0].t if self._open else None
 
 
 class ScanMethod:
@@ -433,87 +435,31 @@ class LocalTracker:
         return self._report(prior_x, prior_P, res.K @ self.ekf.H, res.nis, model.n_z)
 
 
-class DistributedMethod(ScanMethod):
-    """HNV (``feedback=False``), PHHNV (``feedback=True``), DDHNV (``two_stage=True``).
-
-    Thin composition of one :class:`LocalTracker` per sensor and a
-    :class:`~fusion.track_fusion.TrackFuser`. All local trackers start from the one
-    initial state of the first scan (so comparisons with the centralised methods are
-    fair); a sensor first seen later starts from the centre's last fused estimate.
-    """
-
-    def __init__(self, name: str, config: TrackerConfig, feedback: bool, two_stage: bool = False):
-        super().__init__(name, config)
-        self.feedback = feedback or two_stage  # DDHNV's local predictors run from the fed-back estimate
-        self.two_stage = two_stage
-        self.fuser = TrackFuser(config.fusion_rule, self.motion, config.ci_criterion, name, self.track)
-        self.locals: dict[str, LocalTracker] = {}
-
-    def _local(self, sensor: str) -> LocalTracker:
-        loc = self.locals.get(sensor)
-        if loc is None:
-            loc = self.locals[sensor] = LocalTracker(sensor, self.motion, self.name, self.track)
-            loc.initialise(self.fuser.x, self.fuser.P, self.fuser.t)
-        return loc
-
-    def _process_scan(self, scan):
-        t = scan[0].t
-        if not self.fuser.initialised:
-            x, P = initial_state(scan, self.n_x, self.priors)
-            self.fuser.initialise(x, P, t)
-            for m in scan:
-                self._local(m.sensor)
-            return [Estimate(t, x, P, self.name, "centre", self.track)]
-        by_sensor = {m.sensor: m for m in scan}
-        for s in by_sensor:
-            self._local(s)
-        names = sorted(self.locals)
-        if self.two_stage:
-            reports = [self.locals[s].predict(t) for s in names]
-            stage1 = self.fuser.fuse(t, reports)
-            updates = []
-            for s, m in by_sensor.items():  # the centre's updates of the fused prediction
-                c = LocalTracker(s, self.motion, self.name, self.track)
-                c.accept_prior(stage1.x, stage1.P, t)
-                updates.append(c.update(m, t))
-            fused = self.fuser.fuse(t, updates)
-            nis_from = updates
-        else:
-            reports = [self.locals[s].update(by_sensor[s], t) if s in by_sensor else self.locals[s].predict(t) for s in names]
-            fused = self.fuser.fuse(t, reports)
-            nis_from = [r for r in reports if r.nis is not None]
-        if self.feedback:
-            for loc in self.locals.values():
-                loc.accept_prior(fused.x, fused.P, t)
-        nis = sum(r.nis for r in nis_from) if nis_from else None
-        dof = sum(r.nis_dof for r in nis_from) if nis_from else None
-        centre = Estimate(t, fused.x, fused.P, self.name, "centre", self.track, nis, dof, fused.extra)
-        return [*reports, centre]
-
-
 # Factories ---------------------------------------------------------------------------
 def _centralised(name, pieces, kinds, config: dict | None) -> CentralisedMethod:
     return CentralisedMethod(name, TrackerConfig.from_dict(config), pieces, kinds)
 
 
-def _distributed(name, feedback, two_stage, config: dict | None) -> DistributedMethod:
-    return DistributedMethod(name, TrackerConfig.from_dict(config), feedback, two_stage)
+def _distributed(name, config: dict | None):
+    from .network import NetworkMethod  # the nodes and centre of the distributed processes
+
+    return NetworkMethod(name, config)
 
 
-PATENT_METHODS: dict[str, Callable[[dict], ScanMethod]] = {
+PATENT_METHODS: dict[str, Callable[[dict], Method]] = {
     "LCDD": partial(_centralised, "LCDD", pieces_lcdd, KINDS_3D),
     "HNDD": partial(_centralised, "HNDD", pieces_hndd, KINDS_3D),
     "SS": partial(_centralised, "SS", pieces_stacked, KINDS_3D),
-    "HNV": partial(_distributed, "HNV", False, False),
-    "PHHNV": partial(_distributed, "PHHNV", True, False),
-    "DDHNV": partial(_distributed, "DDHNV", True, True),
+    "HNV": partial(_distributed, "HNV"),
+    "PHHNV": partial(_distributed, "PHHNV"),
+    "DDHNV": partial(_distributed, "DDHNV"),
     "RADAR2D": partial(_centralised, "RADAR2D", pieces_stacked, {"range_az"}),
     "ANGLE": partial(_centralised, "ANGLE", pieces_stacked, {"azel"}),
     "RADAR3D": partial(_centralised, "RADAR3D", pieces_stacked, {"az_el_range"}),
 }
 
 
-def make(name: str, config: dict | None = None) -> ScanMethod:
+def make(name: str, config: dict | None = None) -> Method:
     """Build a patent method by name with the scenario's ``[tracker]`` table."""
     try:
         factory = PATENT_METHODS[name]

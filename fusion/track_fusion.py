@@ -307,6 +307,18 @@ class TrackFuser:
         self._cross.clear()
         self._cross_fused.clear()
 
+    def add_node(self, node: str) -> None:
+        """Register a node that starts from the current fused estimate (its
+        initialisation): its error is the fused error, so its covariances are known
+        and a node that does not report at the next fusion is still accounted for."""
+        if not self.initialised:
+            raise ValueError("fuser not initialised")
+        for a, C in self._cross_fused.items():  # Cov(e_node, e_a) = Cov(e_f, e_a)
+            if a != node:
+                self._cross[(node, a) if node < a else (a, node)] = C if node < a else C.T
+        self._P_nodes[node] = self.P
+        self._cross_fused[node] = self.P
+
     def predicted(self, t: float) -> tuple[np.ndarray, np.ndarray]:
         """The last fused estimate predicted to ``t`` (the centre prior)."""
         if not self.initialised:

@@ -1,6 +1,6 @@
 """Wire format (msgpack) and Zenoh key space. See DESIGN.md, "Wire format"."""
 
-from .keys import KeySpace, check_id
+from .keys import KeySpace, check_id, tracker_id
 from .messages import (
     KINDS,
     MEASUREMENT_KINDS,
@@ -17,6 +17,6 @@ from .messages import (
 )
 
 __all__ = [
-    "KINDS", "MEASUREMENT_KINDS", "SCHEMA_VERSION", "KeySpace", "Message", "SchemaError", "check_id",
+    "KINDS", "MEASUREMENT_KINDS", "SCHEMA_VERSION", "KeySpace", "Message", "SchemaError", "check_id", "tracker_id",
     "decode", "encode", "encode_estimate", "encode_measurement", "to_estimate", "to_measurement", "validate",
 ]

@@ -21,6 +21,14 @@ def check_id(value: str, what: str = "id") -> str:
     return value
 
 
+TRACKER_PREFIX = "trk-"
+
+
+def tracker_id(sensor: str) -> str:
+    """Process id (and ``local/``/``feedback/`` key id) of a sensor's local tracker."""
+    return check_id(TRACKER_PREFIX + sensor, "tracker id")
+
+
 @dataclass(frozen=True)
 class KeySpace:
     deployment: str = DEFAULT_DEPLOYMENT

@@ -342,8 +342,15 @@ def to_measurement(msg: Message) -> Measurement:
 
 
 def encode_estimate(e: Estimate, src: str, seq: int, kind: str = "track") -> bytes:
+    """An estimate as a message. ``extra`` travels as arrays: a number (or bool) becomes a
+    one-element list, None is left out; anything else non-numeric is an error."""
+    extra = {}
+    for k, v in e.extra.items():
+        if v is None:
+            continue
+        extra[k] = [float(v)] if isinstance(v, (bool, int, float, np.integer, np.floating)) else v
     return encode(kind, src, seq, e.t, track=e.track, node=e.node, method=e.method, x=e.x, P=e.P,
-                  nis=e.nis, nis_dof=e.nis_dof, extra=dict(e.extra))
+                  nis=e.nis, nis_dof=e.nis_dof, extra=extra)
 
 
 def to_estimate(msg: Message) -> Estimate:

@@ -56,6 +56,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, help="replace the scenario's seed")
     p.add_argument("--rrd", help="recording path (default runs/<scenario>-<topology>-<time>.rrd)")
     p.add_argument("--json", help="write the summary JSON here")
+    p.add_argument("--spawn", action="store_true",
+                   help="also stream the recording live to a Rerun viewer (if a display is available)")
     _fabric(p)
 
     p = sub.add_parser("eval", help="Monte Carlo evaluation in-process, with the services' own estimators")
@@ -98,11 +100,27 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int)
     _fabric(p)
 
+    p = sub.add_parser("tracker", help="a local tracker process (distributed, feedback, two-stage topologies)")
+    p.add_argument("--scenario", required=True)
+    p.add_argument("--sensor", required=True, help="the sensor this tracker runs beside")
+    p.add_argument("--method", help="distributed method: HNV, PHHNV, DDHNV, KF+TR, MKF+TR (default: the scenario's)")
+    p.add_argument("--fusion-rule", choices=("naive", "bar-shalom-campo", "ci", "info"))
+    p.add_argument("--fuser", default="fuser", help="process id of the fuser whose feedback to take")
+    p.add_argument("--feedback-timeout", type=float, default=5.0,
+                   help="seconds without an answer from the fuser before running alone")
+    p.add_argument("--start-grace", type=float, default=30.0, help=argparse.SUPPRESS)
+    p.add_argument("--seed", type=int)
+    _fabric(p)
+
     p = sub.add_parser("record", help="the recorder process: everything into a Rerun .rrd file")
     p.add_argument("--rrd", required=True)
     p.add_argument("--id", default="recorder")
     p.add_argument("--expect", type=_ids, default=[],
                    help="stop once these processes have reported done (default: run until signalled)")
+    p.add_argument("--scenario", help="scenario name or file: sites drawn from t=0, data after its end rejected")
+    p.add_argument("--seed", type=int)
+    p.add_argument("--spawn", action="store_true",
+                   help="also stream to a Rerun viewer (started, or reused on port 9876) if a display is available")
     _fabric(p)
     return ap
 
@@ -148,11 +166,25 @@ def main(argv: list[str] | None = None) -> int:
         overrides = {"fusion_rule": args.fusion_rule} if args.fusion_rule else {}
         return fuser(args.id, args.scenario, method, overrides, keys, _zopts(args), args.source_timeout,
                      args.start_grace, seed=args.seed)
+    if args.command == "tracker":
+        from fusion.network import SPLITS
+
+        from .node import load
+        from .tracker import run as tracker
+
+        method = args.method or load(args.scenario).defaults.get("method")
+        if method not in SPLITS:
+            raise SystemExit(f"zfusion tracker: {method!r} has no local trackers (distributed methods: "
+                             f"{', '.join(SPLITS)})")
+        overrides = {"fusion_rule": args.fusion_rule} if args.fusion_rule else {}
+        return tracker(args.sensor, args.scenario, method, overrides, keys, _zopts(args), args.fuser,
+                       args.feedback_timeout, args.start_grace, seed=args.seed)
     if args.command == "record":
         from .recorder import run as record
 
         Path(args.rrd).parent.mkdir(parents=True, exist_ok=True)
-        return record(args.id, keys, _zopts(args), args.rrd, args.expect)
+        return record(args.id, keys, _zopts(args), args.rrd, args.expect,
+                      spawn=args.spawn, scenario=args.scenario, seed=args.seed)
     raise AssertionError(args.command)
 
 

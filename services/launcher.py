@@ -30,7 +30,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from fusion.types import Estimate
-from schemas import KeySpace, SchemaError, decode, to_estimate
+from schemas import KeySpace, SchemaError, decode, to_estimate, tracker_id
 
 from .node import Node, ZenohOptions, load
 from .summary import format_table, method_summary, summary, truth_function
@@ -84,6 +84,36 @@ class Children:
                 p.wait()
 
 
+def topology_of(method: str) -> str:
+    from fusion.network import SPLITS
+
+    return SPLITS[method].topology if method in SPLITS else "centralised"
+
+
+# The method a topology runs when none is named: 3D scenarios / DF (bearing) scenarios.
+DEFAULT_METHODS = {"distributed": ("HNV", "KF+TR"), "feedback": ("PHHNV", None), "two-stage": ("DDHNV", None)}
+
+
+def resolve_topology(scenario, topology: str | None, method: str | None) -> tuple[str, str]:
+    """Topology and method from the command line and the scenario's defaults; they must agree."""
+    default = scenario.defaults.get("method")
+    if method is None and topology is not None and (default is None or topology_of(default) != topology):
+        if topology == "centralised":
+            raise SystemExit(f"zfusion run: scenario {scenario.name} names no centralised method; give --method")
+        df = all(scenario.kind_of(s) in ("df", "airborne_df") for s in scenario.sensors)
+        method = DEFAULT_METHODS[topology][1 if df else 0]
+        if method is None:
+            raise SystemExit(f"zfusion run: no DF method runs in the {topology!r} topology (DESIGN.md, Topologies)")
+    method = method or default
+    if not method:
+        raise SystemExit("zfusion run: no --method given and the scenario names no default method")
+    topology = topology or topology_of(method)
+    if topology_of(method) != topology:
+        raise SystemExit(f"zfusion run: method {method} runs in the {topology_of(method)!r} topology, "
+                         f"not {topology!r}")
+    return topology, method
+
+
 def default_rrd(scenario: str, topology: str) -> str:
     stamp = _dt.datetime.now().strftime("%Y%m%d-%H%M%S")
     return str(Path("runs") / f"{scenario}-{topology}-{stamp}.rrd")
@@ -91,13 +121,7 @@ def default_rrd(scenario: str, topology: str) -> str:
 
 def run(args) -> int:
     scenario = load(args.scenario, args.seed)
-    topology = args.topology or scenario.defaults.get("topology", "centralised")
-    if topology != "centralised":
-        raise SystemExit(f"zfusion run: topology {topology!r} is not available yet in this build "
-                         f"(available: centralised)")
-    method = args.method or scenario.defaults.get("method")
-    if not method:
-        raise SystemExit("zfusion run: no --method given and the scenario names no default method")
+    topology, method = resolve_topology(scenario, args.topology, args.method)
     from fusion.methods import make_method
 
     overrides = {"fusion_rule": args.fusion_rule} if args.fusion_rule else {}
@@ -153,14 +177,22 @@ def run(args) -> int:
             children.start(FUSER_ID, ["fuser", "--scenario", args.scenario, "--method", method, "--id", FUSER_ID,
                                       "--source-timeout", str(timeout), *seed, *(
                                           ["--fusion-rule", args.fusion_rule] if args.fusion_rule else []), *common])
-            children.start(RECORDER_ID, ["record", "--rrd", rrd, "--id", RECORDER_ID,
-                                         "--expect", ",".join([FUSER_ID, *sources]), *common])
+            trackers = {s: tracker_id(s) for s in scenario.sensors} if topology != "centralised" else {}
+            children.start(RECORDER_ID, ["record", "--rrd", rrd, "--id", RECORDER_ID, "--scenario", args.scenario,
+                                         *seed, *(["--spawn"] if getattr(args, "spawn", False) else []),
+                                         "--expect", ",".join([FUSER_ID, *trackers.values(), *sources]), *common])
             node.wait_for([FUSER_ID, RECORDER_ID], timeout=60.0)
+            for sensor, tid in trackers.items():
+                children.start(tid, ["tracker", "--scenario", args.scenario, "--sensor", sensor, "--method", method,
+                                     "--fuser", FUSER_ID, "--feedback-timeout", str(timeout), *seed, *(
+                                         ["--fusion-rule", args.fusion_rule] if args.fusion_rule else []), *common])
+            node.wait_for(trackers.values(), timeout=60.0)
             start_at = time.time() + (0.0 if math.isinf(speed) else 0.5)
             for sid in sources:
                 # A source waits only for its consumers: the fuser may finish (and vanish)
                 # before a truth or jammer process discovers it, so they must not wait for it.
-                consumers = [FUSER_ID, RECORDER_ID] if sid in scenario.sensors else [RECORDER_ID]
+                first = trackers.get(sid, FUSER_ID)
+                consumers = [first, RECORDER_ID] if sid in scenario.sensors else [RECORDER_ID]
                 children.start(sid, ["sensor", "--scenario", args.scenario, "--id", sid, "--speed", str(args.speed),
                                      "--start-at", repr(start_at), *seed,
                                      "--wait-for", ",".join([*consumers, LAUNCHER_ID]), *common])
@@ -171,7 +203,7 @@ def run(args) -> int:
                     break
             interrupted = node.stop.is_set()
             if not interrupted:
-                for sid in sources:
+                for sid in [*sources, *trackers.values()]:
                     children.wait(sid, 10.0)
                 children.wait(RECORDER_ID, 30.0)
                 drain(0.2)
@@ -201,7 +233,13 @@ def run(args) -> int:
     if args.json:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
         Path(args.json).write_text(json.dumps(doc, indent=1))
-    bad = {n: c for n, c in codes.items() if c != 0}
+    # A process killed from outside (negative code) is an outage the fuser rode through,
+    # reported in the summary; a process that failed on its own is an error.
+    killed = {n: c for n, c in codes.items() if c is not None and c < 0}
+    if killed:
+        print(f"zfusion run: processes killed during the run (see 'sources' in the summary): {killed}",
+              file=sys.stderr)
+    bad = {n: c for n, c in codes.items() if c not in (0, None) and c > 0}
     if bad:
         print(f"zfusion run: processes ended with errors: {bad}", file=sys.stderr)
         return 1

@@ -1,210 +1,624 @@
 """The recorder process: everything on the deployment's keys into one Rerun recording.
 
-Timeline ``sim_time`` (scenario seconds). Entity layout::
+Timeline ``sim_time`` (scenario seconds). Entity layout (``docs/viewing.md`` describes what
+each shows)::
 
-    world/sites/<sensor>                 labelled sensor positions
-    world/truth/<target>                 true position (+ its path so far)
-    world/meas/<sensor>                  measurements: points (with range) or rays (angles only)
-    world/tracks/<node>/<track>          estimates with their 3σ ellipsoid / ellipse
-    world/jam/<jammer>                   jammer position, on/off
-    metrics/error_pos/<method>           position error against truth
-    metrics/nees/<method>[/lo|/hi]       NEES against its two-sided 95 % χ² bounds
-    metrics/nis/<method>[/lo|/hi]        NIS against its bounds
-    status/<process>/events              text log (source declared dead, rejoined, ...)
-    status/<process>/<counter>           counters
+    world                                  ENU, z up (view coordinates)
+    world/sites/<sensor>                   labelled sensor position (DF: on the map plane z = 0);
+                                           a moving (airborne) site also carries its path
+    world/meas/<sensor>                    that sensor's reports of the current scan: points
+                                           (with range; a 2D radar also its elevation arc) or
+                                           rays (angles only; DF bearings on the map plane)
+    world/truth/<target>                   true position and its path so far
+    world/tracks/<node>/<track>            estimate, 3σ ellipsoid (3D) or ellipse (map plane),
+                                           its path; node ``centre`` is the fused output,
+                                           other nodes are local trackers
+    world/tracks/<node>/<track>/prediction a published prediction (two-stage topology)
+    world/tracks/<sensor>/uplink           measurements a local tracker sent up: raw (two-stage)
+                                           or smoothed bearings (KF+TR); not sensor reports again
+    world/feedback/<node>/<track>          the fused state sent back down to a node
+    world/jam/<jammer>                     jammer position, on/off, lines to the sensors it jams
+    metrics/error_pos/<method>[/<node>]    position error against truth (fused; local per node)
+    metrics/nees/<method>[/<node>][/lo|/hi]  NEES against its two-sided 95 % χ² bounds
+    metrics/nis/<method>[/<node>][/lo|/hi]   NIS against its bounds
+    jamming/<jammer>/on                    1 while the jammer is on
+    jamming/<jammer>/affects/<sensor>      1 while it jams that sensor
+    jamming/<sensor>/jammed|outliers       the sensor's own contamination counters
+    status/<process>/events                text log: state changes, source declared dead /
+                                           rejoined, feedback timeouts, jammer on/off
+    status/<process>/counters/<name>       every other counter a process reports
 
-The recorder is only a listener: the fusion path never waits on it (its subscription is
-served by Zenoh's threads into a queue; the fuser's publishers do not know it exists).
+The recorder is only a listener: the fusion path never waits on it. Its subscription is
+served by Zenoh's threads into a bounded queue (overflow is counted and dropped, never
+pushed back to a publisher); the fuser's publishers do not know it exists. Every sample
+that fails to decode, arrives on the wrong key, repeats, or lies beyond the scenario's end
+is counted by cause and dropped (:class:`~services.node.RejectLog`).
 """
 
 from __future__ import annotations
 
+import logging
 import math
+import os
 import queue
+import sys
+import threading
 import time
-from collections import OrderedDict
+from collections import OrderedDict, deque
+from pathlib import Path
+from typing import Any, Callable
 
 import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
-from scipy.stats import chi2
 
-from fusion.types import KIND_COMPONENTS
-from schemas import KeySpace, Message, SchemaError, decode, to_estimate, to_measurement
+from fusion.types import KIND_COMPONENTS, Estimate
+from schemas import MEASUREMENT_KINDS, KeySpace, Message, SchemaError, decode, to_estimate, to_measurement
 
-from .node import Node
+from . import recorder_draw as draw
+from .node import Node, RejectLog
 
+log = logging.getLogger("zfusion")
+
+TIMELINE = "sim_time"
 DEFAULT_RAY_M = 20_000.0
 TRUTH_CACHE = 4096  # truth samples kept per target, to score estimates against
+PENDING_MAX = 4096  # estimates waiting for the truth sample of their time
+PATH_MAX = 2000  # points kept in a drawn path (truth, track, airborne site)
+SEQ_WINDOW = 4096  # recent sequence numbers remembered per source (duplicate detection)
+BACKLOG_MAX = 200_000  # queued samples before the recorder starts dropping (and counting)
+VIEWER_PORT = 9876  # Rerun's default: a second run reuses a viewer that is already open
+CONTAMINATION = ("jammed", "outliers")  # sensor counters plotted under jamming/<sensor>/
+HORIZON_SLACK_S = 1.0  # as the fuser: data beyond the scenario's end + this is "future"
+
+FUSED_NODE = "centre"
 
 
-def blueprint() -> rrb.Blueprint:
+def blueprint(df: bool = False) -> rrb.Blueprint:
+    """Scene | error and consistency plots | event log, jamming and counters."""
+    scene = rrb.Spatial3DView(origin="world", name="Map (ENU; DF on the plane z = 0)" if df else "Scene (ENU)")
+    plots = rrb.Vertical(
+        rrb.TimeSeriesView(origin="metrics/error_pos", name="Position error (m)"),
+        rrb.TimeSeriesView(origin="metrics/nees", name="NEES vs 95% χ² bounds"),
+        rrb.TimeSeriesView(origin="metrics/nis", name="NIS vs 95% χ² bounds"),
+    )
+    side = rrb.Vertical(
+        rrb.TextLogView(origin="status", name="Events"),
+        rrb.TimeSeriesView(origin="jamming", name="Jamming and contamination"),
+        rrb.TimeSeriesView(origin="status", name="Process counters"),
+        row_shares=[2, 1, 1],
+    )
     return rrb.Blueprint(
-        rrb.Horizontal(
-            rrb.Spatial3DView(origin="world", name="Scene"),
-            rrb.Vertical(
-                rrb.TimeSeriesView(origin="metrics/error_pos", name="Position error (m)"),
-                rrb.TimeSeriesView(origin="metrics/nees", name="NEES vs 95% χ² bounds"),
-                rrb.TimeSeriesView(origin="metrics/nis", name="NIS vs 95% χ² bounds"),
-            ),
-            rrb.TextLogView(origin="status", name="Events"),
-            column_shares=[3, 2, 1],
-        ),
-        collapse_panels=True,
+        rrb.Horizontal(scene, plots, side, column_shares=[3, 2, 2]),
+        rrb.BlueprintPanel(state="collapsed"),
+        rrb.SelectionPanel(state="collapsed"),
+        rrb.TimePanel(state="collapsed", timeline=TIMELINE),
     )
 
 
-def _unit(az: float, el: float = 0.0) -> np.ndarray:
-    """ENU unit vector of a compass azimuth and an elevation."""
-    return np.array([math.sin(az) * math.cos(el), math.cos(az) * math.cos(el), math.sin(el)])
+def _p(*parts: object) -> str:
+    """An entity path from unescaped parts (ids may hold '+', '.', ...)."""
+    return rr.new_entity_path([str(p) for p in parts])
 
 
-def ellipsoid(P: np.ndarray, n_sigma: float = 3.0) -> tuple[np.ndarray, np.ndarray]:
-    """Half-sizes and rotation quaternion (x, y, z, w) of the n-σ ellipsoid of a 3×3 covariance."""
-    w, V = np.linalg.eigh(0.5 * (P + P.T))
-    if np.linalg.det(V) < 0:
-        V[:, 0] = -V[:, 0]
-    half = n_sigma * np.sqrt(np.clip(w, 0.0, None))
-    from scipy.spatial.transform import Rotation
-
-    return half, Rotation.from_matrix(V).as_quat()
+def _level(text: str) -> str:
+    t = text.lower()
+    if any(w in t for w in ("error", "fail", "crash")):
+        return "ERROR"
+    if any(w in t for w in ("dead", "timeout", "timed out", "gave up", "silent", "lost", "alone", "stopped",
+                                "jammer on")):
+        return "WARN"
+    return "INFO"
 
 
 class Recorder:
-    """Turns validated messages into Rerun log calls on one recording stream."""
+    """Turns samples off the wire into Rerun log calls on one recording stream.
 
-    def __init__(self, rec: rr.RecordingStream, keys: KeySpace):
+    :meth:`offer` is the whole behaviour without Zenoh (key + bytes in, rows out), so tests
+    can feed it encoded messages and read the file back.
+
+    Args:
+        rec: the recording stream (its sinks already set).
+        keys: the deployment's key space.
+        reject: where rejected samples are counted (a fresh :class:`RejectLog` if omitted).
+        scenario: the scenario, if known: sites are drawn from the start, DF sensors are
+            known in advance, and data beyond its end is rejected as "future".
+    """
+
+    def __init__(self, rec: rr.RecordingStream, keys: KeySpace, reject: RejectLog | None = None, scenario=None):
         self.rec = rec
         self.keys = keys
-        self.truth: dict[str, OrderedDict[float, np.ndarray]] = {}
-        self.paths: dict[str, list[list[float]]] = {}
-        self.sites_logged: set[str] = set()
-        self.last_fix: np.ndarray | None = None
+        self.reject = reject if reject is not None else RejectLog("recorder")
         self.rows: dict[str, int] = {}
-        # Truth and estimates come from different processes, so either may arrive first:
-        # estimates wait here (bounded) for the truth sample of their time.
-        self.unscored: OrderedDict[tuple[float, str, str], object] = OrderedDict()
+        self.now = 0.0  # latest time of validity seen in data: the time of undated status
+        self.finished: set[str] = set()  # processes that reported done/stopped
+        self.uplinked = 0  # measurements local trackers sent up on local/* (drawn as the node's)
+        self.horizon = math.inf
+        self.df_sensors: set[str] = set()
+        self.default_ray = DEFAULT_RAY_M
+        # per-entity state
+        self._styled: set[str] = set()
+        self._seqs: dict[tuple[str, ...], OrderedDict[int, None]] = {}
+        self._sites: dict[str, np.ndarray] = {}
+        self._site_paths: dict[str, list[list[float]]] = {}
+        self._scan: dict[str, tuple[float, dict[str, list[np.ndarray]]]] = {}  # by entity path
+        self._bearings: deque[tuple[np.ndarray, np.ndarray]] = deque(maxlen=32)
+        self._ref_pos: np.ndarray | None = None  # latest fused (else any) estimate: scales rays
+        self._truth: dict[str, OrderedDict[float, np.ndarray]] = {}
+        self._truth_paths: dict[str, list[list[float]]] = {}
+        self._track_paths: dict[str, list[list[float]]] = {}
+        self._pending: OrderedDict[float, list[tuple[Estimate, tuple[str, ...]]]] = OrderedDict()
+        self._n_pending = 0
+        self._states: dict[str, str] = {}
+        self._jam: dict[str, tuple] = {}
+        self._jam_victims: dict[str, set[str]] = {}
+        rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+        if scenario is not None:
+            self._from_scenario(scenario)
 
-    def _log(self, path: str, t: float, *archetypes: object) -> None:
-        self.rec.set_time("sim_time", duration=t)
-        self.rec.log(path, *archetypes)  # one row per message
+    # -- input ---------------------------------------------------------------------------------
+
+    def offer(self, key: str, data: bytes) -> Message | None:
+        """One sample off the wire. Bad input is counted and dropped; never raises."""
+        try:
+            family, ident = self.keys.family_and_id(key)
+        except ValueError as e:
+            self.reject("?", "key", str(e))
+            return None
+        hint = ident or family
+        try:
+            msg = decode(data)
+        except SchemaError as e:
+            self.reject(hint, e.cause, str(e))
+            return None
+        handler, why = self._route(family, ident, msg)
+        if handler is None:
+            self.reject(hint, why[0], why[1])
+            return None
+        try:
+            handler(family, ident, msg)
+        except Exception as e:  # the schema let it through but it cannot be drawn: count, go on
+            self.reject(hint, "unrecordable", f"{msg.kind} from {msg.src}: {type(e).__name__}: {e}")
+            return None
+        if msg.kind == "status" and msg.body["state"] in ("done", "stopped"):
+            self.finished.add(msg.src)
+        return msg
+
+    def _route(self, family: str, ident: str | None, msg: Message) -> tuple[Callable | None, tuple[str, str]]:
+        kind = msg.kind
+        if kind != "status" and msg.t > self.horizon:
+            return None, ("future", f"t = {msg.t:g} s is beyond the scenario's end ({self.horizon:g} s)")
+        handler, why = self._route_kind(family, ident, msg)
+        if handler is not None and kind not in ("watermark", "status"):
+            # one row per message: a repeated (src, seq) is dropped. Measurements and estimates
+            # are told apart: a process may count them separately.
+            stream = (family, ident or "", msg.src, "meas" if kind in MEASUREMENT_KINDS else kind)
+            if self._repeated(stream, msg.seq):
+                return None, ("duplicate", f"{kind} seq {msg.seq} from {msg.src} already recorded")
+        return handler, why
+
+    def _route_kind(self, family: str, ident: str | None, msg: Message) -> tuple[Callable | None, tuple[str, str]]:
+        kind = msg.kind
+        wrong = (None, ("kind", f"{kind!r} is not expected on {family}/{ident or ''}"))
+        if family == "meas":
+            if kind not in MEASUREMENT_KINDS and kind != "watermark":
+                return wrong
+            if msg.src != ident or (kind != "watermark" and msg.body["sensor"] != ident):
+                return None, ("spoofed-src", f"{kind} of {msg.body.get('sensor', msg.src)!r} from "
+                                             f"{msg.src!r} came on meas/{ident}")
+            if kind == "watermark":
+                return self._on_watermark, ("", "")
+            return self._on_measurement, ("", "")
+        if family in ("local", "fused"):
+            if kind in ("track", "prediction"):
+                return self._on_estimate, ("", "")
+            if family == "local" and kind == "watermark":
+                return self._on_watermark, ("", "")
+            if family == "local" and kind in MEASUREMENT_KINDS:
+                return self._on_uplinked, ("", "")
+            return wrong
+        if family == "feedback":
+            if kind == "watermark":  # the fuser's feedback horizon: nothing to draw
+                return self._on_watermark, ("", "")
+            return (self._on_feedback, ("", "")) if kind in ("track", "prediction") else wrong
+        if family == "truth":
+            if kind != "truth":
+                return wrong
+            if msg.body["target"] != ident:
+                return None, ("spoofed-src", f"truth of {msg.body['target']!r} came on truth/{ident}")
+            return self._on_truth, ("", "")
+        if family == "jam":
+            if kind != "jam_state":
+                return wrong
+            if msg.src != ident:
+                return None, ("spoofed-src", f"jam_state from {msg.src!r} came on jam/{ident}")
+            return self._on_jam_state, ("", "")
+        if family == "status":
+            if kind != "status":
+                return wrong
+            if msg.src != ident:
+                return None, ("spoofed-src", f"status of {msg.src!r} came on status/{ident}")
+            return self._on_status, ("", "")
+        return None, ("key", f"no such family {family!r}")
+
+    def _repeated(self, stream: tuple[str, ...], seq: int) -> bool:
+        seen = self._seqs.setdefault(stream, OrderedDict())
+        if seq in seen:
+            return True
+        seen[seq] = None
+        if len(seen) > SEQ_WINDOW:
+            seen.popitem(last=False)
+        return False
+
+    # -- logging ---------------------------------------------------------------------------------
+
+    def _log(self, path: str, t: float, *archetypes: Any) -> None:
+        self.rec.set_time(TIMELINE, duration=t)
+        self.rec.log(path, *archetypes)  # one row per call
         self.rows[path] = self.rows.get(path, 0) + 1
 
-    def handle(self, family: str, msg: Message) -> None:
-        getattr(self, f"_on_{msg.kind}", self._on_measurement if family == "meas" else lambda m: None)(msg)
+    def _style(self, path: str, *archetypes: Any) -> None:
+        if path not in self._styled:
+            self._styled.add(path)
+            self.rec.log(path, *archetypes, static=True)
 
-    # -- measurements ------------------------------------------------------------------------
+    def _advance(self, t: float) -> None:
+        if t > self.now:
+            self.now = t
 
-    def _on_measurement(self, msg: Message) -> None:
+    @staticmethod
+    def _trail(store: dict[str, list[list[float]]], key: str, pos: np.ndarray) -> list[list[float]]:
+        path = store.setdefault(key, [])
+        path.append([float(v) for v in pos])
+        if len(path) > PATH_MAX:
+            del path[: len(path) - PATH_MAX]
+        return path
+
+    # -- scenario --------------------------------------------------------------------------------
+
+    def _from_scenario(self, sc) -> None:
+        from sensors_sim.spec import DF_KINDS
+
+        self.horizon = float(sc.duration) + HORIZON_SLACK_S
+        self.df_sensors = {sid for sid, s in sc.sensors.items() if s.kind in DF_KINDS}
+        # The scenario's scale, from where its sensors and jammers are during the run (not its targets).
+        times = np.linspace(0.0, float(sc.duration), 9)
+        pts = [site.position(float(t)) for site in [s.site for s in sc.sensors.values()]
+               + [j.site for j in sc.jammers.values()] for t in (times if not site.fixed else [0.0])]
+        if len(pts) > 1:
+            span = max(float(np.linalg.norm(a[:2] - b[:2])) for a in pts for b in pts)
+            self.default_ray = draw.clamp_ray(max(DEFAULT_RAY_M, 1.5 * span))
+        for sid, s in sc.sensors.items():
+            self._site(sid, s.site.position(float(s.start)), float(s.start), s.kind)
+        self.rec.send_recording_name(f"{sc.name}")
+
+    # -- measurements ------------------------------------------------------------------------------
+
+    def _site(self, sensor: str, pos: np.ndarray, t: float, kind: str) -> np.ndarray:
+        """Draw a sensor's site the first time and whenever it has moved; returns where it is drawn."""
+        pos = np.asarray(pos, dtype=float).copy()
+        if sensor in self.df_sensors or kind == "bearing":
+            pos[2] = 0.0  # DF lives on the map plane
+        prev = self._sites.get(sensor)
+        if prev is not None and np.linalg.norm(prev - pos) <= 1.0:
+            return prev
+        self._sites[sensor] = pos
+        path = self._trail(self._site_paths, sensor, pos)
+        c = draw.color_of(sensor)
+        parts: list[Any] = [rr.Points3D([pos], labels=[sensor], colors=[c], radii=rr.components.Radius.ui_points(7.0),
+                                        show_labels=True)]
+        if len(path) > 1:
+            parts.append(rr.LineStrips3D([path], colors=[draw.dim(c)], radii=rr.components.Radius.ui_points(1.5)))
+        self._log(_p("world", "sites", sensor), t, *parts)
+        return pos
+
+    def _ray_length(self, site: np.ndarray, u: np.ndarray, planar: bool) -> float:
+        """How far to draw an angle-only report: past the latest estimate, else past where
+        it crosses recent bearings from elsewhere, else the scenario's scale. Never truth."""
+        if self._ref_pos is not None:
+            d = self._ref_pos - site
+            dist = float(np.linalg.norm(d[:2] if planar else d))
+            if dist > draw.MIN_RAY_M / 2:
+                return draw.clamp_ray(1.5 * dist)
+        if planar:
+            hits = [h for p, v in self._bearings if (h := draw.ray_hit(site, u, p, v)) is not None]
+            if hits:
+                return draw.clamp_ray(1.3 * float(np.median(hits)))
+        return self.default_ray
+
+    def _on_measurement(self, family: str, ident: str | None, msg: Message) -> None:
         m = to_measurement(msg)
-        site = np.asarray(m.site, dtype=float)
-        if m.sensor not in self.sites_logged:
-            self.sites_logged.add(m.sensor)
-            self.rec.set_time("sim_time", duration=m.t)
-            self.rec.log(f"world/sites/{m.sensor}", rr.Points3D([site], labels=[m.sensor], radii=[150.0]),
-                         static=True)
-        path = f"world/meas/{m.sensor}"
-        z = dict(zip(KIND_COMPONENTS[m.kind], m.z))
-        if "range" in z:
-            # A 2D radar gives no elevation: its slant range is drawn in the site's horizontal plane.
-            p = site + z["range"] * _unit(z["az"], z.get("el", 0.0))
-            self._log(path, m.t, rr.Points3D([p], radii=[60.0]))
-        else:
-            length = DEFAULT_RAY_M
-            if self.last_fix is not None:
-                length = 1.5 * float(np.linalg.norm(self.last_fix[: len(site)] - site[: len(self.last_fix)]))
-            end = site + length * _unit(z["az"], z.get("el", 0.0))
-            self._log(path, m.t, rr.LineStrips3D([[site, end]], radii=[20.0]))
+        self._advance(m.t)
+        site = self._site(m.sensor, m.site, m.t, m.kind)
+        self._draw_measurement(_p("world", "meas", m.sensor), m, site, draw.color_of(m.sensor), learn=True)
 
-    def _on_watermark(self, msg: Message) -> None:
-        pass
+    def _on_uplinked(self, family: str, ident: str | None, msg: Message) -> None:
+        """A measurement a local tracker sent up (raw in two-stage, a smoothed bearing in
+        KF+TR): drawn as the node's, never again as the sensor's."""
+        self.uplinked += 1
+        m = to_measurement(msg)
+        self._advance(m.t)
+        site = self._sites.get(m.sensor)
+        if site is None:
+            site = self._site(m.sensor, m.site, m.t, m.kind)
+        self._draw_measurement(_p("world", "tracks", m.sensor, "uplink"), m, site, draw.dim(draw.color_of(m.sensor),
+                                                                                        0.8), learn=False)
+
+    def _draw_measurement(self, path: str, m, site: np.ndarray, c: tuple[int, int, int], learn: bool) -> None:
+        """One row: every report of this scan so far (a scan may see several targets)."""
+        z = dict(zip(KIND_COMPONENTS[m.kind], (float(v) for v in m.z)))
+        u = draw.unit(z["az"], z.get("el", 0.0))
+        t0, scan = self._scan.get(path, (None, None))
+        if t0 != m.t or scan is None:
+            scan = {"points": [], "rays": [], "arcs": []}
+            self._scan[path] = (m.t, scan)
+        points, rays, arcs = scan["points"], scan["rays"], scan["arcs"]
+        if "range" in z:
+            points.append(site + z["range"] * u)
+            if m.kind == "range_az":  # no elevation: the target is anywhere on this arc
+                arcs.append(draw.vertical_arc(site, z["az"], z["range"]))
+        else:
+            planar = m.kind == "bearing"
+            rays.append(np.array([site, site + self._ray_length(site, u, planar) * u]))
+            if planar and learn:
+                self._bearings.append((site, u))
+        parts: list[Any] = []
+        if points:
+            parts.append(rr.Points3D(points, colors=[c], radii=rr.components.Radius.ui_points(4.0)))
+        if rays or arcs:
+            strips = rays + arcs
+            colors = [c] * len(rays) + [draw.dim(c)] * len(arcs)
+            parts.append(rr.LineStrips3D(strips, colors=colors, radii=rr.components.Radius.ui_points(1.0)))
+        self._log(path, m.t, *parts)
+
+    def _on_watermark(self, family: str, ident: str | None, msg: Message) -> None:
+        self._advance(msg.t)
 
     # -- truth, tracks, metrics ------------------------------------------------------------------
 
-    def _on_truth(self, msg: Message) -> None:
-        tgt, x = msg.body["target"], msg.body["x"]
-        cache = self.truth.setdefault(tgt, OrderedDict())
+    def _on_truth(self, family: str, ident: str | None, msg: Message) -> None:
+        tgt, x = msg.body["target"], np.asarray(msg.body["x"], dtype=float)
+        self._advance(msg.t)
+        cache = self._truth.setdefault(tgt, OrderedDict())
         cache[msg.t] = x
         while len(cache) > TRUTH_CACHE:
             cache.popitem(last=False)
-        for key in [k for k in self.unscored if k[0] == msg.t]:
-            self._score(self.unscored.pop(key), cache)
-        pos = _pos3(x)
-        self.paths.setdefault(tgt, []).append(pos.tolist())
-        self._log(f"world/truth/{tgt}", msg.t, rr.Points3D([pos], labels=[tgt], radii=[80.0], colors=[[0, 200, 0]]),
-                  rr.LineStrips3D([self.paths[tgt]], colors=[[0, 160, 0]]))
+        waiting = self._pending.get(msg.t)
+        if waiting:
+            keep = []
+            for e, prefix in waiting:
+                if e.track == tgt or (e.track not in self._truth and len(self._truth) == 1):
+                    self._score(e, prefix, x)
+                    self._n_pending -= 1
+                else:
+                    keep.append((e, prefix))
+            if keep:
+                self._pending[msg.t] = keep
+            else:
+                del self._pending[msg.t]
+        pos = x[:3] if x.size >= 3 else np.array([x[0], x[1], 0.0])
+        path = self._trail(self._truth_paths, tgt, pos)
+        self._log(_p("world", "truth", tgt), msg.t,
+                  rr.Points3D([pos], labels=[tgt], colors=[draw.TRUTH_COLOR], radii=rr.components.Radius.ui_points(5.0)),
+                  rr.LineStrips3D([path], colors=[draw.TRUTH_COLOR], radii=rr.components.Radius.ui_points(1.0)))
 
-    def _on_track(self, msg: Message) -> None:
-        e = to_estimate(msg)
-        pos = _pos3(e.x)
-        d = 3 if e.x.size >= 6 else 2
-        Pp = np.zeros((3, 3))
-        Pp[:d, :d] = e.P[:d, :d]
-        if d == 2:
-            self.last_fix = pos
-            Pp[2, 2] = 1.0  # flat ellipse on the map plane
-        half, quat = ellipsoid(Pp)
-        self._log(f"world/tracks/{e.node}/{e.track}", e.t,
-                  rr.Points3D([pos], labels=[f"{e.method}:{e.track}"], radii=[60.0]),
-                  rr.Ellipsoids3D(centers=[pos], half_sizes=[half], quaternions=[quat]))
-        if e.node != "centre":
-            return  # metrics are for fused output; local tracks are drawn only
-        if e.nis is not None and e.nis_dof:
-            self._series(f"metrics/nis/{e.method}", e.t, e.nis, e.nis_dof)
-        truth = self.truth.get(e.track) or (next(iter(self.truth.values())) if len(self.truth) == 1 else None)
-        if truth is not None and e.t in truth:
-            self._score(e, truth)
+    def _draw_estimate(self, path: str, e: Estimate, color: tuple[int, int, int], label: str) -> np.ndarray | None:
+        """Point + 3σ ellipsoid / ellipse + path so far; a smoothed bearing as a ray with its
+        ±3σ wedge from the node's site. Returns the drawn position (None for a bearing)."""
+        layout = draw.state_layout(e.x.size)
+        radius = rr.components.Radius.ui_points(5.0)
+        line = rr.components.Radius.ui_points(1.0)
+        if layout == "bearing":
+            site = self._sites.get(e.node)
+            if site is None:
+                return None
+            az, s = float(e.x[0]) % (2 * math.pi), draw.N_SIGMA * math.sqrt(max(float(e.P[0, 0]), 0.0))
+            L = self._ray_length(site, draw.unit(az), True)
+            strips = [[site, site + L * draw.unit(a)] for a in (az, az - s, az + s)]
+            self._log(path, e.t, rr.LineStrips3D(strips, colors=[color, draw.dim(color), draw.dim(color)],
+                                                 radii=line, labels=[label, "", ""]))
+            return None
+        if layout is None:
+            return None
+        pos = draw.position3(e.x)
+        trail = self._trail(self._track_paths, path, pos)
+        parts: list[Any] = [rr.Points3D([pos], labels=[label], colors=[color], radii=radius)]
+        if layout == "3d":
+            half, quat = draw.ellipsoid(e.P[:3, :3])
+            parts.append(rr.Ellipsoids3D(centers=[pos], half_sizes=[half], quaternions=[quat], colors=[color],
+                                         line_radii=rr.components.Radius.ui_points(0.75)))
+            parts.append(rr.LineStrips3D([trail], colors=[draw.dim(color)], radii=line))
         else:
-            self.unscored[(e.t, e.method, e.track)] = e
-            while len(self.unscored) > TRUTH_CACHE:
-                self.unscored.popitem(last=False)
+            ring = draw.ellipse(pos, e.P[:2, :2])
+            parts.append(rr.LineStrips3D([ring, trail], colors=[color, draw.dim(color)], radii=line))
+        self._log(path, e.t, *parts)
+        return pos
 
-    def _score(self, e, truth: OrderedDict) -> None:
-        err = e.x - truth[e.t][: e.x.size]
-        d = 3 if e.x.size >= 6 else 2
-        self._log(f"metrics/error_pos/{e.method}", e.t, rr.Scalars([float(np.linalg.norm(err[:d]))]))
+    def _on_estimate(self, family: str, ident: str | None, msg: Message) -> None:
+        e = to_estimate(msg)
+        self._advance(e.t)
+        fused = e.node == FUSED_NODE
+        color = draw.CENTRE_COLOR if fused else draw.color_of(e.node)
+        if msg.kind == "prediction":
+            self._draw_estimate(_p("world", "tracks", e.node, e.track, "prediction"), e, draw.dim(color),
+                                f"{e.node} {e.track} (pred.)")
+            return
+        label = f"{e.method} {e.track}" if fused else f"{e.node} {e.track}"
+        pos = self._draw_estimate(_p("world", "tracks", e.node, e.track), e, color, label)
+        if pos is not None and (fused or self._ref_pos is None):
+            self._ref_pos = pos
+        prefix = (e.method,) if fused else (e.method, e.node)
+        if e.nis is not None and e.nis_dof:
+            self._series("nis", prefix, e.t, float(e.nis), int(e.nis_dof))
+        if draw.TRUTH_INDEX.get(e.x.size) is None:
+            return
+        truth = self._truth.get(e.track)
+        if truth is None and len(self._truth) == 1:
+            truth = next(iter(self._truth.values()))
+        if truth is not None and e.t in truth:
+            self._score(e, prefix, truth[e.t])
+            return
+        self._pending.setdefault(e.t, []).append((e, prefix))
+        self._n_pending += 1
+        while self._n_pending > PENDING_MAX:
+            _, dropped = self._pending.popitem(last=False)
+            self._n_pending -= len(dropped)
+
+    def _on_feedback(self, family: str, ident: str | None, msg: Message) -> None:
+        e = to_estimate(msg)
+        self._advance(e.t)
+        self._draw_estimate(_p("world", "feedback", ident or e.node, e.track), e, draw.FEEDBACK_COLOR,
+                            f"to {ident}")
+
+    def _score(self, e: Estimate, prefix: tuple[str, ...], x_truth: np.ndarray) -> None:
+        ref = draw.truth_part(x_truth, e.x.size)
+        if ref is None:
+            return
+        err = e.x - ref
+        d = draw.position_dims(e.x.size)
+        path = _p("metrics", "error_pos", *prefix)
+        self._style(path, rr.SeriesLines(names=["/".join(prefix)]))
+        self._log(path, e.t, rr.Scalars([float(np.linalg.norm(err[:d]))]))
         try:
             nees = float(err @ np.linalg.solve(e.P, err))
         except np.linalg.LinAlgError:
             return
-        self._series(f"metrics/nees/{e.method}", e.t, nees, e.x.size)
+        if math.isfinite(nees):
+            self._series("nees", prefix, e.t, nees, e.x.size)
 
-    _on_prediction = _on_track
+    def _series(self, metric: str, prefix: tuple[str, ...], t: float, value: float, dof: int) -> None:
+        lo, hi = draw.chi2_bounds(dof)
+        base = ("metrics", metric, *prefix)
+        name = "/".join(prefix)
+        self._style(_p(*base), rr.SeriesLines(names=[name]))
+        self._style(_p(*base, "lo"), rr.SeriesLines(colors=[draw.BOUND_COLOR], widths=[1.0],
+                                                   names=[f"{name} χ²({dof}) 2.5%"]))
+        self._style(_p(*base, "hi"), rr.SeriesLines(colors=[draw.BOUND_COLOR], widths=[1.0],
+                                                   names=[f"{name} χ²({dof}) 97.5%"]))
+        self._log(_p(*base), t, rr.Scalars([value]))
+        self._log(_p(*base, "lo"), t, rr.Scalars([lo]))
+        self._log(_p(*base, "hi"), t, rr.Scalars([hi]))
 
-    def _series(self, path: str, t: float, value: float, dof: int) -> None:
-        lo, hi = chi2.ppf([0.025, 0.975], dof)
-        self._log(path, t, rr.Scalars([value]))
-        self._log(f"{path}/lo", t, rr.Scalars([float(lo)]))
-        self._log(f"{path}/hi", t, rr.Scalars([float(hi)]))
+    # -- jamming and status ------------------------------------------------------------------------
 
-    def _on_jam_state(self, msg: Message) -> None:
-        b = msg.body
-        self._log(f"world/jam/{msg.src}", msg.t,
-                  rr.Points3D([b["pos"]], labels=[f"{msg.src} ({b['mode']}, {'on' if b['on'] else 'off'})"],
-                              radii=[200.0], colors=[[220, 0, 0] if b["on"] else [120, 120, 120]]))
-        self._log(f"status/{msg.src}/on", msg.t, rr.Scalars([1.0 if b["on"] else 0.0]))
+    def _on_jam_state(self, family: str, ident: str | None, msg: Message) -> None:
+        b, jid, t = msg.body, msg.src, msg.t
+        self._advance(t)
+        on = bool(b["on"])
+        pos = np.asarray(b["pos"], dtype=float)
+        affects = [s for s in b["affects"]]
+        color = draw.JAM_ON_COLOR if on else draw.JAM_OFF_COLOR
+        parts: list[Any] = [rr.Points3D([pos], labels=[f"{jid} ({b['mode']}, {'ON' if on else 'off'})"],
+                                        colors=[color], radii=rr.components.Radius.ui_points(8.0), show_labels=True)]
+        victims = [self._sites[s] for s in affects if s in self._sites] if on else []
+        # always log the strips component, so "no one jammed" clears the previous lines
+        parts.append(rr.LineStrips3D([[pos, v] for v in victims], colors=[draw.JAM_ON_COLOR],
+                                     radii=rr.components.Radius.ui_points(0.75)))
+        self._log(_p("world", "jam", jid), t, *parts)
+        self._style(_p("jamming", jid, "on"), rr.SeriesLines(colors=[draw.JAM_ON_COLOR], names=[f"{jid} on"]))
+        self._log(_p("jamming", jid, "on"), t, rr.Scalars([1.0 if on else 0.0]))
+        known = self._jam_victims.setdefault(jid, set())
+        known.update(affects)
+        known.update(self._sites)
+        for s in sorted(known):
+            self._log(_p("jamming", jid, "affects", s), t, rr.Scalars([1.0 if (on and s in affects) else 0.0]))
+        state = (on, b["mode"], b["law"], b["power"], tuple(affects))
+        if self._jam.get(jid) != state:
+            self._jam[jid] = state
+            text = (f"jammer {jid} on: {b['mode']}, {b['law']} outliers, power {b['power']:g}; "
+                    f"jams {', '.join(affects) if affects else 'no sensor'}") if on else f"jammer {jid} off"
+            self._log(_p("status", jid, "events"), t, rr.TextLog(text, level="WARN" if on else "INFO"))
 
-    def _on_status(self, msg: Message) -> None:
-        b = msg.body
+    def _on_status(self, family: str, ident: str | None, msg: Message) -> None:
+        b, src = msg.body, msg.src
+        # Processes stamp status with their scenario time when they have one; else it is "now".
+        t = msg.t if msg.t > 0 else self.now
+        t = min(t, self.horizon)
+        events = _p("status", src, "events")
+        if self._states.get(src) != b["state"]:
+            self._states[src] = b["state"]
+            self._log(events, t, rr.TextLog(f"{b['role']} {src}: {b['state']}",
+                                            level="WARN" if b["state"] == "stopped" else "INFO"))
         for ev in b["events"]:
-            self._log(f"status/{msg.src}/events", msg.t, rr.TextLog(ev, level="WARN" if "dead" in ev else "INFO"))
+            self._log(events, t, rr.TextLog(f"{src}: {ev}", level=_level(ev)))
         for name, v in b["counters"].items():
-            self._log(f"status/{msg.src}/{name}", msg.t, rr.Scalars([float(v)]))
+            if name in CONTAMINATION:
+                self._log(_p("jamming", src, name), t, rr.Scalars([float(v)]))
+            else:
+                self._log(_p("status", src, "counters", name), t, rr.Scalars([float(v)]))
 
 
-def _pos3(x: np.ndarray) -> np.ndarray:
-    x = np.asarray(x, dtype=float)
-    return x[:3].copy() if x.size >= 6 else np.array([x[0], x[1], 0.0])
+# -- the process ----------------------------------------------------------------------------------
 
 
-def run(process_id: str, keys: KeySpace, zopts, rrd_path: str, expect: list[str], app: str = "zfusion") -> int:
-    inbox: queue.SimpleQueue[tuple[str, bytes]] = queue.SimpleQueue()
+def has_display() -> bool:
+    if sys.platform in ("darwin", "win32"):
+        return True
+    return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
+
+
+def open_recording(rrd_path: str, app: str = "zfusion", spawn: bool = False, df: bool = False,
+                   port: int = VIEWER_PORT) -> tuple[rr.RecordingStream, bool]:
+    """A recording stream writing to ``rrd_path`` and, with ``spawn`` and a display, to a
+    Rerun viewer it starts (or one already listening on ``port``). Returns the stream and
+    whether a viewer is attached."""
     rec = rr.RecordingStream(app)
-    rec.save(rrd_path, default_blueprint=blueprint())
-    recorder = Recorder(rec, keys)
-    finished: set[str] = set()
+    bp = blueprint(df)
+    sinks: list[Any] = [rr.FileSink(rrd_path)]
+    live = False
+    if spawn and not has_display():
+        log.warning("zfusion record: --spawn: no display (DISPLAY and WAYLAND_DISPLAY are unset), so no viewer; "
+                    "recording to %s only. View it afterwards with `zfusion view %s`, or from this headless machine "
+                    "with `rerun --serve-web %s` and a browser through an SSH tunnel (docs/viewing.md).",
+                    rrd_path, rrd_path, rrd_path)
+    elif spawn:
+        exe = Path(sys.executable).with_name("rerun")
+        try:
+            rr.spawn(port=port, connect=False, executable_path=str(exe) if exe.exists() else None, recording=rec)
+            sinks.append(rr.GrpcSink(f"rerun+http://127.0.0.1:{port}/proxy"))
+            live = True
+        except Exception as e:  # no viewer is no reason to lose the recording
+            log.warning("zfusion record: --spawn: could not start the Rerun viewer (%s); recording to %s only",
+                        e, rrd_path)
+    rec.set_sinks(*sinks, default_blueprint=bp)
+    return rec, live
+
+
+def _flush(rec: rr.RecordingStream, timeout: float) -> None:
+    """Flush without letting a lost viewer (gRPC sink) stop the recorder; the file sink
+    is flushed regardless."""
+    try:
+        rec.flush(timeout_sec=timeout)
+    except Exception as e:  # e.g. "gRPC has been unable to connect": the viewer was closed
+        log.debug("recorder: flush: %s", e)
+
+
+def run(process_id: str, keys: KeySpace, zopts, rrd_path: str, expect: list[str], app: str = "zfusion", *,
+        spawn: bool = False, scenario: str | None = None, seed: int | None = None) -> int:
+    sc = None
+    if scenario is not None:
+        from .node import load
+
+        sc = load(scenario, seed)
+    from sensors_sim.spec import DF_KINDS
+
+    df = sc is not None and bool(sc.sensors) and all(s.kind in DF_KINDS for s in sc.sensors.values())
+    inbox: queue.Queue[tuple[str, bytes]] = queue.Queue(maxsize=BACKLOG_MAX)
+    dropped = [0]
+    lock = threading.Lock()
+
+    def on_sample(s) -> None:  # Zenoh's thread: never blocks, never raises
+        try:
+            inbox.put_nowait((str(s.key_expr), s.payload.to_bytes()))
+        except queue.Full:
+            with lock:
+                dropped[0] += 1
+
     with Node(process_id, "recorder", keys, zopts) as node:
-        node.subscribe(keys.all(), lambda s: inbox.put((str(s.key_expr), s.payload.to_bytes())))
+        # The file is opened once SIGTERM/SIGINT are handled, so a stop at any time leaves a whole file.
+        rec, _ = open_recording(rrd_path, app, spawn=spawn, df=df)
+        recorder = Recorder(rec, keys, node.reject, sc)
+        node.subscribe(keys.all(), on_sample)
         node.announce()
         node.publish_status("ready")
         last_status = time.monotonic()
@@ -214,23 +628,18 @@ def run(process_id: str, keys: KeySpace, zopts, rrd_path: str, expect: list[str]
             except queue.Empty:
                 pass
             else:
-                try:
-                    family, ident = keys.family_and_id(key)
-                    msg = decode(data)
-                except (SchemaError, ValueError) as e:
-                    node.reject(key.rsplit("/", 1)[-1], getattr(e, "cause", "key"), str(e))
-                    continue
-                recorder.handle(family, msg)
-                node.count("recorded")
-                if msg.kind == "status" and msg.body["state"] in ("done", "stopped"):
-                    finished.add(msg.src)
-            if expect and set(expect) <= finished and inbox.empty():
+                if recorder.offer(key, data) is not None:
+                    node.count("recorded")
+            if expect and set(expect) <= recorder.finished and inbox.empty():
                 break
             if time.monotonic() - last_status >= 1.0:
-                node.publish_status("running")
+                node.counters.update(dropped=dropped[0], uplinked=recorder.uplinked, backlog=inbox.qsize())
+                node.publish_status("running", recorder.now)
+                _flush(rec, 0.0)  # keep the file current: a killed recorder loses little
                 last_status = time.monotonic()
-        rec.flush()
-        node.publish_status("done")
-    rec.flush()
-    rec.disconnect()
+        _flush(rec, 10.0)
+        node.counters.update(dropped=dropped[0], uplinked=recorder.uplinked, backlog=inbox.qsize())
+        node.publish_status("done" if not node.stop.is_set() else "stopped", recorder.now)
+    _flush(rec, 10.0)
+    rec.disconnect()  # writes the file's footer; gives an unreachable viewer at most a few seconds
     return 0

@@ -402,11 +402,14 @@ def centre_fix(latest: Mapping[str, Measurement], config: DFConfig | dict | None
 class SmootherTorrieriMethod(DFMethod):
     """KF+TR / MKF+TR: per-station bearing smoothers (:func:`make_station_smoother`),
     Torrieri at the centre (:func:`centre_fix`) — the two halves the distributed
-    topology runs in separate processes, composed in one."""
+    topology runs in separate processes, composed in one. With ``smoothed_upstream``
+    the bearings arrive already smoothed (the distributed centre) and are used as they
+    are."""
 
-    def __init__(self, cross_fed: bool, config: dict | None = None):
+    def __init__(self, cross_fed: bool, config: dict | None = None, smoothed_upstream: bool = False):
         self.name = "MKF+TR" if cross_fed else "KF+TR"
         self.cross_fed = cross_fed
+        self.smoothed_upstream = smoothed_upstream
         super().__init__(config)
         self._smoothers: dict[str, BearingSmoother] = {}
         self._latest: dict[str, Measurement] = {}
@@ -414,6 +417,9 @@ class SmootherTorrieriMethod(DFMethod):
 
     def _epoch(self, group):
         for m in group:
+            if self.smoothed_upstream:
+                self._latest[m.sensor] = m
+                continue
             if m.sensor not in self._smoothers:
                 self._smoothers[m.sensor] = make_station_smoother(self.config, self.cross_fed)
             self._latest[m.sensor] = self._smoothers[m.sensor].update(m)

@@ -1,0 +1,144 @@
+"""A local tracker process: one sensor's node of the distributed topologies.
+
+Subscribes to its sensor's ``meas/<sensor>`` (validated and time-ordered like the
+fuser's input, by the same :class:`~services.fuser.FuserCore`) and to
+``feedback/<node>`` from the fuser; runs the method's local node
+(:mod:`fusion.network`) and publishes its uplinks and watermarks on ``local/<node>``.
+
+If the fuser does not answer (no initial state, no feedback) for ``--feedback-timeout``
+seconds, the node runs on alone — updating from its own last estimate, or starting
+from its own measurement — and says so in its status events; when downlinks come
+back it takes them again.
+"""
+
+from __future__ import annotations
+
+import math
+import queue
+import time
+
+from fusion.network import split
+from schemas import KeySpace, SchemaError, decode, encode, tracker_id
+from schemas.links import downlink, encode_uplink
+
+from .fuser import FuserCore, MeasurementIntake
+from .node import Node, load
+
+
+class _Feed:
+    """The method FuserCore drives: ordered measurements go into the node's queue."""
+
+    def __init__(self, node):
+        self.node = node
+        self.watermark = -math.inf
+        self.finished = False
+
+    def process(self, m):
+        self.node.offer(m)
+        return []
+
+    def advance(self, t):
+        self.watermark = max(self.watermark, t)
+        return []
+
+    def finish(self):
+        self.finished = True
+        return []
+
+
+def run(sensor: str, scenario_ref: str, method_name: str, overrides: dict, keys: KeySpace, zopts,
+        fuser_id: str, feedback_timeout: float, start_grace: float, seed: int | None = None) -> int:
+    scenario = load(scenario_ref, seed)
+    if sensor not in scenario.sensors:
+        raise SystemExit(f"zfusion tracker: {sensor!r} is not a sensor of scenario {scenario.name} "
+                         f"(sensors: {', '.join(scenario.sensors)})")
+    me = tracker_id(sensor)
+    local = split(method_name).node(sensor, {**scenario.tracker, **overrides})
+    feed = _Feed(local)
+    inbox: queue.SimpleQueue[tuple[str, bytes]] = queue.SimpleQueue()
+    with Node(me, "tracker", keys, zopts) as node:
+        # Its one sensor is never declared dead here: the tracker waits for it to come back
+        # (the fuser, meanwhile, declares this tracker dead and carries on without it).
+        core = FuserCore(feed, [sensor], keys, node.reject, math.inf, start_grace,
+                         horizon=scenario.duration + 1.0, now=time.monotonic(), intake=MeasurementIntake())
+        node.subscribe(keys.meas(sensor), lambda s: inbox.put((str(s.key_expr), s.payload.to_bytes())))
+        node.subscribe(keys.feedback(me), lambda s: inbox.put((str(s.key_expr), s.payload.to_bytes())))
+        pub = node.publisher(keys.local(me))
+        try:  # be reachable from the fuser before a sensor (waiting for this token) starts
+            node.wait_for([fuser_id], 60.0)
+        except TimeoutError as e:
+            node.event(f"{e}; running alone")
+        node.announce()
+        node.publish_status("ready")
+        seq = 0
+        sent_wm = -math.inf
+        waiting_since: float | None = None
+        alone = False
+        last_status = 0.0
+        down_key = keys.feedback(me)
+
+        def on_downlink(data: bytes) -> None:
+            nonlocal alone, waiting_since
+            try:
+                msg = decode(data)
+            except SchemaError as e:
+                node.reject(fuser_id, e.cause, str(e))
+                return
+            if msg.src != fuser_id:
+                node.reject(msg.src, "spoofed-src", f"feedback for {me} from {msg.src!r}, not {fuser_id!r}")
+                return
+            if msg.kind == "watermark":
+                local.set_horizon(msg.t)
+            elif msg.kind == "track":
+                local.receive(downlink(sensor, msg))
+            else:
+                node.reject(fuser_id, "kind", f"{msg.kind!r} is not expected on {down_key}")
+                return
+            waiting_since = None
+            if alone:
+                alone = False
+                node.event("downlink from the fuser restored")
+
+        while not node.stop.is_set():
+            try:
+                key, data = inbox.get(timeout=0.05)
+                while True:
+                    if key == down_key:
+                        on_downlink(data)
+                    else:
+                        core.offer(key, data, time.monotonic())
+                    key, data = inbox.get_nowait()
+            except queue.Empty:
+                pass
+            now = time.monotonic()
+            core.step(now)
+            for ev in core.events:
+                node.event(ev)
+            core.events.clear()
+            blocked = local.waiting_for
+            if blocked is None:
+                waiting_since = None
+            elif waiting_since is None:
+                waiting_since = now
+            elif not alone and now - waiting_since > feedback_timeout:
+                alone = True
+                node.event(f"no {blocked} from {fuser_id} for {feedback_timeout:g} s: running alone")
+            for u in local.step(alone=alone):
+                for data in encode_uplink(u, me, seq + 1):
+                    seq += 1
+                    pub.put(data)
+            final = feed.finished and not local.pending
+            wm = local.upstream_watermark(feed.watermark)
+            if math.isfinite(wm) and (wm > sent_wm or final):
+                seq += 1
+                pub.put(encode("watermark", me, seq, wm, final=final))
+                sent_wm = wm
+            node.counters.update(received=core.received, processed=core.processed, published=seq,
+                                 pending=len(local.pending), alone=int(alone))
+            if final:
+                break
+            if now - last_status >= 1.0:
+                node.publish_status("running", max(sent_wm, 0.0))
+                last_status = now
+        node.publish_status("done" if feed.finished else "stopped", max(sent_wm, 0.0))
+    return 0
