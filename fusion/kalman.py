@@ -80,3 +80,21 @@ def gaussian_likelihood(nu: np.ndarray, S: np.ndarray) -> float:
     m = float(nu @ cho_solve(c, nu, check_finite=False))
     log_det = 2.0 * float(np.sum(np.log(np.diag(c[0]))))
     return float(np.exp(-0.5 * (m + log_det + nu.size * np.log(2.0 * np.pi))))
+
+
+def gaussian_loglikelihood(nu: np.ndarray, S: np.ndarray) -> float:
+    """log N(ν; 0, S) = −½(νᵀS⁻¹ν + log det S + n log 2π), computed without forming the
+    density, so it stays finite where :func:`gaussian_likelihood` underflows to 0.0 (for a
+    scalar innovation, beyond about 38 standard deviations). Raises LinAlgError if S is
+    not positive definite."""
+    nu = np.atleast_1d(np.asarray(nu, dtype=float))
+    S = np.atleast_2d(np.asarray(S, dtype=float))
+    if S.shape == (1, 1):  # scalar innovation (every bearing update): no factorisation needed
+        s = float(S[0, 0])
+        if not s > 0.0:
+            raise np.linalg.LinAlgError(f"gaussian_loglikelihood: S = {s} is not positive")
+        return -0.5 * (float(nu[0]) ** 2 / s + np.log(2.0 * np.pi * s))
+    c = cho_factor(S, lower=True, check_finite=False)
+    m = float(nu @ cho_solve(c, nu, check_finite=False))
+    log_det = 2.0 * float(np.sum(np.log(np.diag(c[0]))))
+    return -0.5 * (m + log_det + nu.size * np.log(2.0 * np.pi))

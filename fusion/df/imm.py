@@ -13,9 +13,18 @@ matrix ``Π[i, j] = P(model j now | model i before)``. One cycle per bearing:
    multiplies by the previous ``μⱼ``; its code, and Bar-Shalom, use ``c̄ⱼ``)
 5. output ``x = Σ μⱼ xⱼ``, ``P = Σ μⱼ (Pⱼ + (xⱼ − x)(xⱼ − x)ᵀ)``.
 
-Step 4 is done in the log domain (``log Λⱼ = −½(νᵀS⁻¹ν + log det 2πS)``, the log of
-:func:`fusion.kalman.gaussian_likelihood`) so that a wild outlier, whose likelihood
-underflows under every model, cannot make the normalisation 0/0.
+Step 4 is done in the log domain: ``log Λⱼ = −½(νᵀS⁻¹ν + log det 2πS)``
+(:func:`fusion.kalman.gaussian_loglikelihood`), and ``μⱼ = exp(ℓⱼ − max ℓ)/Σ`` with
+``ℓⱼ = log c̄ⱼ + log Λⱼ``. A wild outlier (say 1.5 rad against σ₂ = 0.01) makes ``Λⱼ``
+underflow to 0.0 under *every* model, and the linear-domain normalisation
+``Λⱼc̄ⱼ / Σᵢ Λᵢc̄ᵢ`` would be 0/0; in the log domain the largest term is 1 and the mode
+probabilities stay a proper distribution (a model whose weight is ``e^-745`` times
+smaller gets exactly 0, which the mixing step handles: ``c̄ > 0`` as long as ``Π`` has
+no zero entry, as in both forms below with 0 < p < 1).
+
+Initialisation (the ``ipu`` pair or the robust choice of :mod:`fusion.df.init`) is
+the streaming method's business (:mod:`fusion.df.methods`); the estimator here takes
+initial states, covariances and mode probabilities.
 
 Transition forms: ``"symmetric"`` ``[[1−p, p], [p, 1−p]]`` (the seeds: modes persist)
 and ``"iid"`` ``[[1−p, p], [1−p, p]]`` (each bearing is an outlier with probability p
@@ -28,7 +37,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from ..kalman import UpdateResult
+from ..kalman import UpdateResult, gaussian_loglikelihood
 from .filters import bearing_step
 
 TRANSITIONS = ("symmetric", "iid")
@@ -46,9 +55,8 @@ def transition_matrix(p: float, form: str = "symmetric") -> np.ndarray:
 
 
 def log_likelihood(res: UpdateResult) -> float:
-    """``log N(ν; 0, S)`` of an update (``res.nis = νᵀS⁻¹ν``)."""
-    _, logdet = np.linalg.slogdet(2.0 * np.pi * np.atleast_2d(res.S))
-    return -0.5 * (res.nis + logdet)
+    """``log N(ν; 0, S)`` of an update: the model likelihood, in the log domain."""
+    return gaussian_loglikelihood(res.nu, res.S)
 
 
 def _moments(w: np.ndarray, xs: np.ndarray, Ps: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
