@@ -63,11 +63,15 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("eval", help="Monte Carlo evaluation in-process, with the services' own estimators")
     p.add_argument("--scenario", required=True)
     p.add_argument("--runs", type=int, required=True)
-    p.add_argument("--methods", nargs="+", help="methods to evaluate (default: the scenario's default method)")
+    p.add_argument("--methods", nargs="+",
+                   help="methods to evaluate (default: every method the scenario's sensors can feed)")
     p.add_argument("--fusion-rule", choices=("naive", "bar-shalom-campo", "ci", "info"))
     p.add_argument("--seed", type=int)
-    p.add_argument("--json")
-    p.add_argument("--report", metavar="DIR", help="(not available yet)")
+    p.add_argument("--json", help="write the summary JSON here")
+    p.add_argument("--report", metavar="DIR", help="write a Markdown report with PNG plots into DIR")
+    p.add_argument("--jobs", type=int, default=1, help="worker processes for the Monte Carlo runs (default 1)")
+    p.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
+                   help="progress line on stderr (default: when stderr is a terminal)")
     p.add_argument("-v", "--verbose", action="store_true")
 
     sub.add_parser("scenarios", help="list the built-in scenarios")
@@ -189,27 +193,52 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _eval(args) -> int:
-    from .evaluation import run_method
+    from .evaluation import default_methods, evaluate, variants_for
     from .node import load
-    from .summary import format_table, method_summary, summary, truth_function
+    from .summary import format_table
 
-    if args.report:
-        raise SystemExit("zfusion eval: --report is not available yet")
     if args.runs < 1:
         raise SystemExit("zfusion eval: --runs must be >= 1")
+    if args.jobs < 1:
+        raise SystemExit("zfusion eval: --jobs must be >= 1")
     scenario = load(args.scenario, args.seed)
-    methods = args.methods or [scenario.defaults.get("method")]
+    methods = args.methods or default_methods(scenario)
+    if not methods:
+        raise SystemExit(f"zfusion eval: no method can use the sensors of scenario {scenario.name}")
     overrides = {"fusion_rule": args.fusion_rule} if args.fusion_rule else {}
-    truth = truth_function(scenario)
-    results = {}
-    for name in methods:
-        runs = [run_method(scenario, name, overrides, run=r) for r in range(args.runs)]
-        results[name] = method_summary(runs, truth)
-    doc = summary(scenario, "in-process", args.fusion_rule or scenario.tracker.get("fusion_rule"), scenario.seed,
-                  args.runs, results)
+    show = sys.stderr.isatty() if args.progress is None else args.progress
+    rule = args.fusion_rule or scenario.tracker.get("fusion_rule")
+    if rule is None and {"HNV", "PHHNV", "DDHNV"} & set(methods):
+        from fusion.patent import TrackerConfig
+
+        rule = TrackerConfig().fusion_rule  # the track-fusion methods' default
+
+    def progress(done: int, total: int) -> None:
+        bar = "#" * (30 * done // total)
+        sys.stderr.write(f"\r{scenario.name}: run {done}/{total} [{bar:<30}]")
+        if done == total:
+            sys.stderr.write("\n")
+        sys.stderr.flush()
+
+    try:
+        doc = evaluate(scenario, variants_for(methods, overrides), args.runs, jobs=args.jobs,
+                       progress=progress if show else None,
+                       fusion_rule=rule)
+    except ValueError as exc:
+        raise SystemExit(f"zfusion eval: {exc}") from None
     print(format_table(doc))
     if args.json:
+        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
         Path(args.json).write_text(json.dumps(doc, indent=1))
+    if args.report:
+        from .report import write_eval_report
+
+        command = f"zfusion eval --scenario {args.scenario} --runs {args.runs}"
+        command += f" --methods {' '.join(args.methods)}" if args.methods else ""
+        command += f" --fusion-rule {args.fusion_rule}" if args.fusion_rule else ""
+        command += f" --seed {args.seed}" if args.seed is not None else ""
+        path = write_eval_report(doc, Path(args.report), command=command)
+        print(f"report: {path}")
     return 0
 
 

@@ -5,15 +5,46 @@ without processes or Zenoh.
 method — every sensor's events from its own generator, merged in ``(t, sensor, seq)``
 order — so for a given scenario and seed the in-process estimates equal those of a
 distributed run.
+
+:func:`evaluate` is the Monte Carlo harness behind ``zfusion eval`` and the reports in
+``docs/results/``:
+
+* **Common random numbers.** In run ``r`` the measurement stream is built once and every
+  method (every :class:`Variant`) is fed that same stream, so differences between
+  methods are not sampling noise between different data. (Each sensor draws from
+  ``process_rng(seed, sensor, r)``, so a variant restricted to some sensors sees
+  exactly those sensors' measurements of the full stream.)
+* Each run is scored as soon as it is estimated (:func:`services.summary.score_run`)
+  and only the per-estimate errors are kept; runs may be spread over worker processes
+  (``jobs``) with results identical to a serial evaluation (every run's randomness is a
+  function of the run index only).
+* The Cramér–Rao bound (:func:`crb_summary`) is computed from the scenario itself:
+  the posterior CRB of :mod:`fusion.crb3d` for 3D targets, the static-emitter bound of
+  :mod:`fusion.df.crb` for bearings-only emitters; with jamming outliers, each
+  measurement's Fisher information is that of the actual noise mixture.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import heapq
-from typing import Iterable
+import math
+import os
+from dataclasses import dataclass, field
+from typing import Callable, Iterable, Sequence
 
-from fusion.methods import make_method
+import numpy as np
+
+from fusion.methods import make_method, method_names
 from fusion.types import Estimate, Measurement
+
+from .summary import aggregate, score_run, summary, truth_function
+
+#: methods whose input is bearings (emitter fixes), in the order the reports use
+DF_ORDER = ("EKF", "MEKF1", "MEKF2", "MEKF3", "MEKF4", "MEKF5", "IMM", "TORRIERI", "KF+TR", "MKF+TR")
+#: the patent's methods and baselines, in its table order
+PATENT_ORDER = ("RADAR2D", "ANGLE", "RADAR3D", "LCDD", "HNDD", "SS", "HNV", "PHHNV", "DDHNV")
+_BASELINE_KIND = {"RADAR2D": "range_az", "ANGLE": "azel", "RADAR3D": "az_el_range"}
 
 
 def merged_measurements(scenario, run: int = 0, sensors: Iterable[str] | None = None) -> list[Measurement]:
@@ -40,3 +71,338 @@ def run_method(scenario, method_name: str, overrides: dict | None = None, run: i
         t_prev = m.t
     out.extend(method.finish())
     return out
+
+
+# Which methods a scenario can run ------------------------------------------------------
+def measurement_kinds(scenario) -> set[str]:
+    return {s.measurement_kind for s in scenario.sensors.values()}
+
+
+def default_methods(scenario) -> list[str]:
+    """Every registered method the scenario's sensors can feed, in the seeds' table order.
+
+    3D scenarios: the single-sensor baselines whose sensor kind is present, and the six
+    patent methods (LCDD/HNDD only with both a 2D radar and an angle sensor; HNDD only if
+    they are co-located). Bearings-only scenarios: every DF method.
+    """
+    kinds = measurement_kinds(scenario)
+    known = set(method_names())
+    out: list[str] = []
+    if "bearing" in kinds:
+        moving = any(not s.site.fixed for s in scenario.sensors.values() if s.measurement_kind == "bearing")
+        # per-station bearing smoothers need fixed stations
+        out += [m for m in DF_ORDER if m in known and not (moving and m in ("KF+TR", "MKF+TR"))]
+    if kinds & {"range_az", "azel", "az_el_range"}:
+        pair = {"range_az", "azel"} <= kinds
+        for m in PATENT_ORDER:
+            if m not in known:
+                continue
+            if m in _BASELINE_KIND and _BASELINE_KIND[m] not in kinds:
+                continue
+            if m in ("LCDD", "HNDD") and not pair:
+                continue
+            if m == "HNDD" and not _colocated_pair(scenario):
+                continue
+            out.append(m)
+    return out
+
+
+def _colocated_pair(scenario) -> bool:
+    from fusion.patent import COLOCATED_TOL
+
+    radars = [s for s in scenario.sensors.values() if s.measurement_kind == "range_az"]
+    angles = [s for s in scenario.sensors.values() if s.measurement_kind == "azel"]
+    return any(r.site.fixed and a.site.fixed and np.max(np.abs(r.site.points[0] - a.site.points[0])) <= COLOCATED_TOL
+               for r in radars for a in angles)
+
+
+# Monte Carlo harness ------------------------------------------------------------------
+@dataclass(frozen=True)
+class Variant:
+    """One column of an evaluation: a method, its tracker overrides, and optionally the
+    sensors it may use (default: all). ``label`` is its key in the summary."""
+
+    label: str
+    method: str
+    overrides: dict = field(default_factory=dict)
+    sensors: tuple[str, ...] | None = None
+
+
+def variants_for(methods: Sequence[str], overrides: dict | None = None) -> list[Variant]:
+    return [Variant(m, m, dict(overrides or {})) for m in methods]
+
+
+def _score_runs(scenario, variants: Sequence[Variant], run_ids: Sequence[int]) -> dict[int, dict[str, list]]:
+    truth = truth_function(scenario)
+    out: dict[int, dict[str, list]] = {}
+    for r in run_ids:
+        streams: dict[tuple | None, list[Measurement]] = {}
+        full = merged_measurements(scenario, r)  # common random numbers: built once per run
+        streams[None] = full
+        scores: dict[str, list] = {}
+        for v in variants:
+            key = v.sensors
+            if key not in streams:
+                wanted = set(key)
+                streams[key] = [m for m in full if m.sensor in wanted]
+            scores[v.label] = score_run(run_method(scenario, v.method, v.overrides, r, streams[key]), truth, r)
+        out[r] = scores
+    return out
+
+
+_WORKER: dict = {}
+
+
+def _worker_init(scenario, variants):
+    _WORKER["args"] = (scenario, variants)
+
+
+def _worker(run_ids):
+    scenario, variants = _WORKER["args"]
+    return _score_runs(scenario, variants, run_ids)
+
+
+def evaluate(scenario, variants: Sequence[Variant], runs: int, *, jobs: int = 1,
+             progress: Callable[[int, int], None] | None = None, crb: bool = True,
+             topology: str = "in-process", fusion_rule: str | None = None) -> dict:
+    """Monte Carlo evaluation of ``variants`` over runs ``0..runs-1``; returns the
+    ``--json`` summary of DESIGN.md (``methods`` keyed by variant label, ``crb`` filled
+    where :func:`crb_summary` applies). ``progress(done, total)`` is called per run."""
+    if runs < 1:
+        raise ValueError(f"evaluate: runs must be >= 1, got {runs}")
+    labels = [v.label for v in variants]
+    if len(set(labels)) != len(labels):
+        raise ValueError(f"evaluate: duplicate variant labels {labels}")
+    for v in variants:
+        make_method(v.method, {**scenario.tracker, **v.overrides})  # fail early on a bad name/config
+        for s in v.sensors or ():
+            scenario.sensor(s)
+    jobs = max(1, min(int(jobs), runs))
+    per_run: dict[int, dict[str, list]] = {}
+    if jobs == 1:
+        for r in range(runs):
+            per_run.update(_score_runs(scenario, variants, [r]))
+            if progress:
+                progress(r + 1, runs)
+    else:
+        import multiprocessing
+        from concurrent.futures import ProcessPoolExecutor, as_completed
+
+        chunk = max(1, min(10, runs // (4 * jobs)))
+        batches = [list(range(i, min(i + chunk, runs))) for i in range(0, runs, chunk)]
+        ctx = multiprocessing.get_context("fork" if "fork" in multiprocessing.get_all_start_methods() else "spawn")
+        with ProcessPoolExecutor(jobs, mp_context=ctx, initializer=_worker_init,
+                                 initargs=(scenario, list(variants))) as pool:
+            futures = [pool.submit(_worker, b) for b in batches]
+            for fut in as_completed(futures):
+                per_run.update(fut.result())
+                if progress:
+                    progress(len(per_run), runs)
+    methods = {v.label: aggregate([per_run[r][v.label] for r in range(runs)]) for v in variants}
+    for v in variants:
+        if v.label != v.method or v.overrides or v.sensors:
+            methods[v.label]["variant"] = {"method": v.method, "overrides": dict(v.overrides),
+                                           "sensors": list(v.sensors) if v.sensors else None}
+    bound = crb_summary(scenario, runs) if crb else None
+    return summary(scenario, topology, fusion_rule, scenario.seed, runs, methods, crb=bound)
+
+
+def default_jobs() -> int:
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # pragma: no cover - not Linux
+        return max(1, os.cpu_count() or 1)
+
+
+# Cramér–Rao bounds --------------------------------------------------------------------
+def _noise_std(scenario, sensor_id: str, t: float, position: np.ndarray) -> tuple[np.ndarray, bool]:
+    """Per-component effective std (``1/√Fisher``) of a sensor's noise at ``t``, jamming
+    included; and whether the noise density is regular (False for uniform outliers)."""
+    from fusion.crb3d import noise_fisher_information
+    from sensors_sim import jam_effect
+
+    spec = scenario.sensor(sensor_id)
+    std = np.asarray(spec.std, dtype=float)
+    effect = jam_effect(scenario, sensor_id, t, position) if scenario.jammers else None
+    if effect is None:
+        return std, True
+    out, regular = np.empty_like(std), True
+    for i, comp in enumerate(spec.components):
+        s1 = std[i] * math.sqrt(effect.variance_gain)
+        s2 = effect.outlier_std_range if comp == "range" else effect.outlier_std
+        if s2 is None or effect.p_outlier == 0.0:
+            out[i] = s1
+            continue
+        info = noise_fisher_information(s1, effect.p_outlier, s2, effect.outlier_law)
+        out[i], regular = info.effective_std, regular and info.regular
+    return out, regular
+
+
+def _scan_groups(scenario, sensor_ids: Sequence[str], tol: float) -> list[tuple[float, float, list[str]]]:
+    """Scan times of the sensors grouped as the methods group them: ``(first time, last
+    time, sensors)`` per group (3D methods stamp a scan with its first time, DF methods
+    an epoch with its last)."""
+    from sensors_sim import scan_times
+
+    events = sorted((float(t), s) for s in sensor_ids for t in scan_times(scenario, s))
+    groups: list[tuple[float, float, list[str]]] = []
+    for t, s in events:
+        if groups and t - groups[-1][0] <= tol and s not in groups[-1][2]:
+            groups[-1] = (groups[-1][0], t, groups[-1][2] + [s])
+        else:
+            groups.append((t, t, [s]))
+    return groups
+
+
+def crb_summary(scenario, runs: int) -> dict | None:
+    """The bound on position RMSE at the methods' output times, or None if none applies.
+
+    The first target of the scenario is used. 3D sensors: posterior CRB (9-state CA
+    truth model with the target's jerk PSD; expectation over the ``runs`` Monte Carlo
+    truths). Bearings: Fisher information of a static emitter (no prior). Detection
+    probability scales the information; a truth outside a sensor's coverage contributes
+    none.
+    """
+    if not scenario.targets:
+        return None
+    target = next(iter(scenario.targets))
+    kinds = {s.measurement_kind for s in scenario.sensors.values() if target in s.targets}
+    if "bearing" in kinds:
+        return _crb_emitter(scenario, target)
+    if kinds & {"range_az", "azel", "az_el_range"}:
+        return _crb_3d(scenario, target, runs)
+    return None
+
+
+def _nullable(values) -> list:
+    return [float(v) if np.isfinite(v) else None for v in values]
+
+
+def _crb_3d(scenario, target: str, runs: int) -> dict | None:
+    from fusion.crb3d import block_rmse, expected_information, posterior_crb
+    from fusion.init3d import initial_state
+    from fusion.motion import ConstantAcceleration
+    from fusion.patent import KINDS_3D, TrackerConfig
+    from fusion.sensors3d import MODEL_BY_KIND, SphericalModel
+    from sensors_sim import truth_trajectory
+    from sensors_sim.geometry import in_coverage
+    from sensors_sim.trajectories import ConstantAcceleration as CASegment
+
+    try:
+        cfg = TrackerConfig.from_dict(scenario.tracker)
+    except ValueError:
+        return None
+    sensors = [s for s, spec in scenario.sensors.items() if target in spec.targets and spec.measurement_kind in KINDS_3D]
+    groups = _scan_groups(scenario, sensors, cfg.pair_tol)
+    spec_t = scenario.target(target)
+    trajs = [truth_trajectory(scenario, target, r) for r in range(runs)]
+    times = np.array([g[0] for g in groups])
+    notes = []
+    if not (len(spec_t.segments) == 1 and isinstance(spec_t.segments[0], CASegment)
+            and spec_t.segments[0].acc is None):
+        notes.append("the truth is not a single constant-acceleration segment: the bound's CA model is approximate")
+    regular = True
+    info = np.zeros((times.size, 9, 9))
+    for k, (t, _, members) in enumerate(groups):
+        X = np.array([tr.state(t) for tr in trajs])
+        if k == 0:
+            continue  # the tracker's initial covariance holds the first scan's information
+        for s in members:
+            spec = scenario.sensor(s)
+            cov = np.array([in_coverage(spec, x[:3] - spec.site.position(t)) for x in X])
+            if not cov.any():
+                continue
+            std, reg = _noise_std(scenario, s, t, X[0, :3])
+            regular &= reg
+            model = SphericalModel(spec.components, spec.site.position(t), std, 9)
+            info[k] += spec.p_detect * cov.mean() * expected_information([model], X[cov])
+    # P0: the trackers' initialiser on the noise-free first scan (fusion.crb3d, "initial information")
+    t0, _, first = groups[0]
+    x0 = np.mean([tr.state(t0) for tr in trajs], axis=0)
+    scan0 = []
+    for s in first:
+        spec = scenario.sensor(s)
+        model = MODEL_BY_KIND[spec.measurement_kind](spec.site.position(t0), spec.std, 9)
+        scan0.append(Measurement(t0, s, spec.measurement_kind, model.h(x0), np.asarray(spec.std, float),
+                                 spec.site.position(t0)))
+    _, P0 = initial_state(scan0, 9, cfg.priors())
+    C = posterior_crb(P0, times, ConstantAcceleration(spec_t.jerk_psd, "continuous"), info)
+    if not regular:
+        notes.append("uniform outliers: their density is not regular, the bound is indicative only")
+    if scenario.jammers:
+        notes.append("jammed measurements enter with the Fisher information of their noise mixture")
+    pos, vel, acc = (block_rmse(C, slice(3 * i, 3 * i + 3)) for i in range(3))
+    late = times >= 0.5 * (times[0] + times[-1])  # as services.summary's "second_half"
+    return {
+        "t": times.tolist(),
+        "rmse_pos": pos.tolist(),
+        "rmse_vel": vel.tolist(),
+        "rmse_acc": acc.tolist(),
+        "overall": {"rmse_pos": float(np.sqrt(np.mean(pos**2))), "rmse_vel": float(np.sqrt(np.mean(vel**2))),
+                    "rmse_acc": float(np.sqrt(np.mean(acc**2)))},
+        "second_half": {"from_t": float(0.5 * (times[0] + times[-1])),
+                        "rmse_pos": float(np.sqrt(np.mean(pos[late] ** 2))),
+                        "rmse_vel": float(np.sqrt(np.mean(vel[late] ** 2))),
+                        "rmse_acc": float(np.sqrt(np.mean(acc[late] ** 2)))},
+        "final": {"t": float(times[-1]), "rmse_pos": float(pos[-1]), "rmse_vel": float(vel[-1]),
+                  "rmse_acc": float(acc[-1])},
+        "kind": "posterior CRB, 9-state CA truth model, J0 = inverse of the trackers' initial covariance",
+        "target": target,
+        "regular": regular,
+        "notes": notes,
+    }
+
+
+def _crb_emitter(scenario, target: str) -> dict | None:
+    from fusion.df.crb import fisher_information
+    from fusion.metrics import cep50
+    from sensors_sim import truth_trajectory
+    from sensors_sim.geometry import in_coverage
+    from sensors_sim.trajectories import Static
+
+    spec_t = scenario.target(target)
+    if spec_t.jerk_psd > 0 or not all(isinstance(s, Static) for s in spec_t.segments):
+        return {"t": [], "rmse_pos": [], "notes": ["the emitter moves: no static-emitter bound"]}
+    p = truth_trajectory(scenario, target, 0).state(0.0)[:3]
+    sensors = [s for s, spec in scenario.sensors.items() if target in spec.targets and spec.measurement_kind == "bearing"]
+    tol = scenario.tracker.get("pair_tol", 0.0)
+    tol = float(tol) if isinstance(tol, (int, float)) else 0.0
+    groups = _scan_groups(scenario, sensors, tol)
+    J = np.zeros((2, 2))
+    times, rms, regular = [], [], True
+    C = None
+    for t, t_last, members in groups:
+        for s in members:
+            spec = scenario.sensor(s)
+            site = spec.site.position(t)
+            if not in_coverage(spec, p - site):
+                continue
+            std, reg = _noise_std(scenario, s, t, p)
+            regular &= reg
+            J = J + spec.p_detect * fisher_information(p, site[None, :], std[0])
+        times.append(t_last)
+        if np.linalg.cond(J) <= 1e12:
+            C = np.linalg.inv(J)
+            rms.append(float(np.sqrt(np.trace(C))))
+        else:
+            rms.append(math.inf)
+    notes = ["static emitter, no prior information: J = Σ gᵀg/σ² over the bearings so far"]
+    if not regular:
+        notes.append("uniform outliers: their density is not regular, the bound is indicative only")
+    if scenario.jammers:
+        notes.append("jammed bearings enter with the Fisher information of their noise mixture")
+    out = {"t": times, "rmse_pos": _nullable(rms), "kind": "CRB, static emitter from bearings",
+           "target": target, "regular": regular, "notes": notes}
+    finite = [r for r in rms if math.isfinite(r)]
+    if finite:  # over the epochs where a fix exists, as the methods' overall rmse_pos
+        out["overall"] = {"rmse_pos": float(np.sqrt(np.mean(np.square(finite)))), "rmse_vel": None, "rmse_acc": None}
+    if C is not None:
+        out["final_P"] = (0.5 * (C + C.T)).tolist()
+        out["cep50"] = cep50(C)
+        out["rmse_pos_final"] = rms[-1]
+    return out
+
+
+def with_sensors(scenario, sensors: dict, name: str | None = None):
+    """A copy of ``scenario`` with another sensor table (for baseline variants)."""
+    return dataclasses.replace(scenario, sensors=dict(sensors), name=name or scenario.name)

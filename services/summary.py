@@ -2,6 +2,38 @@
 
 Shared by ``zfusion run`` (one run, estimates received over Zenoh) and ``zfusion eval``
 (many in-process Monte Carlo runs), so both report the same numbers the same way.
+
+Scoring is two steps: :func:`score_run` turns one run's estimates into per-estimate
+error records (so a Monte Carlo worker can return a few numbers per estimate instead of
+the estimates), and :func:`aggregate` turns the records of all runs into one method's
+summary. :func:`method_summary` does both.
+
+Per method (DESIGN.md fields first, then extras):
+
+``rmse_pos``/``rmse_vel``/``rmse_acc``
+    ``√mean‖e‖²`` over every scored estimate of every run (3D position for tracks, the
+    2D fix for emitters; ``null`` where the state has no such part).
+``cep50``
+    emitter fixes only: the *textbook* CEP50 radius, estimated as the median horizontal
+    miss distance of the final fixes (one per run).
+``anees``
+    mean NEES ``eᵀP⁻¹e`` over every estimate (full state); ``nees_dof`` is the state
+    dimension and ``anees_bounds`` the 95 % χ² interval of a *per-step* average over
+    ``runs`` runs (:func:`fusion.metrics.chi2_bounds`).
+``median_point_distance``
+    emitter fixes only: **the thesis's "CEP 50 %"** — distance from truth to the
+    coordinate-wise median of the final fixes (a bias measure, not a radius).
+``anis_per_dof``
+    ``ΣNIS / Σdof`` over the updates that report an NIS (1 for a consistent filter).
+``final``
+    RMSEs (and, for fixes, the errors and mean covariance) of the last estimate of
+    each run.
+``second_half``
+    RMSEs and ANEES over the estimates in the second half of the output times
+    (``t ≥ (t_first + t_last)/2``): the steady state, without the start-up transient.
+``series``
+    per output time: ``t``, ``rmse_pos`` (``rmse_vel``, ``rmse_acc``), ``anees``,
+    ``anis`` (mean NIS) with ``nis_dof`` (its mean dof), and ``n`` (estimates there).
 """
 
 from __future__ import annotations
@@ -12,6 +44,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
+from fusion.metrics import chi2_bounds, median_point_distance
 from fusion.types import Estimate
 
 TruthFn = Callable[[int, str, float], np.ndarray]  # (run, track, t) -> true state
@@ -37,12 +70,12 @@ def truth_function(scenario) -> TruthFn:
     return truth
 
 
-def _errors(e: Estimate, xt: np.ndarray) -> dict[str, float | None]:
+def _errors(e: Estimate, xt: np.ndarray) -> dict:
     n = e.x.size
     xt = np.asarray(xt, dtype=float)[:n] if xt.size >= n else np.pad(xt, (0, n - xt.size))
     err = e.x - xt
     d = 3 if n >= 6 else n  # position block: 3D track or 2D emitter fix
-    out: dict[str, float | None] = {"pos2": float(err[:d] @ err[:d]), "vel2": None, "acc2": None}
+    out: dict = {"t": float(e.t), "n": n, "pos2": float(err[:d] @ err[:d]), "vel2": None, "acc2": None}
     if n >= 6:
         out["vel2"] = float(err[3:6] @ err[3:6])
     if n >= 9:
@@ -51,8 +84,18 @@ def _errors(e: Estimate, xt: np.ndarray) -> dict[str, float | None]:
         out["nees"] = float(err @ np.linalg.solve(e.P, err))
     except np.linalg.LinAlgError:
         out["nees"] = math.nan
-    out["horiz"] = float(np.hypot(err[0], err[1]))
+    out["nis"] = None if e.nis is None else float(e.nis)
+    out["nis_dof"] = None if e.nis_dof is None else int(e.nis_dof)
+    out["eh"] = (float(err[0]), float(err[1]))  # horizontal error (fix scatter, CEP)
+    if n < 6:
+        P = np.asarray(e.P, dtype=float)
+        out["Ph"] = (float(P[0, 0]), float(P[0, 1]), float(P[1, 1]))
     return out
+
+
+def score_run(estimates: Sequence[Estimate], truth: TruthFn, run: int, node: str = "centre") -> list[dict]:
+    """Error records of one run's estimates from ``node`` (in emission order)."""
+    return [_errors(e, truth(run, e.track, e.t)) for e in estimates if e.node == node]
 
 
 def _rms(values: Sequence[float | None]) -> float | None:
@@ -60,36 +103,80 @@ def _rms(values: Sequence[float | None]) -> float | None:
     return float(math.sqrt(sum(vals) / len(vals))) if vals else None
 
 
-def method_summary(runs: Sequence[Sequence[Estimate]], truth: TruthFn, node: str = "centre") -> dict:
-    """Metrics of one method over Monte Carlo runs (each a list of its fused estimates)."""
+def _mean(values) -> float | None:
+    vals = [v for v in values if v is not None and math.isfinite(v)]
+    if len(vals) < len([v for v in values if v is not None]):
+        return None  # a NaN NEES (singular P) makes the average meaningless
+    return float(np.mean(vals)) if vals else None
+
+
+def aggregate(runs: Sequence[Sequence[dict]]) -> dict:
+    """One method's summary from the :func:`score_run` records of every run."""
     per_t: dict[float, list[dict]] = defaultdict(list)
     all_err: list[dict] = []
     finals: list[dict] = []
-    is_fix = False
-    for r, estimates in enumerate(runs):
-        mine = [e for e in estimates if e.node == node]
-        for e in mine:
-            er = _errors(e, truth(r, e.track, e.t))
-            per_t[e.t].append(er)
+    for records in runs:
+        for er in records:
+            per_t[er["t"]].append(er)
             all_err.append(er)
-            is_fix = e.x.size < 6
-        if mine:
-            finals.append(all_err[-1])
+        if records:
+            finals.append(records[-1])
+    is_fix = bool(all_err) and all_err[-1]["n"] < 6
     ts = sorted(per_t)
-    return {
+    dof = all_err[-1]["n"] if all_err else None
+    nis_pairs = [(e["nis"], e["nis_dof"]) for e in all_err if e["nis"] is not None and e["nis_dof"]]
+    out = {
         "rmse_pos": _rms([e["pos2"] for e in all_err]),
         "rmse_vel": _rms([e["vel2"] for e in all_err]),
         "rmse_acc": _rms([e["acc2"] for e in all_err]),
         # CEP50 of the final fixes (median horizontal miss distance), for emitter fixes only.
-        "cep50": float(np.median([f["horiz"] for f in finals])) if is_fix and finals else None,
-        "anees": float(np.mean([e["nees"] for e in all_err])) if all_err else None,
+        "cep50": float(np.median([math.hypot(*f["eh"]) for f in finals])) if is_fix and finals else None,
+        "anees": _mean([e["nees"] for e in all_err]),
         "n_updates": len(all_err),
         "series": {
             "t": ts,
             "rmse_pos": [_rms([e["pos2"] for e in per_t[t]]) for t in ts],
-            "anees": [float(np.mean([e["nees"] for e in per_t[t]])) for t in ts],
+            "rmse_vel": [_rms([e["vel2"] for e in per_t[t]]) for t in ts],
+            "rmse_acc": [_rms([e["acc2"] for e in per_t[t]]) for t in ts],
+            "anees": [_mean([e["nees"] for e in per_t[t]]) for t in ts],
+            "anis": [_mean([e["nis"] for e in per_t[t] if e["nis"] is not None]) for t in ts],
+            "nis_dof": [_mean([e["nis_dof"] for e in per_t[t] if e["nis_dof"]]) for t in ts],
+            "n": [len(per_t[t]) for t in ts],
+        },
+        "nees_dof": dof,
+        "anees_bounds": list(chi2_bounds(dof, len(runs))) if dof else None,
+        "anis_per_dof": float(sum(n for n, _ in nis_pairs) / sum(d for _, d in nis_pairs)) if nis_pairs else None,
+        "median_point_distance": None,
+        "final": {
+            "t": _mean([f["t"] for f in finals]),
+            "rmse_pos": _rms([f["pos2"] for f in finals]),
+            "rmse_vel": _rms([f["vel2"] for f in finals]),
+            "rmse_acc": _rms([f["acc2"] for f in finals]),
+            "n_runs": len(finals),
         },
     }
+    if ts:
+        # the second half of the run's output times: the filters' steady state, free of the
+        # start-up transient (the first estimate is the initialiser's, e.g. velocity 0)
+        t_half = 0.5 * (ts[0] + ts[-1])
+        late = [e for e in all_err if e["t"] >= t_half]
+        out["second_half"] = {"from_t": t_half, "rmse_pos": _rms([e["pos2"] for e in late]),
+                              "rmse_vel": _rms([e["vel2"] for e in late]),
+                              "rmse_acc": _rms([e["acc2"] for e in late]),
+                              "anees": _mean([e["nees"] for e in late])}
+    if is_fix and finals:
+        err = np.array([f["eh"] for f in finals])
+        out["median_point_distance"] = median_point_distance(err, np.zeros(2))
+        Ph = np.mean([f["Ph"] for f in finals], axis=0)
+        out["final"]["err"] = err.tolist()
+        out["final"]["P_mean"] = [[Ph[0], Ph[1]], [Ph[1], Ph[2]]]
+        out["final"]["mse_pos"] = float(np.mean(np.sum(err**2, axis=1)))
+    return out
+
+
+def method_summary(runs: Sequence[Sequence[Estimate]], truth: TruthFn, node: str = "centre") -> dict:
+    """Metrics of one method over Monte Carlo runs (each a list of its fused estimates)."""
+    return aggregate([score_run(estimates, truth, r, node) for r, estimates in enumerate(runs)])
 
 
 def summary(scenario, topology: str, fusion_rule: str | None, seed: int, runs: int,
@@ -106,17 +193,45 @@ def summary(scenario, topology: str, fusion_rule: str | None, seed: int, runs: i
     }
 
 
-def format_table(doc: dict) -> str:
-    """The summary as a fixed-width table for the terminal."""
-    def f(v: float | None, w: int = 10) -> str:
-        return f"{'—':>{w}}" if v is None else f"{v:>{w}.4f}"
+def _fmt(v: float | None, w: int = 10) -> str:
+    if v is None or not math.isfinite(v):
+        return f"{'—':>{w}}"
+    if v != 0.0 and (abs(v) >= 1e5 or abs(v) < 1e-3):
+        return f"{v:>{w}.3e}"
+    return f"{v:>{w}.4f}"
 
+
+def format_table(doc: dict) -> str:
+    """The summary as a fixed-width table for the terminal (the seeds' table shape:
+    one row per method, RMSE of position / velocity / acceleration or CEP, NEES beside)."""
+    methods = doc["methods"]
+    any_fix = any(m.get("median_point_distance") is not None for m in methods.values())
+    width = max([10, *(len(n) + 2 for n in methods)])
+    head = f"{'method':<{width}}{'rmse_pos':>10}{'rmse_vel':>10}{'rmse_acc':>10}{'cep50':>10}"
+    head += f"{'median_pt':>10}" if any_fix else ""
+    head += f"{'anees':>10}{'updates':>9}"
     lines = [f"scenario {doc['scenario']} · topology {doc['topology']} · fusion rule {doc['fusion_rule']} · "
-             f"seed {doc['seed']} · runs {doc['runs']}",
-             f"{'method':<10}{'rmse_pos':>10}{'rmse_vel':>10}{'rmse_acc':>10}{'cep50':>10}{'anees':>10}{'updates':>9}"]
-    for name, m in doc["methods"].items():
-        lines.append(f"{name:<10}{f(m['rmse_pos'])}{f(m['rmse_vel'])}{f(m['rmse_acc'])}{f(m['cep50'])}"
-                     f"{f(m['anees'])}{m['n_updates']:>9d}")
+             f"seed {doc['seed']} · runs {doc['runs']}", head]
+    for name, m in methods.items():
+        row = f"{name:<{width}}{_fmt(m['rmse_pos'])}{_fmt(m['rmse_vel'])}{_fmt(m['rmse_acc'])}{_fmt(m['cep50'])}"
+        row += _fmt(m.get("median_point_distance")) if any_fix else ""
+        row += f"{_fmt(m['anees'])}{m['n_updates']:>9d}"
+        lines.append(row)
+    crb = doc.get("crb") or {}
+    overall = crb.get("overall")
+    if overall:
+        row = f"{'CRB':<{width}}{_fmt(overall['rmse_pos'])}{_fmt(overall['rmse_vel'])}{_fmt(overall['rmse_acc'])}"
+        row += _fmt(crb.get("cep50")) + (_fmt(None) if any_fix else "")
+        note = "Cramér–Rao bound on the same RMSE"
+        if crb.get("cep50") is not None:
+            note += "; cep50: the bound's Gaussian CEP50 at the last epoch"
+        lines.append(f"{row}   ({note})")
+    bounds = {tuple(m["anees_bounds"]) + (m["nees_dof"],) for m in methods.values() if m.get("anees_bounds")}
+    for lo, hi, dof in sorted(bounds, key=lambda b: b[2]):
+        lines.append(f"per-step ANEES 95 % interval for {doc['runs']} runs, dof {dof}: [{lo:.3f}, {hi:.3f}]")
+    if any_fix:
+        lines.append("cep50: median miss of the final fixes (textbook CEP radius); median_pt: the thesis's "
+                     "'CEP 50 %' (distance of the median point from truth)")
     for src, s in doc.get("sources", {}).items():
         if s.get("dead_intervals") or s.get("rejected"):
             lines.append(f"source {src}: dead {s.get('dead_intervals')}, rejected {s.get('rejected', 0)}")
