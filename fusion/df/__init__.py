@@ -1,7 +1,8 @@
 """Bearings-only emitter localisation (seeds 000–003, SEEDS.md section 1).
 
 Modules: :mod:`.models` (geometry, edge conversions), :mod:`.filters` (EKFT/EKFS/SKF,
-cross-fed MEKF), :mod:`.imm`, :mod:`.triangulation` (ipu, Torrieri, Stansfield,
+cross-fed MEKF), :mod:`.imm`, :mod:`.init` (robust choice of the initial ``ipu`` pair
+under jamming), :mod:`.triangulation` (ipu, Torrieri, Stansfield,
 pairwise average, perpendicular LS, leave-one-out), :mod:`.smoothing` (KF/MKF bearing
 smoothers), :mod:`.noise`, :mod:`.crb`, :mod:`.methods` (the streaming Methods and
 :data:`DF_METHODS`).
