@@ -5,11 +5,26 @@ Defaults are the decided ``patent-3d`` parameters: sensors co-located at the ENU
 origin; "radar2d" σ_az = 1.0°, σ_range = 20 m; "angle" σ_az = σ_el = 0.05°; both period
 1 s from t = 0 for 30 s; CA truth with white-noise jerk q = 0.01 m²/s⁵ from
 x0 = [6000, 8000, 2000, -120, -60, 5, 0.5, 1.0, -0.05]. Monte Carlo runs are drawn
-all at once (vectorised over runs).
+all at once (vectorised over runs). ``x0`` may also be one initial state per run
+(``(n_runs, 9)``). As in ``patent-3d`` the initial state is fixed, not drawn from the
+trackers' zero-mean velocity/acceleration prior: see docs/consistency.md for what that
+means for NEES.
+
+Also here, for the consistency tests (tests/test_patent_consistency.py):
+
+* :func:`scenario_runs`: Monte Carlo runs of a built-in scenario from its own generators
+  (``sensors_sim``: truth with its process noise, sensor emulators), i.e. the runs
+  ``zfusion eval`` scores;
+* :class:`LinearAnalogue`: the linear-Gaussian filter a method's EKF is a linearisation
+  of (Jacobians along the noise-free trajectory). Its covariances do not depend on the
+  data, so it gives exact, cheap answers to "what NEES would an exactly consistent
+  filter show here" and "how much does the prior still weigh at scan k".
 """
 
 from __future__ import annotations
 
+import dataclasses
+import heapq
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -62,7 +77,7 @@ def simulate(n_runs: int, seed: int, sensors=PATENT_SENSORS, x0=X0, q=Q, duratio
     per_sensor = {s.id: sensor_times(s, duration) for s in sensors}
     times = np.unique(np.concatenate(list(per_sensor.values())))
     truth = np.empty((n_runs, times.size, 9))
-    truth[:, 0] = x0
+    truth[:, 0] = x0  # one state, or one per run
     for k in range(1, times.size):
         truth[:, k] = motion.sample(truth[:, k - 1], times[k] - times[k - 1], rng)
     meas: list[list[Measurement]] = [[] for _ in range(n_runs)]
@@ -104,3 +119,110 @@ def nees(truth: np.ndarray, x: np.ndarray, P: np.ndarray) -> np.ndarray:
     """eᵀP⁻¹e over the last axes: truth, x (..., n) and P (..., n, n)."""
     e = x - truth
     return np.einsum("...i,...i->...", e, np.linalg.solve(P, e[..., None])[..., 0])
+
+
+# Runs of a built-in scenario ---------------------------------------------------------
+def scenario_runs(name: str, n_runs: int, seed: int | None = None) -> SimRuns:
+    """Runs ``0 … n_runs−1`` of a one-target scenario from its own generators (truth
+    trajectories and sensor emulators of ``sensors_sim``), ``seed`` replacing the
+    file's. Truth is sampled at every measurement time."""
+    from sensors_sim import load_scenario, scan_times, sensor_events
+    from sensors_sim.trajectories import truth_trajectories
+
+    sc = load_scenario(name)
+    if seed is not None:
+        sc = dataclasses.replace(sc, seed=int(seed))
+    (target,) = sc.targets  # one target: its truth is what every estimate is scored against
+    times = np.unique(np.concatenate([scan_times(sc, s) for s in sc.sensors]))
+    truth = np.empty((n_runs, times.size, 9))
+    meas: list[list[Measurement]] = []
+    for run in range(n_runs):
+        streams = [(ev.measurement for ev in sensor_events(sc, s, run=run) if ev.measurement is not None) for s in sc.sensors]
+        meas.append(list(heapq.merge(*streams, key=lambda m: m.order_key)))
+        truth[run] = truth_trajectories(sc, run)[target].states(times)
+    return SimRuns(times, truth, meas)
+
+
+# The linear-Gaussian analogue of an EKF -----------------------------------------------
+class LinearAnalogue:
+    """A Kalman filter on ``x_{k+1} = F x_k + w``, ``z_k = H_k x_k + v`` with the CA model
+    of rate ``q``, scans every ``dt`` and ``H_k = ∂h/∂x`` of ``model`` (a
+    :class:`~fusion.sensors3d.SphericalModel`) along the noise-free trajectory from
+    ``x0``. ``P0`` is the filter's initial covariance (``initial_state`` of a
+    noise-free first scan, so the same as the EKF's up to linearisation), ``E0`` the
+    true second moment of the initial error: its position block is ``P0``'s (the first
+    scan's noise), its velocity/acceleration block is ``m mᵀ`` with ``m`` the truth's
+    fixed velocity/acceleration, since the prior is centred on zero.
+    """
+
+    def __init__(self, model, x0, P0, q=Q, n_scans: int = 31, dt: float = 1.0):
+        motion = ConstantAcceleration(q)
+        self.F, self.Q, self.R = np.asarray(motion.F(dt)), np.asarray(motion.Q(dt)), model.R
+        x = np.asarray(x0, float)
+        self.H = []
+        for _ in range(n_scans):
+            self.H.append(model.jacobian(x))
+            x = self.F @ x
+        self.P0 = np.asarray(P0, float)
+        self.m = np.asarray(x0, float)[3:]
+        self.E0 = self.P0.copy()
+        self.E0[3:, 3:] = np.outer(self.m, self.m)
+        self.P, self.K = [self.P0], [None]  # posterior covariances, gains
+        P = self.P0
+        for H in self.H[1:]:
+            P = self.F @ P @ self.F.T + self.Q
+            S = H @ P @ H.T + self.R
+            K = np.linalg.solve(S, H @ P).T
+            A = np.eye(9) - K @ H
+            P = A @ P @ A.T + K @ self.R @ K.T
+            self.P.append(P)
+            self.K.append(K)
+
+    @classmethod
+    def of_scenario(cls, name: str, config: dict | None = None) -> "LinearAnalogue":
+        """The analogue of SS (every sensor's measurement stacked) on a built-in
+        one-target scenario, with the scenario's ``[tracker]`` table updated by ``config``."""
+        from fusion.init3d import initial_state
+        from fusion.patent import TrackerConfig
+        from fusion.sensors3d import SphericalModel
+        from sensors_sim import load_scenario
+
+        sc = load_scenario(name)
+        (target,) = sc.targets.values()
+        cfg = TrackerConfig.from_dict({**sc.tracker, **(config or {})})
+        x0 = np.asarray(target.x0, float)
+        scan, models = [], []
+        for sid, s in sc.sensors.items():
+            model = MODEL_BY_KIND[s.measurement_kind](s.site.position(0.0), s.std)
+            scan.append(Measurement(0.0, sid, s.measurement_kind, model.h(x0), np.asarray(s.std, float), s.site.position(0.0)))
+            models.append(model)
+        _, P0 = initial_state(scan, 9, cfg.priors())
+        n_scans = int(round(sc.duration / min(s.period for s in sc.sensors.values()))) + 1
+        return cls(SphericalModel.stack(models), x0, P0, cfg.q, n_scans)
+
+    def prior_deficit(self) -> np.ndarray:
+        """Per scan, ``9 − E[NEES]`` when the truth's initial state is fixed:
+        ``tr(P_k⁻¹ Φ_k (P0 − E0) Φ_kᵀ)`` with ``Φ_k`` the filter's error transition
+        since scan 0. Zero if the prior were a distribution the truth is drawn from,
+        or if it no longer weighs; positive: conservative."""
+        Phi, out = np.eye(9), [np.trace(np.linalg.solve(self.P0, self.P0 - self.E0))]
+        for H, K, P in zip(self.H[1:], self.K[1:], self.P[1:]):
+            Phi = (np.eye(9) - K @ H) @ self.F @ Phi
+            out.append(np.trace(np.linalg.solve(P, Phi @ (self.P0 - self.E0) @ Phi.T)))
+        return np.array(out)
+
+    def nees(self, n_runs: int, rng: np.random.Generator, consistent_start: bool = True) -> np.ndarray:
+        """NEES ``(n_runs, n_scans)`` of Monte Carlo runs of this linear filter; with
+        ``consistent_start`` the initial error is drawn from ``P0`` (an exactly
+        consistent filter), else from ``E0`` (fixed truth, zero-mean prior)."""
+        E = np.linalg.cholesky(self.P0) @ rng.standard_normal((9, n_runs))  # errors, one column per run
+        if not consistent_start:  # the velocity/acceleration error is the fixed 0 − m
+            E[3:] = -self.m[:, None]
+        Lq = np.linalg.cholesky(self.Q)
+        sr = np.sqrt(np.diag(self.R))[:, None]
+        out = [np.einsum("ir,ir->r", E, np.linalg.solve(self.P0, E))]
+        for H, K, P in zip(self.H[1:], self.K[1:], self.P[1:]):
+            E = self.F @ E - Lq @ rng.standard_normal((9, n_runs))  # prediction error
+            E = E + K @ (sr * rng.standard_normal((sr.size, n_runs)) - H @ E)  # update
+            out.append(np.einsum("ir,ir->r", E, np.linalg.solve(P, E)))
+        return np.array(out).T

@@ -1,7 +1,8 @@
 """The patent's six methods and the single-sensor baselines: streaming contract,
 configuration, exact equalities the maths promises (HNDD = SS; PHHNV/DDHNV with the
-``info`` rule = SS), asynchronous sensors, and 200-run Monte Carlo consistency (NEES
-against χ² bounds) on the patent-3d set-up simulated by tests/sim3d.py."""
+``info`` rule = SS), asynchronous sensors, on the patent-3d set-up simulated by
+tests/sim3d.py. Their 200-run Monte Carlo consistency (NEES) is in
+tests/test_patent_consistency.py."""
 
 from __future__ import annotations
 
@@ -13,14 +14,12 @@ import pytest
 from scipy.stats import chi2
 
 sys.path.insert(0, str(Path(__file__).parent))
-from sim3d import ANGLE, PATENT_SENSORS, RADAR2D, RADAR3D, SensorSpec, centre_track, nees, run_method, simulate  # noqa: E402
+from sim3d import ANGLE, RADAR2D, RADAR3D, SensorSpec, centre_track, nees, run_method, simulate  # noqa: E402
 
 from fusion.patent import PATENT_METHODS, LocalTracker, TrackerConfig, make, pieces_hndd, pieces_lcdd  # noqa: E402
 from fusion.types import Measurement  # noqa: E402
 
 ALL = list(PATENT_METHODS)
-N_RUNS = 200
-SEED = 2  # see the report: the per-step band criterion is seed-sensitive at 200 runs
 FIRST = 5  # "after the first five scans"
 
 
@@ -230,86 +229,8 @@ def test_local_reports_carry_what_the_fusion_rules_need(short_runs):
         lt.predict(1.0)
 
 
-# 200-run Monte Carlo on the patent-3d set-up --------------------------------------------
-CONFIGS = {
-    "LCDD": ("LCDD", {}),
-    "HNDD": ("HNDD", {}),
-    "SS": ("SS", {}),
-    # PHHNV/info and DDHNV/info equal SS, and DDHNV equals PHHNV for bsc and ci (tests
-    # above), so they share those numbers and are not re-run here.
-    "PHHNV/bsc": ("PHHNV", {"fusion_rule": "bar-shalom-campo"}),
-    "PHHNV/ci": ("PHHNV", {"fusion_rule": "ci"}),
-    "PHHNV/naive": ("PHHNV", {"fusion_rule": "naive"}),
-    "HNV/bsc/vertical": ("HNV", {"fusion_rule": "bar-shalom-campo", "init_vel_std_up": 20.0, "init_acc_std_up": 1.0}),
-    "RADAR3D": ("RADAR3D", {}),
-}
-LO95, HI95 = chi2.ppf([0.025, 0.975], 9 * N_RUNS) / N_RUNS
-HI99 = chi2.ppf(0.99, 9 * N_RUNS) / N_RUNS
-
-
-@pytest.fixture(scope="module")
-def mc():
-    patent = simulate(N_RUNS, SEED)
-    radar3d = simulate(N_RUNS, SEED, sensors=(RADAR3D,))
-    out = {}
-    for key, (name, cfg) in CONFIGS.items():
-        sim = radar3d if name == "RADAR3D" else patent
-        tracks = [centre_track(run_method(make(name, cfg), meas)) for meas in sim.measurements]
-        x = np.array([t[1] for t in tracks])
-        P = np.array([t[2] for t in tracks])
-        out[key] = (x, P, nees(sim.truth, x, P), sim.truth)
-    return out
-
-
-@pytest.mark.slow
-@pytest.mark.parametrize("key", ["LCDD", "HNDD", "SS", "PHHNV/bsc"])
-def test_consistent_methods_have_nees_in_the_95_band(key, mc):
-    anees = mc[key][2].mean(axis=0)[FIRST:]
-    inside = (anees >= LO95) & (anees <= HI95)
-    assert inside.mean() >= 0.9, np.round(anees, 2)
-
-
-@pytest.mark.slow
-@pytest.mark.parametrize("key, first", [("LCDD", FIRST), ("SS", FIRST), ("PHHNV/bsc", FIRST), ("RADAR3D", 15)])
-def test_time_averaged_nees_over_independent_runs(key, first, mc):
-    # Seed-robust companion: per-run time averages are independent across runs.
-    per_run = mc[key][2][:, first:].mean(axis=1)
-    half_width = 3.0 * per_run.std(ddof=1) / np.sqrt(N_RUNS)
-    assert abs(per_run.mean() - 9.0) < half_width
-
-
-@pytest.mark.slow
-def test_radar3d_baseline_is_conservative_while_its_priors_dominate(mc):
-    # A 1° 3D radar measures position to ~175 m across the beam at 10 km, so velocity
-    # and acceleration stay dominated by the broad zero-mean priors for ~12 s: the NEES
-    # sits below the band (conservative), never above it, and reaches 9 afterwards.
-    anees = mc["RADAR3D"][2].mean(axis=0)[FIRST:]
-    assert np.all(anees <= HI99), np.round(anees, 2)
-    assert np.all(np.diff(anees[:6]) > 0)
-
-
-@pytest.mark.slow
-def test_naive_feedback_fusion_is_overconfident_the_others_are_not(mc):
-    assert np.mean(mc["PHHNV/naive"][2].mean(axis=0) > HI99) > 0.5
-    for key in ("SS", "PHHNV/bsc", "PHHNV/ci"):  # SS stands for PHHNV/info (equal, tested above)
-        assert np.mean(mc[key][2].mean(axis=0) > HI99) < 0.1
-    # CI does not know the tracks share their prior: conservative, below the band.
-    ci = mc["PHHNV/ci"][2].mean(axis=0)[FIRST:]
-    assert np.all(ci < LO95)
-
-
-@pytest.mark.slow
-def test_hnv_with_physical_vertical_priors(mc):
-    # HNV's 2D-radar local EKF cannot observe the vertical. With vertical priors of
-    # 20 m/s and 1 m/s² it stays in its linear regime: never overconfident and as
-    # accurate as the centralised filter — but those priors dominate the vertical
-    # acceleration for ~15 s, so its NEES sits low (conservative) early on.
-    anees = mc["HNV/bsc/vertical"][2].mean(axis=0)[FIRST:]
-    assert np.mean(anees > HI95) <= 0.1, np.round(anees, 2)
-    rmse = {k: np.sqrt(np.mean(np.sum((mc[k][0] - mc[k][3])[..., :3] ** 2, -1))) for k in ("HNV/bsc/vertical", "SS")}
-    assert rmse["HNV/bsc/vertical"] < 1.1 * rmse["SS"]
-
-
+# Fusion rules ------------------------------------------------------------------------------
+# (The 200-run Monte Carlo consistency tests are in tests/test_patent_consistency.py.)
 @pytest.mark.parametrize("name", ["PHHNV", "DDHNV"])
 def test_naive_rule_double_counts_the_shared_prior(name, short_runs):
     # The optimal (centralised) covariance bounds any achievable one from below; naive
