@@ -1,0 +1,133 @@
+"""Fuser throughput and latency over Zenoh: S asynchronous 3D radars in a load generator
+process publishing to the real fuser process (``zfusion fuser``) on loopback.
+
+    python benchmarks/bench_fuser.py [--sensors 4] [--seconds 4] [--repeats 3] [--json out.json]
+
+1. Sustained throughput: the offered rate is doubled from ``--start-rate`` until the
+   fuser falls behind, then bisected. A level is *kept up* when every measurement came
+   out as a fused track, no backlog built up (the median fuser latency over 65–85 % of
+   the run is under 50 ms) and the fuser finished within 0.5 s of the last publish.
+2. End-to-end latency (sensor ``put`` → fused track received by a subscriber) p50/p90/p99
+   at 10 %, 50 % and 90 % of that rate and at 2,000 measurements/s, each the median of
+   ``--repeats`` runs. "Fuser" latency leaves out the time-ordering wait: it counts from
+   when the merged watermark let the fuser emit the estimate (``_rig.py``).
+3. The 10 % and 50 % levels again with look-ahead watermarks: after a scan at ``t`` each
+   sensor promises "nothing before my next scan" (``t + T − 1 µs``) instead of "nothing
+   up to ``t``" — the suggested change to ``services/source.py`` that removes most of
+   the ordering wait.
+
+See ``_rig.py`` for the processes; every one is stopped at the end of each level.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import statistics
+
+import _common as C
+
+import _rig
+
+
+def trial(rate: float, args, **kw) -> dict:
+    r = _rig.run_trial(_rig.Trial(rate=rate, seconds=args.seconds, sensors=args.sensors, **kw))
+    print("  " + _rig.brief(r), flush=True)
+    return r
+
+
+def search(args) -> tuple[float, list[dict]]:
+    """Largest rate kept up: doubling, then bisection."""
+    tried = []
+    lo, hi = 0.0, math.inf
+    rate = args.start_rate
+    while rate <= args.max_rate:
+        r = trial(rate, args)
+        tried.append(r)
+        if r["kept_up"]:
+            lo = rate
+            if not math.isinf(hi):
+                break
+            rate *= 2
+        else:
+            hi = rate
+            if lo > 0:
+                break
+            rate /= 2
+            if rate < 100:
+                return 0.0, tried
+    if math.isinf(hi):
+        return lo, tried
+    for _ in range(args.bisect):
+        mid = round((lo + hi) / 2, -1)
+        r = trial(mid, args)
+        tried.append(r)
+        if r["kept_up"]:
+            lo = mid
+        else:
+            hi = mid
+    return lo, tried
+
+
+def median_of(rs: list[dict], key: str) -> float:
+    v = [r.get(key, math.nan) for r in rs]
+    v = [x for x in v if x == x]
+    return statistics.median(v) if v else math.nan
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--sensors", type=int, default=4)
+    ap.add_argument("--seconds", type=float, default=4.0, help="publishing time per level")
+    ap.add_argument("--repeats", type=int, default=3, help="runs per latency level (medians reported)")
+    ap.add_argument("--start-rate", type=float, default=1000.0)
+    ap.add_argument("--max-rate", type=float, default=64000.0)
+    ap.add_argument("--bisect", type=int, default=3)
+    ap.add_argument("--json")
+    args = ap.parse_args()
+
+    print(f"# Fuser over Zenoh — {C.machine_line()}")
+    print(f"{args.sensors} sensors (3D radars, asynchronous), 1 track, method RADAR3D, {args.seconds:g} s per level\n")
+    print("Throughput search:")
+    best, tried = search(args)
+    print(f"\nSustained: {best:,.0f} measurements/s\n")
+
+    levels = {"10 %": 0.1 * best, "50 %": 0.5 * best, "90 %": 0.9 * best, "2,000/s": 2000.0}
+    lat = {}
+    print(f"Latency levels ({args.repeats} runs each):")
+    for name, rate in levels.items():
+        if rate <= 0:
+            continue
+        lat[name] = [trial(round(rate), args) for _ in range(args.repeats)]
+    print("10 % and 50 % again, the sensors' watermarks looking ahead to their next scan (a suggested change):")
+    for name in ("10 %", "50 %"):
+        if levels[name] > 0:
+            lat[f"{name}, look-ahead watermarks"] = [trial(round(levels[name]), args, lookahead=True)
+                                                     for _ in range(args.repeats)]
+    rows = []
+    for name, rs in lat.items():
+        rows.append([name, f"{rs[0]['trial']['rate']:,.0f}", f"{median_of(rs, 'publish_rate'):,.0f}",
+                     f"{median_of(rs, 'lat_p50_ms'):.2f}", f"{median_of(rs, 'lat_p90_ms'):.2f}",
+                     f"{median_of(rs, 'lat_p99_ms'):.2f}", f"{median_of(rs, 'fuser_lat_p50_ms'):.2f}",
+                     f"{median_of(rs, 'fuser_lat_p99_ms'):.2f}", f"{median_of(rs, 'fuser_cpu_pct'):.0f}",
+                     f"{sum(r['kept_up'] for r in rs)}/{len(rs)}"])
+    print(f"\n## Latency, sensor put → fused track received (ms, medians of {args.repeats} runs; load now "
+          f"{C.load_now():.1f})\n")
+    print(C.table(["level", "offered /s", "published /s", "p50", "p90", "p99", "fuser p50", "fuser p99",
+                   "fuser CPU %", "kept up"], rows))
+    print("\n## Targets\n")
+    print(f"- ≥ 20,000 measurements/s sustained: {best:,.0f}/s "
+          f"({'met' if best >= 20000 else f'MISSED by {20000 / max(best, 1):.1f}×'})")
+    if "2,000/s" in lat:
+        p99 = median_of(lat["2,000/s"], "lat_p99_ms")
+        print(f"- p99 latency < 5 ms at 2,000 measurements/s: {p99:.1f} ms ({'met' if p99 < 5 else 'MISSED'})")
+    if args.json:
+        slim = lambda r: {k: v for k, v in r.items() if not k.endswith("_rss_mb") and k != "status"}  # noqa: E731
+        with open(args.json, "w") as fh:
+            json.dump({"machine": C.machine_line(), "sustained": best, "search": [slim(r) for r in tried],
+                       "latency": {k: [slim(r) for r in v] for k, v in lat.items()}}, fh, indent=1, default=float)
+
+
+if __name__ == "__main__":
+    main()
