@@ -35,19 +35,19 @@ import json
 import math
 import os
 import shutil
-import signal
-import socket
 import subprocess
 import sys
 import tempfile
 import threading
 import time
 import uuid
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import _common as C  # noqa: F401  (puts the repository on sys.path)
 import numpy as np
+
+from services.launcher import Children, die_with_parent, free_port
 
 HERE = Path(__file__).resolve().parent
 SITE_RADIUS_M = 5_000.0
@@ -285,21 +285,6 @@ def gen_main(argv: list[str]) -> int:
 
 
 # Driver -----------------------------------------------------------------------------------
-def free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def _die_with_parent() -> None:
-    try:
-        import ctypes
-
-        ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
-    except OSError:
-        pass
-
-
 @dataclass
 class Trial:
     rate: float = 2000.0  # measurements per second, all sensors together
@@ -315,31 +300,19 @@ class Trial:
     drain_s: float = 30.0  # how long the fuser may take to finish after the last publish
 
 
-@dataclass
-class Procs:
-    procs: dict[str, subprocess.Popen] = field(default_factory=dict)
+class Procs(Children):
+    """The launcher's children (PDEATHSIG, SIGTERM then SIGKILL on stop), started with
+    their output in a log file."""
 
     def start(self, name: str, argv: list[str], log: Path) -> subprocess.Popen:
         env = {**os.environ, "PYTHONUNBUFFERED": "1", "PYTHONPATH": os.pathsep.join(
             [str(C.REPO), str(HERE), os.environ.get("PYTHONPATH", "")])}
         fh = open(log, "wb")
         p = subprocess.Popen([sys.executable, *argv], stdin=subprocess.DEVNULL, stdout=fh, stderr=subprocess.STDOUT,
-                             env=env, cwd=str(C.REPO), preexec_fn=_die_with_parent)
+                             env=env, cwd=str(C.REPO), preexec_fn=die_with_parent)
         fh.close()
         self.procs[name] = p
         return p
-
-    def stop_all(self, grace: float = 5.0) -> None:
-        live = [p for p in self.procs.values() if p.poll() is None]
-        for p in live:
-            p.send_signal(signal.SIGTERM)
-        deadline = time.monotonic() + grace
-        for p in live:
-            try:
-                p.wait(max(0.1, deadline - time.monotonic()))
-            except subprocess.TimeoutExpired:
-                p.kill()
-                p.wait()
 
 
 class Observer:

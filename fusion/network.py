@@ -59,9 +59,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from dataclasses import dataclass, field
-
-import numpy as np
+from dataclasses import dataclass
 
 from .init3d import initial_state
 from .patent import KINDS_3D, LocalTracker, ScanGrouper, TrackerConfig

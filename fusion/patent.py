@@ -79,17 +79,18 @@ those same nodes and centre wired back to back (:class:`fusion.network.NetworkMe
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 from functools import partial
 from typing import Callable, Protocol, Sequence
 
 import numpy as np
 
 from .angles import wrap_2pi, wrap_pi
+from .config import config_values
 from .init3d import InitPriors, initial_state
 from .motion import make_motion, NOISE_FORMS
 from .sensors3d import SphericalModel, TrackEKF
-from .track_fusion import CI_CRITERIA, FUSION_RULES, TrackFuser
+from .track_fusion import CI_CRITERIA, FUSION_RULES
 from .types import KIND_COMPONENTS, Estimate, Measurement
 
 KINDS_3D = frozenset({"range_az", "azel", "az_el_range"})
@@ -117,34 +118,19 @@ class TrackerConfig:
     fusion_rule: str = "info"
     ci_criterion: str = "trace"
     pair_tol: float = 1e-3
-    init_range: float = 10_000.0
-    init_range_std: float = 5_000.0
-    init_el: float = 0.1
-    init_el_std: float = 0.1
-    init_vel_std: float = 200.0
-    init_vel_std_up: float = 200.0
-    init_acc_std: float = 10.0
-    init_acc_std_up: float = 10.0
+    init_range: float = InitPriors.range
+    init_range_std: float = InitPriors.range_std
+    init_el: float = InitPriors.el
+    init_el_std: float = InitPriors.el_std
+    init_vel_std: float = InitPriors.vel_std
+    init_vel_std_up: float = InitPriors.vel_std_up
+    init_acc_std: float = InitPriors.acc_std
+    init_acc_std_up: float = InitPriors.acc_std_up
 
     @classmethod
     def from_dict(cls, config: dict | None) -> "TrackerConfig":
-        config = dict(config or {})
-        known = {f.name: f for f in fields(cls)}
-        for key in config:
-            if key not in known:
-                raise ValueError(f"unknown tracker config key {key!r} (known: {', '.join(sorted(known))})")
-        values = {}
-        for key, value in config.items():
-            default = known[key].default
-            if isinstance(default, str):
-                if not isinstance(value, str):
-                    raise ValueError(f"tracker config {key!r} must be a string, got {value!r}")
-            else:
-                if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value):
-                    raise ValueError(f"tracker config {key!r} must be a finite number, got {value!r}")
-                value = float(value)
-            values[key] = value
-        cfg = cls(**values)
+        values = config_values(cls, config, "tracker config")
+        cfg = cls(**{k: v if isinstance(v, str) else float(v) for k, v in values.items()})
         cfg._validate()
         return cfg
 

@@ -19,7 +19,6 @@ import datetime as _dt
 import json
 import logging
 import math
-import os
 import queue
 import signal
 import socket
@@ -49,7 +48,7 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-def _die_with_parent() -> None:  # runs in the child between fork and exec
+def die_with_parent() -> None:  # runs in the child between fork and exec
     try:
         ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
     except OSError:
@@ -63,7 +62,7 @@ class Children:
     def start(self, name: str, argv: list[str]) -> None:
         cmd = [sys.executable, "-m", "services.cli", *argv]
         log.debug("starting %s: %s", name, " ".join(cmd))
-        self.procs[name] = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, preexec_fn=_die_with_parent)
+        self.procs[name] = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, preexec_fn=die_with_parent)
 
     def wait(self, name: str, timeout: float) -> int | None:
         try:

@@ -98,11 +98,12 @@ gate                   0.0         leave-one-out bound (studentised residual, in
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 from typing import Callable, Mapping
 
 import numpy as np
 
+from ..config import config_values
 from ..types import Estimate, Measurement
 from .filters import MEKF, MEKF_VARIANTS, BearingEKF, CrossFed
 from .imm import TRANSITIONS, BearingIMM, transition_matrix
@@ -138,26 +139,7 @@ class DFConfig:
 
     @classmethod
     def from_dict(cls, config: dict | None) -> "DFConfig":
-        config = dict(config or {})
-        known = {f.name for f in fields(cls)}
-        for key in config:
-            if key not in known:
-                raise ValueError(f"unknown DF tracker config key {key!r}; known keys: {sorted(known)}")
-        kw = {}
-        for key, value in config.items():
-            if key in ("ipu_cov", "init", "mekf_handoff", "imm_transition"):
-                if not isinstance(value, str):
-                    raise ValueError(f"config {key!r} must be a string, got {value!r}")
-                kw[key] = value
-            elif key == "sigma" and isinstance(value, str):
-                if value != "sensor":
-                    raise ValueError(f"config 'sigma' must be a positive number or \"sensor\", got {value!r}")
-                kw[key] = value
-            else:
-                if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value):
-                    raise ValueError(f"config {key!r} must be a finite number, got {value!r}")
-                kw[key] = value
-        cfg = cls(**kw)
+        cfg = cls(**config_values(cls, config, "DF tracker config", {"sigma": ("sensor",)}))
         cfg._validate()
         return cfg
 
