@@ -50,8 +50,10 @@ score); HNV/PHHNV/DDHNV additionally emit each local node's report (``node`` = s
 id; DDHNV's local reports are predictions) before the centre estimate. ``nis`` is the
 sum of the scan's update NIS values, ``nis_dof`` the sum of their dimensions.
 
-Configuration (the scenario's ``[tracker]`` table; unknown keys are an error; keys a
-method does not use are accepted and ignored so one table serves every method):
+Configuration (the scenario's ``[tracker]`` table, resolved for one method by
+:func:`fusion.config.method_config`: common keys, then the method's
+``[tracker.methods.<M>]`` table over them; unknown keys are an error; keys a method
+does not use are accepted and ignored so one table serves every method):
 
 ===============  =========================  =============================================
 key              default                    meaning
@@ -86,7 +88,7 @@ from typing import Callable, Protocol, Sequence
 import numpy as np
 
 from .angles import wrap_2pi, wrap_pi
-from .config import config_values
+from .config import config_values, method_config
 from .init3d import InitPriors, initial_state
 from .motion import make_motion, NOISE_FORMS
 from .sensors3d import SphericalModel, TrackEKF
@@ -167,6 +169,19 @@ class TrackerConfig:
             acc_std=self.init_acc_std,
             acc_std_up=self.init_acc_std_up,
         )
+
+
+TRACK_FUSION_METHODS = ("HNV", "PHHNV", "DDHNV")
+
+
+def track_fusion_rule(table: dict | None, methods: Sequence[str]) -> str | None:
+    """The track-fusion rule the named methods run with, for reports: ``None`` if none of
+    them fuses tracks, ``"HNV: bar-shalom-campo, PHHNV: info"`` if per-method tables differ."""
+    rules = {m: TrackerConfig.from_dict(method_config(table, m)).fusion_rule
+             for m in methods if m in TRACK_FUSION_METHODS}
+    if len(set(rules.values())) > 1:
+        return ", ".join(f"{m}: {r}" for m, r in rules.items())
+    return next(iter(rules.values()), None)
 
 
 # Scans -------------------------------------------------------------------------------

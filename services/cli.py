@@ -10,6 +10,7 @@ import shutil
 import sys
 from pathlib import Path
 
+from fusion.patent import TRACK_FUSION_METHODS, track_fusion_rule
 from schemas import KeySpace
 from schemas.keys import DEFAULT_DEPLOYMENT
 
@@ -205,13 +206,12 @@ def _eval(args) -> int:
     methods = args.methods or default_methods(scenario)
     if not methods:
         raise SystemExit(f"zfusion eval: no method can use the sensors of scenario {scenario.name}")
+    if args.fusion_rule and not set(methods) & set(TRACK_FUSION_METHODS):
+        raise SystemExit(f"zfusion eval: --fusion-rule applies to the track-fusion methods "
+                         f"({', '.join(TRACK_FUSION_METHODS)}); none of {', '.join(methods)} fuses tracks")
     overrides = {"fusion_rule": args.fusion_rule} if args.fusion_rule else {}
     show = sys.stderr.isatty() if args.progress is None else args.progress
-    rule = args.fusion_rule or scenario.tracker.get("fusion_rule")
-    if rule is None and {"HNV", "PHHNV", "DDHNV"} & set(methods):
-        from fusion.patent import TrackerConfig
-
-        rule = TrackerConfig().fusion_rule  # the track-fusion methods' default
+    rule = args.fusion_rule or track_fusion_rule(scenario.tracker, methods)
 
     def progress(done: int, total: int) -> None:
         bar = "#" * (30 * done // total)

@@ -35,6 +35,7 @@ from typing import Callable, Iterable, Sequence
 
 import numpy as np
 
+from fusion.config import method_config
 from fusion.methods import make_method, method_names
 from fusion.types import Estimate, Measurement
 
@@ -60,7 +61,7 @@ def merged_measurements(scenario, run: int = 0, sensors: Iterable[str] | None = 
 def run_method(scenario, method_name: str, overrides: dict | None = None, run: int = 0,
                measurements: list[Measurement] | None = None) -> list[Estimate]:
     """Run one method over one Monte Carlo run; returns every estimate it emits."""
-    method = make_method(method_name, {**scenario.tracker, **(overrides or {})})
+    method = make_method(method_name, method_config(scenario.tracker, method_name, overrides))
     stream = measurements if measurements is not None else merged_measurements(scenario, run)
     out: list[Estimate] = []
     t_prev = None
@@ -174,7 +175,7 @@ def evaluate(scenario, variants: Sequence[Variant], runs: int, *, jobs: int = 1,
     if len(set(labels)) != len(labels):
         raise ValueError(f"evaluate: duplicate variant labels {labels}")
     for v in variants:
-        make_method(v.method, {**scenario.tracker, **v.overrides})  # fail early on a bad name/config
+        make_method(v.method, method_config(scenario.tracker, v.method, v.overrides))  # fail early on a bad name/config
         for s in v.sensors or ():
             scenario.sensor(s)
     jobs = max(1, min(int(jobs), runs))
@@ -289,7 +290,9 @@ def _crb_3d(scenario, target: str, runs: int) -> dict | None:
     from sensors_sim.trajectories import ConstantAcceleration as CASegment
 
     try:
-        cfg = TrackerConfig.from_dict(scenario.tracker)
+        # The bound uses every 3D sensor's measurements, i.e. the centralised SS filter's
+        # information, from SS's prior.
+        cfg = TrackerConfig.from_dict(method_config(scenario.tracker, "SS"))
     except ValueError:
         return None
     sensors = [s for s, spec in scenario.sensors.items() if target in spec.targets and spec.measurement_kind in KINDS_3D]

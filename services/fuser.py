@@ -20,6 +20,7 @@ import queue
 import time
 from typing import Any
 
+from fusion.config import method_config
 from fusion.methods import make_method
 from fusion.network import SPLITS, split
 from fusion.types import Estimate
@@ -157,7 +158,7 @@ class FuserCore:
 def run(process_id: str, scenario_ref: str, method_name: str, overrides: dict, keys: KeySpace, zopts,
         timeout: float, start_grace: float, seed: int | None = None) -> int:
     scenario = load(scenario_ref, seed)
-    config = {**scenario.tracker, **overrides}
+    config = method_config(scenario.tracker, method_name, overrides)
     if method_name in SPLITS:  # distributed, feedback, two-stage: the centre over the local trackers
         method = split(method_name).centre(config)
         nodes = {tracker_id(s): s for s in scenario.sensors}

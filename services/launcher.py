@@ -28,6 +28,7 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from fusion.patent import track_fusion_rule
 from fusion.types import Estimate
 from schemas import KeySpace, SchemaError, decode, to_estimate, tracker_id
 
@@ -121,10 +122,11 @@ def default_rrd(scenario: str, topology: str) -> str:
 def run(args) -> int:
     scenario = load(args.scenario, args.seed)
     topology, method = resolve_topology(scenario, args.topology, args.method)
+    from fusion.config import method_config
     from fusion.methods import make_method
 
     overrides = {"fusion_rule": args.fusion_rule} if args.fusion_rule else {}
-    make_method(method, {**scenario.tracker, **overrides})  # fail here, with a clear error, not in a child
+    make_method(method, method_config(scenario.tracker, method, overrides))  # fail here, with a clear error, not in a child
     speed = math.inf if args.speed == "max" else float(args.speed)
     if not speed > 0:
         raise SystemExit("zfusion run: --speed must be > 0 or 'max'")
@@ -223,7 +225,7 @@ def run(args) -> int:
     for sid in sources:  # processes the fuser does not consume (truth, jammers) are reported too
         src_report.setdefault(sid, {"dead_intervals": [], "rejected": 0})
     truth = truth_function(scenario)
-    doc = summary(scenario, topology, args.fusion_rule or scenario.tracker.get("fusion_rule"), scenario.seed, 1,
+    doc = summary(scenario, topology, args.fusion_rule or track_fusion_rule(scenario.tracker, [method]), scenario.seed, 1,
                   {method: method_summary([estimates], truth)}, sources=src_report)
     doc["recording"] = rrd
     doc["exit_codes"] = codes

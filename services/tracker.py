@@ -17,6 +17,7 @@ import math
 import queue
 import time
 
+from fusion.config import method_config
 from fusion.network import split
 from schemas import KeySpace, SchemaError, decode, encode, tracker_id
 from schemas.links import downlink, encode_uplink
@@ -53,7 +54,7 @@ def run(sensor: str, scenario_ref: str, method_name: str, overrides: dict, keys:
         raise SystemExit(f"zfusion tracker: {sensor!r} is not a sensor of scenario {scenario.name} "
                          f"(sensors: {', '.join(scenario.sensors)})")
     me = tracker_id(sensor)
-    local = split(method_name).node(sensor, {**scenario.tracker, **overrides})
+    local = split(method_name).node(sensor, method_config(scenario.tracker, method_name, overrides))
     feed = _Feed(local)
     inbox: queue.SimpleQueue[tuple[str, bytes]] = queue.SimpleQueue()
     with Node(me, "tracker", keys, zopts) as node:

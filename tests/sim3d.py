@@ -182,6 +182,7 @@ class LinearAnalogue:
     def of_scenario(cls, name: str, config: dict | None = None) -> "LinearAnalogue":
         """The analogue of SS (every sensor's measurement stacked) on a built-in
         one-target scenario, with the scenario's ``[tracker]`` table updated by ``config``."""
+        from fusion.config import method_config
         from fusion.init3d import initial_state
         from fusion.patent import TrackerConfig
         from fusion.sensors3d import SphericalModel
@@ -189,7 +190,7 @@ class LinearAnalogue:
 
         sc = load_scenario(name)
         (target,) = sc.targets.values()
-        cfg = TrackerConfig.from_dict({**sc.tracker, **(config or {})})
+        cfg = TrackerConfig.from_dict(method_config(sc.tracker, None, config))  # the common table + config
         x0 = np.asarray(target.x0, float)
         scan, models = [], []
         for sid, s in sc.sensors.items():

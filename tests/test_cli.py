@@ -33,3 +33,5 @@ def test_bad_arguments_are_refused_clearly():
     assert p.returncode != 0 and "NOPE" in p.stderr
     p = zf("view", "/nonexistent.rrd")
     assert p.returncode != 0 and "no such recording" in p.stderr
+    p = zf("eval", "--scenario", "thesis-fixed-c3", "--runs", "1", "--fusion-rule", "info")
+    assert p.returncode != 0 and "track-fusion methods" in p.stderr

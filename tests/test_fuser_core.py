@@ -6,6 +6,7 @@ from __future__ import annotations
 import msgpack
 import numpy as np
 
+from fusion.config import method_config
 from fusion.methods import make_method
 from schemas import KeySpace, encode, encode_measurement
 from sensors_sim import load_scenario, sensor_events
@@ -49,7 +50,7 @@ def _garbage(sid: str) -> list[bytes]:
 
 def _run(scenario, noisy: bool):
     reject = RejectLog("test")
-    core = FuserCore(make_method("SS", scenario.tracker), list(scenario.sensors), KEYS, reject, timeout=1e9)
+    core = FuserCore(make_method("SS", method_config(scenario.tracker, "SS")), list(scenario.sensors), KEYS, reject, timeout=1e9)
     garbage = _garbage("radar2d")
     out = []
     for i, (key, data) in enumerate(_wire_stream(scenario)):

@@ -29,7 +29,9 @@ acceleration priors (200 m/s, 10 m/s², zero mean) still do at scan 5 — six sc
 measure acceleration only to a few m/s² — and make every method conservative there
 (expected NEES 8.56 instead of 9, :func:`test_default_priors_still_weigh_at_scan_five`).
 ``ENVELOPE`` (1 km/s, 100 m/s² ≈ 10 g per axis: a bound on the flight envelope, not a
-description of this target) weighs 0.006 in NEES at scan 5.
+description of this target) weighs 0.006 in NEES at scan 5. The scenario files give each
+method its consistent configuration in ``[tracker.methods.*]`` tables, and the tests run
+the methods with those (:func:`test_the_scenarios_run_each_method_in_its_consistent_configuration`).
 
 Methods:
 
@@ -70,6 +72,7 @@ from scipy.stats import chi2
 sys.path.insert(0, str(Path(__file__).parent))
 from sim3d import LinearAnalogue, centre_track, run_method, scenario_runs  # noqa: E402
 
+from fusion.config import method_config  # noqa: E402
 from fusion.motion import make_motion  # noqa: E402
 from fusion.patent import TrackerConfig, make  # noqa: E402
 from sensors_sim import load_scenario  # noqa: E402
@@ -86,14 +89,16 @@ BSC = {"fusion_rule": "bar-shalom-campo"}
 POS, VEL, ACC = [0, 1, 2], [3, 4, 5], [6, 7, 8]
 HORIZONTAL, VERTICAL_AXIS = [0, 1, 3, 4, 6, 7], [2, 5, 8]
 
-# key: (method, tracker overrides, scenario)
+# key: (method, tracker overrides, scenario). Overrides None: the method's configuration
+# in the scenario file ([tracker] with its [tracker.methods.<M>] table), which is what
+# `zfusion run` and `zfusion eval` use; otherwise the common [tracker] keys + overrides.
 CONFIGS = {
-    "LCDD": ("LCDD", ENVELOPE, "patent-3d"),
-    "HNDD": ("HNDD", ENVELOPE, "patent-3d"),
-    "SS": ("SS", ENVELOPE, "patent-3d"),
+    "LCDD": ("LCDD", None, "patent-3d"),
+    "HNDD": ("HNDD", None, "patent-3d"),
+    "SS": ("SS", None, "patent-3d"),
     "PHHNV/bsc": ("PHHNV", {**BSC, **ENVELOPE}, "patent-3d"),
-    "HNV/bsc": ("HNV", {**BSC, **ENVELOPE, **VERTICAL}, "patent-3d"),
-    "RADAR3D/default": ("RADAR3D", {}, "patent-3d-radar3d"),
+    "HNV/bsc": ("HNV", None, "patent-3d"),
+    "RADAR3D/default": ("RADAR3D", None, "patent-3d-radar3d"),
     "SS/default": ("SS", {}, "patent-3d"),
     "SS/envelope×10": ("SS", {k: 10 * v for k, v in ENVELOPE.items()}, "patent-3d"),
     "PHHNV/naive": ("PHHNV", {"fusion_rule": "naive", **ENVELOPE}, "patent-3d"),
@@ -154,17 +159,13 @@ class MonteCarlo:
             self._runs[scenario] = scenario_runs(scenario, N_RUNS, self.seed)
         return self._runs[scenario]
 
-    @staticmethod
-    def tracker(scenario: str, overrides: dict) -> dict:
-        """The scenario's ``[tracker]`` table with a configuration's overrides."""
-        return {**load_scenario(scenario).tracker, **overrides}
-
     def __getitem__(self, key: str):
         """``(truth, x, P)`` of configuration ``key``, each ``(runs, scans, …)``."""
         if key not in self._tracks:
-            name, cfg, scenario = CONFIGS[key]
+            name, overrides, scenario = CONFIGS[key]
             sim = self.runs(scenario)
-            cfg = self.tracker(scenario, cfg)
+            table = load_scenario(scenario).tracker
+            cfg = method_config(table, name) if overrides is None else method_config(table, None, overrides)
             tracks = [centre_track(run_method(make(name, cfg), meas)) for meas in sim.measurements]
             assert all(np.array_equal(t[0], sim.times) for t in tracks)  # one estimate per scan
             self._tracks[key] = (sim.truth, np.array([t[1] for t in tracks]), np.array([t[2] for t in tracks]))
@@ -185,7 +186,7 @@ def test_truth_is_a_realisation_of_the_trackers_model(mc):
     # Whitened one-scan increments of the truth, w = L⁻¹(x_{k+1} − F x_k) with LLᵀ = Q(1 s)
     # of the trackers' model: 200 × 30 × 9 values that must be i.i.d. N(0, 1).
     sim = mc.runs("patent-3d")
-    cfg = TrackerConfig.from_dict(load_scenario("patent-3d").tracker)
+    cfg = TrackerConfig.from_dict(method_config(load_scenario("patent-3d").tracker, None))
     motion = make_motion(cfg.motion, cfg.q, cfg.process_noise)
     F, Q = motion.F(1.0), motion.Q(1.0)
     assert np.allclose(np.diff(sim.times), 1.0)
@@ -226,6 +227,17 @@ def test_envelope_prior_is_non_informative(mc):
     # Ten times broader changes nothing after scan 5: the prior no longer weighs.
     diff = (mc.nees("SS/envelope×10") - mc.nees("SS")).mean(axis=0)[FIRST:]
     assert np.abs(diff).max() < 0.05, np.round(diff, 3)
+
+
+def test_the_scenarios_run_each_method_in_its_consistent_configuration():
+    # What `zfusion run` / `zfusion eval` use is what the tests below establish: the
+    # [tracker.methods.*] tables of the patent-3d scenarios carry these configurations.
+    table = load_scenario("patent-3d").tracker
+    for name in ("LCDD", "HNDD", "SS", "PHHNV", "DDHNV"):
+        assert ENVELOPE.items() <= method_config(table, name).items(), name
+    assert {**BSC, **ENVELOPE, **VERTICAL}.items() <= method_config(table, "HNV").items()
+    for name in ("RADAR2D", "ANGLE", "RADAR3D"):  # a broad prior along an unobservable direction hurts them
+        assert method_config(table, name) == method_config(table, None), name
 
 
 def test_literal_criterion_fails_for_an_exactly_consistent_filter():

@@ -16,6 +16,7 @@ from scipy.stats import chi2
 sys.path.insert(0, str(Path(__file__).parent))
 from sim3d import ANGLE, RADAR2D, RADAR3D, SensorSpec, centre_track, nees, run_method, simulate  # noqa: E402
 
+from fusion.config import method_config  # noqa: E402
 from fusion.patent import PATENT_METHODS, LocalTracker, TrackerConfig, make, pieces_hndd, pieces_lcdd  # noqa: E402
 from fusion.types import Measurement  # noqa: E402
 
@@ -240,3 +241,20 @@ def test_naive_rule_double_counts_the_shared_prior(name, short_runs):
     ss = _centre(run_method(make("SS", {}), meas))
     for a, b in zip(naive[1:], ss[1:]):
         assert np.linalg.eigvalsh(b.P - a.P).min() > 0
+
+
+def test_method_config_layers_common_per_method_and_overrides():
+    table = {"motion": "ca", "q": 0.01,
+             "methods": {"LCDD, SS": {"init_vel_std": 1e3}, "HNV": {"fusion_rule": "ci", "q": 0.02}}}
+    assert method_config(table, "SS") == {"motion": "ca", "q": 0.01, "init_vel_std": 1e3}
+    assert method_config(table, "HNV") == {"motion": "ca", "q": 0.02, "fusion_rule": "ci"}
+    assert method_config(table, "HNV", {"fusion_rule": "naive"})["fusion_rule"] == "naive"  # the command line wins
+    assert method_config(table, "RADAR2D") == method_config(table, None) == {"motion": "ca", "q": 0.01}
+    assert table["methods"]  # the caller's table is not consumed
+    for bad, why in [({"methods": {"XX": {}}}, "unknown method 'XX'"),
+                     ({"methods": {"SS": {}, "LCDD,SS": {}}}, "two tables"),
+                     ({"methods": {"SS": 1.0}}, "must be a table")]:
+        with pytest.raises(ValueError, match=why):
+            method_config(bad, "SS")
+    with pytest.raises(ValueError, match="unknown tracker config key 'methods'"):
+        make("SS", table)  # an unresolved table cannot reach a method by mistake

@@ -9,6 +9,7 @@ from importlib import resources
 import numpy as np
 import pytest
 
+from fusion.config import method_config
 from sensors_sim import (
     jam_state,
     list_scenarios,
@@ -52,7 +53,7 @@ def test_patent_3d_decided_parameters():
     assert (sc.duration, sc.origin) == (30.0, (21.0285, 105.8542, 10.0))
     assert sc.process_ids() == ["radar2d", "angle", "truth"]  # no 3D radar in the fusion run
     assert sc.defaults == {"topology": "centralised", "method": "SS"}
-    assert sc.tracker == {"motion": "ca", "q": 0.01}
+    assert method_config(sc.tracker, None) == {"motion": "ca", "q": 0.01}
     t1 = sc.targets["T1"]
     np.testing.assert_array_equal(t1.x0, [6000, 8000, 2000, -120, -60, 5, 0.5, 1.0, -0.05])
     assert t1.jerk_psd == 0.01
@@ -78,6 +79,9 @@ def test_patent_variants_differ_only_where_they_say():
     np.testing.assert_array_equal(r3.targets["T1"].x0, base.targets["T1"].x0)
     # same seed and target: the three-sensor-set variants share one truth
     np.testing.assert_array_equal(truth_trajectory(r3, "T1").state(30.0), truth_trajectory(base, "T1").state(30.0))
+    # one tracker configuration, per-method tables included, for every variant
+    for variant in (long, sep, r3, load_scenario("patent-3d-jammed")):
+        assert variant.tracker == base.tracker, variant.name
 
 
 STATIONS = {1: [(0, 0), (20, 0)], 2: [(20, 0), (40, 0)], 3: [(0, 0), (20, 0), (30, 0)],
