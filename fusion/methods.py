@@ -3,6 +3,8 @@
 The 3D methods of the patent live in :mod:`fusion.patent`, the bearings-only methods of
 the theses in :mod:`fusion.df.methods`; both register factories ``make(config)``
 returning an object with ``process`` / ``advance`` / ``finish`` (see those modules).
+A ``[tracker]`` table with ``association`` wraps the named method in
+:class:`fusion.mtt.MultiTargetMethod` (many targets; the method keeps its name).
 """
 
 from __future__ import annotations
@@ -28,4 +30,9 @@ def make_method(name: str, config: dict | None = None) -> Any:
     reg = _registry()
     if name not in reg:
         raise ValueError(f"unknown method {name!r}; known: {', '.join(reg)}")
+    from .mtt import AssociationConfig, MultiTargetMethod
+
+    association, rest = AssociationConfig.split(config)
+    if association is not None:
+        return MultiTargetMethod(name, lambda: reg[name](dict(rest)), association)
     return reg[name](dict(config or {}))

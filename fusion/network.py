@@ -53,18 +53,68 @@ lock-step without deadlock, and the result does not depend on message timing. A 
 whose downlink goes quiet is told by its process to run on alone (``alone=True``):
 it then updates from its own last estimate, or initialises itself from its own
 measurement; the result is then timing-dependent, and the process says so.
+
+Many targets
+------------
+With ``association`` in the ``[tracker]`` table (:class:`fusion.mtt.AssociationConfig`)
+HNV, PHHNV and DDHNV split into :class:`MultiTrackNode` and :class:`MultiTrackCentre`.
+
+*Who starts tracks: the centre, in every topology.* A 2D radar plot fixes a circle
+and an angle plot a ray, and a local tracker of one such sensor cannot observe the
+full state; a track started from one plot attracts false alarms through its broad
+prior (:mod:`fusion.mtt`, "Initiation"). And every fusion rule but ``naive``/``ci``
+needs to know what a local track started from (``info`` its prior, ``bar-shalom-campo``
+its cross-covariance with the fused track). So tracks are born at the centre, as the
+one-target handshake does it: a plot no local track takes goes up as an
+initialisation request; the centre gates each request against its fused tracks
+(χ², GNN): in a track's gate, the node is sent that track's latest fused estimate as
+an ``init`` downlink (a node that lost its local track, or sees the target for the
+first time, joins); the requests left start fused tracks from angle/radar pairs
+(:class:`fusion.mtt.Initiator`, as the centralised methods), and every node whose plot
+formed the pair is sent the new track. HNV stays distributed: after that the local
+trackers run without feedback.
+
+*Local trackers.* A node groups its sensor's plots into frames
+(:class:`fusion.mtt.FrameGrouper`; the sensor's watermark closes them), gates them
+against its local tracks' predictions (χ², GNN), updates the tracks that took one and
+reports each (``track`` = the node's own id ``L1, L2, …``: local ids differ per node),
+sends the other plots up as requests, and deletes a local track after
+``delete_misses`` frames without a plot, or when the centre says ``drop``. Every mode
+waits for the centre's horizon before a frame (as PHHNV does with one target), so the
+inits and drops of earlier frames are in, and the result is independent of timing.
+
+*Track-to-track association at the centre*, per node and frame: a local id seen
+before keeps its fused track while ``d²`` of the pair (position and velocity; with
+the cross-covariance where it is known, :meth:`fusion.track_fusion.TrackFuser.cross_covariance`)
+stays in the χ² gate (:func:`fusion.association.track_distance2`); a new local id is
+assigned by GNN among the fused tracks that sent this node an init; a mapped track
+that leaves its gate is dropped (the node deletes it) and the node is sent the
+fused track again. One local track per node per fused track; a new one replaces the
+old one (dropped). Each fused track has its own :class:`~fusion.track_fusion.TrackFuser`
+and fuses its reports as the one-target centre does; a fused track without reports
+coasts. Management is :class:`fusion.association.TrackLogic` (M-of-N, K misses,
+``max_pos_std``): a tentative track scores a hit with reports or gated requests of two
+sensors, a confirmed one with one — under HNV with two, or with a sensor that measures
+range (an angle sensor's local track alone would hold a fused track whose range drifts
+away from the radar plots that should re-initiate it). Confirmed tracks get the
+published ids ``T1, T2, …`` and are reported every frame. With one target, no clutter,
+P_D = 1 and M = N = 1 this is exactly the one-target network (``tests/test_t2ta.py``).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections import deque
 from dataclasses import dataclass
 
+import numpy as np
+
+from .association import TrackIds
 from .init3d import initial_state
 from .patent import KINDS_3D, LocalTracker, ScanGrouper, TrackerConfig
 from .track_fusion import TrackFuser
-from .types import Estimate, Measurement
+from .types import KIND_COMPONENTS, Estimate, Measurement
 
 MODES = ("track", "feedback", "predict")
 
@@ -95,11 +145,13 @@ class Uplink:
 @dataclass(frozen=True)
 class Downlink:
     """A prior sent down to one node; ``estimate.extra`` may carry the centre's own
-    update with that node's measurement (``sensor_x``, ``sensor_P``; DDHNV)."""
+    update with that node's measurement (``sensor_x``, ``sensor_P``; DDHNV). With many
+    targets, ``drop`` tells the node to delete its local track ``estimate.track``."""
 
     node: str
     estimate: Estimate
     init: bool
+    drop: bool = False
 
 
 def _before(t: float) -> float:
@@ -134,6 +186,10 @@ class LocalNode:
 
     def set_horizon(self, w: float) -> None:
         self.horizon = max(self.horizon, float(w))
+
+    def set_watermark(self, w: float) -> None:
+        """The sensor's watermark (nothing at or before ``w`` will come); a one-target
+        node needs none (each measurement is its own scan)."""
 
     @property
     def waiting_for(self) -> str | None:
@@ -243,6 +299,9 @@ class Centre:
         out, self._down = self._down, []
         return out
 
+    def _send(self, node: str, e: Estimate, init: bool, drop: bool = False) -> None:
+        self._down.append(Downlink(node, e, init, drop))
+
     @property
     def horizon(self) -> float:
         return -math.inf
@@ -289,9 +348,6 @@ class TrackCentre(Centre):
             out += self._scan(scan)
         return out
 
-    def _send(self, node: str, e: Estimate, init: bool) -> None:
-        self._down.append(Downlink(node, e, init))
-
     def _scan(self, scan: list[Uplink]) -> list[Estimate]:
         t = scan[0].t
         requests = [u for u in scan if u.init_request]
@@ -321,32 +377,44 @@ class TrackCentre(Centre):
         self._send(node, e, init=True)
 
     def _fuse(self, t: float, reports: list[Uplink]) -> Estimate:
-        local = [_at(u.estimate, t) for u in reports]
-        per_node: dict[str, Estimate] = {}
-        if self.mode == "predict":
-            stage1 = self.fuser.fuse(t, local)
-            updates = []
-            for u in reports:  # the centre's updates of the fused prediction
-                c = LocalTracker(u.measurement.sensor, self.motion, self.name, self.track)
-                c.accept_prior(stage1.x, stage1.P, t)
-                per_node[u.node] = c.update(u.measurement, t)
-                updates.append(per_node[u.node])
-            fused = self.fuser.fuse(t, updates)
-            nis_from = updates
-        else:
-            fused = self.fuser.fuse(t, local)
-            nis_from = [e for e in local if e.nis is not None]
-        nis = sum(e.nis for e in nis_from) if nis_from else None
-        dof = sum(e.nis_dof for e in nis_from) if nis_from else None
-        extra = {"omega": fused.extra["omega"]} if "omega" in fused.extra else {}  # CI weights
-        centre = Estimate(t, fused.x, fused.P, self.name, "centre", self.track, nis, dof, extra)
+        centre, per_node = fuse_reports(self.fuser, self.mode, t, reports, self.track)
         if self.feedback:
             for node in sorted(self.nodes):
-                extra = {}
-                if node in per_node:
-                    extra = {"sensor_x": per_node[node].x, "sensor_P": per_node[node].P}
-                self._send(node, Estimate(t, fused.x, fused.P, self.name, "centre", self.track, extra=extra), False)
+                self._send(node, _feedback(centre, per_node.get(node), self.track), False)
         return centre
+
+
+def fuse_reports(fuser: TrackFuser, mode: str, t: float, reports: list[Uplink], track: str):
+    """One fusion at the centre of the local reports of one track (all at ``t``):
+    ``(centre estimate, DDHNV's updates per node)``. ``predict`` mode: stage 1 fuses the
+    local predictions, the centre updates that with each node's measurement, stage 2
+    fuses those updates (module docstring)."""
+    local = [_at(u.estimate, t) for u in reports]
+    per_node: dict[str, Estimate] = {}
+    if mode == "predict":
+        stage1 = fuser.fuse(t, local)
+        updates = []
+        for u in reports:  # the centre's updates of the fused prediction
+            c = LocalTracker(u.measurement.sensor, fuser.motion, fuser.method, track)
+            c.accept_prior(stage1.x, stage1.P, t)
+            per_node[u.node] = c.update(u.measurement, t)
+            updates.append(per_node[u.node])
+        fused = fuser.fuse(t, updates)
+        nis_from = updates
+    else:
+        fused = fuser.fuse(t, local)
+        nis_from = [e for e in local if e.nis is not None]
+    nis = sum(e.nis for e in nis_from) if nis_from else None
+    dof = sum(e.nis_dof for e in nis_from) if nis_from else None
+    extra = {"omega": fused.extra["omega"]} if "omega" in fused.extra else {}  # CI weights
+    return Estimate(t, fused.x, fused.P, fuser.method, "centre", track, nis, dof, extra), per_node
+
+
+def _feedback(centre: Estimate, update: Estimate | None, track: str) -> Estimate:
+    """The fused estimate sent down as a node's next prior (with the centre's update of
+    that node's measurement, DDHNV)."""
+    extra = {"sensor_x": update.x, "sensor_P": update.P} if update else {}
+    return Estimate(centre.t, centre.x, centre.P, centre.method, "centre", track, extra=extra)
 
 
 def _at(e: Estimate, t: float) -> Estimate:
@@ -375,6 +443,334 @@ class StationCentre(Centre):
         return self.method.finish()
 
 
+# Many targets --------------------------------------------------------------------------
+class MultiTrackNode(LocalNode):
+    """A local node tracking many targets on its own sensor's plots (module docstring,
+    "Many targets"): frames of plots, χ²/GNN association to its local tracks, one
+    uplink per updated track (``track`` = its local id) and one initialisation request
+    per plot no local track took."""
+
+    kinds = KINDS_3D
+
+    def __init__(self, sensor: str, config: TrackerConfig, method: str, mode: str, association):
+        from .mtt import FrameGrouper
+
+        if mode not in MODES:
+            raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
+        super().__init__(sensor, config.pair_tol)
+        self.config = config
+        self.mode = mode
+        self.method = method
+        self.association = association
+        self.motion = config.motion_model()
+        self.tracks: dict[str, LocalTracker] = {}  # local id -> tracker, in creation order
+        self.misses: dict[str, int] = {}
+        self._ids = TrackIds("L")  # node-local ids: the centre maps them to its own
+        self._frames = FrameGrouper(config.pair_tol)
+
+    def offer(self, m: Measurement) -> None:
+        if m.kind not in self.kinds:
+            raise ValueError(f"{self.node}: cannot use a {m.kind!r} measurement (takes {', '.join(sorted(self.kinds))})")
+        self.pending.extend(self._frames.push(m))
+
+    def set_watermark(self, w: float) -> None:
+        self.pending.extend(self._frames.advance(w))
+
+    @property
+    def waiting_for(self) -> str | None:
+        return self._blocked(self.pending[0]) if self.pending else None
+
+    def step(self, alone: bool = False) -> list[Uplink]:
+        if alone:  # the stream has ended or the centre is gone: no frame will complete otherwise
+            self.pending.extend(self._frames.finish())
+        return super().step(alone)
+
+    def upstream_watermark(self, sensor_watermark: float) -> float:
+        held = [self.pending[0][0].t] if self.pending else []
+        if self._frames.held_since() is not None:
+            held.append(self._frames.held_since())
+        return min([sensor_watermark, *(_before(t) for t in held)])
+
+    def receive(self, d: Downlink) -> None:
+        e = d.estimate
+        if d.drop:
+            self.tracks.pop(e.track, None)
+            self.misses.pop(e.track, None)
+        elif d.init:  # a new local track on one of the centre's tracks
+            lid = self._ids.next()
+            self.tracks[lid] = LocalTracker(self.node, self.motion, self.method, lid)
+            self.tracks[lid].initialise(e.x, e.P, e.t)
+            self.misses[lid] = 0
+        elif self.mode != "track" and e.track in self.tracks:
+            tr = self.tracks[e.track]
+            if e.t >= tr.ekf.t:  # not older than where the track already is
+                tr.accept_prior(e.x, e.P, e.t)
+
+    def _blocked(self, frame):
+        # Every mode waits for the centre's answers to the earlier frames (inits, drops,
+        # feedback): the local tracks then do not depend on message timing.
+        return "centre" if frame[0].t - self.horizon > self.pair_tol else None
+
+    def _process(self, frame: list[Measurement], alone: bool) -> list[Uplink]:
+        from .association import gate_threshold, gnn, mahalanobis2
+        from .sensors3d import SphericalModel
+
+        t = frame[0].t
+        ids = list(self.tracks)
+        model = SphericalModel.from_measurement(frame[0], self.motion.n_x)
+        pairs = []
+        if ids:
+            Z = np.array([m.z for m in frame])
+            d2 = np.array([mahalanobis2(model, *self.tracks[i].ekf.predicted(t), Z) for i in ids])
+            pairs = gnn(d2, gate_threshold(model.n_z, self.association.gate_prob))
+        out: list[Uplink] = []
+        taken = {}
+        for r, c in pairs:
+            lid, m = ids[r], frame[c]
+            taken[c] = lid
+            tr = self.tracks[lid]
+            out.append(self._uplink(m.t, tr.predict(m.t), m) if self.mode == "predict" else self._uplink(m.t, tr.update(m)))
+        hit = set(taken.values())
+        for lid in ids:
+            self.misses[lid] = 0 if lid in hit else self.misses[lid] + 1
+            P = self.tracks[lid].ekf.P
+            if self.misses[lid] >= self.association.delete_misses or \
+                    math.sqrt(float(np.trace(P[:3, :3]))) > self.association.max_pos_std:
+                del self.tracks[lid], self.misses[lid]
+        for c, m in enumerate(frame):
+            if c in taken:
+                continue
+            if alone:  # no centre: a local track from this plot alone
+                lid = self._ids.next()
+                self.tracks[lid] = LocalTracker(self.node, self.motion, self.method, lid)
+                self.tracks[lid].initialise(*initial_state([m], self.motion.n_x, self.config.priors()), m.t)
+                self.misses[lid] = 0
+            else:
+                out.append(self._uplink(m.t, measurement=m))
+        return out
+
+
+class _Fused:
+    """One track of the centre's picture: its fuser, its life, and its local tracks."""
+
+    def __init__(self, key: str, fuser: TrackFuser, logic, last: Estimate):
+        self.key, self.fuser, self.logic, self.last = key, fuser, logic, last
+        self.id: str | None = None  # published id, given at confirmation
+        self.members: dict[str, str] = {}  # node -> its local id on this track
+        self.invited: set[str] = set()  # nodes sent an init, whose local track is not yet mapped
+        self.joins: set[str] = set()  # nodes to send an init after this frame
+
+
+class MultiTrackCentre(Centre):
+    """The centre of HNV / PHHNV / DDHNV with many targets (module docstring, "Many
+    targets"): frames of uplinks; track-to-track association of every node's local
+    tracks with the fused tracks; one :class:`~fusion.track_fusion.TrackFuser` per
+    fused track; initiation from the initialisation requests; M-of-N management."""
+
+    def __init__(self, name: str, config: TrackerConfig, mode: str, association):
+        from .mtt import FrameGrouper, Initiator
+
+        super().__init__()
+        self.name = name
+        self.config = config
+        self.mode = mode
+        self.feedback = mode != "track"
+        self.association = association
+        self.rule = association.rule()
+        self.motion = config.motion_model()
+        self.tracks: list[_Fused] = []  # confirmed in id order, then tentative in birth order
+        self._initiator = Initiator(self.motion.n_x, config.priors(), association.gate_prob)
+        self._grouper = FrameGrouper(config.pair_tol)
+        self._ids = TrackIds()
+        self._births = 0
+        self._mapped: dict[tuple[str, str], _Fused] = {}  # (node, local id) -> fused track
+        self._ignored: set[tuple[str, str]] = set()  # local tracks no fused track takes
+        self._kinds: dict[str, str] = {}  # node -> its sensor's measurement kind
+        self._watermark = -math.inf
+
+    # -- streaming (as TrackCentre) -----------------------------------------------------
+    def process(self, u: Uplink) -> list[Estimate]:
+        return self._run(self._grouper.push(u))
+
+    def advance(self, t: float) -> list[Estimate]:
+        self._watermark = max(self._watermark, float(t))
+        return self._run(self._grouper.advance(t))
+
+    def finish(self) -> list[Estimate]:
+        self._watermark = math.inf
+        return self._run(self._grouper.finish())
+
+    @property
+    def horizon(self) -> float:
+        held = self._grouper.held_since()
+        return self._watermark if held is None else min(self._watermark, _before(held))
+
+    def _run(self, frames) -> list[Estimate]:
+        out: list[Estimate] = []
+        for frame in frames:
+            out += self._frame(frame)
+        return out
+
+    # -- one frame -------------------------------------------------------------------------
+    def _frame(self, frame: list[Uplink]) -> list[Estimate]:
+        from .association import CONFIRMED, DELETED, TrackLogic
+
+        t = frame[0].t
+        predicted = {f.key: f.fuser.predicted(t) for f in self.tracks}
+        reports: dict[str, list[Uplink]] = {f.key: [] for f in self.tracks}
+        for node, ups in _by_node(u for u in frame if not u.init_request).items():
+            for f, u in self._associate_reports(node, ups, t, predicted):
+                reports[f.key].append(u)
+        seen: dict[str, set[str]] = {f.key: {u.node for u in reports[f.key] if _hit(u)} for f in self.tracks}
+        left = []
+        for u in frame:
+            if u.measurement is not None:
+                self._kinds[u.node] = u.measurement.kind
+        for node, ups in _by_node(u for u in frame if u.init_request).items():
+            rest, gated = self._associate_requests(node, [u.measurement for u in ups], t, predicted)
+            left += rest
+            for f in gated:
+                seen[f.key].add(node)
+        evidence = min(2, len({u.node for u in frame}))
+        for f in self.tracks:
+            if reports[f.key]:
+                f.last, per_node = fuse_reports(f.fuser, self.mode, t, reports[f.key], f.key)
+                if self.feedback:
+                    for node, lid in sorted(f.members.items()):
+                        self._send(node, _feedback(f.last, per_node.get(node), lid), False)
+            else:
+                x, P = predicted[f.key]
+                f.last = Estimate(t, x, P, self.name, "centre", f.key)
+            f.logic.record(self._hit(seen[f.key], f.logic.status == CONFIRMED, evidence))
+            if math.sqrt(float(np.trace(f.fuser.P[:3, :3]))) > self.association.max_pos_std:
+                f.logic.status = DELETED
+        for first, more in self._initiator.groups(sorted(left, key=lambda m: m.order_key)):
+            x, P = initial_state(first, self.motion.n_x, self.config.priors())
+            self._births += 1
+            fuser = TrackFuser(self.config.fusion_rule, self.motion, self.config.ci_criterion, self.name, "")
+            fuser.initialise(x, P, t)
+            f = _Fused(f"F{self._births}", fuser, TrackLogic(self.rule), Estimate(t, x, P, self.name, "centre"))
+            f.joins = {m.sensor for m in (*first, *more)}
+            self.tracks.append(f)
+        for f in self.tracks:
+            if f.logic.status == DELETED:
+                for node, lid in sorted(f.members.items()):
+                    self._drop(node, lid, f, f.last)
+                continue
+            if f.logic.status == CONFIRMED and f.id is None:
+                f.id = self._ids.next()
+            for node in sorted(f.joins):  # from the latest fused state (late joiners too)
+                f.fuser.add_node(node)
+                f.invited.add(node)
+                self._send(node, Estimate(f.fuser.t, f.fuser.x, f.fuser.P, self.name, "centre", f.key), True)
+            f.joins = set()
+        self.tracks = [f for f in self.tracks if f.logic.status != DELETED]
+        confirmed = sorted((f for f in self.tracks if f.id is not None), key=lambda f: int(f.id[1:]))
+        self.tracks = confirmed + [f for f in self.tracks if f.id is None]
+        return [dataclasses.replace(f.last, track=f.id) for f in confirmed]
+
+    def _hit(self, nodes: set[str], confirmed: bool, evidence: int) -> bool:
+        """A tentative track needs two sensors (as in fusion.mtt), a confirmed one one;
+        under HNV two, or one that measures range: an angle sensor's local track alone
+        does not observe range, and without feedback it would hold a fused track whose
+        range drifts away from the radar's plots, which then never re-initiate it."""
+        if not confirmed:
+            return len(nodes) >= evidence
+        if self.feedback:
+            return len(nodes) >= 1
+        return len(nodes) >= 2 or any("range" in KIND_COMPONENTS[self._kinds.get(n, "azel")] for n in nodes)
+
+    def _associate_reports(self, node: str, ups: list[Uplink], t: float, predicted) -> list[tuple[_Fused, Uplink]]:
+        """Track-to-track association of one node's reports with the fused tracks. A
+        local track keeps the fused track it is mapped to while it stays in the gate;
+        a new local id may take a fused track that invited this node (sent it an init);
+        a mapped track leaving its gate is dropped (ignored from then on) and the node
+        is invited again."""
+        from .association import associate_tracks, gate_threshold, track_distance2
+
+        cost = np.full((len(ups), len(self.tracks)), np.inf)
+        keep = {}
+        col = {f.key: j for j, f in enumerate(self.tracks)}
+        for i, u in enumerate(ups):
+            key = (node, u.estimate.track)
+            if key in self._ignored:
+                continue
+            if key in self._mapped:
+                js = [col[self._mapped[key].key]]
+                keep[i] = js[0]
+            else:
+                js = [j for j, f in enumerate(self.tracks) if node in f.invited]
+            e = _at(u.estimate, t)
+            for j in js:
+                f = self.tracks[j]
+                d2, rank = track_distance2(e.x, e.P, *predicted[f.key], f.fuser.cross_covariance(t, e), _COMPARED)
+                cost[i, j] = d2 / gate_threshold(rank, self.association.gate_prob) if rank else 0.0
+        out = []
+        pairs = dict(associate_tracks(cost, keep))
+        for i, u in enumerate(ups):
+            key = (node, u.estimate.track)
+            if i in pairs:
+                f = self.tracks[pairs[i]]
+                if key not in self._mapped:  # a new local track: the node's track on f from now on
+                    if node in f.members:  # it replaces the one before (that the node had lost)
+                        self._drop(node, f.members[node], f, u.estimate)
+                    f.members[node] = u.estimate.track
+                    f.invited.discard(node)
+                    self._mapped[key] = f
+                out.append((f, u))
+            elif key in self._mapped:  # left its gate: the node starts again from the fused track
+                f = self._mapped[key]
+                self._drop(node, u.estimate.track, f, u.estimate)
+                f.joins.add(node)
+            elif key not in self._ignored:  # a local track of no fused track (deleted meanwhile)
+                self._drop(node, u.estimate.track, None, u.estimate)
+        return out
+
+    def _drop(self, node: str, lid: str, f: _Fused | None, e: Estimate) -> None:
+        """Forget the node's local track ``lid`` and tell the node to delete it (the
+        downlink carries ``e``, whose state does not matter)."""
+        self._ignored.add((node, lid))
+        self._mapped.pop((node, lid), None)
+        if f is not None and f.members.get(node) == lid:
+            del f.members[node]
+        self._send(node, Estimate(e.t, e.x, e.P, self.name, "centre", lid), False, drop=True)
+
+    def _associate_requests(self, node: str, plots: list[Measurement], t: float, predicted):
+        """χ²/GNN of one node's request plots with the fused tracks that hold no local
+        track of that node: a plot in such a track's gate makes the node join it (the
+        request initialises, as in the one-target handshake, and is not used again).
+        Returns the plots left for initiation and the tracks joined."""
+        from .association import gate_threshold, gnn, mahalanobis2
+        from .sensors3d import SphericalModel
+
+        free = [f for f in self.tracks if node not in f.invited]  # a member may be lost to the node
+        if not free:
+            return plots, []
+        model = SphericalModel.from_measurement(plots[0], self.motion.n_x)
+        Z = np.array([m.z for m in plots])
+        d2 = np.array([mahalanobis2(model, *predicted[f.key], Z) for f in free])
+        pairs = gnn(d2, gate_threshold(model.n_z, self.association.gate_prob))
+        for r, _ in pairs:
+            free[r].joins.add(node)
+        used = {c for _, c in pairs}
+        return [m for c, m in enumerate(plots) if c not in used], [free[r] for r, _ in pairs]
+
+
+_COMPARED = (0, 1, 2, 3, 4, 5)  # position, velocity: what track-to-track association compares
+
+
+def _hit(u: Uplink) -> bool:
+    """A report that used a measurement (an update, or DDHNV's prediction + measurement)."""
+    return u.measurement is not None or u.estimate.nis is not None
+
+
+def _by_node(ups) -> dict[str, list[Uplink]]:
+    out: dict[str, list[Uplink]] = {}
+    for u in ups:
+        out.setdefault(u.node, []).append(u)
+    return out
+
+
 # The split of a method into nodes and a centre ---------------------------------------
 @dataclass(frozen=True)
 class Split:
@@ -386,11 +782,22 @@ class Split:
 
 
 def _track_split(name: str, mode: str, topology: str) -> Split:
-    return Split(
-        topology,
-        lambda sensor, config: TrackNode(sensor, TrackerConfig.from_dict(config), name, mode),
-        lambda config: TrackCentre(name, TrackerConfig.from_dict(config), mode),
-    )
+    """HNV / PHHNV / DDHNV: one target, or many with ``association`` in the table."""
+    from .mtt import AssociationConfig
+
+    def node(sensor, config):
+        association, rest = AssociationConfig.split(config)
+        if association is None:
+            return TrackNode(sensor, TrackerConfig.from_dict(rest), name, mode)
+        return MultiTrackNode(sensor, TrackerConfig.from_dict(rest), name, mode, association)
+
+    def centre(config):
+        association, rest = AssociationConfig.split(config)
+        if association is None:
+            return TrackCentre(name, TrackerConfig.from_dict(rest), mode)
+        return MultiTrackCentre(name, TrackerConfig.from_dict(rest), mode, association)
+
+    return Split(topology, node, centre)
 
 
 SPLITS: dict[str, Split] = {
@@ -400,6 +807,9 @@ SPLITS: dict[str, Split] = {
     "KF+TR": Split("distributed", lambda s, c: StationNode(s, c, False), lambda c: StationCentre("KF+TR", c)),
     "MKF+TR": Split("distributed", lambda s, c: StationNode(s, c, True), lambda c: StationCentre("MKF+TR", c)),
 }
+
+
+TRACK_SPLITS = ("HNV", "PHHNV", "DDHNV")
 
 
 def split(name: str) -> Split:
@@ -425,6 +835,10 @@ class NetworkMethod:
         self.centre = self._split.centre(self._config)
         self.nodes: dict[str, LocalNode] = {}
         self._out: list[Estimate] = []
+
+    @property
+    def config(self) -> dict:
+        return dict(self._config)
 
     def _node(self, sensor: str) -> LocalNode:
         node = self.nodes.get(sensor)
@@ -455,6 +869,8 @@ class NetworkMethod:
     def _settle(self, t: float) -> list[Estimate]:
         """Every node is complete up to ``t`` (except what it holds, as its watermark
         would say): advance the centre and pump until nothing moves."""
+        for node in self.nodes.values():
+            node.set_watermark(t)
         while True:
             self._out += self.centre.advance(min([t, *(n.upstream_watermark(t) for n in self.nodes.values())]))
             if not self._pump():

@@ -177,7 +177,7 @@ TRACK_FUSION_METHODS = ("HNV", "PHHNV", "DDHNV")
 def track_fusion_rule(table: dict | None, methods: Sequence[str]) -> str | None:
     """The track-fusion rule the named methods run with, for reports: ``None`` if none of
     them fuses tracks, ``"HNV: bar-shalom-campo, PHHNV: info"`` if per-method tables differ."""
-    rules = {m: TrackerConfig.from_dict(method_config(table, m)).fusion_rule
+    rules = {m: method_config(table, m).get("fusion_rule", TrackerConfig.fusion_rule)
              for m in methods if m in TRACK_FUSION_METHODS}
     if len(set(rules.values())) > 1:
         return ", ".join(f"{m}: {r}" for m, r in rules.items())

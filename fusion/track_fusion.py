@@ -331,6 +331,25 @@ class TrackFuser:
         F = self.motion.F(dt)
         return F @ self.x, symmetrise(F @ self.P @ F.T + self.motion.Q(dt))
 
+    def cross_covariance(self, t: float, e: Estimate) -> np.ndarray | None:
+        """``Cov(e_c, e_i)`` of the centre prior at ``t`` (:meth:`predicted`) and the local
+        track ``e`` (at ``t``, with ``KH`` and ``feedback_t``), where it is known: ``P_c Aᵀ``
+        for a track restarted from this fuser's latest estimate (they share the
+        prediction), ``(F P_fi Fᵀ + Q) Aᵀ`` with the ``bar-shalom-campo`` bookkeeping;
+        ``A = I − K H`` of the local update. None otherwise (another rule, unknown node)."""
+        fb = e.extra.get("feedback_t")
+        restarted = fb is not None and abs(float(fb) - self.t) <= 1e-9
+        if "KH" not in e.extra or not (restarted or (self.rule == "bar-shalom-campo" and e.node in self._cross_fused)):
+            return None
+        x_c, P_c = self.predicted(t)
+        if restarted:
+            C = P_c
+        else:
+            dt = float(t) - self.t
+            F = self.motion.F(dt)
+            C = F @ self._cross_fused[e.node] @ F.T + self.motion.Q(dt)
+        return C @ (np.eye(x_c.size) - np.asarray(e.extra["KH"], float)).T
+
     def fuse(self, t: float, tracks: Sequence[Estimate]) -> Estimate:
         """Fuse the local tracks (all at time ``t``) into the centre's estimate at ``t``."""
         if not tracks:

@@ -6,7 +6,8 @@ order: its estimate (kind ``track``, or ``prediction``) and/or its raw measureme
 (a measurement kind, ``sensor`` = the node's sensor). DDHNV's uplink carries both, as
 two messages with the same ``t`` and consecutive ``seq``. A downlink is a ``track``
 message from the fuser whose ``extra`` holds ``init`` (``[1.0]`` or ``[0.0]``) and,
-for DDHNV, ``sensor_x``/``sensor_P``. The fuser's feedback *horizon* is a
+for DDHNV, ``sensor_x``/``sensor_P``; with many targets, ``drop`` (``[1.0]``, absent
+otherwise) asks the node to delete its local track ``track``. The fuser's feedback *horizon* is a
 ``watermark`` message on the same key.
 
 Extras on the wire are arrays, so a local estimate's ``feedback_t`` (a time or None)
@@ -69,6 +70,8 @@ def uplink(node: str, msg: Message, measurement: Message | None = None) -> Uplin
 
 def encode_downlink(d: Downlink, src: str, seq: int) -> bytes:
     extra = {**d.estimate.extra, "init": [1.0 if d.init else 0.0]}
+    if d.drop:
+        extra["drop"] = [1.0]
     return encode_estimate(dataclasses.replace(d.estimate, extra=extra), src, seq, "track")
 
 
@@ -76,7 +79,9 @@ def downlink(node: str, msg: Message) -> Downlink:
     e = to_estimate(msg)
     extra = dict(e.extra)
     init = np.asarray(extra.pop("init", [0.0]), dtype=float).ravel()
-    return Downlink(node, dataclasses.replace(e, extra=extra), bool(init.size and init[0] == 1.0))
+    drop = np.asarray(extra.pop("drop", [0.0]), dtype=float).ravel()
+    return Downlink(node, dataclasses.replace(e, extra=extra), bool(init.size and init[0] == 1.0),
+                    bool(drop.size and drop[0] == 1.0))
 
 
 def horizon_message(src: str, seq: int, t: float) -> bytes:

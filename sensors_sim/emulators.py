@@ -15,6 +15,17 @@ on), in its configured order, it yields one :class:`SensorEvent`:
    jammed) the components are replaced by outliers;
 5. azimuth wrapped to [0, 2π), elevation clipped to [−π/2, π/2].
 
+Clutter (``clutter_rate`` λ > 0 in the sensor's table): after the objects' draws, the
+scan draws ``n ~ Poisson(λ)`` false alarms, each uniform over the coverage *in
+measurement space* (azimuth over the sector, elevation between the limits, range over
+``[0, max_range]``: the classic constant clutter density λ/V), then a random order of
+all the scan's plots. Plots get their ``seq`` in that order, so neither a field nor
+the position in the stream tells a false alarm from a target (the truth is only in
+the :class:`SensorEvent`, which the scorer reads and the wire never carries). Every
+plot of a scan has the scan's time, so the ``(t, sensor, seq)`` order holds. With
+λ = 0 nothing extra is drawn and the stream is that of a clutter-free sensor, bit for
+bit.
+
 The published :class:`fusion.types.Measurement` carries the sensor's *stated* std (the
 trackers must not know about the jamming); the contamination shows only in
 ``SensorEvent.jammed`` / ``.outlier``. ``seq`` counts published measurements from 0.
@@ -24,6 +35,7 @@ being measured.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 from typing import Iterator
@@ -33,6 +45,7 @@ import numpy as np
 from fusion.types import Measurement
 
 from .geometry import finish_measurement, in_coverage, observe
+from .spec import SensorSpec
 from .jammer import jam_effect, switched_on_at
 from .noise import ScanDraws, outlier_from_uniform, process_rng
 from .spec import Scenario
@@ -51,6 +64,7 @@ class SensorEvent:
         detected: a measurement was produced (in coverage and the detection draw won).
         target: the observed object (target or jammer id).
         in_coverage: the object was in the field of view and range (before P_D).
+        clutter: the measurement is a false alarm (``target`` is then ``""``).
     """
 
     t: float
@@ -60,6 +74,7 @@ class SensorEvent:
     detected: bool
     target: str = ""
     in_coverage: bool = True
+    clutter: bool = False
 
 
 def scan_times(scenario: Scenario, sensor_id: str) -> np.ndarray:
@@ -80,6 +95,7 @@ def sensor_events(scenario: Scenario, sensor_id: str, run: int = 0) -> Iterator[
     for t in scan_times(scenario, sensor_id):
         t = float(t)
         site = sensor.site.position(t)
+        scan: list[tuple[SensorEvent, np.ndarray | None]] = []  # (event without measurement, z)
         for obj in sensor.targets:
             draws = ScanDraws(rng, n)
             if obj in truths:
@@ -93,7 +109,7 @@ def sensor_events(scenario: Scenario, sensor_id: str, run: int = 0) -> Iterator[
             covered = emitting and in_coverage(sensor, d)
             detected = covered and draws.detect < sensor.p_detect
             outlier = detected and effect is not None and draws.outlier < effect.p_outlier
-            measurement = None
+            z = None
             if detected:
                 gain = 1.0 if effect is None else math.sqrt(effect.variance_gain)
                 error = sensor.std * gain * draws.gauss
@@ -101,10 +117,37 @@ def sensor_events(scenario: Scenario, sensor_id: str, run: int = 0) -> Iterator[
                     std2 = np.where(is_range, effect.outlier_std_range or 0.0, effect.outlier_std)
                     replaced = ~is_range | (effect.outlier_std_range is not None)
                     error = np.where(replaced, outlier_from_uniform(draws.law, std2, effect.outlier_law), error)
-                measurement = Measurement(
-                    t=t, sensor=sensor_id, kind=kind,
-                    z=finish_measurement(kind, observe(kind, d) + error),
-                    std=sensor.std.copy(), site=site, seq=seq,
-                )
-                seq += 1
-            yield SensorEvent(t, measurement, effect is not None, outlier, detected, obj, covered)
+                z = finish_measurement(kind, observe(kind, d) + error)
+            scan.append((SensorEvent(t, None, effect is not None, outlier, detected, obj, covered), z))
+        if sensor.clutter_rate > 0.0:  # λ = 0 draws nothing: clutter-free streams stay identical
+            false_alarm = SensorEvent(t, None, False, False, True, "", True, clutter=True)
+            scan = _shuffled(rng, scan + [(false_alarm, z) for z in clutter_plots(rng, sensor)])
+        for ev, z in scan:  # seq in publication order
+            if z is None:
+                yield ev
+                continue
+            m = Measurement(t=t, sensor=sensor_id, kind=kind, z=z, std=sensor.std.copy(), site=site, seq=seq)
+            seq += 1
+            yield dataclasses.replace(ev, measurement=m)
+
+
+def clutter_plots(rng: np.random.Generator, sensor: SensorSpec) -> list[np.ndarray]:
+    """One scan's false alarms: ``n ~ Poisson(clutter_rate)`` measurement vectors, each
+    component uniform over the coverage (module docstring)."""
+    count = int(rng.poisson(sensor.clutter_rate))
+    u = rng.random((count, len(sensor.components)))
+    first, width = sensor.fov_az
+    lo, hi = sensor.fov_el
+    span = {"az": (first, width), "el": (lo, hi - lo), "range": (0.0, sensor.max_range)}
+    z = np.empty_like(u)
+    for i, c in enumerate(sensor.components):
+        origin, extent = span[c]
+        z[:, i] = origin + extent * u[:, i]
+    return [finish_measurement(sensor.measurement_kind, row) for row in z]
+
+
+def _shuffled(rng: np.random.Generator, scan: list) -> list:
+    """The scan's ``(event, z)`` plots in a random order (missed objects, which publish
+    nothing, last)."""
+    plots = [p for p in scan if p[1] is not None]
+    return [plots[i] for i in rng.permutation(len(plots))] + [p for p in scan if p[1] is None]

@@ -269,6 +269,10 @@ def _sensor(r: Reader, origin, targets: dict) -> tuple[SensorSpec, str]:
     max_range = r.quantity("max_range", LENGTH, default=math.inf, gt=0)
     band = r.string("band", None)
     signal_power = r.number("signal_power_w", 1.0, gt=0)
+    clutter_rate = r.number("clutter_rate", 0.0, ge=0)
+    if clutter_rate > 0 and "range" in KIND_COMPONENTS[SENSOR_KINDS[kind]] and math.isinf(max_range):
+        # false alarms are spread uniformly over the coverage: its range must be finite
+        raise r.error("clutter needs a finite coverage: give max_range_m or max_range_km", "clutter_rate")
     refs = r.raw("targets", None)
     if refs is not None and (not isinstance(refs, list) or not refs or not all(isinstance(x, str) for x in refs)
                              or len(set(refs)) != len(refs)):
@@ -277,7 +281,7 @@ def _sensor(r: Reader, origin, targets: dict) -> tuple[SensorSpec, str]:
     spec = SensorSpec(
         id=r.path[-1], kind=kind, site=site, period=period, start=start, std=std, p_detect=p_detect,
         fov_az=fov_az, fov_el=fov_el, max_range=max_range, band=band, signal_power=signal_power,
-        targets=tuple(refs) if refs is not None else tuple(targets),
+        targets=tuple(refs) if refs is not None else tuple(targets), clutter_rate=clutter_rate,
     )
     return spec, pos_key
 

@@ -91,6 +91,9 @@ class SensorSpec:
         signal_power: power received from a target 1 km away, in the jammer's units
             (only ratios matter; see :mod:`sensors_sim.jammer`).
         targets: ids of what it observes: targets, and for DF kinds also jammers.
+        clutter_rate: mean number of false alarms per scan (Poisson), spread uniformly
+            over the sensor's coverage in measurement space (see
+            :mod:`sensors_sim.emulators`); 0: none.
     """
 
     id: str
@@ -106,6 +109,7 @@ class SensorSpec:
     band: str | None = None
     signal_power: float = 1.0
     targets: tuple[str, ...] = ()
+    clutter_rate: float = 0.0
 
     @property
     def measurement_kind(self) -> str:

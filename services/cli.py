@@ -14,7 +14,7 @@ from fusion.patent import TRACK_FUSION_METHODS, track_fusion_rule
 from schemas import KeySpace
 from schemas.keys import DEFAULT_DEPLOYMENT
 
-from .node import ZenohOptions, setup_logging
+from .node import ZenohOptions, setup_logging, split_override
 
 
 def _ids(text: str) -> list[str]:
@@ -31,17 +31,42 @@ def _speed(text: str) -> str:
     return text
 
 
-def _fabric(p: argparse.ArgumentParser) -> None:
+def _override(text: str) -> str:
+    try:
+        split_override(text)
+    except ValueError as e:
+        raise argparse.ArgumentTypeError(str(e)) from None
+    return text
+
+
+def _zenoh_file_and_overrides(g) -> None:
+    g.add_argument("--zenoh-config", metavar="FILE",
+                   help="a Zenoh JSON5 config file (TLS, access control, client mode, ...; see deploy/zenoh/)")
+    g.add_argument("--zenoh-set", action="append", type=_override, metavar="KEY=JSON5",
+                   help="set one value of the Zenoh config, applied last, e.g. "
+                        "transport/link/tls/connect_certificate=/etc/zfusion/certs/radar2d.pem "
+                        "(a value that is not JSON5 is taken as a string); repeatable")
+
+
+def _fabric(p: argparse.ArgumentParser, per_process: bool = True) -> None:
     g = p.add_argument_group("Zenoh fabric (default: peer-to-peer on loopback, no router)")
     g.add_argument("--connect", action="append", metavar="ENDPOINT",
-                   help="dial this Zenoh endpoint (router or peer), e.g. tcp/127.0.0.1:7447; repeatable")
-    g.add_argument("--zenoh-config", metavar="FILE", help="a Zenoh JSON5 config file (TLS, access control, ...)")
+                   help="dial this Zenoh endpoint (router or peer), e.g. tcp/127.0.0.1:7447; repeatable "
+                        "(with --zenoh-config: replaces the file's connect endpoints)")
+    if per_process:  # one process, one identity: its mode and its own certificate
+        g.add_argument("--zenoh-mode", choices=("peer", "client"),
+                       help="Zenoh mode (default: the config file's, else peer); a client talks only to its router")
+        _zenoh_file_and_overrides(g)
+    else:
+        g.add_argument("--zenoh-config", metavar="FILE",
+                       help="a Zenoh JSON5 config file for every process (see deploy/zenoh/)")
     g.add_argument("--deployment", default=DEFAULT_DEPLOYMENT, help="key prefix zf/<deployment>/ (default: %(default)s)")
     p.add_argument("-v", "--verbose", action="store_true", help="log at debug level")
 
 
 def _zopts(args) -> ZenohOptions:
-    return ZenohOptions(connect=args.connect or [], config_file=args.zenoh_config)
+    return ZenohOptions(connect=args.connect or [], config_file=args.zenoh_config,
+                        mode=getattr(args, "zenoh_mode", None), overrides=getattr(args, "zenoh_set", None) or [])
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -59,7 +84,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", help="write the summary JSON here")
     p.add_argument("--spawn", action="store_true",
                    help="also stream the recording live to a Rerun viewer (if a display is available)")
-    _fabric(p)
+    p.add_argument("--restart", action=argparse.BooleanOptionalAction, default=True,
+                   help="restart the fuser, local trackers and recorder if they are killed (default: on)")
+    _fabric(p, per_process=False)  # every child shares these
 
     p = sub.add_parser("eval", help="Monte Carlo evaluation in-process, with the services' own estimators")
     p.add_argument("--scenario", required=True)
@@ -82,7 +109,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("router", help="run a Zenoh router (tests and small sites; production: zenohd)")
     p.add_argument("--listen", action="append", default=None, metavar="ENDPOINT",
-                   help="endpoint to listen on (default tcp/127.0.0.1:7447); repeatable")
+                   help="endpoint to listen on (default: the config file's, else tcp/127.0.0.1:7447); repeatable")
+    _zenoh_file_and_overrides(p)
     p.add_argument("-v", "--verbose", action="store_true")
 
     p = sub.add_parser("sensor", help="one source process: a sensor, the truth clock or a jammer")
@@ -155,7 +183,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.command == "router":
         from .router import run as router
 
-        return router(args.listen or ["tcp/127.0.0.1:7447"])
+        return router(args.listen, args.zenoh_config, args.zenoh_set or [])
     keys = KeySpace(args.deployment)
     if args.command == "sensor":
         from .source import run as source

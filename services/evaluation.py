@@ -39,7 +39,7 @@ from fusion.config import method_config
 from fusion.methods import make_method, method_names
 from fusion.types import Estimate, Measurement
 
-from .summary import aggregate, score_run, summary, truth_function
+from .summary import aggregate, score_run, summary, tracks_summary, truth_function
 
 #: methods whose input is bearings (emitter fixes), in the order the reports use
 DF_ORDER = ("EKF", "MEKF1", "MEKF2", "MEKF3", "MEKF4", "MEKF5", "IMM", "TORRIERI", "KF+TR", "MKF+TR")
@@ -146,7 +146,9 @@ def _score_runs(scenario, variants: Sequence[Variant], run_ids: Sequence[int]) -
             if key not in streams:
                 wanted = set(key)
                 streams[key] = [m for m in full if m.sensor in wanted]
-            scores[v.label] = score_run(run_method(scenario, v.method, v.overrides, r, streams[key]), truth, r)
+            estimates = run_method(scenario, v.method, v.overrides, r, streams[key])
+            scores[v.label] = (score_tracks_of(scenario, estimates, r) if many_targets(scenario)
+                               else score_run(estimates, truth, r))
         out[r] = scores
     return out
 
@@ -199,13 +201,17 @@ def evaluate(scenario, variants: Sequence[Variant], runs: int, *, jobs: int = 1,
                 per_run.update(fut.result())
                 if progress:
                     progress(len(per_run), runs)
-    methods = {v.label: aggregate([per_run[r][v.label] for r in range(runs)]) for v in variants}
+    combine = tracks_summary if many_targets(scenario) else aggregate
+    methods = {v.label: combine([per_run[r][v.label] for r in range(runs)]) for v in variants}
     for v in variants:
         if v.label != v.method or v.overrides or v.sensors:
             methods[v.label]["variant"] = {"method": v.method, "overrides": dict(v.overrides),
                                            "sensors": list(v.sensors) if v.sensors else None}
-    bound = crb_summary(scenario, runs) if crb else None
-    return summary(scenario, topology, fusion_rule, scenario.seed, runs, methods, crb=bound)
+    bound = crb_summary(scenario, runs) if crb and not many_targets(scenario) else None
+    doc = summary(scenario, topology, fusion_rule, scenario.seed, runs, methods, crb=bound)
+    if many_targets(scenario):
+        doc["gospa_cutoff"] = GOSPA_CUTOFF
+    return doc
 
 
 def default_jobs() -> int:
@@ -409,3 +415,47 @@ def _crb_emitter(scenario, target: str) -> dict | None:
 def with_sensors(scenario, sensors: dict, name: str | None = None):
     """A copy of ``scenario`` with another sensor table (for baseline variants)."""
     return dataclasses.replace(scenario, sensors=dict(sensors), name=name or scenario.name)
+
+
+# Many targets ------------------------------------------------------------------------
+def track_steps(scenario, estimates: Sequence[Estimate], run: int = 0, node: str = "centre"):
+    """The run as :class:`fusion.mtt_metrics.Step` s: one per scan group of the scenario's
+    sensors (as the methods group them, ``pair_tol`` of ``[tracker]``), with every
+    target's true position and every track's estimate of that group."""
+    from fusion.mtt_metrics import Step
+    from sensors_sim import truth_trajectory
+
+    tol = scenario.tracker.get("pair_tol", 1e-3)
+    tol = float(tol) if isinstance(tol, (int, float)) else 1e-3
+    starts = [g[0] for g in _scan_groups(scenario, list(scenario.sensors), tol)]
+    trajs = {tid: truth_trajectory(scenario, tid, run) for tid in scenario.targets}
+    tracks: list[dict[str, np.ndarray]] = [{} for _ in starts]
+    for e in estimates:
+        if e.node != node:
+            continue
+        k = int(np.searchsorted(starts, e.t + 1e-12, side="right")) - 1
+        if k >= 0 and e.t - starts[k] <= tol:  # estimates of that scan group
+            tracks[k][e.track] = np.asarray(e.x[:3], dtype=float)
+    return [Step(t, {tid: tr.position(t) for tid, tr in trajs.items()}, tk) for t, tk in zip(starts, tracks)]
+
+
+GOSPA_CUTOFF = 1000.0  # m: GOSPA's c, order p = 2, for every many-target score
+
+
+def many_targets(scenario) -> bool:
+    """Scored as an air picture (set metrics) rather than per target."""
+    return len(scenario.targets) > 1
+
+
+def score_tracks_of(scenario, estimates: Sequence[Estimate], run: int = 0, c: float = GOSPA_CUTOFF,
+                    p: float = 2.0):
+    """A run's fused tracks scored by :func:`fusion.mtt_metrics.score_tracks`."""
+    from fusion.mtt_metrics import score_tracks
+
+    return score_tracks(track_steps(scenario, estimates, run), c, p)
+
+
+def score_tracks_run(scenario, method_name: str, run: int = 0, c: float = GOSPA_CUTOFF, p: float = 2.0,
+                     overrides: dict | None = None):
+    """One run of a many-target method, scored (:func:`score_tracks_of`)."""
+    return score_tracks_of(scenario, run_method(scenario, method_name, overrides, run), run, c, p)

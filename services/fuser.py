@@ -8,6 +8,26 @@ time-ordered uplinks, sending priors down on ``feedback/<node>``. Either way it
 validates and orders its input (:class:`~services.ordering.WatermarkMerger`) and
 publishes its estimates on ``fused``.
 
+**Restart** (after kill -9; the launcher restarts it). A fuser keeps no state on disk:
+a restarted one joins mid-stream and starts at the first scan its sources release (it
+waits for no t = 0 data; a source not heard within ``--start-grace`` is declared dead).
+
+* Centralised: the method initialises from the measurements of that first scan, as at
+  t = 0.
+* Distributed, feedback, two-stage: the centre starts uninitialised and the network
+  re-runs the start-up handshake: each local tracker sees the fuser's liveliness token
+  come back, drops its track and sends its next measurement up as an initialisation
+  request (:mod:`services.tracker`). The alternative — restarting the centre from the
+  trackers' latest tracks — would leave the ``info`` and ``bar-shalom-campo`` rules
+  without the common prior and cross-covariances they need (the centre sent them and
+  forgot them); the handshake rebuilds them exactly, with the code that runs at t = 0,
+  at the cost of one initialisation transient. Until a node has been answered, its
+  reports (sent before it noticed the restart) are dropped and counted as ``not-joined``.
+
+The fuser says in its status events where it joined. It finishes when every source is
+final or dead *and at least one is final*: sources that are all dead at once (a
+network outage, a router restart) are not the end of the scenario.
+
 :class:`FuserCore` is the whole behaviour without Zenoh: bytes in, estimates out. The
 process around it only moves bytes, so tests (and the fuzzer) can drive the core and
 the real process with the same inputs.
@@ -18,11 +38,11 @@ from __future__ import annotations
 import math
 import queue
 import time
-from typing import Any
+from typing import Any, Mapping
 
 from fusion.config import method_config
 from fusion.methods import make_method
-from fusion.network import SPLITS, split
+from fusion.network import SPLITS, TrackCentre, split
 from fusion.types import Estimate
 from schemas import MEASUREMENT_KINDS, KeySpace, Message, SchemaError, decode, encode_estimate, to_measurement, tracker_id
 from schemas.links import encode_downlink, horizon_message, uplink
@@ -31,16 +51,34 @@ from .node import Node, RejectLog, load
 
 
 class MeasurementIntake:
-    """Raw measurements on ``meas/<sensor>`` (centralised fuser, local tracker)."""
+    """Raw measurements on ``meas/<sensor>`` (centralised fuser, local tracker).
+
+    With the scenario's ``sensors`` given, a measurement must also be of its sensor's
+    kind and state its sensor's nominal noise std (sensors never state another: jamming
+    is not announced in the data): a well-formed message that claims a 1e-300 std, or
+    an angle sensor's message on a radar's key, is a configuration error or a forgery,
+    and is refused rather than fused (cause ``kind-mismatch`` / ``std-mismatch``).
+    """
 
     family = "meas"
+
+    def __init__(self, sensors: Mapping[str, Any] | None = None):
+        self.expected = {sid: (s.measurement_kind, tuple(float(v) for v in s.std))
+                         for sid, s in (sensors or {}).items()}
 
     def item(self, key_id: str, msg: Message) -> tuple[str, Any] | tuple[None, str]:
         if msg.kind not in MEASUREMENT_KINDS:
             return None, "kind"
         if msg.body["sensor"] != key_id:
             return None, f"spoofed-src:measurement of sensor {msg.body['sensor']!r} sent by {key_id!r}"
-        return "item", to_measurement(msg)
+        m = to_measurement(msg)
+        if key_id in self.expected:
+            kind, std = self.expected[key_id]
+            if m.kind != kind:
+                return None, f"kind-mismatch:{key_id} is a {kind} sensor, the message is {m.kind}"
+            if tuple(float(v) for v in m.std) != std:
+                return None, f"std-mismatch:{key_id} has std {list(std)}, the message says {list(m.std)}"
+        return "item", m
 
 
 class UplinkIntake:
@@ -75,6 +113,26 @@ class UplinkIntake:
         return None, "kind"
 
 
+class JoinGate:
+    """A track centre (HNV, PHHNV, DDHNV) behind a gate: a report from a node the centre
+    has not given an initial state is dropped (the node of a restarted fuser, before it
+    has re-run the handshake; module docstring). Everything else passes through."""
+
+    def __init__(self, centre: TrackCentre, reject: RejectLog):
+        self.centre = centre
+        self.reject = reject
+
+    def process(self, u) -> list[Estimate]:
+        if u.init_request or u.node in self.centre.nodes:
+            return self.centre.process(u)
+        self.reject(tracker_id(u.node), "not-joined", f"report at t = {u.t:g} s from {u.node}, which has "
+                    f"no initial state from this fuser yet")
+        return []
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.centre, name)
+
+
 class FuserCore:
     """Validate, order and estimate.
 
@@ -85,18 +143,20 @@ class FuserCore:
         reject: where rejections are counted.
         timeout, start_grace, horizon: see :class:`~services.ordering.WatermarkMerger`.
         intake: what the input is (:class:`MeasurementIntake` by default).
+        max_held: the merger's per-source cap (:func:`max_held_for` a scenario).
     """
 
     def __init__(self, method: Any, sources: list[str], keys: KeySpace, reject: RejectLog,
                  timeout: float, start_grace: float = 30.0, horizon: float = math.inf, now: float = 0.0,
-                 intake: Any = None):
-        from .ordering import WatermarkMerger
+                 intake: Any = None, max_held: int | None = None):
+        from .ordering import DEFAULT_MAX_HELD, WatermarkMerger
 
         self.method = method
         self.keys = keys
         self.reject = reject
         self.intake = intake or MeasurementIntake()
-        self.merger = WatermarkMerger(sources, timeout, start_grace, horizon, now)
+        self.merger = WatermarkMerger(sources, timeout, start_grace, horizon, now,
+                                      max_held=max_held or DEFAULT_MAX_HELD)
         self.events: list[str] = []
         self.received = 0
         self.processed = 0
@@ -138,14 +198,17 @@ class FuserCore:
         if self.finished:
             return []
         self.merger.check_timeouts(now, self.events)
+        before = self.merger.released_until
         items, wm = self.merger.release()
+        if before == -math.inf and items:  # t > 0 for a fuser restarted mid-stream
+            self.events.append(f"input starts at t = {items[0].t:g} s")
         out: list[Estimate] = []
         for m in items:
             out.extend(self.method.process(m))
             self.processed += 1
         if math.isfinite(wm):
             out.extend(self.method.advance(wm))
-        if self.merger.done:
+        if self.merger.done and any(st.final for st in self.merger.sources.values()):
             out.extend(self.method.finish())
             self.finished = True
         return out
@@ -153,6 +216,16 @@ class FuserCore:
     def sources_report(self) -> dict:
         return {s: {"dead_intervals": st.dead_intervals, "rejected": self.reject.rejected_by_source().get(s, 0)}
                 for s, st in self.merger.sources.items()}
+
+
+def max_held_for(scenario) -> int:
+    """The merger's per-source cap for a scenario: 10× what its busiest sensor sends over
+    the whole run (targets plus mean clutter per scan), since at ``--speed max`` a source
+    may legitimately run that far ahead of a late one (:func:`services.ordering.hold_cap`)."""
+    from .ordering import hold_cap
+
+    rate = max((len(s.targets) + s.clutter_rate) / s.period for s in scenario.sensors.values())
+    return hold_cap(rate, scenario.duration + 1.0)
 
 
 def run(process_id: str, scenario_ref: str, method_name: str, overrides: dict, keys: KeySpace, zopts,
@@ -166,12 +239,15 @@ def run(process_id: str, scenario_ref: str, method_name: str, overrides: dict, k
         sources = list(nodes)
     else:
         method = make_method(method_name, config)
-        intake = MeasurementIntake()
+        intake = MeasurementIntake(scenario.sensors)
         sources = list(scenario.sensors)
     inbox: queue.SimpleQueue[tuple[str, bytes]] = queue.SimpleQueue()
     with Node(process_id, "fuser", keys, zopts) as node:
+        if isinstance(method, TrackCentre):
+            method = JoinGate(method, node.reject)
         core = FuserCore(method, sources, keys, node.reject, timeout, start_grace,
-                         horizon=scenario.duration + 1.0, now=time.monotonic(), intake=intake)
+                         horizon=scenario.duration + 1.0, now=time.monotonic(), intake=intake,
+                         max_held=max_held_for(scenario))
         node.subscribe(keys.all(intake.family), lambda s: inbox.put((str(s.key_expr), s.payload.to_bytes())))
         pub = node.publisher(keys.fused())
         down = {tid: node.publisher(keys.feedback(tid)) for tid in (intake.nodes if method_name in SPLITS else ())}

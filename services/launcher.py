@@ -7,6 +7,27 @@ every source (sensors, truth, jammers) with a common start time, collects the fu
 estimates, and when the fuser is done stops everything, scores the estimates against
 truth and writes the summary.
 
+It is also their supervisor. A child killed from outside (kill -9, the OOM killer: an
+exit by a signal the launcher did not send) is an *outage*, not the end of the run:
+
+* with ``--restart`` (the default) the fuser, the local trackers and the recorder are
+  started again, with the same command line, :data:`RESTART_DELAY` seconds later (at
+  most :data:`MAX_RESTARTS` times each). A restarted fuser gets ``--start-grace`` equal
+  to the source timeout (its sources are already running) and re-initialises from what
+  it receives (see :mod:`services.fuser`); a restarted recorder writes the rest of the
+  run to a new file beside the first, ``<stem>.<n>.rrd`` (``n`` = 2, 3, ...: a killed
+  recorder's file is whole up to its last flush and is never overwritten).
+* sources are never restarted: they stand for the sensors themselves, whose outages the
+  fuser rides through (it declares them dead and takes them back when they speak again).
+* with ``--no-restart``, or once the restarts are used up, a killed fuser may still be
+  restarted by hand (same command line): the run then ends when a fuser reports done,
+  or :data:`END_GRACE` seconds after the last source has finished.
+
+A child that fails on its own (positive exit code) is a bug, not an outage: it is not
+restarted and ``run`` exits 1. The run ends when the fuser finishes. The summary's
+``outages`` lists, per process, every death the launcher saw (scenario time down and
+back up, the exit code) and ``exit_codes`` the first non-zero code of any incarnation.
+
 Children are started with ``PR_SET_PDEATHSIG`` so that even a launcher killed with
 SIGKILL leaves none behind; on SIGINT/SIGTERM the launcher stops them in order (SIGTERM,
 then SIGKILL after a grace period) and exits.
@@ -28,12 +49,13 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from fusion.patent import track_fusion_rule
+from fusion.patent import TRACK_FUSION_METHODS, track_fusion_rule
 from fusion.types import Estimate
 from schemas import KeySpace, SchemaError, decode, to_estimate, tracker_id
 
 from .node import Node, ZenohOptions, load
-from .summary import format_table, method_summary, summary, truth_function
+from .evaluation import GOSPA_CUTOFF, many_targets, score_tracks_of
+from .summary import format_table, method_summary, summary, tracks_summary, truth_function
 
 log = logging.getLogger("zfusion")
 
@@ -41,6 +63,9 @@ FUSER_ID = "fuser"
 RECORDER_ID = "recorder"
 LAUNCHER_ID = "launcher"
 TOPOLOGIES = ("centralised", "distributed", "feedback", "two-stage")
+RESTART_DELAY = 0.5  # s: lets the fabric see the dead process's token go before the new one appears
+MAX_RESTARTS = 3  # per process: a process killed again and again is not coming back
+END_GRACE = 10.0  # s after the last source ends, when no fuser is left to say it is done
 
 
 def free_port() -> int:
@@ -59,10 +84,12 @@ def die_with_parent() -> None:  # runs in the child between fork and exec
 @dataclass
 class Children:
     procs: dict[str, subprocess.Popen] = field(default_factory=dict)
+    argv: dict[str, list[str]] = field(default_factory=dict)  # each child's command line, to restart it
 
     def start(self, name: str, argv: list[str]) -> None:
         cmd = [sys.executable, "-m", "services.cli", *argv]
         log.debug("starting %s: %s", name, " ".join(cmd))
+        self.argv[name] = argv
         self.procs[name] = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, preexec_fn=die_with_parent)
 
     def wait(self, name: str, timeout: float) -> int | None:
@@ -82,6 +109,92 @@ class Children:
             except subprocess.TimeoutExpired:
                 p.kill()
                 p.wait()
+
+
+class Supervisor:
+    """Watches the children of a run: records every death, restarts what the policy
+    allows (module docstring), and says when a restarted process is back.
+
+    Args:
+        children: the run's children.
+        restartable: process ids that may be restarted.
+        restart: the ``--restart`` policy.
+        clock: scenario time now (``None`` before the sources have started).
+        event: where to say what happened (the launcher's status events).
+        fuser_grace: ``--start-grace`` for a restarted fuser.
+    """
+
+    def __init__(self, children: Children, restartable: set[str], restart: bool, clock, event,
+                 fuser_grace: float):
+        self.children = children
+        self.restartable = restartable
+        self.restart = restart
+        self.clock = clock
+        self.event = event
+        self.fuser_grace = fuser_grace
+        self.codes: dict[str, list[int]] = {}  # exit codes of every incarnation, in order
+        self.outages: dict[str, list[dict]] = {}
+        self.recordings: list[str] = []
+        self.restarts: dict[str, int] = {}
+        self._due: dict[str, float] = {}  # monotonic time of each pending restart
+        self._restarted: dict[str, float] = {}  # monotonic time of each process's latest restart
+        self._handled: set[int] = set()  # pids whose exit has been dealt with
+
+    def poll(self) -> None:
+        """Deal with the children that have exited and the restarts that are due."""
+        for name, proc in list(self.children.procs.items()):
+            if proc.pid in self._handled or proc.poll() is None:
+                continue
+            self._handled.add(proc.pid)
+            code = proc.returncode
+            self.codes.setdefault(name, []).append(code)
+            if code >= 0:
+                continue
+            self.outages.setdefault(name, []).append({"t_down": self.clock(), "t_up": None, "exit_code": code})
+            if self.restart and name in self.restartable and self.restarts.get(name, 0) < MAX_RESTARTS:
+                self._due[name] = time.monotonic() + RESTART_DELAY
+                self.event(f"{name} killed (signal {-code}): restarting it")
+            else:
+                self.event(f"{name} killed (signal {-code})")
+        now = time.monotonic()
+        for name, due in list(self._due.items()):
+            if now >= due:
+                del self._due[name]
+                self.restarts[name] = self.restarts.get(name, 0) + 1
+                self.children.start(name, self._argv(name, self.restarts[name] + 1))
+                self._restarted[name] = time.monotonic()
+
+    def pending(self, name: str) -> bool:
+        return name in self._due
+
+    def _argv(self, name: str, incarnation: int) -> list[str]:
+        argv = list(self.children.argv[name])
+        if name == FUSER_ID:  # its sources are running: one not heard within the timeout is dead
+            argv += ["--start-grace", str(self.fuser_grace)]
+        if "--rrd" in argv:  # never overwrite what the killed recorder wrote
+            i = argv.index("--rrd") + 1
+            if not self.recordings:
+                self.recordings.append(argv[i])
+            argv[i] = str(Path(self.recordings[0]).with_suffix(f".{incarnation}.rrd"))
+            self.recordings.append(argv[i])
+        return argv
+
+    def heard(self, name: str, state: str) -> None:
+        """A status from ``name``: the first one of a new incarnation ends its outage. One
+        from a process restarted by someone else says "starting" or "ready"; any status
+        after our restart is new (the dead one's last was delivered long before)."""
+        out = self.outages.get(name)
+        if out and out[-1]["t_up"] is None and (state in ("starting", "ready") or name in self._restarted):
+            out[-1]["t_up"] = self.clock()
+            self.event(f"{name} is back")
+
+    def finish(self) -> dict[str, int]:
+        """After the children are stopped: each process's first non-zero exit code, else 0."""
+        for name, proc in self.children.procs.items():
+            if proc.pid not in self._handled and proc.returncode is not None:
+                self._handled.add(proc.pid)
+                self.codes.setdefault(name, []).append(proc.returncode)
+        return {n: next((c for c in cs if c != 0), cs[-1]) for n, cs in self.codes.items()}
 
 
 def topology_of(method: str) -> str:
@@ -125,6 +238,9 @@ def run(args) -> int:
     from fusion.config import method_config
     from fusion.methods import make_method
 
+    if args.fusion_rule and method not in TRACK_FUSION_METHODS:
+        raise SystemExit(f"zfusion run: --fusion-rule applies to the track-fusion methods "
+                         f"({', '.join(TRACK_FUSION_METHODS)}), not to {method}")
     overrides = {"fusion_rule": args.fusion_rule} if args.fusion_rule else {}
     make_method(method, method_config(scenario.tracker, method, overrides))  # fail here, with a clear error, not in a child
     speed = math.inf if args.speed == "max" else float(args.speed)
@@ -150,9 +266,25 @@ def run(args) -> int:
     inbox: queue.SimpleQueue[tuple[str, bytes]] = queue.SimpleQueue()
     estimates: list[Estimate] = []
     statuses: dict[str, dict] = {}
+    heard_at: dict[str, float] = {}  # monotonic time of each process's latest status
     children = Children()
     interrupted = False
+    started: list[float] = []  # wall-clock epoch of scenario time 0, once the sources start
+
+    def clock() -> float | None:
+        """Scenario time now: by the wall clock when paced, else the latest fused time."""
+        if not started:
+            return None
+        if math.isinf(speed):
+            return estimates[-1].t if estimates else 0.0
+        return round((time.time() - started[0]) * speed, 3)
+
     with Node(LAUNCHER_ID, "launcher", keys, mine) as node:
+        def event(text: str) -> None:
+            node.event(f"t = {clock()} s: {text}")
+            node.publish_status("running", clock() or 0.0)
+
+        sup = Supervisor(children, set(), getattr(args, "restart", True), clock, event, fuser_grace=timeout)
         node.subscribe(keys.fused(), lambda s: inbox.put((str(s.key_expr), s.payload.to_bytes())))
         node.subscribe(keys.all("status"), lambda s: inbox.put((str(s.key_expr), s.payload.to_bytes())))
         node.announce()
@@ -171,6 +303,8 @@ def run(args) -> int:
                         estimates.append(to_estimate(msg))
                     elif msg.kind == "status":
                         statuses[msg.src] = msg.body
+                        heard_at[msg.src] = time.monotonic()
+                        sup.heard(msg.src, msg.body["state"])
             except queue.Empty:
                 pass
 
@@ -188,7 +322,9 @@ def run(args) -> int:
                                      "--fuser", FUSER_ID, "--feedback-timeout", str(timeout), *seed, *(
                                          ["--fusion-rule", args.fusion_rule] if args.fusion_rule else []), *common])
             node.wait_for(trackers.values(), timeout=60.0)
+            sup.restartable = {FUSER_ID, RECORDER_ID, *trackers.values()}
             start_at = time.time() + (0.0 if math.isinf(speed) else 0.5)
+            started.append(start_at)
             for sid in sources:
                 # A source waits only for its consumers: the fuser may finish (and vanish)
                 # before a truth or jammer process discovers it, so they must not wait for it.
@@ -197,27 +333,49 @@ def run(args) -> int:
                 children.start(sid, ["sensor", "--scenario", args.scenario, "--id", sid, "--speed", str(args.speed),
                                      "--start-at", repr(start_at), *seed,
                                      "--wait-for", ",".join([*consumers, LAUNCHER_ID]), *common])
+            last_source_end: float | None = None
             while not node.stop.is_set():
                 drain(0.1)
-                code = children.procs[FUSER_ID].poll()
-                if code is not None:
+                sup.poll()
+                code = children.procs[FUSER_ID].returncode
+                if code is not None and code >= 0:  # the fuser finished (or failed)
                     break
+                if code is not None and not sup.pending(FUSER_ID):
+                    # Killed and not restarted by us: a fuser restarted by hand may finish
+                    # the run; if none does, it ends a grace period after the sources.
+                    if statuses.get(FUSER_ID, {}).get("state") == "done":
+                        break
+                    if last_source_end is None and all(children.procs[s].poll() is not None for s in sources):
+                        last_source_end = time.monotonic()
+                    if last_source_end is not None and time.monotonic() - last_source_end > END_GRACE:
+                        break
             interrupted = node.stop.is_set()
             if not interrupted:
                 for sid in [*sources, *trackers.values()]:
                     children.wait(sid, 10.0)
-                children.wait(RECORDER_ID, 30.0)
+                if sup.restarts.get(RECORDER_ID):
+                    # It may have missed the "done" of processes that ended before it came
+                    # up: once it reports an empty backlog it has everything; stop it.
+                    since, deadline = time.monotonic(), time.monotonic() + 30.0
+                    while children.procs[RECORDER_ID].poll() is None and time.monotonic() < deadline:
+                        drain(0.1)
+                        if heard_at.get(RECORDER_ID, 0.0) > since + 0.2 and \
+                                statuses[RECORDER_ID].get("counters", {}).get("backlog") == 0:
+                            break
+                else:
+                    children.wait(RECORDER_ID, 30.0)
                 drain(0.2)
         except TimeoutError as e:
             log.error("%s", e)
             interrupted = True
         finally:
+            sup.restart = False
             children.stop_all()
-    codes = {n: p.returncode for n, p in children.procs.items()}
+    codes = sup.finish()
     if interrupted:
         print("zfusion run: interrupted; all processes stopped", file=sys.stderr)
         return 130
-    if codes.get(FUSER_ID) != 0:
+    if codes.get(FUSER_ID, 0) > 0:
         print(f"zfusion run: the fuser failed (exit {codes.get(FUSER_ID)})", file=sys.stderr)
         return 1
     fuser_status = statuses.get(FUSER_ID, {})
@@ -225,10 +383,16 @@ def run(args) -> int:
     for sid in sources:  # processes the fuser does not consume (truth, jammers) are reported too
         src_report.setdefault(sid, {"dead_intervals": [], "rejected": 0})
     truth = truth_function(scenario)
+    scored = (tracks_summary([score_tracks_of(scenario, estimates)]) if many_targets(scenario)
+              else method_summary([estimates], truth))
     doc = summary(scenario, topology, args.fusion_rule or track_fusion_rule(scenario.tracker, [method]), scenario.seed, 1,
-                  {method: method_summary([estimates], truth)}, sources=src_report)
+                  {method: scored}, sources=src_report)
+    if many_targets(scenario):
+        doc["gospa_cutoff"] = GOSPA_CUTOFF
     doc["recording"] = rrd
+    doc["recordings"] = sup.recordings or [rrd]
     doc["exit_codes"] = codes
+    doc["outages"] = sup.outages
     print(format_table(doc))
     print(f"recording: {rrd}")
     if args.json:

@@ -33,38 +33,77 @@ class ZenohOptions:
 
     Default: a Zenoh *peer* on loopback with multicast scouting off, so that test runs
     on one machine never see each other. ``connect`` lists endpoints to dial (the
-    launcher's hub, a router, another peer); ``config_file`` replaces all of it with a
-    Zenoh JSON5 configuration (TLS, access control, client mode, ...).
+    launcher's hub, a router, another peer); ``config_file`` starts from a Zenoh JSON5
+    configuration instead (TLS, access control, client mode, ...; see ``deploy/zenoh/``),
+    in which ``connect`` and ``mode``, when given, replace the file's values.
+    ``overrides`` (``KEY=JSON5``, e.g. a process's own TLS certificate) are applied last,
+    so that one file serves every process of a site.
     """
 
     connect: list[str] = field(default_factory=list)
     listen: list[str] = field(default_factory=lambda: [LOOPBACK_LISTEN])
     config_file: str | None = None
-    mode: str = "peer"
+    mode: str | None = None  # None: the config file's, else "peer"
+    overrides: list[str] = field(default_factory=list)
 
     def to_config(self) -> zenoh.Config:
         if self.config_file:
-            return zenoh.Config.from_file(self.config_file)
-        c = zenoh.Config()
-        c.insert_json5("mode", json.dumps(self.mode))
-        c.insert_json5("listen/endpoints", json.dumps(self.listen))
-        c.insert_json5("connect/endpoints", json.dumps(self.connect))
-        c.insert_json5("scouting/multicast/enabled", "false")
+            c = zenoh.Config.from_file(self.config_file)
+            if self.mode:
+                c.insert_json5("mode", json.dumps(self.mode))
+            if self.connect:
+                c.insert_json5("connect/endpoints", json.dumps(self.connect))
+        else:
+            mode = self.mode or "peer"
+            c = zenoh.Config()
+            c.insert_json5("mode", json.dumps(mode))
+            # A client only dials out: everything it says goes through its router.
+            c.insert_json5("listen/endpoints", json.dumps(self.listen if mode != "client" else []))
+            c.insert_json5("connect/endpoints", json.dumps(self.connect))
+            c.insert_json5("scouting/multicast/enabled", "false")
+        for item in self.overrides:
+            key, value = split_override(item)
+            try:
+                c.insert_json5(key, value)
+            except zenoh.ZError:  # not JSON5: a bare word, e.g. a file path, is meant as a string
+                try:
+                    c.insert_json5(key, json.dumps(value))
+                except zenoh.ZError as e:
+                    raise ValueError(f"Zenoh config: cannot set {key} to {value}: {e}") from None
         return c
 
     def to_args(self) -> list[str]:
         """Command-line form, for the launcher to hand down to its children."""
-        if self.config_file:
-            return ["--zenoh-config", self.config_file]
-        return [a for e in self.connect for a in ("--connect", e)]
+        args = ["--zenoh-config", self.config_file] if self.config_file else []
+        args += [a for e in self.connect for a in ("--connect", e)]
+        args += ["--zenoh-mode", self.mode] if self.mode else []
+        return args + [a for o in self.overrides for a in ("--zenoh-set", o)]
+
+
+def split_override(item: str) -> tuple[str, str]:
+    """``KEY=VALUE`` of a ``--zenoh-set`` option, e.g.
+    ``transport/link/tls/connect_certificate=/etc/zfusion/certs/radar2d.pem``."""
+    key, sep, value = item.partition("=")
+    if not sep or not key.strip("/ ") or not value:
+        raise ValueError(f"expected KEY=VALUE (a Zenoh config path and a JSON5 value), not {item!r}")
+    return key.strip(), value
 
 
 class RejectLog:
     """Counts rejected messages by (source, cause); logs the first of each pair, then
-    at most one summary line per ``interval`` seconds, so garbage cannot flood logs."""
+    at most one summary line per ``interval`` seconds, so garbage cannot flood logs.
 
-    def __init__(self, process: str, interval: float = 10.0, clock: Callable[[], float] = time.monotonic):
+    Source names come off the wire (a key's last segment), so an attacker can invent any
+    number of them: beyond ``max_sources`` distinct names, further ones are counted
+    together under :attr:`OTHER`, and memory stays bounded."""
+
+    OTHER = "(other sources)"
+
+    def __init__(self, process: str, interval: float = 10.0, clock: Callable[[], float] = time.monotonic,
+                 max_sources: int = 256):
         self.process = process
+        self.max_sources = max_sources
+        self._sources: set[str] = set()
         self.by_cause: Counter[str] = Counter()
         self.by_pair: Counter[tuple[str, str]] = Counter()
         self._interval = interval
@@ -73,6 +112,11 @@ class RejectLog:
         self._since_summary = 0
 
     def __call__(self, src: str, cause: str, detail: str) -> None:
+        if src not in self._sources:
+            if len(self._sources) >= self.max_sources:
+                src = self.OTHER
+            else:
+                self._sources.add(src)
         self.by_cause[cause] += 1
         self.by_pair[(src, cause)] += 1
         if self.by_pair[(src, cause)] == 1:

@@ -7,10 +7,49 @@ in ``(t, sensor, seq)`` order — the same total order the in-process evaluation
 distributed run feeds the estimator the same sequence at any speed.
 
 A source silent for longer than its timeout is declared dead and no longer waited for;
-it rejoins when it speaks again. Late data (older than what was already released) is
-dropped and counted, as are duplicates (a sequence number already seen), data from
-unknown sources and data far in the future. Rejected input leaves the released
-sequence exactly as if it had never arrived.
+it rejoins when it speaks again.
+
+Bad input is dropped and counted by cause, and leaves the released sequence exactly as
+if it had never arrived:
+
+``unknown-source``
+    a source that is not part of the scenario.
+``future`` / ``past``
+    a measurement stamped after the scenario's end (``horizon``) or before its start
+    (``earliest``); a watermark after the end (it would make the source's real data
+    look stale).
+``out-of-order``
+    a measurement at or before its source's own watermark, or a watermark that goes
+    back. A replay of anything the source has already closed lands here.
+``duplicate``
+    a measurement whose ``seq`` is already held: a replay or a network duplicate of
+    data not yet released.
+``late``
+    fresh data from a source that was skipped as dead, for a time already released.
+
+Duplicates are recognised by ``seq`` among the measurements still held, not by a
+high-water mark of ``seq``: a forged message with a huge ``seq`` must not make every later
+message of the real source look like a duplicate. Anything already released is rejected
+by time instead (its source's watermark has passed it), so the bookkeeping is exactly
+the held data and needs no memory of its own.
+
+Load: ``shed``. Each source may have at most ``max_held`` measurements held awaiting the
+merged watermark. Beyond that the held measurement with the *latest* time of validity
+(possibly the one arriving) is dropped and counted as ``shed``:
+
+- the oldest held data is what the estimator needs next; the latest is the data that
+  would sit longest before the slowest live source lets it out, so shedding it costs
+  the least and never opens a gap at the release front;
+- what is released stays a time-ordered subset of the input: the estimator sees that
+  source miss detections, never data out of order;
+- a measurement its source has already closed with a watermark is never shed in favour
+  of a later arrival (a later arrival is always after that watermark), and a flood of
+  far-ahead data on a source's key cannot lock out its real, earlier data.
+
+There is no separate total cap: only configured sources are ever held, so the total is
+bounded by ``max_held`` times their number, and a total cap would let one flooding source
+crowd out the well-behaved ones. :func:`hold_cap` derives ``max_held`` from a scenario's
+nominal rate.
 
 Pure logic: the caller passes wall-clock ``now`` in; nothing here sleeps or reads a clock.
 """
@@ -19,19 +58,38 @@ from __future__ import annotations
 
 import heapq
 import math
+from bisect import bisect_right, insort
 from dataclasses import dataclass, field
 from typing import Any
+
+# Held measurements per source when the caller gives no cap: 10× the largest built-in
+# scenario's whole output per source (61 measurements), so no run at any speed sheds.
+DEFAULT_MAX_HELD = 1024
+
+
+def hold_cap(rate_hz: float, window_s: float, factor: float = 10.0) -> int:
+    """``factor`` times the measurements a source sends at its nominal ``rate_hz``
+    (measurements per second of scenario time) in ``window_s`` seconds of scenario time.
+
+    The window is how far a source may legitimately run ahead of the slowest live one:
+    ``speed × timeout`` for a paced run, the whole scenario at ``--speed max``.
+    """
+    if not (rate_hz > 0 and window_s > 0 and factor >= 1):
+        raise ValueError(f"hold_cap needs rate_hz > 0, window_s > 0, factor >= 1 "
+                         f"(got {rate_hz}, {window_s}, {factor})")
+    return math.ceil(factor * rate_hz * window_s)
 
 
 @dataclass
 class SourceState:
     watermark: float = -math.inf
-    last_seq: int = -1
     final: bool = False
     dead: bool = False
     last_heard: float | None = None  # wall clock
     dead_since_t: float | None = None  # scenario time when declared dead
     dead_intervals: list[list[float | None]] = field(default_factory=list)
+    held: list[tuple[float, int, Any]] = field(default_factory=list)  # (t, seq, item), sorted
+    held_seqs: set[int] = field(default_factory=set)
 
 
 @dataclass(frozen=True)
@@ -48,22 +106,32 @@ class WatermarkMerger:
         sources: the expected source ids (anything else is rejected as unknown).
         timeout: seconds of wall-clock silence after which a source is declared dead.
         start_grace: extra seconds a source that has never been heard gets at start-up.
-        horizon: measurements with ``t`` beyond this scenario time are rejected as
-            "future" (a scenario's duration plus slack; ``inf`` disables).
+        horizon: measurements (and watermarks) with ``t`` beyond this scenario time are
+            rejected as "future" (a scenario's duration plus slack; ``inf`` disables).
+        now: wall clock at start.
+        earliest: measurements stamped before this scenario time are rejected as "past"
+            (scenario time starts at 0).
+        max_held: measurements held per source before the latest is shed (see the
+            module docstring and :func:`hold_cap`).
     """
 
     def __init__(self, sources: list[str], timeout: float, start_grace: float = 30.0,
-                 horizon: float = math.inf, now: float = 0.0):
+                 horizon: float = math.inf, now: float = 0.0, earliest: float = 0.0,
+                 max_held: int = DEFAULT_MAX_HELD):
         if not sources:
             raise ValueError("WatermarkMerger needs at least one source")
+        if max_held < 1:
+            raise ValueError(f"max_held must be at least 1, got {max_held}")
         self.sources = {s: SourceState() for s in sources}
         self.timeout = timeout
         self.horizon = horizon
+        self.earliest = earliest
+        self.max_held = max_held
         self._start = now
         self._start_grace = start_grace
-        self._heap: list[tuple[float, str, int, Any]] = []
         self.released_until = -math.inf  # the merged watermark already passed downstream
         self.late = 0
+        self.shed = 0
 
     # -- input ------------------------------------------------------------------------------
 
@@ -81,30 +149,46 @@ class WatermarkMerger:
             events.append(f"source {src} rejoined")
 
     def add(self, src: str, t: float, seq: int, item: Any, now: float, events: list[str]) -> Rejection | None:
-        """Offer one measurement; returns a :class:`Rejection` if it is dropped."""
+        """Offer one measurement; returns a :class:`Rejection` if it, or a held
+        measurement it displaced, is dropped."""
         st = self._source(src)
         if isinstance(st, Rejection):
             return st
-        if seq <= st.last_seq:
-            return Rejection(src, "duplicate", f"seq {seq} already seen (last {st.last_seq})")
         if t > self.horizon:
             return Rejection(src, "future", f"t = {t:g} s is beyond the scenario's end ({self.horizon:g} s)")
+        if t < self.earliest:
+            return Rejection(src, "past", f"t = {t:g} s is before the scenario's start ({self.earliest:g} s)")
         if t <= st.watermark:
             return Rejection(src, "out-of-order", f"t = {t:g} s is not after its own watermark {st.watermark:g} s")
+        if seq in st.held_seqs:
+            return Rejection(src, "duplicate", f"seq {seq} is already held")
+        self._heard(src, st, now, events)
         if t <= self.released_until:
             self.late += 1
-            st.last_seq = seq
-            self._heard(src, st, now, events)
             return Rejection(src, "late", f"t = {t:g} s arrived after the merged stream passed {self.released_until:g} s")
-        st.last_seq = seq
-        self._heard(src, st, now, events)
-        heapq.heappush(self._heap, (t, src, seq, item))
-        return None
+        if len(st.held) < self.max_held:
+            self._hold(st, t, seq, item)
+            return None
+        self.shed += 1
+        latest = st.held[-1]
+        if (t, seq) > latest[:2]:
+            return Rejection(src, "shed", f"holds {self.max_held} measurements; t = {t:g} s is the latest, dropped")
+        st.held.pop()
+        st.held_seqs.discard(latest[1])
+        self._hold(st, t, seq, item)
+        return Rejection(src, "shed", f"holds {self.max_held} measurements; the latest (t = {latest[0]:g} s) dropped")
+
+    @staticmethod
+    def _hold(st: SourceState, t: float, seq: int, item: Any) -> None:
+        insort(st.held, (t, seq, item))  # (t, seq) is unique per source, so items are never compared
+        st.held_seqs.add(seq)
 
     def watermark(self, src: str, t: float, final: bool, now: float, events: list[str]) -> Rejection | None:
         st = self._source(src)
         if isinstance(st, Rejection):
             return st
+        if t > self.horizon:
+            return Rejection(src, "future", f"watermark {t:g} s is beyond the scenario's end ({self.horizon:g} s)")
         if t < st.watermark:
             return Rejection(src, "out-of-order", f"watermark {t:g} s goes back from {st.watermark:g} s")
         st.watermark = t
@@ -142,7 +226,7 @@ class WatermarkMerger:
     @property
     def done(self) -> bool:
         """Every source finished or dead, and nothing held."""
-        return all(st.final or st.dead for st in self.sources.values()) and not self._heap
+        return all((st.final or st.dead) and not st.held for st in self.sources.values())
 
     @property
     def all_final(self) -> bool:
@@ -154,14 +238,19 @@ class WatermarkMerger:
         Returns the items and the watermark to hand to the estimator's ``advance``.
         """
         wm = self.merged_watermark
-        out = []
-        while self._heap and self._heap[0][0] <= wm:
-            out.append(heapq.heappop(self._heap)[3])
-        if wm == math.inf and not self._heap:
+        ready = []
+        for src, st in self.sources.items():
+            n = bisect_right(st.held, wm, key=lambda h: h[0])
+            if n:
+                ready.append([(t, src, seq, item) for t, seq, item in st.held[:n]])
+                st.held_seqs.difference_update(seq for _, seq, _ in st.held[:n])
+                del st.held[:n]
+        out = [r[3] for r in heapq.merge(*ready, key=lambda r: r[:3])]
+        if wm == math.inf and not self.held():
             wm = max([self.released_until] + [st.watermark for st in self.sources.values()])
         if wm > self.released_until:
             self.released_until = wm
         return out, self.released_until
 
     def held(self) -> int:
-        return len(self._heap)
+        return sum(len(st.held) for st in self.sources.values())

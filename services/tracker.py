@@ -9,6 +9,12 @@ If the fuser does not answer (no initial state, no feedback) for ``--feedback-ti
 seconds, the node runs on alone — updating from its own last estimate, or starting
 from its own measurement — and says so in its status events; when downlinks come
 back it takes them again.
+
+A *restarted* fuser (its liveliness token goes and comes back) knows nothing of this
+node: the node drops its track and re-runs the initialisation handshake, sending its
+next measurement up as a request (:mod:`services.fuser`, "Restart"). A restarted
+tracker is a new node to the fuser: it asks to join and starts from the latest fused
+state.
 """
 
 from __future__ import annotations
@@ -17,8 +23,9 @@ import math
 import queue
 import time
 
+import zenoh
 from fusion.config import method_config
-from fusion.network import split
+from fusion.network import TrackNode, split
 from schemas import KeySpace, SchemaError, decode, encode, tracker_id
 from schemas.links import downlink, encode_uplink
 
@@ -54,17 +61,21 @@ def run(sensor: str, scenario_ref: str, method_name: str, overrides: dict, keys:
         raise SystemExit(f"zfusion tracker: {sensor!r} is not a sensor of scenario {scenario.name} "
                          f"(sensors: {', '.join(scenario.sensors)})")
     me = tracker_id(sensor)
-    local = split(method_name).node(sensor, method_config(scenario.tracker, method_name, overrides))
+    config = method_config(scenario.tracker, method_name, overrides)
+    local = split(method_name).node(sensor, config)
     feed = _Feed(local)
     inbox: queue.SimpleQueue[tuple[str, bytes]] = queue.SimpleQueue()
+    fuser_token: queue.SimpleQueue[bool] = queue.SimpleQueue()  # True: the fuser's token appeared
     with Node(me, "tracker", keys, zopts) as node:
         # Its one sensor is never declared dead here: the tracker waits for it to come back
         # (the fuser, meanwhile, declares this tracker dead and carries on without it).
         core = FuserCore(feed, [sensor], keys, node.reject, math.inf, start_grace,
-                         horizon=scenario.duration + 1.0, now=time.monotonic(), intake=MeasurementIntake())
+                         horizon=scenario.duration + 1.0, now=time.monotonic(), intake=MeasurementIntake(scenario.sensors))
         node.subscribe(keys.meas(sensor), lambda s: inbox.put((str(s.key_expr), s.payload.to_bytes())))
         node.subscribe(keys.feedback(me), lambda s: inbox.put((str(s.key_expr), s.payload.to_bytes())))
         pub = node.publisher(keys.local(me))
+        watch = node.session.liveliness().declare_subscriber(
+            keys.alive(fuser_id), lambda s: fuser_token.put(s.kind == zenoh.SampleKind.PUT))
         try:  # be reachable from the fuser before a sensor (waiting for this token) starts
             node.wait_for([fuser_id], 60.0)
         except TimeoutError as e:
@@ -100,7 +111,27 @@ def run(sensor: str, scenario_ref: str, method_name: str, overrides: dict, keys:
                 alone = False
                 node.event("downlink from the fuser restored")
 
+        fuser_gone = False
+
+        def restart_handshake() -> None:
+            """A new node with this one's unprocessed measurements: it asks to join again."""
+            nonlocal local, alone, waiting_since, sent_wm
+            fresh = split(method_name).node(sensor, config)
+            for m in local.pending:
+                fresh.offer(m)
+            local = feed.node = fresh
+            alone, waiting_since = False, None
+            sent_wm = -math.inf  # the new fuser has heard no watermark from us yet
+            node.event(f"{fuser_id} restarted: track dropped, asking it for an initial state again")
+
         while not node.stop.is_set():
+            while not fuser_token.empty():
+                if not fuser_token.get():
+                    fuser_gone = True
+                elif fuser_gone:
+                    fuser_gone = False
+                    if isinstance(local, TrackNode):  # a DF station needs no initial state
+                        restart_handshake()
             try:
                 key, data = inbox.get(timeout=0.05)
                 while True:
@@ -142,4 +173,5 @@ def run(sensor: str, scenario_ref: str, method_name: str, overrides: dict, keys:
                 node.publish_status("running", max(sent_wm, 0.0))
                 last_status = now
         node.publish_status("done" if feed.finished else "stopped", max(sent_wm, 0.0))
+        watch.undeclare()
     return 0

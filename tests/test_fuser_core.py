@@ -3,6 +3,8 @@ scenario's stream, is counted by cause and changes nothing in the fused output."
 
 from __future__ import annotations
 
+import dataclasses
+
 import msgpack
 import numpy as np
 
@@ -11,7 +13,7 @@ from fusion.methods import make_method
 from schemas import KeySpace, encode, encode_measurement
 from sensors_sim import load_scenario, sensor_events
 from services.evaluation import run_method
-from services.fuser import FuserCore
+from services.fuser import FuserCore, MeasurementIntake
 from services.node import RejectLog
 
 from test_schemas import CASES, good
@@ -48,10 +50,23 @@ def _garbage(sid: str) -> list[bytes]:
     return bad + [b"\xc1", b"", msgpack.packb("str"), valid_but_wrong_kind]
 
 
-def _run(scenario, noisy: bool):
+def _forged(scenario) -> list[bytes]:
+    """Well-formed measurements on meas/radar2d that contradict the scenario: the angle
+    sensor's kind, or a radar plot claiming an absurdly small noise std."""
+    radar = [ev.measurement for ev in sensor_events(scenario, "radar2d") if ev.measurement is not None]
+    angle = [ev.measurement for ev in sensor_events(scenario, "angle") if ev.measurement is not None]
+    out = []
+    for i, (r, a) in enumerate(zip(radar, angle)):
+        out.append(encode_measurement(dataclasses.replace(a, sensor="radar2d", seq=10_000 + i), "radar2d"))
+        out.append(encode_measurement(dataclasses.replace(r, std=r.std * 1e-300, seq=20_000 + i), "radar2d"))
+    return out
+
+
+def _run(scenario, noisy: bool, garbage: list[bytes] | None = None, intake=None):
     reject = RejectLog("test")
-    core = FuserCore(make_method("SS", method_config(scenario.tracker, "SS")), list(scenario.sensors), KEYS, reject, timeout=1e9)
-    garbage = _garbage("radar2d")
+    core = FuserCore(make_method("SS", method_config(scenario.tracker, "SS")), list(scenario.sensors), KEYS, reject,
+                     timeout=1e9, intake=intake)
+    garbage = _garbage("radar2d") if garbage is None else garbage
     out = []
     for i, (key, data) in enumerate(_wire_stream(scenario)):
         if noisy and i % 3 == 0:
@@ -77,6 +92,20 @@ def test_bad_input_of_every_kind_changes_nothing():
             "unknown-field", "missing", "duplicate", "spoofed-src"} <= set(r1.by_cause), dict(r1.by_cause)
 
 
+def test_measurements_contradicting_the_scenario_are_refused():
+    sc = load_scenario("patent-3d")
+    clean, _ = _run(sc, noisy=False, intake=MeasurementIntake(sc.sensors))
+    forged, reject = _run(sc, noisy=True, garbage=_forged(sc), intake=MeasurementIntake(sc.sensors))
+    assert reject.by_cause["kind-mismatch"] > 0 and reject.by_cause["std-mismatch"] > 0, dict(reject.by_cause)
+    assert len(clean) == len(forged)
+    for a, b in zip(clean, forged):
+        assert a.t == b.t and np.array_equal(a.x, b.x) and np.array_equal(a.P, b.P)
+    # without the scenario's sensors the same messages get in and change the track
+    fused, unchecked = _run(sc, noisy=True, garbage=_forged(sc))
+    assert "kind-mismatch" not in unchecked.by_cause and "std-mismatch" not in unchecked.by_cause
+    assert any(not np.allclose(a.x, b.x) for a, b in zip(clean, fused))
+
+
 def test_core_equals_in_process_evaluation():
     sc = load_scenario("patent-3d")
     core_out, _ = _run(sc, noisy=False)
@@ -84,3 +113,12 @@ def test_core_equals_in_process_evaluation():
     assert len(core_out) == len(ref)
     for a, b in zip(core_out, ref):
         assert a.t == b.t and np.array_equal(a.x, b.x) and np.array_equal(a.P, b.P)
+
+
+def test_reject_log_memory_is_bounded_by_invented_source_names():
+    reject = RejectLog("test", max_sources=3)
+    for i in range(1000):  # every garbage message on a key of its own
+        reject(f"mallory-{i}", "unknown-source", "nobody")
+    reject("mallory-1", "msgpack", "bad bytes")  # a known name keeps its own entry
+    assert reject.total == 1001 and len(reject.by_pair) == 5
+    assert reject.rejected_by_source() == {"mallory-0": 1, "mallory-1": 2, "mallory-2": 1, RejectLog.OTHER: 997}

@@ -143,3 +143,43 @@ def test_merged_watermark_is_infinite_when_all_final():
     m = WatermarkMerger(["a"], timeout=1)
     m.watermark("a", 3.0, True, 0.0, ev)
     assert math.isinf(m.merged_watermark) and m.release() == ([], 3.0) and m.done
+
+
+def test_a_forged_huge_seq_does_not_silence_the_real_source():
+    """Duplicates are judged among held seqs, not against a high-water mark: a forged
+    message with the largest seq (accepted if it is otherwise plausible, or rejected for
+    its time) must not make the real source's later messages look like duplicates."""
+    ev: list[str] = []
+    m = WatermarkMerger(["a"], timeout=10, horizon=20.0)
+    released = []
+    for t in range(10):
+        assert m.add("a", float(t), t, ("a", t), 0.0, ev) is None
+        if t == 3:
+            assert m.add("a", 1e9, 2**63 - 1, "far", 0.0, ev).cause == "future"
+            assert m.add("a", 3.5, 2**63 - 1, "forged", 0.0, ev) is None  # plausible: only authentication stops it
+        m.watermark("a", float(t), t == 9, 0.0, ev)
+        released.extend(m.release()[0])
+    assert [r for r in released if r != "forged"] == [("a", t) for t in range(10)]
+
+
+def test_a_late_message_does_not_advance_seq_bookkeeping():
+    ev: list[str] = []
+    m = WatermarkMerger(["a", "b"], timeout=1.0, start_grace=0.0)
+    m.watermark("a", 5.0, False, 0.0, ev)
+    m.watermark("b", 0.0, False, 0.0, ev)
+    m.check_timeouts(2.0, ev)  # b is skipped; the stream moves on to a's watermark
+    assert m.release() == ([], 5.0)
+    assert m.add("b", 1.0, 10**9, "b-late", 2.0, ev).cause == "late"
+    assert m.add("b", 6.0, 3, "b6", 2.0, ev) is None
+
+
+def test_watermarks_beyond_the_end_and_measurements_before_the_start_are_rejected():
+    """A watermark far ahead would make the source's real data look stale; a measurement
+    before scenario time 0 would be fused before anything real."""
+    ev: list[str] = []
+    m = WatermarkMerger(["a"], timeout=10, horizon=11.0)
+    assert m.add("a", -1e300, 0, "past", 0.0, ev).cause == "past"
+    assert m.watermark("a", 1e300, False, 0.0, ev).cause == "future"
+    assert m.add("a", 1.0, 1, "a1", 0.0, ev) is None
+    m.watermark("a", 10.0, True, 0.0, ev)
+    assert m.release() == (["a1"], 10.0)

@@ -7,7 +7,6 @@ from __future__ import annotations
 import json
 import signal
 import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -20,30 +19,15 @@ from services.launcher import resolve_topology
 from services.summary import method_summary, truth_function
 from sensors_sim import load_scenario
 
+from _runs import child, in_process, run_cmd, same_series
+
 pytestmark = pytest.mark.slow
 
 
-def _cmd(tmp_path: Path, scenario: str, deployment: str, *extra: str) -> list[str]:
-    return [sys.executable, "-m", "services.cli", "run", "--scenario", scenario, "--deployment", deployment,
-            "--rrd", str(tmp_path / "out.rrd"), "--json", str(tmp_path / "out.json"), *extra]
-
-
 def _run(tmp_path: Path, scenario: str, deployment: str, *extra: str, timeout: float = 120) -> dict:
-    p = subprocess.run(_cmd(tmp_path, scenario, deployment, *extra), capture_output=True, text=True, timeout=timeout)
+    p = subprocess.run(run_cmd(tmp_path, scenario, deployment, *extra), capture_output=True, text=True, timeout=timeout)
     assert p.returncode == 0, p.stderr[-3000:]
     return json.loads((tmp_path / "out.json").read_text())
-
-
-def _in_process(scenario: str, method: str) -> dict:
-    sc = load_scenario(scenario)
-    return method_summary([run_method(sc, method)], truth_function(sc))
-
-
-def _same(got: dict, ref: dict) -> None:
-    assert got["n_updates"] == ref["n_updates"] > 0
-    assert got["series"]["t"] == ref["series"]["t"]
-    for key in ("rmse_pos", "anees"):
-        np.testing.assert_allclose(got["series"][key], ref["series"][key], rtol=0, atol=1e-9)
 
 
 @pytest.mark.parametrize("speed", ["max", "5"])
@@ -51,7 +35,7 @@ def _same(got: dict, ref: dict) -> None:
 def test_topology_equals_in_process(tmp_path, deployment, topology, method, speed):
     doc = _run(tmp_path, "patent-3d", deployment, "--topology", topology, "--speed", speed)
     assert doc["topology"] == topology and set(doc["methods"]) == {method}
-    _same(doc["methods"][method], _in_process("patent-3d", method))
+    same_series(doc["methods"][method], in_process("patent-3d", method))
     assert all(code == 0 for code in doc["exit_codes"].values()), doc["exit_codes"]
     assert {f"trk-{s}" for s in ("radar2d", "angle")} <= set(doc["exit_codes"])  # one tracker process per sensor
 
@@ -63,8 +47,8 @@ def test_rule_choice_reaches_the_processes(tmp_path, deployment):
                "--speed", "max")
     sc = load_scenario("patent-3d")
     ref = method_summary([run_method(sc, "PHHNV", {"fusion_rule": "naive"})], truth_function(sc))
-    _same(doc["methods"]["PHHNV"], ref)
-    assert ref["anees"] > 2 * _in_process("patent-3d", "PHHNV")["anees"]
+    same_series(doc["methods"]["PHHNV"], ref)
+    assert ref["anees"] > 2 * in_process("patent-3d", "PHHNV")["anees"]
 
 
 DF_CASES = [(sc, m) for sc in ("thesis-fixed-c3", "jammed-df")
@@ -75,7 +59,7 @@ DF_CASES = [(sc, m) for sc in ("thesis-fixed-c3", "jammed-df")
 def test_df_scenarios_distributed_equal_in_process(tmp_path, deployment, scenario, method):
     doc = _run(tmp_path, scenario, deployment, "--method", method, "--speed", "max")
     assert doc["topology"] == ("distributed" if method.endswith("+TR") else "centralised")
-    _same(doc["methods"][method], _in_process(scenario, method))
+    same_series(doc["methods"][method], in_process(scenario, method))
 
 
 def test_topology_and_method_must_agree():
@@ -91,29 +75,15 @@ def test_topology_and_method_must_agree():
         resolve_topology(df, "feedback", None)
 
 
-def _child(launcher: psutil.Process, sensor_id: str, timeout: float = 30) -> psutil.Process:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        for c in launcher.children(recursive=True):
-            try:
-                cmd = c.cmdline()
-            except psutil.Error:
-                continue
-            if "sensor" in cmd and "--id" in cmd and cmd[cmd.index("--id") + 1] == sensor_id:
-                return c
-        time.sleep(0.1)
-    raise AssertionError(f"no {sensor_id} process")
-
-
 def test_sensor_killed_and_restarted(tmp_path, deployment):
     """kill -9 of the angle sensor half-way: the fuser declares it dead, carries on with
     the radar alone, takes it back when it is restarted, and the summary says when."""
     speed = 3.0
-    proc = subprocess.Popen(_cmd(tmp_path, "patent-3d-60", deployment, "--speed", str(speed)),
+    proc = subprocess.Popen(run_cmd(tmp_path, "patent-3d-60", deployment, "--speed", str(speed)),
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         launcher = psutil.Process(proc.pid)
-        angle = _child(launcher, "angle")
+        angle = child(launcher, "sensor", "angle")
         cmdline = angle.cmdline()
         start_at = float(cmdline[cmdline.index("--start-at") + 1])
         time.sleep(max(0.0, start_at + 15.0 / speed - time.time()))  # scenario t = 15 s
@@ -138,7 +108,7 @@ def test_sensor_killed_and_restarted(tmp_path, deployment):
     assert set(np.arange(0.0, 61.0)) <= set(t)  # an estimate at every radar scan, through the outage
     # Accuracy: during the outage the radar alone loses the elevation; within 5 scans of
     # the rejoin the error is back to that of the undisturbed run.
-    ref = _in_process("patent-3d-60", "SS")["series"]
+    ref = in_process("patent-3d-60", "SS")["series"]
     err, ref_err = dict(zip(got["t"], got["rmse_pos"])), dict(zip(ref["t"], ref["rmse_pos"]))
     after = [s for s in ref_err if s >= gap[1] + 5]
     assert len(after) >= 10

@@ -1,0 +1,224 @@
+r"""Measurement-to-track association and track management for many targets.
+
+Pure functions and small classes; :mod:`fusion.mtt` puts them around the patent's
+per-track filters.
+
+Gating
+------
+A track predicted to ``(x, P)`` and a measurement ``z`` of a sensor with model ``h``
+(:class:`fusion.sensors3d.SphericalModel`) give the innovation ``ν = z − h(x)``
+(angles wrapped to (−π, π]) with covariance ``S = H P Hᵀ + R``, ``H = ∂h/∂x(x)``. If the
+track is right, ``d² = νᵀ S⁻¹ ν`` is χ² with ``n_z`` degrees of freedom, so the gate
+``d² ≤ G``, ``G = χ²⁻¹(P_G; n_z)``, keeps the true measurement with probability ``P_G``.
+``H`` and ``S`` depend on the track and the sensor only, never on ``z``, so
+:func:`mahalanobis2` evaluates every plot of one sensor's scan against a track at once.
+
+Global nearest neighbour
+------------------------
+Given the ``d²`` of every (track, plot) pair of one sensor's scan, :func:`gnn` picks
+the assignment (each track at most one plot, each plot at most one track) of least
+total cost, where a track left without a plot costs the gate ``G``: a pair is worth
+making only if its ``d² < G``, and pairs outside the gate are forbidden. This is
+``scipy.optimize.linear_sum_assignment`` on the matrix ``[D | diag(G)]`` (one "miss"
+column per track).
+
+Track-to-track association
+--------------------------
+Two estimates ``(x₁, P₁)`` and ``(x₂, P₂)`` of one target at one time differ by
+``Δ = x₁ − x₂`` with covariance ``T = P₁ + P₂ − P₁₂ − P₁₂ᵀ`` (``P₁₂ = Cov(e₁, e₂)``;
+zero when unknown, which overstates ``T`` for positively correlated tracks and so
+only widens the gate). :func:`track_distance2` returns ``d² = Δᵀ T⁺ Δ`` on chosen
+components together with the rank of ``T`` there, which is its χ² number of degrees
+of freedom: ``T`` is singular when the two share a prior (a track updated from the
+other's prediction differs from it by ``K ν`` only, ``T = K S Kᵀ``, and ``d²`` is then
+the update's NIS). :func:`associate_tracks` pairs the tracks of one node with the
+fused tracks: pairs already made (the node's local id mapped to a fused track) are
+kept while they stay inside their gate, so the fused ids do not change with every
+scan; the rest is global nearest neighbour on the costs ``d² / G`` (a gate of one).
+
+Track management
+----------------
+:class:`TrackLogic` holds one track's life: born *tentative* on a plot no track
+claimed; *confirmed* once it has ``M`` hits (birth included) within its first ``N``
+frames; deleted while tentative as soon as ``M`` can no longer be reached, and once
+confirmed after ``K`` consecutive missed frames. :class:`TrackIds` issues the
+published ids ``T1, T2, …`` in order of confirmation, never reused, so an id names one
+track for the whole run (tentative tracks are internal and have no id on the wire).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from functools import lru_cache
+
+import numpy as np
+from scipy.linalg import cho_factor, cho_solve
+from scipy.optimize import linear_sum_assignment
+from scipy.stats import chi2
+
+from .angles import wrap_pi
+
+TENTATIVE, CONFIRMED, DELETED = "tentative", "confirmed", "deleted"
+
+
+# Gating --------------------------------------------------------------------------------
+@lru_cache(maxsize=64)
+def gate_threshold(dof: int, prob: float) -> float:
+    """``G = χ²⁻¹(prob; dof)``: a true plot falls inside ``d² ≤ G`` with probability ``prob``."""
+    if not 0.0 < prob < 1.0:
+        raise ValueError(f"gate probability must lie in (0, 1), got {prob}")
+    if dof < 1:
+        raise ValueError(f"gate needs dof >= 1, got {dof}")
+    return float(chi2.ppf(prob, dof))
+
+
+def mahalanobis2(model, x: np.ndarray, P: np.ndarray, Z: np.ndarray) -> np.ndarray:
+    """``d²`` of each row of ``Z (n, n_z)`` (plots of one sensor) against the track ``(x, P)``.
+
+    ``model`` is the sensor's :class:`~fusion.sensors3d.SphericalModel`. Returns ``(n,)``;
+    ``inf`` for every plot when the geometry is undefined (track over the site).
+    """
+    Z = np.atleast_2d(np.asarray(Z, dtype=float))
+    try:
+        z_pred = model.h(x)
+        H = model.jacobian(x)
+    except ValueError:
+        return np.full(len(Z), np.inf)
+    nu = Z - z_pred
+    nu[:, model.angles] = wrap_pi(nu[:, model.angles])
+    S = H @ P @ H.T + model.R
+    c = cho_factor(0.5 * (S + S.T), lower=True, check_finite=False)
+    return np.einsum("ij,ji->i", nu, cho_solve(c, nu.T, check_finite=False))
+
+
+# Global nearest neighbour ---------------------------------------------------------------
+def gnn(d2: np.ndarray, gate: float) -> list[tuple[int, int]]:
+    """Least-cost assignment of tracks (rows) to plots (columns); see the module docstring.
+
+    Returns the assigned ``(row, column)`` pairs in row order; a row not listed is a
+    missed track, a column not listed a plot no track takes.
+    """
+    d2 = np.atleast_2d(np.asarray(d2, dtype=float))
+    n, m = d2.shape
+    if n == 0 or m == 0:
+        return []
+    allowed = d2 <= gate
+    if not allowed.any():
+        return []
+    # Forbidden pairs cost more than every track missing (n·G): never chosen over a miss.
+    big = gate * (n + 1) + 1.0
+    cost = np.full((n, m + n), big)
+    cost[:, :m] = np.where(allowed, d2, big)
+    cost[np.arange(n), m + np.arange(n)] = gate
+    rows, cols = linear_sum_assignment(cost)
+    return [(int(r), int(c)) for r, c in zip(rows, cols) if c < m and allowed[r, c]]
+
+
+# Track-to-track association ---------------------------------------------------------------
+_PINV_RTOL = 1e-10  # eigenvalues of an equilibrated PSD matrix below this count as zero
+
+
+def track_distance2(x1, P1, x2, P2, P12=None, dims=None) -> tuple[float, int]:
+    """``(d², rank)`` of the difference of two estimates of one state (module docstring).
+
+    ``dims`` selects the compared components (default: all); ``P12 = Cov(e₁, e₂)`` or None.
+    ``rank`` is 0 (and ``d² = 0``) when ``T`` vanishes: identical tracks."""
+    idx = np.arange(len(x1)) if dims is None else np.asarray(dims)
+    d = (np.asarray(x1, float) - np.asarray(x2, float))[idx]
+    T = np.asarray(P1, float) + np.asarray(P2, float)
+    if P12 is not None:
+        C = np.asarray(P12, float)
+        T = T - C - C.T
+    T = T[np.ix_(idx, idx)]
+    # Pseudo-inverse of the equilibrated T (components of ~10⁴ m next to ~1 m/s).
+    s = np.sqrt(np.clip(np.diag(T), 0.0, None))
+    s = np.where(s > 1e-300, s, 1.0)
+    w, V = np.linalg.eigh(0.5 * (T + T.T) / s[:, None] / s[None, :])
+    keep = w > _PINV_RTOL * max(float(w.max(initial=0.0)), 1e-300)
+    y = V[:, keep].T @ (d / s)
+    return float(np.sum(y * y / w[keep])), int(keep.sum())
+
+
+def associate_tracks(cost: np.ndarray, keep: dict[int, int] | None = None) -> list[tuple[int, int]]:
+    """Rows (one node's tracks) to columns (fused tracks) on normalised costs ``d²/G``
+    (``inf``: not allowed). ``keep`` maps rows to the column they were paired with
+    before; such a pair is kept if its cost is ``≤ 1``, the others go through
+    :func:`gnn` with a gate of one. Returns ``(row, column)`` pairs in row order."""
+    cost = np.atleast_2d(np.asarray(cost, dtype=float))
+    n, m = cost.shape
+    pairs = [(r, c) for r, c in sorted((keep or {}).items()) if cost[r, c] <= 1.0]
+    rows = [r for r in range(n) if r not in {p[0] for p in pairs}]
+    cols = [c for c in range(m) if c not in {p[1] for p in pairs}]
+    if rows and cols:
+        sub = cost[np.ix_(rows, cols)]
+        pairs += [(rows[r], cols[c]) for r, c in gnn(np.where(np.isfinite(sub), sub, np.inf), 1.0)]
+    return sorted(pairs)
+
+
+# Track management -----------------------------------------------------------------------
+@dataclass(frozen=True)
+class ManagementRule:
+    """M-of-N confirmation and K-miss deletion (module docstring)."""
+
+    confirm_m: int = 3
+    confirm_n: int = 4
+    delete_misses: int = 3
+
+    def __post_init__(self):
+        if not 1 <= self.confirm_m <= self.confirm_n:
+            raise ValueError(f"need 1 <= confirm_m <= confirm_n, got M={self.confirm_m}, N={self.confirm_n}")
+        if self.delete_misses < 1:
+            raise ValueError(f"delete_misses must be >= 1, got {self.delete_misses}")
+
+
+@dataclass
+class TrackLogic:
+    """One track's status; :meth:`record` is called once per frame after its birth.
+
+    Attributes:
+        status: ``tentative``, ``confirmed`` or ``deleted``.
+        hits: hits over the frames seen so far (birth counts as one).
+        frames: frames seen so far, birth included.
+        misses: consecutive missed frames (reset by a hit).
+    """
+
+    rule: ManagementRule
+    status: str = TENTATIVE
+    hits: int = 1
+    frames: int = 1
+    misses: int = 0
+
+    def __post_init__(self):
+        self._settle()
+
+    def record(self, hit: bool) -> str:
+        """One more frame; returns the new status."""
+        if self.status == DELETED:
+            raise ValueError("a deleted track records no more frames")
+        self.frames += 1
+        self.hits += int(hit)
+        self.misses = 0 if hit else self.misses + 1
+        self._settle()
+        return self.status
+
+    def _settle(self) -> None:
+        r = self.rule
+        if self.status == TENTATIVE:
+            if self.hits >= r.confirm_m:
+                self.status = CONFIRMED
+            elif self.hits + (r.confirm_n - self.frames) < r.confirm_m:
+                self.status = DELETED  # M cannot be reached within N frames any more
+        elif self.status == CONFIRMED and self.misses >= r.delete_misses:
+            self.status = DELETED
+
+
+@dataclass
+class TrackIds:
+    """Issues ``T1, T2, …`` (``prefix`` + counter), one per confirmed track, never reused."""
+
+    prefix: str = "T"
+    issued: int = field(default=0)
+
+    def next(self) -> str:
+        self.issued += 1
+        return f"{self.prefix}{self.issued}"

@@ -1,0 +1,405 @@
+r"""Many targets with the patent's centralised methods: association and track management
+around the per-track filters.
+
+:class:`MultiTargetMethod` wraps a centralised method of :mod:`fusion.patent` (``SS``,
+``LCDD``, ``HNDD``, ``RADAR2D``, ``ANGLE``, ``RADAR3D``): every track is one instance of
+that method, which keeps doing what it does for one target — initialise from its first
+scan (:func:`fusion.init3d.initial_state`), predict, and update with its scan's pieces
+(SS stacking, LCDD selection, ...). The wrapper decides which plots form each track's
+scan. It is switched on by ``association = "gnn"`` in the scenario's ``[tracker]``
+table, so the method keeps its patent name. For HNV, PHHNV and DDHNV the same key
+switches the network's nodes and centre to many targets (:mod:`fusion.network`, "Many
+targets"); :class:`MultiTargetMethod` then only hands them the stream.
+
+Frames
+------
+Measurements arrive in ``(t, sensor, seq)`` order; a *frame* is the group whose times
+lie within ``pair_tol`` of its first one, with any number of plots per sensor. It
+closes when a later measurement arrives, when a watermark ``advance(t)`` passes
+``t_first + pair_tol``, or at ``finish()`` — all functions of the measurement sequence,
+so the output never depends on when ``advance`` is called. (Unlike a one-target scan,
+a frame cannot close when "every sensor has reported": a sensor may report any number
+of plots, so a frame is emitted one frame late in a live run.)
+
+One frame, at the time ``t`` of its first plot:
+
+1. **Predict** every track to ``t``.
+2. **Associate** sensor by sensor, every sensor against the *same* predictions (the
+   plots of one scan are simultaneous; this is also what SS's stacked update assumes):
+   χ² gate on the Mahalanobis distance and global nearest neighbour
+   (:mod:`fusion.association`), first for the confirmed tracks, then for the tentative
+   ones over the plots left, so a young track with a broad gate cannot take a plot from
+   an established one.
+3. **Update** each track with its plots (in stream order) through its method; a track
+   without plots coasts on its prediction.
+4. **Initiate** tentative tracks from the plots no track took (below).
+5. **Manage**: M-of-N confirmation, deletion after K missed frames or when the position
+   standard deviation exceeds ``max_pos_std`` (:class:`fusion.association.TrackLogic`).
+   A confirmed track scores a hit in a frame where it took a plot; a tentative one
+   needs plots of two sensors (when the frame holds two): one angle or radar plot
+   fixes only a line or a circle, which false alarms and neighbouring targets satisfy.
+6. **Report** one estimate per confirmed track (``track`` = its id, ``node="centre"``),
+   in id order. Tentative tracks are not reported.
+
+Initiation from sensors that see part of the position
+-----------------------------------------------------
+A 2D radar has no elevation and an angle sensor no range; one plot of either fixes a
+line or a circle, not a point. As the patent's SS method does with the first scan of
+one target, a new track is started from *a pair across sensors*: an angle plot's ray
+(az, el) meets a 2D radar plot's range sphere (:func:`fusion.init3d.spherical_to_position`;
+the pair is impossible if they do not meet), and the radar's own azimuth — which the
+point did not use — must agree with it: ``d²`` of the radar azimuth against the paired
+initial state within the χ²(1) gate. Pairs are taken greedily in order of ``d²``; each
+accepted pair also gathers, from every other sensor of the frame, the nearest plot
+within the χ² gate of the new state, so one target seen by four sensors starts one
+track, not two. The track starts from the pair (:func:`fusion.init3d.initial_state`:
+the angle sensor's direction, the radar's range — the state whose consistency was
+checked) and is updated at once with the gathered plots. A plot left after pairing
+starts a track on its own only if nothing in its frame could pair with it (a 2D radar
+plot in a frame without angle plots, or the reverse; a 3D radar plot always): the
+broad prior of a lone plot (altitude ``init_el``/``init_el_std`` for a radar, range
+``init_range``/``init_range_std`` for an angle sensor) spans so much that false alarms
+of the other sensors fall in its gate and confirm it. On a single target without
+clutter this is exactly the wrapped method: its first scan is the pair (or the lone
+plot), every later scan the track's only plots.
+
+Configuration (keys of ``[tracker]`` read here; the rest goes to the wrapped method):
+
+================  ========  ===============================================================
+key               default   meaning
+================  ========  ===============================================================
+association       —         ``"gnn"``: many targets (absent: the one-target method)
+gate_prob         0.999     χ² gate probability P_G (per sensor plot, and pair consistency)
+confirm_m         3         M hits ...
+confirm_n         4         ... within the first N frames (birth included) confirm a track
+delete_misses     3         K consecutive missed frames delete a confirmed track
+max_pos_std       inf       m; a track whose √trace(P_pos) exceeds it is deleted
+================  ========  ===============================================================
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+from .angles import wrap_pi
+from .association import CONFIRMED, DELETED, ManagementRule, TrackIds, TrackLogic, gate_threshold, gnn, mahalanobis2
+from .config import config_values
+from .init3d import initial_state, spherical_to_position
+from .patent import KINDS_3D, CentralisedMethod
+from .sensors3d import SphericalModel
+from .types import KIND_COMPONENTS, Estimate, Measurement
+
+ASSOCIATIONS = ("gnn",)
+_PARTNER = {"range_az": "azel", "azel": "range_az"}  # kinds that start a track as a pair
+_PAIR_PREFILTER = 10.0  # × the gate's σ: azimuth misfit beyond which a pair is not evaluated
+
+
+@dataclass(frozen=True)
+class AssociationConfig:
+    """The association and track-management keys of ``[tracker]`` (module docstring)."""
+
+    association: str = "gnn"
+    gate_prob: float = 0.999
+    confirm_m: int = 3
+    confirm_n: int = 4
+    delete_misses: int = 3
+    max_pos_std: float = math.inf
+
+    KEYS = ("association", "gate_prob", "confirm_m", "confirm_n", "delete_misses", "max_pos_std")
+
+    @classmethod
+    def split(cls, config: dict | None) -> tuple["AssociationConfig | None", dict]:
+        """``(association config or None, the rest of the table)``: None when the table
+        has no ``association`` key (one target: the method as it is)."""
+        config = dict(config or {})
+        mine = {k: config.pop(k) for k in cls.KEYS if k in config}
+        if "association" not in mine:
+            if mine:
+                raise ValueError(f"tracker config keys {sorted(mine)} need 'association' (one of {ASSOCIATIONS})")
+            return None, config
+        values = config_values(cls, mine, "tracker config")
+        for key in ("confirm_m", "confirm_n", "delete_misses"):
+            if key in values and (not float(values[key]).is_integer()):
+                raise ValueError(f"tracker config {key!r} must be an integer, got {values[key]!r}")
+            if key in values:
+                values[key] = int(values[key])
+        cfg = cls(**values)
+        if cfg.association not in ASSOCIATIONS:
+            raise ValueError(f"tracker config 'association' must be one of {ASSOCIATIONS}, got {cfg.association!r}")
+        if not 0.0 < cfg.gate_prob < 1.0:
+            raise ValueError(f"tracker config 'gate_prob' must lie in (0, 1), got {cfg.gate_prob}")
+        if not cfg.max_pos_std > 0.0:
+            raise ValueError(f"tracker config 'max_pos_std' must be > 0, got {cfg.max_pos_std}")
+        cfg.rule()  # M <= N, K >= 1
+        return cfg, config
+
+    def rule(self) -> ManagementRule:
+        return ManagementRule(self.confirm_m, self.confirm_n, self.delete_misses)
+
+
+class FrameGrouper:
+    """Groups a time-ordered stream into frames (module docstring, "Frames")."""
+
+    def __init__(self, pair_tol: float):
+        self.pair_tol = float(pair_tol)
+        self._open: list[Measurement] = []
+        self._last_key: tuple | None = None
+        self._watermark = -math.inf
+
+    def _close(self) -> list[list[Measurement]]:
+        frame, self._open = self._open, []
+        return [frame] if frame else []
+
+    def push(self, m: Measurement) -> list[list[Measurement]]:
+        key = m.order_key
+        if self._last_key is not None and key <= self._last_key:
+            raise ValueError(f"measurement {key} out of order (after {self._last_key})")
+        if m.t <= self._watermark:
+            raise ValueError(f"measurement at t={m.t} from {m.sensor!r} arrived after watermark {self._watermark}")
+        self._last_key = key
+        out = self._close() if self._open and m.t - self._open[0].t > self.pair_tol else []
+        self._open.append(m)
+        return out
+
+    def advance(self, t: float) -> list[list[Measurement]]:
+        self._watermark = max(self._watermark, float(t))
+        if self._open and self._watermark - self._open[0].t > self.pair_tol:
+            return self._close()
+        return []
+
+    def finish(self) -> list[list[Measurement]]:
+        return self._close()
+
+    def held_since(self) -> float | None:
+        """Time of the open frame's first member (None when no frame is open)."""
+        return self._open[0].t if self._open else None
+
+
+class _Track:
+    """One track: its filter (an instance of the wrapped method) and its life."""
+
+    __slots__ = ("method", "logic", "birth", "last")
+
+    def __init__(self, method: CentralisedMethod, logic: TrackLogic, birth: int, last: Estimate):
+        self.method, self.logic, self.birth = method, logic, birth
+        self.last = last  # its estimate of the latest frame (updated, or predicted when missed)
+
+
+class MultiTargetMethod:
+    """Association and track management around a centralised patent method.
+
+    Args:
+        name: the wrapped method's name (the estimates carry it).
+        make_track: builds a fresh instance of the wrapped method (one per track).
+        config: the association keys.
+    """
+
+    def __init__(self, name: str, make_track: Callable[[], CentralisedMethod], config: AssociationConfig):
+        self.name = name
+        self._make_track = make_track
+        proto = make_track()
+        self._network = None
+        from .network import NetworkMethod, TRACK_SPLITS
+
+        if isinstance(proto, NetworkMethod) and name in TRACK_SPLITS:
+            # HNV, PHHNV, DDHNV: the local nodes and the centre associate themselves
+            # (fusion.network, "Many targets"); this object only hands the stream over.
+            keys = {k: v for k, v in dataclasses.asdict(config).items() if v != math.inf}  # inf: the default, not a key
+            self._network = NetworkMethod(name, {**proto.config, **keys})
+            return
+        if not isinstance(proto, CentralisedMethod):
+            raise ValueError(f"association is available for the centralised methods (LCDD, HNDD, SS, RADAR2D, "
+                             f"ANGLE, RADAR3D) and HNV, PHHNV, DDHNV, not {name}")
+        self.kinds = proto.kinds
+        self.n_x = proto.n_x
+        self.config = config
+        self.rule = config.rule()
+        self._initiator = Initiator(self.n_x, proto.priors, config.gate_prob)
+        self._grouper = FrameGrouper(proto.config.pair_tol)
+        self._ids = TrackIds()
+        self._births = 0
+        self.tracks: list[_Track] = []  # confirmed in id order, then tentative in birth order
+
+    def __repr__(self) -> str:
+        return f"MultiTargetMethod({self.name!r})"
+
+    # Streaming interface -------------------------------------------------------------
+    def process(self, m: Measurement) -> list[Estimate]:
+        if self._network is not None:
+            return self._network.process(m)
+        if m.kind not in KINDS_3D:
+            raise ValueError(f"{self.name} cannot use a {m.kind!r} measurement (sensor {m.sensor!r})")
+        if m.kind not in self.kinds:
+            return []
+        return self._run(self._grouper.push(m))
+
+    def advance(self, t: float) -> list[Estimate]:
+        if self._network is not None:
+            return self._network.advance(t)
+        return self._run(self._grouper.advance(t))
+
+    def finish(self) -> list[Estimate]:
+        if self._network is not None:
+            return self._network.finish()
+        return self._run(self._grouper.finish())
+
+    def _run(self, frames: list[list[Measurement]]) -> list[Estimate]:
+        out: list[Estimate] = []
+        for frame in frames:
+            out += self._process_frame(frame)
+        return out
+
+    # One frame -----------------------------------------------------------------------
+    def _gate(self, dof: int) -> float:
+        return gate_threshold(dof, self.config.gate_prob)
+
+    def _process_frame(self, frame: list[Measurement]) -> list[Estimate]:
+        t = frame[0].t
+        predicted = [tr.method.ekf.predicted(t) for tr in self.tracks]
+        taken: dict[int, list[Measurement]] = {}  # track index -> its plots
+        left: list[Measurement] = []
+        for plots in _by_sensor(frame):
+            free = list(range(len(plots)))
+            model = SphericalModel.from_measurement(plots[0], self.n_x)
+            gate = self._gate(model.n_z)
+            Z = np.array([p.z for p in plots])
+            for confirmed in (True, False):
+                rows = [i for i, tr in enumerate(self.tracks) if (tr.logic.status == CONFIRMED) == confirmed]
+                if not rows or not free:
+                    continue
+                d2 = np.array([mahalanobis2(model, *predicted[i], Z[free]) for i in rows])
+                pairs = gnn(d2, gate)
+                for r, c in pairs:
+                    taken.setdefault(rows[r], []).append(plots[free[c]])
+                used = {free[c] for _, c in pairs}
+                free = [j for j in free if j not in used]
+            left += [plots[j] for j in free]
+
+        # A tentative track scores a hit only with plots of two sensors (when the frame has
+        # two): one angle or radar plot fixes a line or a circle, and such a track would be
+        # confirmed on false alarms or on another target's plots.
+        evidence = min(2, len({m.sensor for m in frame}))
+        for i, tr in enumerate(self.tracks):
+            if i in taken:
+                tr.last = tr.method._process_scan(sorted(taken[i], key=lambda m: m.order_key))[-1]
+            else:
+                tr.method.ekf.predict(t)
+                ekf = tr.method.ekf
+                tr.last = Estimate(ekf.t, ekf.x, ekf.P, tr.method.name, "centre")
+            sensors = len({m.sensor for m in taken.get(i, ())})
+            tr.logic.record(sensors >= (1 if tr.logic.status == CONFIRMED else evidence))
+            self._check_spread(tr)
+        for first, more in self._initiator.groups(sorted(left, key=lambda m: m.order_key)):
+            self._start(first, more)
+
+        for tr in self.tracks:
+            if tr.logic.status == CONFIRMED and tr.method.track is None:
+                tr.method.track = self._ids.next()
+        self.tracks = [tr for tr in self.tracks if tr.logic.status != DELETED]
+        confirmed = sorted((tr for tr in self.tracks if tr.logic.status == CONFIRMED), key=lambda tr: self._id_key(tr))
+        self.tracks = confirmed + sorted((tr for tr in self.tracks if tr.logic.status != CONFIRMED),
+                                         key=lambda tr: tr.birth)
+        return [dataclasses.replace(tr.last, track=tr.method.track) for tr in confirmed]
+
+    @staticmethod
+    def _id_key(tr: _Track) -> int:
+        return int(tr.method.track[1:])
+
+    def _check_spread(self, tr: _Track) -> None:
+        if math.isfinite(self.config.max_pos_std) and tr.logic.status != DELETED:
+            if math.sqrt(float(np.trace(tr.method.ekf.P[:3, :3]))) > self.config.max_pos_std:
+                tr.logic.status = DELETED
+
+    def _start(self, first: list[Measurement], more: list[Measurement] = ()) -> _Track:
+        """A tentative track from the plots ``first`` (the wrapped method's own
+        initialisation from a first scan), updated at once with ``more`` (same frame)."""
+        method = self._make_track()
+        method.track = None  # no id until confirmed
+        last = method._process_scan(first)[-1]
+        if more:
+            last = method._process_scan(list(more))[-1]
+        self._births += 1
+        tr = _Track(method, TrackLogic(self.rule), self._births, last)
+        self.tracks.append(tr)  # confirmed at birth if M = 1: given its id with the others
+        return tr
+
+class Initiator:
+    """New tracks from the plots of one frame that no track took (module docstring,
+    "Initiation"); shared by :class:`MultiTargetMethod` and the distributed centre
+    (:class:`fusion.network.MultiTrackCentre`)."""
+
+    def __init__(self, n_x: int, priors, gate_prob: float):
+        self.n_x = n_x
+        self._priors = priors
+        self.gate_prob = gate_prob
+
+    def _gate(self, dof: int) -> float:
+        return gate_threshold(dof, self.gate_prob)
+
+    def groups(self, left: list[Measurement]) -> list[tuple[list[Measurement], list[Measurement]]]:
+        """``(first, more)`` per new track from the unclaimed plots: the plots it starts
+        from and those it gathers in the same frame (module docstring, "Initiation")."""
+        candidates = []
+        for a in left:
+            if "el" not in KIND_COMPONENTS[a.kind] or "range" in KIND_COMPONENTS[a.kind]:
+                continue  # the ray: an angle sensor's az/el
+            for r in left:
+                if r.kind != "range_az" or r.sensor == a.sensor:
+                    continue
+                d2 = self.pair_consistency(a, r)
+                if d2 is not None:
+                    candidates.append((d2, a.order_key, r.order_key, a, r))
+        candidates.sort(key=lambda c: c[:3])
+        used: set[tuple] = set()
+        groups = []
+        for _, ka, kr, a, r in candidates:
+            if ka in used or kr in used:
+                continue
+            first, more = sorted([a, r], key=lambda m: m.order_key), []
+            used |= {ka, kr}
+            x, P = initial_state(first, self.n_x, self._priors)
+            for plots in _by_sensor([m for m in left if m.order_key not in used and m.sensor not in (a.sensor, r.sensor)]):
+                model = SphericalModel.from_measurement(plots[0], self.n_x)
+                d2 = mahalanobis2(model, x, P, np.array([p.z for p in plots]))
+                j = int(np.argmin(d2))
+                if d2[j] <= self._gate(model.n_z):
+                    more.append(plots[j])
+                    used.add(plots[j].order_key)
+            groups.append((first, sorted(more, key=lambda m: m.order_key)))
+        # A plot starts a track alone only if nothing in the frame could pair with it
+        # (lone 2D radar and angle plots attract clutter through their broad priors).
+        kinds = {m.kind for m in left}
+        alone = [m for m in left if m.order_key not in used and not (_PARTNER.get(m.kind) in kinds)]
+        alone.sort(key=lambda m: ("range" not in KIND_COMPONENTS[m.kind], m.order_key))  # radars first
+        return groups + [([m], []) for m in alone]
+
+    def pair_consistency(self, a: Measurement, r: Measurement) -> float | None:
+        """``d²`` of the radar's azimuth against the state from the angle ray and the
+        radar range, or None if the ray misses the range sphere."""
+        az, el = float(a.z[0]), float(a.z[1])
+        point = spherical_to_position(a.site, az, el, float(r.z[1]), r.site)
+        if point is None:
+            return None
+        d = point[0] - np.asarray(r.site, dtype=float)
+        misfit = abs(wrap_pi(r.z[0] - np.arctan2(d[0], d[1])))
+        if misfit > _PAIR_PREFILTER * math.sqrt(self._gate(1)) * float(r.std[0]):
+            return None  # far outside the gate: skip the full computation
+        x, P = initial_state(sorted([a, r], key=lambda m: m.order_key), self.n_x, self._priors)
+        model = SphericalModel(("az",), r.site, [r.std[0]], self.n_x)
+        d2 = float(mahalanobis2(model, x, P, np.array([[r.z[0]]]))[0])
+        return d2 if d2 <= self._gate(1) else None
+
+
+
+def _by_sensor(plots: list[Measurement]) -> list[list[Measurement]]:
+    """The plots grouped by sensor, sensors in order of first appearance."""
+    out: dict[str, list[Measurement]] = {}
+    for m in plots:
+        out.setdefault(m.sensor, []).append(m)
+    return list(out.values())
+
