@@ -230,7 +230,9 @@ def gen_main(argv: list[str]) -> int:
         z[..., 0] = np.where(z[..., 0] >= 2 * np.pi, 0.0, z[..., 0])  # [0, 2π) on the wire
         z[..., 1] = np.clip(z[..., 1], -np.pi / 2, np.pi / 2)
         out = []
-        for tk, sk, zk in zip(t.tolist(), s.tolist(), z.tolist()):
+        # A sensor's next scan time, exactly (t + T may round past it, breaking the promise).
+        t_next = np.append(scan_t, scan_t[-1] + T * (1 + np.arange(1, S + 1)))[k0 + S:k1 + S]
+        for tk, sk, zk, tn in zip(t.tolist(), s.tolist(), z.tolist(), t_next.tolist()):
             sid = ids[sk]
             site = sites[sk].tolist()
             msgs = []
@@ -241,7 +243,8 @@ def gen_main(argv: list[str]) -> int:
                 seqs[sk] += 1
             wm_seq[sk] += 1
             msgs.append(msgpack.packb({"v": 1, "kind": "watermark", "src": sid, "seq": wm_seq[sk],
-                                       "t": tk + T - 1e-6 if lookahead else tk, "final": False}))
+                                       "t": math.nextafter(tn, -math.inf) if lookahead else tk,
+                                       "final": False}))
             out.append(msgs)
         return out
 
@@ -279,7 +282,7 @@ def gen_main(argv: list[str]) -> int:
             pubs[i].put(msgpack.packb({"v": 1, "kind": "watermark", "src": sid, "seq": wm_seq[i], "t": t_end,
                                        "final": True}))
         np.savez(spec["out"], scan_t=scan_t[:k], scan_s=scan_s[:k], pub_first=pub_first[:k], pub_wm=pub_wm[:k],
-                 tracks=N, sensors=S, start=start, lookahead_s=(T - 1e-6) if lookahead else 0.0)
+                 tracks=N, sensors=S, start=start, lookahead_s=(T - 1e-9) if lookahead else 0.0)
         time.sleep(0.5)  # let reliable samples drain before the session closes
     return 0
 
@@ -293,7 +296,7 @@ class Trial:
     tracks: int = 1
     ekf: str = "batch"  # multi-track fuser only
     harness: bool = False  # the multi-track fuser harness even for one track
-    lookahead: bool = False  # sensors' watermarks say "nothing before my next scan" (suggested change)
+    lookahead: bool = True  # watermarks look ahead to the sensor's next scan, as services/source.py's do
     recorder: bool = False
     keep_every: int = 1  # observer keeps every k-th fused payload for latency (all are counted)
     sample_period: float = 0.5  # s between CPU/memory samples of the fuser (and recorder)

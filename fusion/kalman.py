@@ -21,6 +21,8 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
+import math
+
 import numpy as np
 from scipy.linalg import cho_factor, cho_solve
 
@@ -53,23 +55,77 @@ def innovation(z: np.ndarray, z_pred: np.ndarray, angles: np.ndarray | None = No
     return nu
 
 
+_IDENTITY: dict[int, np.ndarray] = {}
+
+
+def _identity(n: int) -> np.ndarray:
+    """``I`` (n × n), built once per size (read-only)."""
+    eye = _IDENTITY.get(n)
+    if eye is None:
+        eye = _IDENTITY[n] = np.eye(n)
+        eye.setflags(write=False)
+    return eye
+
+
+SMALL_S = 3  # innovation covariances up to this size are factorised on Python floats
+
+
+def inverse_cholesky_factor(S: np.ndarray) -> np.ndarray:
+    """``L⁻¹`` of the Cholesky factor ``S = L Lᵀ``; ``LinAlgError`` unless S is positive
+    definite (only S's lower triangle is read).
+
+    A sensor's S is 1 × 1 to 3 × 3. numpy's ``cholesky`` and ``inv`` each spend about
+    4 µs handling arguments for a few flops, so up to ``SMALL_S`` rows the factor and its
+    inverse (forward substitution) are computed on Python floats; larger S go to numpy.
+    """
+    n = S.shape[0]
+    if n > SMALL_S:
+        return np.linalg.inv(np.linalg.cholesky(S))
+    s = S.tolist()
+    L = [[0.0] * n for _ in range(n)]
+    W = [[0.0] * n for _ in range(n)]  # L⁻¹
+    for i in range(n):
+        Li = L[i]
+        for j in range(i + 1):
+            acc = s[i][j]
+            for k in range(j):
+                acc -= Li[k] * L[j][k]
+            if j < i:
+                Li[j] = acc / L[j][j]
+            elif acc <= 0.0:
+                raise np.linalg.LinAlgError("innovation covariance is not positive definite")
+            else:  # (a NaN passes through, as in numpy's cholesky)
+                Li[i] = math.sqrt(acc)
+        Wi = W[i]
+        Wi[i] = 1.0 / Li[i]
+        for j in range(i):
+            acc = 0.0
+            for k in range(j, i):
+                acc += Li[k] * W[k][j]
+            Wi[j] = -acc * Wi[i]
+    return np.array(W)
+
+
 def update(x: np.ndarray, P: np.ndarray, nu: np.ndarray, H: np.ndarray, R: np.ndarray) -> UpdateResult:
     """Measurement update given an innovation ``nu`` (already wrapped) and Jacobian ``H``.
 
-    Uses a Cholesky solve for ``S⁻¹`` (S is SPD whenever R is) and the Joseph form.
+    ``S⁻¹`` comes from the Cholesky factor ``S = L Lᵀ`` as ``L⁻ᵀ L⁻¹`` (raises
+    ``LinAlgError`` unless S is positive definite, which it is whenever R is; see
+    :func:`inverse_cholesky_factor`), and ``NIS = |L⁻¹ ν|²``, never negative. Then the
+    Joseph form, symmetrised.
     """
     nu = np.atleast_1d(np.asarray(nu, dtype=float))
     H = np.atleast_2d(H)
     R = np.atleast_2d(R)
     PHt = P @ H.T
     S = symmetrise(H @ PHt + R)
-    c = cho_factor(S, lower=True, check_finite=False)
-    K = cho_solve(c, PHt.T, check_finite=False).T
+    L_inv = inverse_cholesky_factor(S)
+    K = PHt @ (L_inv.T @ L_inv)
     x_new = x + K @ nu
-    IKH = np.eye(P.shape[0]) - K @ H
+    IKH = _identity(P.shape[0]) - K @ H
     P_new = symmetrise(IKH @ P @ IKH.T + K @ R @ K.T)
-    nis = float(nu @ cho_solve(c, nu, check_finite=False))
-    return UpdateResult(x_new, P_new, nu, S, nis, K)
+    w = L_inv @ nu
+    return UpdateResult(x_new, P_new, nu, S, float(w @ w), K)
 
 
 def gaussian_likelihood(nu: np.ndarray, S: np.ndarray) -> float:

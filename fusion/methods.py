@@ -3,8 +3,10 @@
 The 3D methods of the patent live in :mod:`fusion.patent`, the bearings-only methods of
 the theses in :mod:`fusion.df.methods`; both register factories ``make(config)``
 returning an object with ``process`` / ``advance`` / ``finish`` (see those modules).
-A ``[tracker]`` table with ``association`` wraps the named method in
-:class:`fusion.mtt.MultiTargetMethod` (many targets; the method keeps its name).
+A ``[tracker]`` table with ``association`` wraps the named method for many targets, and
+the method keeps its name: a 3D method in :class:`fusion.mtt.MultiTargetMethod`, a DF
+method in :class:`fusion.df.multi.MultiEmitterMethod` (many emitters: bearing
+association and ghost rejection, each emitter localised by the named method).
 """
 
 from __future__ import annotations
@@ -34,5 +36,9 @@ def make_method(name: str, config: dict | None = None) -> Any:
 
     association, rest = AssociationConfig.split(config)
     if association is not None:
-        return MultiTargetMethod(name, lambda: reg[name](dict(rest)), association)
+        from .df.methods import DF_METHODS
+        from .df.multi import MultiEmitterMethod
+
+        wrap = MultiEmitterMethod if name in DF_METHODS else MultiTargetMethod
+        return wrap(name, lambda: reg[name](dict(rest)), association)
     return reg[name](dict(config or {}))

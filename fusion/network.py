@@ -94,10 +94,11 @@ old one (dropped). Each fused track has its own :class:`~fusion.track_fusion.Tra
 and fuses its reports as the one-target centre does; a fused track without reports
 coasts. Management is :class:`fusion.association.TrackLogic` (M-of-N, K misses,
 ``max_pos_std``): a tentative track scores a hit with reports or gated requests of two
-sensors, a confirmed one with one — under HNV with two, or with a sensor that measures
-range (an angle sensor's local track alone would hold a fused track whose range drifts
-away from the radar plots that should re-initiate it). Confirmed tracks get the
-published ids ``T1, T2, …`` and are reported every frame. With one target, no clutter,
+sensors, a confirmed one with two, or with one that measures range, in every topology
+(an angle sensor's local track alone would hold a fused track whose range drifts away
+from the radar plots, which start a second track on the target: a ghost along the
+ray). Confirmed tracks get the published ids ``T1, T2, …`` and are reported every
+frame. With one target, no clutter,
 P_D = 1 and M = N = 1 this is exactly the one-target network (``tests/test_t2ta.py``).
 """
 
@@ -670,15 +671,17 @@ class MultiTrackCentre(Centre):
         return [dataclasses.replace(f.last, track=f.id) for f in confirmed]
 
     def _hit(self, nodes: set[str], confirmed: bool, evidence: int) -> bool:
-        """A tentative track needs two sensors (as in fusion.mtt), a confirmed one one;
-        under HNV two, or one that measures range: an angle sensor's local track alone
-        does not observe range, and without feedback it would hold a fused track whose
-        range drifts away from the radar's plots, which then never re-initiate it."""
-        if not confirmed:
-            return len(nodes) >= evidence
-        if self.feedback:
-            return len(nodes) >= 1
-        return len(nodes) >= 2 or any("range" in KIND_COMPONENTS[self._kinds.get(n, "azel")] for n in nodes)
+        """A tentative track needs two sensors (as in fusion.mtt); a confirmed one two,
+        or one that measures range, in every topology. An angle sensor's local track
+        does not observe range: alone, it would hold a fused track (fed back to it
+        under PHHNV/DDHNV) whose range drifts away from the radar plots, which then
+        start a second track on the target and leave this one a ghost along the
+        angle sensor's ray. The centralised GNN starves such a ghost (the good track
+        takes the angle plot); a node's GNN cannot, as it sees only its own local
+        tracks."""
+        if len(nodes) >= evidence:
+            return True
+        return confirmed and any("range" in KIND_COMPONENTS[self._kinds.get(n, "azel")] for n in nodes)
 
     def _associate_reports(self, node: str, ups: list[Uplink], t: float, predicted) -> list[tuple[_Fused, Uplink]]:
         """Track-to-track association of one node's reports with the fused tracks. A

@@ -29,6 +29,7 @@ gradient is undefined at zero range (``r < MIN_RANGE``). Both raise ``ValueError
 
 from __future__ import annotations
 
+import math
 from functools import lru_cache
 from typing import Sequence
 
@@ -83,6 +84,9 @@ class SphericalModel:
         self.n_x = n_x
         self._rho_rows = np.flatnonzero(self.angles)  # rows needing ρ > 0 (az, el)
         self._r_rows = np.flatnonzero(~self.angles)  # rows needing r > 0 (range)
+        # The same rows as Python scalars, for the single-state path (see _linearise).
+        self._row_list = tuple(zip(self.codes.tolist(), map(tuple, sites.tolist())))
+        self._zero_tail = [0.0] * (n_x - 3)
         for a in (self.codes, self.sites, self.std, self.R, self.angles):
             a.setflags(write=False)  # models are shared (cached): keep them immutable
 
@@ -121,24 +125,52 @@ class SphericalModel:
         el = np.arctan2(d[..., 2], rho)
         return np.choose(self.codes, (az, el, r))
 
+    def _linearise(self, x: np.ndarray) -> tuple[list[float], np.ndarray]:
+        """``h(x)`` (as floats) and ``∂h/∂x`` at one state, the geometry computed once per row.
+
+        The single-track EKF runs this for every update. One state is a handful of
+        scalars, so it works on Python floats (``math``): numpy's per-call overhead on
+        3-vectors would cost several times the arithmetic. Same formulas, checks and
+        errors as :meth:`h` (which is vectorised over many states).
+        """
+        x = np.asarray(x, dtype=float)
+        if x.shape != (self.n_x,):
+            raise ValueError(f"state must have {self.n_x} components (one state vector), got shape {x.shape}")
+        pe, pn, pu = x[:3].tolist()
+        zp: list[float] = []
+        rows: list[list[float]] = []
+        for code, (se, sn, su) in self._row_list:
+            de, dn, du = pe - se, pn - sn, pu - su
+            rho = math.hypot(de, dn)
+            r = math.hypot(rho, du)
+            if code == 2:  # range
+                if r < MIN_RANGE:
+                    raise ValueError(f"target at a sensor site (zero range < {MIN_RANGE} m): range gradient undefined")
+                zp.append(r)
+                rows.append([de / r, dn / r, du / r, *self._zero_tail])
+                continue
+            if rho < MIN_HORIZONTAL_RANGE:
+                raise ValueError(
+                    f"target straight above/below a sensor site (horizontal range < {MIN_HORIZONTAL_RANGE} m): "
+                    "azimuth/elevation undefined"
+                )
+            if code == 0:  # azimuth, in [0, 2π) as h() gives it
+                az = math.atan2(de, dn) % TWO_PI
+                zp.append(0.0 if az >= TWO_PI else az)
+                rho2 = rho * rho
+                rows.append([dn / rho2, -de / rho2, 0.0, *self._zero_tail])
+            else:  # elevation
+                zp.append(math.atan2(du, rho))
+                r2 = r * r
+                rows.append([-de * du / (rho * r2), -dn * du / (rho * r2), rho / r2, *self._zero_tail])
+        return zp, np.array(rows)
+
     def jacobian(self, x: np.ndarray) -> np.ndarray:
         """Analytic ``∂h/∂x`` (n_z × n_x) at one state; only the position columns are non-zero."""
         x = np.asarray(x, dtype=float)
         if x.ndim != 1:
             raise ValueError(f"jacobian takes one state vector, got shape {x.shape}")
-        d, rho, r = self._geometry(x)
-        de, dn, du = d[:, 0], d[:, 1], d[:, 2]
-        H = np.zeros((self.n_z, self.n_x))
-        for i, code in enumerate(self.codes):
-            if code == 0:
-                rho2 = rho[i] * rho[i]
-                H[i, :3] = (dn[i] / rho2, -de[i] / rho2, 0.0)
-            elif code == 1:
-                r2 = r[i] * r[i]
-                H[i, :3] = (-de[i] * du[i] / (rho[i] * r2), -dn[i] * du[i] / (rho[i] * r2), rho[i] / r2)
-            else:
-                H[i, :3] = d[i] / r[i]
-        return H
+        return self._linearise(x)[1]
 
     def innovation(self, z: np.ndarray, x: np.ndarray) -> np.ndarray:
         """``z − h(x)`` with angular rows wrapped to (−π, π]."""
@@ -146,6 +178,19 @@ class SphericalModel:
         if z.shape != (self.n_z,):
             raise ValueError(f"measurement must have shape ({self.n_z},) for {self.components}, got {z.shape}")
         return kalman.innovation(z, self.h(x), self.angles)
+
+    def innovation_and_jacobian(self, z: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`innovation` and :meth:`jacobian` at one state, in one pass over the geometry:
+        what an EKF update needs."""
+        z = np.asarray(z, dtype=float)
+        if z.shape != (self.n_z,):
+            raise ValueError(f"measurement must have shape ({self.n_z},) for {self.components}, got {z.shape}")
+        zp, H = self._linearise(x)
+        nu = [zi - hi for zi, hi in zip(z.tolist(), zp)]
+        for i, (code, _) in enumerate(self._row_list):
+            if code != 2:
+                nu[i] = _wrap_pi(nu[i])
+        return np.array(nu), H
 
     # Building composite models ----------------------------------------------------
     @staticmethod
@@ -192,6 +237,12 @@ class SphericalModel:
                 f"got site {m.site!r}, std {m.std!r}"
             )
         return _sensor_model(model_cls, tuple(site.tolist()), tuple(std.tolist()), int(n_x))
+
+
+def _wrap_pi(a: float) -> float:
+    """:func:`fusion.angles.wrap_pi` of one Python float (same arithmetic, no numpy call)."""
+    w = (a + math.pi) % TWO_PI - math.pi
+    return math.pi if w == -math.pi else w
 
 
 class _SensorModel(SphericalModel):
@@ -252,8 +303,8 @@ def ekf_predict(motion, x: np.ndarray, P: np.ndarray, dt: float) -> tuple[np.nda
 
 
 def _ekf_update(model, x, P, z) -> tuple[kalman.UpdateResult, np.ndarray]:
-    H = model.jacobian(x)
-    return kalman.update(x, P, model.innovation(z, x), H, model.R), H
+    nu, H = model.innovation_and_jacobian(z, x)
+    return kalman.update(x, P, nu, H, model.R), H
 
 
 def ekf_update(model: SphericalModel, x: np.ndarray, P: np.ndarray, z: np.ndarray) -> kalman.UpdateResult:

@@ -80,6 +80,18 @@ def _num(d: dict, f: str, *, lo: float = -math.inf, hi: float = math.inf, lo_ope
     return x
 
 
+# Ids that passed check_id. A deployment has a few dozen, seen on every message; the
+# fast paths accept only ids found here and leave any other to the strict checks.
+_VALID_IDS: set[str] = set()
+_VALID_IDS_MAX = 4096
+
+
+def _remember_id(x: str) -> None:
+    if len(_VALID_IDS) >= _VALID_IDS_MAX:  # bounded: a flood of new ids cannot grow it
+        _VALID_IDS.clear()
+    _VALID_IDS.add(x)
+
+
 def _int(d: dict, f: str, *, lo: int = 0, hi: int = 2**63 - 1) -> int:
     if f not in d:
         raise SchemaError("missing", f, "required")
@@ -100,11 +112,12 @@ def _str(d: dict, f: str, *, ident: bool = False, choices: tuple[str, ...] | Non
     x = d[f]
     if not isinstance(x, str):
         raise SchemaError("type", f, f"expected a string, got {type(x).__name__}")
-    if ident:
+    if ident and x not in _VALID_IDS:
         try:
             check_id(x, f)
         except ValueError as e:
             raise SchemaError("value", f, str(e)) from None
+        _remember_id(x)
     if choices is not None and x not in choices:
         raise SchemaError("value", f, f"{x!r} not one of {', '.join(choices)}")
     return x
@@ -271,8 +284,91 @@ _CHECKERS: dict[str, Callable[[dict], dict]] = {
 }
 
 
+# Fast path of validate() for what arrives most: measurements, watermarks, tracks ------
+_MEASUREMENT_FIELDS = {k: frozenset(ENVELOPE | {"sensor", "site"} | set(c) | {_STD[x] for x in c})
+                       for k, c in KIND_COMPONENTS.items()}
+_WATERMARK_FIELDS = frozenset(ENVELOPE | {"final"})
+_TRACK_FIELDS = frozenset(ENVELOPE | {"track", "node", "method", "x", "P", "nis", "nis_dof", "extra"})
+_SEQ_MAX = 2**63 - 1
+
+
+def _plain_float(x: Any, lo: float, hi: float, lo_open: bool, hi_open: bool) -> bool:
+    """``x`` is a Python float that :func:`_num` accepts unchanged with these limits."""
+    return (type(x) is float and math.isfinite(x) and (lo < x if lo_open else lo <= x)
+            and (x < hi if hi_open else x <= hi))
+
+
+def _validate_fast(d: Any) -> Message | None:
+    """:func:`validate` of a plainly valid measurement, watermark or estimate without
+    ``extra``, on Python scalars (and one numpy conversion per array).
+
+    It accepts only what the strict checks accept, and returns the same message. It
+    returns ``None`` for anything else: other kinds, ints where floats travel, ids not
+    seen before, a covariance that is not exactly symmetric, any doubtful value. The
+    strict checks then decide, and name the error.
+    """
+    if type(d) is not dict:
+        return None
+    kind, v, src, seq, t = d.get("kind"), d.get("v"), d.get("src"), d.get("seq"), d.get("t")
+    if not (type(v) is int and v == SCHEMA_VERSION and type(src) is str and src in _VALID_IDS
+            and type(seq) is int and 0 <= seq <= _SEQ_MAX and type(t) is float and math.isfinite(t)):
+        return None
+    if kind == "watermark":
+        final = d.get("final", False)
+        if type(final) is not bool or not d.keys() <= _WATERMARK_FIELDS:
+            return None
+        return Message(kind=kind, src=src, seq=seq, t=t, body={"final": final})
+    if kind in ("track", "prediction"):
+        body = _estimate_body_fast(d)
+        return None if body is None else Message(kind=kind, src=src, seq=seq, t=t, body=body)
+    fields = _MEASUREMENT_FIELDS.get(kind) if type(kind) is str else None
+    if fields is None or d.keys() != fields:
+        return None
+    sensor, site = d["sensor"], d["site"]
+    if not (type(sensor) is str and sensor in _VALID_IDS and type(site) is list and len(site) == 3
+            and all(type(c) is float and math.isfinite(c) for c in site)):
+        return None
+    body: dict[str, Any] = {"sensor": sensor, "site": np.array(site)}
+    for c in KIND_COMPONENTS[kind]:
+        value, std = d[c], d[_STD[c]]
+        if not (_plain_float(value, *_LIMITS[c]) and _plain_float(std, 0.0, math.inf, True, False)):
+            return None
+        body[c] = value
+        body[_STD[c]] = std
+    return Message(kind=kind, src=src, seq=seq, t=t, body=body)
+
+
+def _estimate_body_fast(d: dict) -> dict | None:
+    if not d.keys() <= _TRACK_FIELDS:
+        return None
+    x, P, track, node, method = d.get("x"), d.get("P"), d.get("track"), d.get("node"), d.get("method")
+    nis, nis_dof, extra = d.get("nis"), d.get("nis_dof"), d.get("extra", {})
+    if not (type(x) is list and 0 < len(x) <= MAX_DIM and all(type(v) is float for v in x)
+            and type(P) is list and len(P) == len(x) and all(type(row) is list and len(row) == len(x) for row in P)
+            and type(track) is str and track in _VALID_IDS and type(node) is str and node in _VALID_IDS
+            and type(method) is str and (nis is None or _plain_float(nis, 0.0, math.inf, False, False))
+            and (nis_dof is None or (type(nis_dof) is int and 1 <= nis_dof <= MAX_DIM))
+            and type(extra) is dict and not extra):
+        return None
+    try:  # P's entries may still be anything: numpy decides what is a float matrix
+        xa, Pa = np.array(x), np.array(P, dtype=float)
+    except (TypeError, ValueError):
+        return None
+    # A sum is finite only if every term is (an overflowing sum just takes the strict path).
+    if not (Pa.shape == (len(x), len(x)) and math.isfinite(xa.sum()) and math.isfinite(Pa.sum())
+            and (Pa == Pa.T).all() and (Pa.diagonal() >= 0.0).all()):
+        return None
+    return {"track": track, "node": node, "method": method, "x": xa, "P": Pa, "nis": nis, "nis_dof": nis_dof,
+            "extra": {}}
+
+
 def validate(d: Any) -> Message:
     """Validate a decoded msgpack object; return the :class:`Message` or raise."""
+    return _validate_fast(d) or _validate_strict(d)
+
+
+def _validate_strict(d: Any) -> Message:
+    """Every check of the wire format, in a fixed order, raising the first failure."""
     if not isinstance(d, dict):
         raise SchemaError("not-a-map", None, f"top level is {type(d).__name__}, expected a map")
     if "v" not in d:
@@ -344,13 +440,47 @@ def to_measurement(msg: Message) -> Measurement:
 def encode_estimate(e: Estimate, src: str, seq: int, kind: str = "track") -> bytes:
     """An estimate as a message. ``extra`` travels as arrays: a number (or bool) becomes a
     one-element list, None is left out; anything else non-numeric is an error."""
+    fast = _encode_estimate_fast(e, src, seq, kind)
+    if fast is not None:
+        return fast
+    return encode(kind, src, seq, e.t, **_estimate_payload(e))
+
+
+def _estimate_payload(e: Estimate) -> dict[str, Any]:
     extra = {}
     for k, v in e.extra.items():
         if v is None:
             continue
         extra[k] = [float(v)] if isinstance(v, (bool, int, float, np.integer, np.floating)) else v
-    return encode(kind, src, seq, e.t, track=e.track, node=e.node, method=e.method, x=e.x, P=e.P,
-                  nis=e.nis, nis_dof=e.nis_dof, extra=extra)
+    return dict(track=e.track, node=e.node, method=e.method, x=e.x, P=e.P, nis=e.nis, nis_dof=e.nis_dof,
+                extra=extra)
+
+
+def _encode_estimate_fast(e: Estimate, src: str, seq: int, kind: str) -> bytes | None:
+    """:func:`encode_estimate` of a plainly valid estimate without ``extra`` (what a fuser
+    publishes), checking the numpy arrays themselves instead of re-parsing the lists made
+    from them. The same bytes as the strict path; ``None`` leaves anything else to it.
+
+    The covariance must be *exactly* symmetric here (every estimator symmetrises); one
+    that is only symmetric within tolerance takes the strict path, which allows that.
+    """
+    x, P = e.x, e.P
+    if any(v is not None for v in e.extra.values()) or kind not in ("track", "prediction") \
+            or type(x) is not np.ndarray or type(P) is not np.ndarray or x.dtype != np.float64 \
+            or P.dtype != np.float64 or x.ndim != 1 or not 0 < x.size <= MAX_DIM or P.shape != (x.size, x.size):
+        return None
+    seq, t = int(seq), float(e.t)  # converted in the strict path's order, which raises the same on junk
+    nis, nis_dof = _plain(e.nis), _plain(e.nis_dof)
+    # A sum is finite only if every term is (an overflowing sum just takes the strict path).
+    if not (math.isfinite(t) and 0 <= seq <= _SEQ_MAX and math.isfinite(x.sum()) and math.isfinite(P.sum())
+            and (P == P.T).all() and (P.diagonal() >= 0.0).all()
+            and (nis is None or _plain_float(nis, 0.0, math.inf, False, False))
+            and (nis_dof is None or (type(nis_dof) is int and 1 <= nis_dof <= MAX_DIM))
+            and type(e.method) is str and all(type(i) is str and i in _VALID_IDS for i in (src, e.track, e.node))):
+        return None
+    return msgpack.packb({"v": SCHEMA_VERSION, "kind": kind, "src": src, "seq": seq, "t": t, "track": e.track,
+                          "node": e.node, "method": e.method, "x": x.tolist(), "P": P.tolist(), "nis": nis,
+                          "nis_dof": nis_dof, "extra": {}}, use_bin_type=True)
 
 
 def to_estimate(msg: Message) -> Estimate:

@@ -421,7 +421,8 @@ def with_sensors(scenario, sensors: dict, name: str | None = None):
 def track_steps(scenario, estimates: Sequence[Estimate], run: int = 0, node: str = "centre"):
     """The run as :class:`fusion.mtt_metrics.Step` s: one per scan group of the scenario's
     sensors (as the methods group them, ``pair_tol`` of ``[tracker]``), with every
-    target's true position and every track's estimate of that group."""
+    target's true position and every track's estimate of that group. Emitter fixes are
+    horizontal (``[px, py]``): they are scored against the truth's horizontal position."""
     from fusion.mtt_metrics import Step
     from sensors_sim import truth_trajectory
 
@@ -436,7 +437,8 @@ def track_steps(scenario, estimates: Sequence[Estimate], run: int = 0, node: str
         k = int(np.searchsorted(starts, e.t + 1e-12, side="right")) - 1
         if k >= 0 and e.t - starts[k] <= tol:  # estimates of that scan group
             tracks[k][e.track] = np.asarray(e.x[:3], dtype=float)
-    return [Step(t, {tid: tr.position(t) for tid, tr in trajs.items()}, tk) for t, tk in zip(starts, tracks)]
+    dim = min((len(p) for tk in tracks for p in tk.values()), default=3)
+    return [Step(t, {tid: tr.position(t)[:dim] for tid, tr in trajs.items()}, tk) for t, tk in zip(starts, tracks)]
 
 
 GOSPA_CUTOFF = 1000.0  # m: GOSPA's c, order p = 2, for every many-target score

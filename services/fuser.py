@@ -47,7 +47,7 @@ from fusion.types import Estimate
 from schemas import MEASUREMENT_KINDS, KeySpace, Message, SchemaError, decode, encode_estimate, to_measurement, tracker_id
 from schemas.links import encode_downlink, horizon_message, uplink
 
-from .node import Node, RejectLog, load
+from .node import Inbox, Node, RejectLog, load
 
 
 class MeasurementIntake:
@@ -241,14 +241,14 @@ def run(process_id: str, scenario_ref: str, method_name: str, overrides: dict, k
         method = make_method(method_name, config)
         intake = MeasurementIntake(scenario.sensors)
         sources = list(scenario.sensors)
-    inbox: queue.SimpleQueue[tuple[str, bytes]] = queue.SimpleQueue()
     with Node(process_id, "fuser", keys, zopts) as node:
+        inbox = Inbox(node.stop)
         if isinstance(method, TrackCentre):
             method = JoinGate(method, node.reject)
         core = FuserCore(method, sources, keys, node.reject, timeout, start_grace,
                          horizon=scenario.duration + 1.0, now=time.monotonic(), intake=intake,
                          max_held=max_held_for(scenario))
-        node.subscribe(keys.all(intake.family), lambda s: inbox.put((str(s.key_expr), s.payload.to_bytes())))
+        node.subscribe(keys.all(intake.family), inbox)
         pub = node.publisher(keys.fused())
         down = {tid: node.publisher(keys.feedback(tid)) for tid in (intake.nodes if method_name in SPLITS else ())}
         node.announce()
@@ -274,7 +274,8 @@ def run(process_id: str, scenario_ref: str, method_name: str, overrides: dict, k
                 for d in method.take_downlinks():
                     down_seq += 1
                     down[tracker_id(d.node)].put(encode_downlink(d, process_id, down_seq))
-                if method.feedback and method.horizon > horizon and math.isfinite(method.horizon):
+                # Fed-back nodes, and every many-target node, wait for the horizon.
+                if method.horizon > horizon and math.isfinite(method.horizon):
                     horizon = method.horizon
                     down_seq += 1
                     for p in down.values():
@@ -283,7 +284,8 @@ def run(process_id: str, scenario_ref: str, method_name: str, overrides: dict, k
                 node.event(ev)
             core.events.clear()
             node.counters.update(received=core.received, processed=core.processed, published=seq,
-                                 late=core.merger.late, held=core.merger.held())
+                                 late=core.merger.late, held=core.merger.held(),
+                                 inbox=inbox.qsize(), inbox_waits=inbox.waits)
             if core.finished:
                 break
             if time.monotonic() - last_status >= 1.0:

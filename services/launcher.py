@@ -53,7 +53,7 @@ from fusion.patent import TRACK_FUSION_METHODS, track_fusion_rule
 from fusion.types import Estimate
 from schemas import KeySpace, SchemaError, decode, to_estimate, tracker_id
 
-from .node import Node, ZenohOptions, load
+from .node import Inbox, Node, ZenohOptions, load
 from .evaluation import GOSPA_CUTOFF, many_targets, score_tracks_of
 from .summary import format_table, method_summary, summary, tracks_summary, truth_function
 
@@ -263,7 +263,6 @@ def run(args) -> int:
     max_period = max([getattr(s, "period", 1.0) for s in scenario.sensors.values()] + [1.0])
     timeout = 5.0 if math.isinf(speed) else max(3.0, 3.0 * max_period / speed)
 
-    inbox: queue.SimpleQueue[tuple[str, bytes]] = queue.SimpleQueue()
     estimates: list[Estimate] = []
     statuses: dict[str, dict] = {}
     heard_at: dict[str, float] = {}  # monotonic time of each process's latest status
@@ -280,13 +279,15 @@ def run(args) -> int:
         return round((time.time() - started[0]) * speed, 3)
 
     with Node(LAUNCHER_ID, "launcher", keys, mine) as node:
+        inbox = Inbox(node.stop)
+
         def event(text: str) -> None:
             node.event(f"t = {clock()} s: {text}")
             node.publish_status("running", clock() or 0.0)
 
         sup = Supervisor(children, set(), getattr(args, "restart", True), clock, event, fuser_grace=timeout)
-        node.subscribe(keys.fused(), lambda s: inbox.put((str(s.key_expr), s.payload.to_bytes())))
-        node.subscribe(keys.all("status"), lambda s: inbox.put((str(s.key_expr), s.payload.to_bytes())))
+        node.subscribe(keys.fused(), inbox)
+        node.subscribe(keys.all("status"), inbox)
         node.announce()
 
         def drain(block: float = 0.0) -> None:

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import logging
+import queue
 import signal
 import sys
 import threading
@@ -87,6 +88,39 @@ def split_override(item: str) -> tuple[str, str]:
     if not sep or not key.strip("/ ") or not value:
         raise ValueError(f"expected KEY=VALUE (a Zenoh config path and a JSON5 value), not {item!r}")
     return key.strip(), value
+
+
+class Inbox:
+    """The bounded hand-over from Zenoh's callbacks to a process's loop: ``(key, bytes)``.
+
+    When it is full the callback waits (until there is room, or the process stops)
+    instead of dropping: Zenoh then stops reading that link, and publishers with
+    blocking congestion control slow down, so data on the fusion path is never lost to
+    a burst and memory stays bounded. ``waits`` counts the times a callback had to wait.
+    """
+
+    def __init__(self, stop: threading.Event, maxsize: int = 65_536):
+        self._queue: queue.Queue[tuple[str, bytes]] = queue.Queue(maxsize)
+        self._stop = stop
+        self.waits = 0
+
+    def __call__(self, sample: zenoh.Sample) -> None:
+        item = (str(sample.key_expr), sample.payload.to_bytes())
+        while not self._stop.is_set():
+            try:
+                self._queue.put(item, timeout=0.1)
+                return
+            except queue.Full:
+                self.waits += 1
+
+    def get(self, timeout: float) -> tuple[str, bytes]:
+        return self._queue.get(timeout=timeout)
+
+    def get_nowait(self) -> tuple[str, bytes]:
+        return self._queue.get_nowait()
+
+    def qsize(self) -> int:
+        return self._queue.qsize()
 
 
 class RejectLog:

@@ -28,7 +28,10 @@ each shows)::
                                            rejoined, feedback timeouts, jammer on/off
     status/<process>/counters/<name>       every other counter a process reports
 
-The recorder is only a listener: the fusion path never waits on it. Its subscription is
+Rows are not logged one by one: :class:`Recording` queues them and sends each entity's
+rows in one ``send_columns`` call, at least every ``SEND_PERIOD_S`` (and before every
+flush), so the recorder keeps up with a fuser at full rate. The recorder is only a
+listener: the fusion path never waits on it. Its subscription is
 served by Zenoh's threads into a bounded queue (overflow is counted and dropped, never
 pushed back to a publisher); the fuser's publishers do not know it exists. Every sample
 that fails to decode, arrives on the wrong key, repeats, or lies beyond the scenario's end
@@ -45,8 +48,9 @@ import sys
 import threading
 import time
 from collections import OrderedDict, deque
+from functools import lru_cache
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Sequence
 
 import numpy as np
 import rerun as rr
@@ -66,7 +70,9 @@ TRUTH_CACHE = 4096  # truth samples kept per target, to score estimates against
 PENDING_MAX = 4096  # estimates waiting for the truth sample of their time
 PATH_MAX = 2000  # points kept in a drawn path (truth, track, airborne site)
 SEQ_WINDOW = 4096  # recent sequence numbers remembered per source (duplicate detection)
-BACKLOG_MAX = 200_000  # queued samples before the recorder starts dropping (and counting)
+BACKLOG_MAX = 50_000  # queued samples before the recorder starts dropping (and counting): seconds of traffic
+SEND_PERIOD_S = 0.2  # queued rows go out at least this often (wall clock)
+SEND_ROWS_MAX = 20_000  # ... or once this many are queued
 VIEWER_PORT = 9876  # Rerun's default: a second run reuses a viewer that is already open
 CONTAMINATION = ("jammed", "outliers")  # sensor counters plotted under jamming/<sensor>/
 HORIZON_SLACK_S = 1.0  # as the fuser: data beyond the scenario's end + this is "future"
@@ -96,6 +102,103 @@ def blueprint(df: bool = False) -> rrb.Blueprint:
     )
 
 
+# One archetype of a row, not built yet: its class and its components, each a list of
+# instances (a list of one broadcasts to all). Building archetypes row by row is what
+# made per-row logging slow; a column of many rows is converted at once.
+Part = tuple[type, dict[str, Sequence]]
+
+
+def part(archetype: type, **components: Sequence) -> Part:
+    return archetype, components
+
+
+def _ui(points: float) -> list[float]:
+    """A radius in UI points, as a one-instance component."""
+    return [float(rr.components.Radius.ui_points(points))]
+
+
+class Recording(rr.RecordingStream):
+    """A recording stream that queues rows and sends them as columns.
+
+    :meth:`row` queues one row of an entity at a time on the ``sim_time`` timeline;
+    :meth:`send_rows` sends each entity's queued rows, in order, with one
+    ``send_columns`` per run of rows made of the same archetypes and components (each
+    row stays one row, as ``log`` would make it). ``flush`` and ``disconnect`` send
+    first, so whatever is flushed is complete.
+    """
+
+    def __init__(self, app: str):
+        super().__init__(app)
+        self._rows: dict[str, list[tuple[float, tuple[Part, ...]]]] = {}
+        self.queued = 0
+
+    def row(self, path: str, t: float, parts: tuple[Part, ...]) -> None:
+        self._rows.setdefault(path, []).append((t, parts))
+        self.queued += 1
+
+    def send_rows(self) -> None:
+        rows, self._rows, self.queued = self._rows, {}, 0
+        for path, queued in rows.items():
+            start = 0
+            while start < len(queued):
+                shape = _shape(queued[start][1])
+                end = start + 1
+                while end < len(queued) and _shape(queued[end][1]) == shape:
+                    end += 1
+                self._send(path, queued[start:end])
+                start = end
+
+    def _send(self, path: str, rows: list[tuple[float, tuple[Part, ...]]]) -> None:
+        columns: list[Any] = []
+        for i, (archetype, components) in enumerate(rows[0][1]):
+            for name in components:
+                values: list[Any] = []
+                lengths = []
+                for _, parts in rows:
+                    v = parts[i][1][name]
+                    values.extend(v)
+                    lengths.append(len(v))
+                columns.extend(archetype.columns(**{name: values}).partition(lengths))
+        self.send_columns(path, indexes=[rr.TimeColumn(TIMELINE, duration=[t for t, _ in rows])], columns=columns)
+
+    def flush(self, **kwargs: Any) -> None:
+        self.send_rows()
+        super().flush(**kwargs)
+
+    def disconnect(self) -> None:
+        self.send_rows()
+        super().disconnect()
+
+
+class Trail:
+    """A drawn path: the latest ``PATH_MAX`` points.
+
+    :meth:`add` returns the path so far as a view that later points never change: rows
+    hold it until they are sent. Points are appended after every earlier view's end, and
+    a full buffer is replaced, not overwritten.
+    """
+
+    def __init__(self) -> None:
+        self._buf = np.empty((2 * PATH_MAX, 3))
+        self._start = self._end = 0
+
+    def add(self, pos: np.ndarray) -> np.ndarray:
+        if self._end == len(self._buf):
+            kept = self._buf[self._end - PATH_MAX + 1:self._end]
+            self._buf = np.empty_like(self._buf)
+            self._buf[:len(kept)] = kept
+            self._start, self._end = 0, len(kept)
+        self._buf[self._end] = pos
+        self._end += 1
+        self._start = max(self._start, self._end - PATH_MAX)
+        return self._buf[self._start:self._end]
+
+
+def _shape(parts: tuple[Part, ...]) -> tuple:
+    return tuple((a, tuple(c)) for a, c in parts)
+
+
+@lru_cache(maxsize=4096)  # a run draws a few hundred entities, row after row
 def _p(*parts: object) -> str:
     """An entity path from unescaped parts (ids may hold '+', '.', ...)."""
     return rr.new_entity_path([str(p) for p in parts])
@@ -118,14 +221,14 @@ class Recorder:
     can feed it encoded messages and read the file back.
 
     Args:
-        rec: the recording stream (its sinks already set).
+        rec: the recording stream (its sinks already set; see :func:`open_recording`).
         keys: the deployment's key space.
         reject: where rejected samples are counted (a fresh :class:`RejectLog` if omitted).
         scenario: the scenario, if known: sites are drawn from the start, DF sensors are
             known in advance, and data beyond its end is rejected as "future".
     """
 
-    def __init__(self, rec: rr.RecordingStream, keys: KeySpace, reject: RejectLog | None = None, scenario=None):
+    def __init__(self, rec: Recording, keys: KeySpace, reject: RejectLog | None = None, scenario=None):
         self.rec = rec
         self.keys = keys
         self.reject = reject if reject is not None else RejectLog("recorder")
@@ -140,13 +243,13 @@ class Recorder:
         self._styled: set[str] = set()
         self._seqs: dict[tuple[str, ...], OrderedDict[int, None]] = {}
         self._sites: dict[str, np.ndarray] = {}
-        self._site_paths: dict[str, list[list[float]]] = {}
+        self._site_paths: dict[str, Trail] = {}
         self._scan: dict[str, tuple[float, dict[str, list[np.ndarray]]]] = {}  # by entity path
         self._bearings: deque[tuple[np.ndarray, np.ndarray]] = deque(maxlen=32)
         self._ref_pos: np.ndarray | None = None  # latest fused (else any) estimate: scales rays
         self._truth: dict[str, OrderedDict[float, np.ndarray]] = {}
-        self._truth_paths: dict[str, list[list[float]]] = {}
-        self._track_paths: dict[str, list[list[float]]] = {}
+        self._truth_paths: dict[str, Trail] = {}
+        self._track_paths: dict[str, Trail] = {}
         self._pending: OrderedDict[float, list[tuple[Estimate, tuple[str, ...]]]] = OrderedDict()
         self._n_pending = 0
         self._states: dict[str, str] = {}
@@ -188,6 +291,8 @@ class Recorder:
         kind = msg.kind
         if kind != "status" and msg.t > self.horizon:
             return None, ("future", f"t = {msg.t:g} s is beyond the scenario's end ({self.horizon:g} s)")
+        if kind != "status" and msg.t < 0.0:  # scenario time starts at 0; rows must fit the timeline
+            return None, ("past", f"t = {msg.t:g} s is before the scenario's start")
         handler, why = self._route_kind(family, ident, msg)
         if handler is not None and kind not in ("watermark", "status"):
             # one row per message: a repeated (src, seq) is dropped. Measurements and estimates
@@ -252,27 +357,27 @@ class Recorder:
 
     # -- logging ---------------------------------------------------------------------------------
 
-    def _log(self, path: str, t: float, *archetypes: Any) -> None:
-        self.rec.set_time(TIMELINE, duration=t)
-        self.rec.log(path, *archetypes)  # one row per call
+    def _log(self, path: str, t: float, *parts: Part) -> None:
+        self.rec.row(path, t, parts)  # one row per call
         self.rows[path] = self.rows.get(path, 0) + 1
 
-    def _style(self, path: str, *archetypes: Any) -> None:
+    def _style(self, path: str, *parts: Part) -> None:
+        """Static properties of an entity, logged once (built only then)."""
         if path not in self._styled:
             self._styled.add(path)
-            self.rec.log(path, *archetypes, static=True)
+            self.rec.log(path, *[archetype(**components) for archetype, components in parts], static=True)
 
     def _advance(self, t: float) -> None:
         if t > self.now:
             self.now = t
 
     @staticmethod
-    def _trail(store: dict[str, list[list[float]]], key: str, pos: np.ndarray) -> list[list[float]]:
-        path = store.setdefault(key, [])
-        path.append([float(v) for v in pos])
-        if len(path) > PATH_MAX:
-            del path[: len(path) - PATH_MAX]
-        return path
+    @staticmethod
+    def _trail(store: dict[str, Trail], key: str, pos: np.ndarray) -> np.ndarray:
+        trail = store.get(key)
+        if trail is None:
+            trail = store[key] = Trail()
+        return trail.add(pos)
 
     # -- scenario --------------------------------------------------------------------------------
 
@@ -305,10 +410,9 @@ class Recorder:
         self._sites[sensor] = pos
         path = self._trail(self._site_paths, sensor, pos)
         c = draw.color_of(sensor)
-        parts: list[Any] = [rr.Points3D([pos], labels=[sensor], colors=[c], radii=rr.components.Radius.ui_points(7.0),
-                                        show_labels=True)]
+        parts = [part(rr.Points3D, positions=[pos], labels=[sensor], colors=[c], radii=_ui(7.0), show_labels=[True])]
         if len(path) > 1:
-            parts.append(rr.LineStrips3D([path], colors=[draw.dim(c)], radii=rr.components.Radius.ui_points(1.5)))
+            parts.append(part(rr.LineStrips3D, strips=[path], colors=[draw.dim(c)], radii=_ui(1.5)))
         self._log(_p("world", "sites", sensor), t, *parts)
         return pos
 
@@ -362,13 +466,13 @@ class Recorder:
             rays.append(np.array([site, site + self._ray_length(site, u, planar) * u]))
             if planar and learn:
                 self._bearings.append((site, u))
-        parts: list[Any] = []
+        parts = []
         if points:
-            parts.append(rr.Points3D(points, colors=[c], radii=rr.components.Radius.ui_points(4.0)))
+            parts.append(part(rr.Points3D, positions=list(points), colors=[c], radii=_ui(4.0)))
         if rays or arcs:
             strips = rays + arcs
             colors = [c] * len(rays) + [draw.dim(c)] * len(arcs)
-            parts.append(rr.LineStrips3D(strips, colors=colors, radii=rr.components.Radius.ui_points(1.0)))
+            parts.append(part(rr.LineStrips3D, strips=strips, colors=colors, radii=_ui(1.0)))
         self._log(path, m.t, *parts)
 
     def _on_watermark(self, family: str, ident: str | None, msg: Message) -> None:
@@ -399,15 +503,15 @@ class Recorder:
         pos = x[:3] if x.size >= 3 else np.array([x[0], x[1], 0.0])
         path = self._trail(self._truth_paths, tgt, pos)
         self._log(_p("world", "truth", tgt), msg.t,
-                  rr.Points3D([pos], labels=[tgt], colors=[draw.TRUTH_COLOR], radii=rr.components.Radius.ui_points(5.0)),
-                  rr.LineStrips3D([path], colors=[draw.TRUTH_COLOR], radii=rr.components.Radius.ui_points(1.0)))
+                  part(rr.Points3D, positions=[pos], labels=[tgt], colors=[draw.TRUTH_COLOR], radii=_ui(5.0)),
+                  part(rr.LineStrips3D, strips=[path], colors=[draw.TRUTH_COLOR], radii=_ui(1.0)))
 
     def _draw_estimate(self, path: str, e: Estimate, color: tuple[int, int, int], label: str) -> np.ndarray | None:
         """Point + 3σ ellipsoid / ellipse + path so far; a smoothed bearing as a ray with its
         ±3σ wedge from the node's site. Returns the drawn position (None for a bearing)."""
         layout = draw.state_layout(e.x.size)
-        radius = rr.components.Radius.ui_points(5.0)
-        line = rr.components.Radius.ui_points(1.0)
+        radius = _ui(5.0)
+        line = _ui(1.0)
         if layout == "bearing":
             site = self._sites.get(e.node)
             if site is None:
@@ -415,22 +519,22 @@ class Recorder:
             az, s = float(e.x[0]) % (2 * math.pi), draw.N_SIGMA * math.sqrt(max(float(e.P[0, 0]), 0.0))
             L = self._ray_length(site, draw.unit(az), True)
             strips = [[site, site + L * draw.unit(a)] for a in (az, az - s, az + s)]
-            self._log(path, e.t, rr.LineStrips3D(strips, colors=[color, draw.dim(color), draw.dim(color)],
-                                                 radii=line, labels=[label, "", ""]))
+            self._log(path, e.t, part(rr.LineStrips3D, strips=strips, colors=[color, draw.dim(color), draw.dim(color)],
+                                      radii=line, labels=[label, "", ""]))
             return None
         if layout is None:
             return None
         pos = draw.position3(e.x)
         trail = self._trail(self._track_paths, path, pos)
-        parts: list[Any] = [rr.Points3D([pos], labels=[label], colors=[color], radii=radius)]
+        parts = [part(rr.Points3D, positions=[pos], labels=[label], colors=[color], radii=radius)]
         if layout == "3d":
             half, quat = draw.ellipsoid(e.P[:3, :3])
-            parts.append(rr.Ellipsoids3D(centers=[pos], half_sizes=[half], quaternions=[quat], colors=[color],
-                                         line_radii=rr.components.Radius.ui_points(0.75)))
-            parts.append(rr.LineStrips3D([trail], colors=[draw.dim(color)], radii=line))
+            parts.append(part(rr.Ellipsoids3D, centers=[pos], half_sizes=[half], quaternions=[quat], colors=[color],
+                              line_radii=_ui(0.75)))
+            parts.append(part(rr.LineStrips3D, strips=[trail], colors=[draw.dim(color)], radii=line))
         else:
             ring = draw.ellipse(pos, e.P[:2, :2])
-            parts.append(rr.LineStrips3D([ring, trail], colors=[color, draw.dim(color)], radii=line))
+            parts.append(part(rr.LineStrips3D, strips=[ring, trail], colors=[color, draw.dim(color)], radii=line))
         self._log(path, e.t, *parts)
         return pos
 
@@ -477,8 +581,8 @@ class Recorder:
         err = e.x - ref
         d = draw.position_dims(e.x.size)
         path = _p("metrics", "error_pos", *prefix)
-        self._style(path, rr.SeriesLines(names=["/".join(prefix)]))
-        self._log(path, e.t, rr.Scalars([float(np.linalg.norm(err[:d]))]))
+        self._style(path, part(rr.SeriesLines, names=["/".join(prefix)]))
+        self._log(path, e.t, part(rr.Scalars, scalars=[float(np.linalg.norm(err[:d]))]))
         try:
             nees = float(err @ np.linalg.solve(e.P, err))
         except np.linalg.LinAlgError:
@@ -490,14 +594,14 @@ class Recorder:
         lo, hi = draw.chi2_bounds(dof)
         base = ("metrics", metric, *prefix)
         name = "/".join(prefix)
-        self._style(_p(*base), rr.SeriesLines(names=[name]))
-        self._style(_p(*base, "lo"), rr.SeriesLines(colors=[draw.BOUND_COLOR], widths=[1.0],
-                                                   names=[f"{name} χ²({dof}) 2.5%"]))
-        self._style(_p(*base, "hi"), rr.SeriesLines(colors=[draw.BOUND_COLOR], widths=[1.0],
-                                                   names=[f"{name} χ²({dof}) 97.5%"]))
-        self._log(_p(*base), t, rr.Scalars([value]))
-        self._log(_p(*base, "lo"), t, rr.Scalars([lo]))
-        self._log(_p(*base, "hi"), t, rr.Scalars([hi]))
+        self._style(_p(*base), part(rr.SeriesLines, names=[name]))
+        self._style(_p(*base, "lo"), part(rr.SeriesLines, colors=[draw.BOUND_COLOR], widths=[1.0],
+                                          names=[f"{name} χ²({dof}) 2.5%"]))
+        self._style(_p(*base, "hi"), part(rr.SeriesLines, colors=[draw.BOUND_COLOR], widths=[1.0],
+                                          names=[f"{name} χ²({dof}) 97.5%"]))
+        self._log(_p(*base), t, part(rr.Scalars, scalars=[value]))
+        self._log(_p(*base, "lo"), t, part(rr.Scalars, scalars=[lo]))
+        self._log(_p(*base, "hi"), t, part(rr.Scalars, scalars=[hi]))
 
     # -- jamming and status ------------------------------------------------------------------------
 
@@ -508,44 +612,48 @@ class Recorder:
         pos = np.asarray(b["pos"], dtype=float)
         affects = [s for s in b["affects"]]
         color = draw.JAM_ON_COLOR if on else draw.JAM_OFF_COLOR
-        parts: list[Any] = [rr.Points3D([pos], labels=[f"{jid} ({b['mode']}, {'ON' if on else 'off'})"],
-                                        colors=[color], radii=rr.components.Radius.ui_points(8.0), show_labels=True)]
+        parts = [part(rr.Points3D, positions=[pos], labels=[f"{jid} ({b['mode']}, {'ON' if on else 'off'})"],
+                      colors=[color], radii=_ui(8.0), show_labels=[True])]
         victims = [self._sites[s] for s in affects if s in self._sites] if on else []
         # always log the strips component, so "no one jammed" clears the previous lines
-        parts.append(rr.LineStrips3D([[pos, v] for v in victims], colors=[draw.JAM_ON_COLOR],
-                                     radii=rr.components.Radius.ui_points(0.75)))
+        parts.append(part(rr.LineStrips3D, strips=[[pos, v] for v in victims], colors=[draw.JAM_ON_COLOR],
+                          radii=_ui(0.75)))
         self._log(_p("world", "jam", jid), t, *parts)
-        self._style(_p("jamming", jid, "on"), rr.SeriesLines(colors=[draw.JAM_ON_COLOR], names=[f"{jid} on"]))
-        self._log(_p("jamming", jid, "on"), t, rr.Scalars([1.0 if on else 0.0]))
+        self._style(_p("jamming", jid, "on"), part(rr.SeriesLines, colors=[draw.JAM_ON_COLOR], names=[f"{jid} on"]))
+        self._log(_p("jamming", jid, "on"), t, part(rr.Scalars, scalars=[1.0 if on else 0.0]))
         known = self._jam_victims.setdefault(jid, set())
         known.update(affects)
         known.update(self._sites)
         for s in sorted(known):
-            self._log(_p("jamming", jid, "affects", s), t, rr.Scalars([1.0 if (on and s in affects) else 0.0]))
+            self._log(_p("jamming", jid, "affects", s), t, part(rr.Scalars, scalars=[1.0 if (on and s in affects) else 0.0]))
         state = (on, b["mode"], b["law"], b["power"], tuple(affects))
         if self._jam.get(jid) != state:
             self._jam[jid] = state
             text = (f"jammer {jid} on: {b['mode']}, {b['law']} outliers, power {b['power']:g}; "
                     f"jams {', '.join(affects) if affects else 'no sensor'}") if on else f"jammer {jid} off"
-            self._log(_p("status", jid, "events"), t, rr.TextLog(text, level="WARN" if on else "INFO"))
+            self._log(_p("status", jid, "events"), t, part(rr.TextLog, text=[text], level=["WARN" if on else "INFO"]))
 
     def _on_status(self, family: str, ident: str | None, msg: Message) -> None:
         b, src = msg.body, msg.src
+        if b["state"] in ("starting", "ready") and self._states.get(src) not in (None, "starting", "ready"):
+            # a restarted process numbers its messages from 1 again: they are not repeats
+            for stream in [s for s in self._seqs if s[2] == src]:
+                del self._seqs[stream]
         # Processes stamp status with their scenario time when they have one; else it is "now".
         t = msg.t if msg.t > 0 else self.now
         t = min(t, self.horizon)
         events = _p("status", src, "events")
         if self._states.get(src) != b["state"]:
             self._states[src] = b["state"]
-            self._log(events, t, rr.TextLog(f"{b['role']} {src}: {b['state']}",
-                                            level="WARN" if b["state"] == "stopped" else "INFO"))
+            self._log(events, t, part(rr.TextLog, text=[f"{b['role']} {src}: {b['state']}"],
+                                      level=["WARN" if b["state"] == "stopped" else "INFO"]))
         for ev in b["events"]:
-            self._log(events, t, rr.TextLog(f"{src}: {ev}", level=_level(ev)))
+            self._log(events, t, part(rr.TextLog, text=[f"{src}: {ev}"], level=[_level(ev)]))
         for name, v in b["counters"].items():
             if name in CONTAMINATION:
-                self._log(_p("jamming", src, name), t, rr.Scalars([float(v)]))
+                self._log(_p("jamming", src, name), t, part(rr.Scalars, scalars=[float(v)]))
             else:
-                self._log(_p("status", src, "counters", name), t, rr.Scalars([float(v)]))
+                self._log(_p("status", src, "counters", name), t, part(rr.Scalars, scalars=[float(v)]))
 
 
 # -- the process ----------------------------------------------------------------------------------
@@ -558,11 +666,11 @@ def has_display() -> bool:
 
 
 def open_recording(rrd_path: str, app: str = "zfusion", spawn: bool = False, df: bool = False,
-                   port: int = VIEWER_PORT) -> tuple[rr.RecordingStream, bool]:
+                   port: int = VIEWER_PORT) -> tuple[Recording, bool]:
     """A recording stream writing to ``rrd_path`` and, with ``spawn`` and a display, to a
     Rerun viewer it starts (or one already listening on ``port``). Returns the stream and
     whether a viewer is attached."""
-    rec = rr.RecordingStream(app)
+    rec = Recording(app)
     bp = blueprint(df)
     sinks: list[Any] = [rr.FileSink(rrd_path)]
     live = False
@@ -584,7 +692,7 @@ def open_recording(rrd_path: str, app: str = "zfusion", spawn: bool = False, df:
     return rec, live
 
 
-def _flush(rec: rr.RecordingStream, timeout: float) -> None:
+def _flush(rec: Recording, timeout: float) -> None:
     """Flush without letting a lost viewer (gRPC sink) stop the recorder; the file sink
     is flushed regardless."""
     try:
@@ -621,7 +729,7 @@ def run(process_id: str, keys: KeySpace, zopts, rrd_path: str, expect: list[str]
         node.subscribe(keys.all(), on_sample)
         node.announce()
         node.publish_status("ready")
-        last_status = time.monotonic()
+        last_status = last_send = time.monotonic()
         while not node.stop.is_set():
             try:
                 key, data = inbox.get(timeout=0.1)
@@ -630,6 +738,9 @@ def run(process_id: str, keys: KeySpace, zopts, rrd_path: str, expect: list[str]
             else:
                 if recorder.offer(key, data) is not None:
                     node.count("recorded")
+            if rec.queued >= SEND_ROWS_MAX or time.monotonic() - last_send >= SEND_PERIOD_S:
+                rec.send_rows()
+                last_send = time.monotonic()
             if expect and set(expect) <= recorder.finished and inbox.empty():
                 break
             if time.monotonic() - last_status >= 1.0:

@@ -3,8 +3,9 @@
 Each plays its part of the scenario (``sensors_sim``) in scenario time, paced against
 the wall clock: the item for time ``t`` goes out at ``start_at + t / speed`` (or at once
 with ``--speed max``). A sensor publishes each scan's measurements on ``meas/<id>`` and
-then a watermark for that time, so consumers can order sources; its last watermark is
-marked final. Noise comes from the process's own generator, seeded by
+then a watermark, so consumers can order sources; its last watermark is marked final.
+Watermarks look ahead: published right after a scan, each promises everything up to just
+before the sensor's next scan. Noise comes from the process's own generator, seeded by
 ``(scenario seed, process id)``, so a distributed run draws exactly what the in-process
 evaluation draws.
 
@@ -87,7 +88,6 @@ def _play_sensor(node: Node, scenario, pacer: Pacer, run_index: int) -> float:
 
     meas_pub = node.publisher(node.keys.meas(node.id))
     wm_seq = 0
-    t_open: float | None = None  # the scan whose watermark is still owed
     status = _status_every(node)
 
     def watermark(t: float, final: bool) -> None:
@@ -96,12 +96,12 @@ def _play_sensor(node: Node, scenario, pacer: Pacer, run_index: int) -> float:
         # Watermarks have their own counter: ``seq`` of measurements counts measurements.
         meas_pub.put(encode("watermark", node.id, wm_seq, t, final=final))
 
-    for ev in sensor_events(scenario, node.id, run=run_index):
-        if t_open is not None and ev.t > t_open:
-            watermark(t_open, False)
+    events = sensor_events(scenario, node.id, run=run_index)
+    ev = next(events, None)
+    t_last: float | None = None
+    while ev is not None:
         if not pacer.wait(ev.t):
             return ev.t
-        t_open = ev.t
         node.count("scans")
         node.count("jammed", int(ev.jammed))
         node.count("outliers", int(ev.outlier))
@@ -109,8 +109,15 @@ def _play_sensor(node: Node, scenario, pacer: Pacer, run_index: int) -> float:
         if ev.measurement is not None:
             meas_pub.put(encode_measurement(ev.measurement, node.id))
             node.count("published")
+        t_last, ev = ev.t, next(events, None)
+        if ev is not None and ev.t > t_last:
+            # Look-ahead watermark: the scan schedule is known, so right after a scan the
+            # sensor can promise "nothing up to just before my next scan" (a watermark
+            # still means "everything up to and including t has been sent"). Consumers
+            # then wait for no sensor's next scan, only for the data itself.
+            watermark(math.nextafter(ev.t, -math.inf), False)
         next(status)
-    t_end = max(t_open if t_open is not None else 0.0, scenario.duration)
+    t_end = max(t_last if t_last is not None else 0.0, scenario.duration)
     watermark(t_end, True)
     return t_end
 

@@ -30,7 +30,7 @@ from schemas import KeySpace, SchemaError, decode, encode, tracker_id
 from schemas.links import downlink, encode_uplink
 
 from .fuser import FuserCore, MeasurementIntake
-from .node import Node, load
+from .node import Inbox, Node, load
 
 
 class _Feed:
@@ -47,10 +47,12 @@ class _Feed:
 
     def advance(self, t):
         self.watermark = max(self.watermark, t)
+        self.node.set_watermark(t)  # closes a many-target node's frames
         return []
 
     def finish(self):
         self.finished = True
+        self.node.set_watermark(math.inf)  # the sensor's stream has ended: its last frame is complete
         return []
 
 
@@ -64,15 +66,15 @@ def run(sensor: str, scenario_ref: str, method_name: str, overrides: dict, keys:
     config = method_config(scenario.tracker, method_name, overrides)
     local = split(method_name).node(sensor, config)
     feed = _Feed(local)
-    inbox: queue.SimpleQueue[tuple[str, bytes]] = queue.SimpleQueue()
     fuser_token: queue.SimpleQueue[bool] = queue.SimpleQueue()  # True: the fuser's token appeared
     with Node(me, "tracker", keys, zopts) as node:
+        inbox = Inbox(node.stop)
         # Its one sensor is never declared dead here: the tracker waits for it to come back
         # (the fuser, meanwhile, declares this tracker dead and carries on without it).
         core = FuserCore(feed, [sensor], keys, node.reject, math.inf, start_grace,
                          horizon=scenario.duration + 1.0, now=time.monotonic(), intake=MeasurementIntake(scenario.sensors))
-        node.subscribe(keys.meas(sensor), lambda s: inbox.put((str(s.key_expr), s.payload.to_bytes())))
-        node.subscribe(keys.feedback(me), lambda s: inbox.put((str(s.key_expr), s.payload.to_bytes())))
+        node.subscribe(keys.meas(sensor), inbox)
+        node.subscribe(keys.feedback(me), inbox)
         pub = node.publisher(keys.local(me))
         watch = node.session.liveliness().declare_subscriber(
             keys.alive(fuser_id), lambda s: fuser_token.put(s.kind == zenoh.SampleKind.PUT))

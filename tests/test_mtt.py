@@ -47,8 +47,6 @@ def test_association_keys_are_checked():
         make_method("SS", {"association": "jpda"})
     with pytest.raises(ValueError, match="confirm_m <= confirm_n"):
         make_method("SS", {"association": "gnn", "confirm_m": 5, "confirm_n": 4})
-    with pytest.raises(ValueError, match="centralised methods"):
-        make_method("KF+TR", {"association": "gnn"})  # HNV, PHHNV, DDHNV: tests/test_t2ta.py
     assert isinstance(make_method("SS", {"association": "gnn", "q": 0.1}), MultiTargetMethod)
 
 

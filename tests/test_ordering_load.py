@@ -125,3 +125,28 @@ def test_a_burst_against_a_live_fuser_is_shed_and_the_fuser_keeps_up(tmp_path, d
     assert cap - 1 <= max(held) <= cap + 2, max(held)
     assert_equals_in_process(doc, until=29.0)  # everything before the burst's times is untouched
     assert doc["sources"]["radar2d"]["dead_intervals"] == []
+
+
+def test_a_full_inbox_holds_zenoh_back_instead_of_growing_or_dropping():
+    import threading
+    from types import SimpleNamespace
+
+    from services.node import Inbox
+
+    stop = threading.Event()
+    inbox = Inbox(stop, maxsize=2)
+    sample = lambda i: SimpleNamespace(key_expr=f"k/{i}", payload=SimpleNamespace(to_bytes=lambda: bytes([i])))  # noqa: E731
+    inbox(sample(0))
+    inbox(sample(1))
+    third = threading.Thread(target=inbox, args=(sample(2),))
+    third.start()
+    third.join(0.5)
+    assert third.is_alive() and inbox.qsize() == 2 and inbox.waits >= 1  # the callback waits: bounded, nothing lost
+    assert inbox.get(0.1) == ("k/0", b"\x00")
+    third.join(1.0)
+    assert not third.is_alive() and [inbox.get_nowait(), inbox.get_nowait()] == [("k/1", b"\x01"), ("k/2", b"\x02")]
+    inbox(sample(3))
+    inbox(sample(4))
+    stop.set()  # a stopping process does not hang in a callback
+    inbox(sample(5))
+    assert inbox.qsize() == 2

@@ -176,6 +176,7 @@ def test_bad_input_is_counted_and_dropped(tmp_path, monkeypatch):
         "duplicate": (KEYS.meas("radar2d"), good),
         "spoofed-src": (KEYS.meas("radar2d"), msgpack.packb({**plain, "src": "angle", "seq": 5})),
         "future": (KEYS.meas("radar2d"), msgpack.packb({**plain, "t": 1e6, "seq": 10**9})),
+        "past": (KEYS.meas("radar2d"), msgpack.packb({**plain, "t": -1e308, "seq": 10**9 + 1})),
         "kind": (KEYS.meas("radar2d"), _est(1.0, np.zeros(9), np.eye(9))),
         "key": ("zf/other/meas/radar2d", good),
     }
@@ -193,7 +194,7 @@ def test_bad_input_is_counted_and_dropped(tmp_path, monkeypatch):
     assert s.put(KEYS.fused(), _est(2.0, np.zeros(9), np.eye(9), seq=2)) is not None
     assert s.put(KEYS.fused(), _est(2.0, np.zeros(9), np.eye(9), seq=2)) is None  # the same update again
     by = dict(s.reject.by_cause)
-    for cause in ("malformed", "not-a-map", "version", "range", "future", "key", "unrecordable"):
+    for cause in ("malformed", "not-a-map", "version", "range", "future", "past", "key", "unrecordable"):
         assert by.get(cause) == 1, (cause, by)
     assert by["duplicate"] == 2
     assert by["spoofed-src"] == 3 and by["kind"] == 2
@@ -202,6 +203,19 @@ def test_bad_input_is_counted_and_dropped(tmp_path, monkeypatch):
     assert "/world/meas/angle" not in rows and "/world/truth/T1" not in rows and "/world/truth/T2" not in rows
     assert max(r["t"] for rs in rows.values() for r in rs) <= sc.duration + 1.0
     assert len(rows["/world/tracks/centre/T1"]) == 1
+
+
+def test_a_restarted_process_is_recorded_again_from_its_first_message(tmp_path):
+    s = Session(tmp_path)
+    s.put(KEYS.status("fuser"), _status("fuser", 1, 0.0, state="ready", role="fuser"))
+    assert s.put(KEYS.fused(), _est(1.0, np.zeros(9), np.eye(9), seq=1)) is not None
+    s.put(KEYS.status("fuser"), _status("fuser", 2, 1.0, role="fuser"))
+    assert s.put(KEYS.fused(), _est(1.0, np.zeros(9), np.eye(9), seq=1)) is None  # a repeat
+    # kill -9, restart: the new fuser says it is ready and counts from 1 again
+    s.put(KEYS.status("fuser"), _status("fuser", 1, 0.0, state="ready", role="fuser"))
+    assert s.put(KEYS.fused(), _est(5.0, np.zeros(9), np.eye(9), seq=1)) is not None
+    assert s.reject.by_cause["duplicate"] == 1
+    assert [r["t"] for r in s.close()["/world/tracks/centre/T1"]] == [1.0, 5.0]
 
 
 def test_local_tracks_feedback_predictions_and_uplinked_measurements(tmp_path):

@@ -8,7 +8,6 @@ import numpy as np
 import pytest
 
 from fusion.association import associate_tracks, gate_threshold, track_distance2
-from fusion.methods import make_method
 from fusion.motion import make_motion
 from fusion.mtt_metrics import score_tracks
 from fusion.network import Downlink, MultiTrackCentre, NetworkMethod

@@ -214,7 +214,6 @@ def _two_linear_trackers(feedback: bool, steps=8, samples=20_000, seed=9):
         if feedback and k < steps:
             # Every local restarts from the fused estimate: x_f = Σ W_i x_i with the fuser's weights,
             # which for BSC we recover from the closed form applied to the exact joint covariance.
-            e = [est[i] - truth for i in range(2)]
             C12 = fuser._cross[("n0", "n1")]
             # (D is singular after feedback: the tracks differ only in the span of their gains.)
             G = (Ps[0] - C12) @ np.linalg.pinv(Ps[0] + Ps[1] - C12 - C12.T, rcond=1e-9, hermitian=True)
