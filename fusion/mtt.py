@@ -90,7 +90,7 @@ from .angles import wrap_pi
 from .association import CONFIRMED, DELETED, ManagementRule, TrackIds, TrackLogic, gate_threshold, gnn, mahalanobis2
 from .config import config_values
 from .init3d import initial_state, spherical_to_position
-from .patent import KINDS_3D, CentralisedMethod
+from .patent import KINDS_3D, CentralisedMethod, ScanGrouper
 from .sensors3d import SphericalModel
 from .types import KIND_COMPONENTS, Estimate, Measurement
 
@@ -142,42 +142,12 @@ class AssociationConfig:
         return ManagementRule(self.confirm_m, self.confirm_n, self.delete_misses)
 
 
-class FrameGrouper:
-    """Groups a time-ordered stream into frames (module docstring, "Frames")."""
+class FrameGrouper(ScanGrouper):
+    """Groups a time-ordered stream into frames (module docstring, "Frames"): the scan
+    grouper of the one-target methods, with any number of plots per sensor."""
 
     def __init__(self, pair_tol: float):
-        self.pair_tol = float(pair_tol)
-        self._open: list[Measurement] = []
-        self._last_key: tuple | None = None
-        self._watermark = -math.inf
-
-    def _close(self) -> list[list[Measurement]]:
-        frame, self._open = self._open, []
-        return [frame] if frame else []
-
-    def push(self, m: Measurement) -> list[list[Measurement]]:
-        key = m.order_key
-        if self._last_key is not None and key <= self._last_key:
-            raise ValueError(f"measurement {key} out of order (after {self._last_key})")
-        if m.t <= self._watermark:
-            raise ValueError(f"measurement at t={m.t} from {m.sensor!r} arrived after watermark {self._watermark}")
-        self._last_key = key
-        out = self._close() if self._open and m.t - self._open[0].t > self.pair_tol else []
-        self._open.append(m)
-        return out
-
-    def advance(self, t: float) -> list[list[Measurement]]:
-        self._watermark = max(self._watermark, float(t))
-        if self._open and self._watermark - self._open[0].t > self.pair_tol:
-            return self._close()
-        return []
-
-    def finish(self) -> list[list[Measurement]]:
-        return self._close()
-
-    def held_since(self) -> float | None:
-        """Time of the open frame's first member (None when no frame is open)."""
-        return self._open[0].t if self._open else None
+        super().__init__(pair_tol, one_per_sensor=False)
 
 
 class _Track:

@@ -308,24 +308,13 @@ class Centre:
         return -math.inf
 
 
-class TrackCentre(Centre):
-    """The centre of HNV / PHHNV / DDHNV: scans of uplinks, a
-    :class:`~fusion.track_fusion.TrackFuser`, and the downlinks."""
+class GroupedCentre(Centre):
+    """A centre that processes its uplinks in groups (one target's scans, many targets'
+    frames) closed by a grouper; its horizon stops before the group it still holds.
+    Subclasses set ``_grouper`` and implement :meth:`_group`."""
 
-    def __init__(self, name: str, config: TrackerConfig, mode: str, track: str = "T1"):
-        super().__init__()
-        self.name = name
-        self.config = config
-        self.mode = mode
-        self.feedback = mode != "track"
-        self.track = track
-        self.motion = config.motion_model()
-        self.fuser = TrackFuser(config.fusion_rule, self.motion, config.ci_criterion, name, track)
-        self.nodes: set[str] = set()
-        self._grouper = ScanGrouper(config.pair_tol)
-        self._watermark = -math.inf
+    _watermark = -math.inf
 
-    # -- streaming ------------------------------------------------------------------------
     def process(self, u: Uplink) -> list[Estimate]:
         return self._run(self._grouper.push(u))
 
@@ -342,14 +331,34 @@ class TrackCentre(Centre):
         held = self._grouper.held_since()
         return self._watermark if held is None else min(self._watermark, _before(held))
 
-    # -- scans ----------------------------------------------------------------------------
-    def _run(self, scans) -> list[Estimate]:
+    def _run(self, groups) -> list[Estimate]:
         out: list[Estimate] = []
-        for scan in scans:
-            out += self._scan(scan)
+        for group in groups:
+            out += self._group(group)
         return out
 
-    def _scan(self, scan: list[Uplink]) -> list[Estimate]:
+    def _group(self, group: list[Uplink]) -> list[Estimate]:
+        raise NotImplementedError
+
+
+class TrackCentre(GroupedCentre):
+    """The centre of HNV / PHHNV / DDHNV: scans of uplinks, a
+    :class:`~fusion.track_fusion.TrackFuser`, and the downlinks."""
+
+    def __init__(self, name: str, config: TrackerConfig, mode: str, track: str = "T1"):
+        super().__init__()
+        self.name = name
+        self.config = config
+        self.mode = mode
+        self.feedback = mode != "track"
+        self.track = track
+        self.motion = config.motion_model()
+        self.fuser = TrackFuser(config.fusion_rule, self.motion, config.ci_criterion, name, track)
+        self.nodes: set[str] = set()
+        self._grouper = ScanGrouper(config.pair_tol)
+
+    # -- scans ----------------------------------------------------------------------------
+    def _group(self, scan: list[Uplink]) -> list[Estimate]:
         t = scan[0].t
         requests = [u for u in scan if u.init_request]
         reports = [u for u in scan if not u.init_request]
@@ -562,7 +571,7 @@ class _Fused:
         self.joins: set[str] = set()  # nodes to send an init after this frame
 
 
-class MultiTrackCentre(Centre):
+class MultiTrackCentre(GroupedCentre):
     """The centre of HNV / PHHNV / DDHNV with many targets (module docstring, "Many
     targets"): frames of uplinks; track-to-track association of every node's local
     tracks with the fused tracks; one :class:`~fusion.track_fusion.TrackFuser` per
@@ -587,33 +596,9 @@ class MultiTrackCentre(Centre):
         self._mapped: dict[tuple[str, str], _Fused] = {}  # (node, local id) -> fused track
         self._ignored: set[tuple[str, str]] = set()  # local tracks no fused track takes
         self._kinds: dict[str, str] = {}  # node -> its sensor's measurement kind
-        self._watermark = -math.inf
-
-    # -- streaming (as TrackCentre) -----------------------------------------------------
-    def process(self, u: Uplink) -> list[Estimate]:
-        return self._run(self._grouper.push(u))
-
-    def advance(self, t: float) -> list[Estimate]:
-        self._watermark = max(self._watermark, float(t))
-        return self._run(self._grouper.advance(t))
-
-    def finish(self) -> list[Estimate]:
-        self._watermark = math.inf
-        return self._run(self._grouper.finish())
-
-    @property
-    def horizon(self) -> float:
-        held = self._grouper.held_since()
-        return self._watermark if held is None else min(self._watermark, _before(held))
-
-    def _run(self, frames) -> list[Estimate]:
-        out: list[Estimate] = []
-        for frame in frames:
-            out += self._frame(frame)
-        return out
 
     # -- one frame -------------------------------------------------------------------------
-    def _frame(self, frame: list[Uplink]) -> list[Estimate]:
+    def _group(self, frame: list[Uplink]) -> list[Estimate]:
         from .association import CONFIRMED, DELETED, TrackLogic
 
         t = frame[0].t

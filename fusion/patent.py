@@ -186,12 +186,17 @@ def track_fusion_rule(table: dict | None, methods: Sequence[str]) -> str | None:
 
 # Scans -------------------------------------------------------------------------------
 class ScanGrouper:
-    """Groups a time-ordered measurement stream into scans (module docstring, "Streaming")."""
+    """Groups a time-ordered measurement stream into scans (module docstring, "Streaming").
 
-    def __init__(self, pair_tol: float):
+    ``one_per_sensor=False`` makes it a many-target *frame* grouper (:mod:`fusion.mtt`):
+    a sensor may report any number of plots within ``pair_tol``, so a group closes on
+    time alone, never because every sensor has reported."""
+
+    def __init__(self, pair_tol: float, one_per_sensor: bool = True):
         if pair_tol < 0.0:
             raise ValueError(f"pair_tol must be >= 0, got {pair_tol}")
         self.pair_tol = float(pair_tol)
+        self.one_per_sensor = one_per_sensor
         self._open: list[Measurement] = []
         self._seen: set[str] = set()
         self._closed = 0
@@ -213,12 +218,14 @@ class ScanGrouper:
             raise ValueError(f"measurement at t={m.t} from {m.sensor!r} arrived after watermark {self._watermark}")
         self._last_key = key
         out = []
-        if self._open and (m.t - self._open[0].t > self.pair_tol or any(o.sensor == m.sensor for o in self._open)):
+        if self._open and (m.t - self._open[0].t > self.pair_tol
+                           or (self.one_per_sensor and any(o.sensor == m.sensor for o in self._open))):
             out += self._close()
         self._open.append(m)
-        self._seen.add(m.sensor)
-        if self._closed and self._seen <= {o.sensor for o in self._open}:
-            out += self._close()
+        if self.one_per_sensor:
+            self._seen.add(m.sensor)
+            if self._closed and self._seen <= {o.sensor for o in self._open}:
+                out += self._close()
         return out
 
     def advance(self, t: float) -> list[list[Measurement]]:
