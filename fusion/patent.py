@@ -72,6 +72,8 @@ init_vel_std     200.0                      m/s per horizontal axis, around zero
 init_vel_std_up  200.0                      m/s vertical, around zero
 init_acc_std     10.0                       m/s² per horizontal axis, around zero (CA)
 init_acc_std_up  10.0                       m/s² vertical, around zero (CA)
+ekf_iterations   1                          > 1: iterated EKF updates in the centralised
+                                            methods (:func:`fusion.sensors3d.iterated_ekf_update`)
 ===============  =========================  =============================================
 
 HNV, PHHNV and DDHNV are split into local nodes and a centre in :mod:`fusion.network`,
@@ -128,11 +130,15 @@ class TrackerConfig:
     init_vel_std_up: float = InitPriors.vel_std_up
     init_acc_std: float = InitPriors.acc_std
     init_acc_std_up: float = InitPriors.acc_std_up
+    ekf_iterations: int = 1
 
     @classmethod
     def from_dict(cls, config: dict | None) -> "TrackerConfig":
         values = config_values(cls, config, "tracker config")
-        cfg = cls(**{k: v if isinstance(v, str) else float(v) for k, v in values.items()})
+        if not float(values.get("ekf_iterations", 1)).is_integer():
+            raise ValueError(f"tracker config 'ekf_iterations' must be an integer, got {values['ekf_iterations']}")
+        cfg = cls(**{k: v if isinstance(v, str) else int(v) if k == "ekf_iterations" else float(v)
+                     for k, v in values.items()})
         cfg._validate()
         return cfg
 
@@ -152,6 +158,8 @@ class TrackerConfig:
         for key in ("init_range", "init_range_std", "init_el_std", "init_vel_std", "init_vel_std_up", "init_acc_std", "init_acc_std_up"):
             if getattr(self, key) <= 0.0:
                 raise ValueError(f"tracker config {key!r} must be > 0, got {getattr(self, key)}")
+        if not 1 <= self.ekf_iterations <= 50:
+            raise ValueError(f"tracker config 'ekf_iterations' must lie in 1..50, got {self.ekf_iterations}")
         if abs(self.init_el) >= np.pi / 2:
             raise ValueError(f"tracker config 'init_el' must lie in (-π/2, π/2) rad, got {self.init_el}")
 
@@ -366,7 +374,7 @@ class CentralisedMethod(ScanMethod):
         t = scan[0].t
         if self.ekf is None:
             x, P = initial_state(scan, self.n_x, self.priors)
-            self.ekf = TrackEKF(self.motion, x, P, t)
+            self.ekf = TrackEKF(self.motion, x, P, t, self.config.ekf_iterations)
             return [Estimate(t, x, P, self.name, "centre", self.track)]
         self.ekf.predict(t)
         nis, dof = 0.0, 0

@@ -307,6 +307,35 @@ def _ekf_update(model, x, P, z) -> tuple[kalman.UpdateResult, np.ndarray]:
     return kalman.update(x, P, nu, H, model.R), H
 
 
+def iterated_ekf_update(model: SphericalModel, x: np.ndarray, P: np.ndarray, z: np.ndarray,
+                        iterations: int, tol: float = 1e-9) -> tuple[kalman.UpdateResult, np.ndarray]:
+    r"""Iterated EKF update: Gauss–Newton steps on the MAP cost
+    ``(x − x̄)ᵀ P̄⁻¹ (x − x̄) + (z − h(x))ᵀ R⁻¹ (z − h(x))``, relinearising ``h`` at each
+    iterate ``xᵢ``:
+
+        Hᵢ = ∂h/∂x(xᵢ),   νᵢ = [z − h(xᵢ)]_wrapped − Hᵢ (x̄ − xᵢ),   xᵢ₊₁ = x̄ + Kᵢ νᵢ,
+
+    with ``Kᵢ`` the Kalman gain of ``Hᵢ`` about the prior ``(x̄, P̄)``; the covariance is
+    the Joseph form with the last ``H``. One iteration is the EKF. It matters where the
+    prediction lies far from the measurement's linear regime, e.g. an accurate range
+    across a cross-range spread of hundreds of metres (docs/consistency.md §4).
+
+    The returned ν, S and NIS are the first iteration's: those of the prediction, which
+    is what a consistency (NIS) test and a gate are about. Stops early once a step moves
+    the state by less than ``tol`` relative to its size. Returns the result and the last ``H``.
+    """
+    first, H = _ekf_update(model, x, P, z)
+    res = first
+    for _ in range(int(iterations) - 1):
+        nu, H = model.innovation_and_jacobian(z, res.x)
+        step = kalman.update(x, P, nu - H @ (x - res.x), H, model.R)
+        moved = float(np.max(np.abs(step.x - res.x)))
+        res = step
+        if moved <= tol * (1.0 + float(np.max(np.abs(res.x)))):
+            break
+    return kalman.UpdateResult(res.x, res.P, first.nu, first.S, first.nis, res.K), H
+
+
 def ekf_update(model: SphericalModel, x: np.ndarray, P: np.ndarray, z: np.ndarray) -> kalman.UpdateResult:
     """Measurement update linearised at ``x``: ``H = ∂h/∂x(x)``, wrapped ``ν = z − h(x)``,
     Joseph form and NIS via :func:`kalman.update`."""
@@ -322,8 +351,9 @@ class TrackEKF:
     (angle-wrapped innovation, Joseph form, NIS; see :mod:`fusion.kalman`).
     """
 
-    def __init__(self, motion, x: np.ndarray, P: np.ndarray, t: float):
+    def __init__(self, motion, x: np.ndarray, P: np.ndarray, t: float, iterations: int = 1):
         self.motion = motion
+        self.iterations = int(iterations)  # > 1: iterated EKF updates (iterated_ekf_update)
         self.set_state(x, P, t)
 
     def set_state(self, x: np.ndarray, P: np.ndarray, t: float) -> None:
@@ -348,6 +378,9 @@ class TrackEKF:
 
         The Jacobian used is kept in ``self.H`` (a local track reports ``K·H``).
         """
-        res, self.H = _ekf_update(model, self.x, self.P, z)
+        if self.iterations > 1:
+            res, self.H = iterated_ekf_update(model, self.x, self.P, z, self.iterations)
+        else:
+            res, self.H = _ekf_update(model, self.x, self.P, z)
         self.x, self.P = res.x, res.P
         return res

@@ -520,8 +520,9 @@ def write_patent_report(bundle: dict, out_dir: Path) -> Path:
         "from the same first-scan initialisation (`fusion/init3d.py`), with velocity and acceleration priors "
         "about zero taken from the scenario's per-method tables: ± 1 km/s and ± 100 m/s² per axis for LCDD, "
         "HNDD, SS, PHHNV and DDHNV (so those five are compared on identical priors); the same horizontally "
-        "with a vertical ± 20 m/s, ± 1 m/s² for HNV; the generic ± 200 m/s, ± 10 m/s² for the single-sensor "
-        "baselines (docs/consistency.md §8 says why each).",
+        "with a vertical ± 20 m/s, ± 1 m/s² for HNV; the generic ± 200 m/s, ± 10 m/s² for the 2D-radar and "
+        "angle-sensor baselines; ± 1 km/s, ± 100 m/s² with 5 iterated EKF updates per scan for the 3D-radar "
+        "baseline (docs/consistency.md §4, §8 say why each).",
         "",
         "**The bound.** Posterior Cramér–Rao bound (`fusion/crb3d.py`), 9-state CA truth model, expectation over "
         "the runs' truths, J₀ = inverse of the trackers' initial covariance (the information they all start "

@@ -411,3 +411,36 @@ def test_spherical_to_position_jacobian_colocated():
     f = lambda a, e, r: np.array([1.0, 2.0, 3.0]) + np.array(pymap3d.aer2enu(a, e, r, deg=False))
     np.testing.assert_allclose(p, f(4.0, -0.3, 5000.0), rtol=1e-12)
     np.testing.assert_allclose(J, _fd_jacobian(f, np.array([4.0, -0.3, 5000.0]), [1e-7, 1e-7, 1e-3]), rtol=1e-6, atol=1e-6)
+
+
+def test_iterated_update_is_the_map_estimate_and_one_iteration_is_the_ekf():
+    """The iterated update converges to the minimiser of the MAP cost
+    |x − x̄|²_P̄⁻¹ + |z − h(x)|²_R⁻¹ (scipy's least squares as the independent reference);
+    with one iteration it is the EKF; ν, S and NIS stay those of the prediction."""
+    from scipy.optimize import least_squares
+
+    from fusion.sensors3d import ekf_update, iterated_ekf_update
+
+    rng = np.random.default_rng(7)
+    m = Radar3D(np.zeros(3), (np.radians(1.0), np.radians(1.0), 20.0))  # fine range, coarse angles
+    truth = np.r_[6000.0, 8000.0, 2000.0, np.zeros(6)]
+    P = np.diag([1000.0**2] * 3 + [100.0**2] * 3 + [10.0**2] * 3)  # a broad cross-range spread
+    x_bar = truth + np.linalg.cholesky(P) @ rng.standard_normal(9)
+    z = m.h(truth) + np.array([0.3, -0.2, 0.5]) * m.std
+    L_p, L_r = np.linalg.cholesky(np.linalg.inv(P)), 1.0 / m.std
+
+    def residual(x):
+        nu = m.innovation(z, x)
+        return np.r_[L_p.T @ (x - x_bar), nu * L_r]
+
+    ref = least_squares(residual, x_bar, xtol=1e-15, ftol=1e-15, gtol=1e-15).x
+    one = ekf_update(m, x_bar, P, z)
+    it, _ = iterated_ekf_update(m, x_bar, P, z, iterations=1)
+    np.testing.assert_array_equal(it.x, one.x)
+    it, _ = iterated_ekf_update(m, x_bar, P, z, iterations=20)
+    np.testing.assert_allclose(it.x[:3], ref[:3], rtol=0, atol=1e-6)
+    assert np.linalg.norm(one.x[:3] - ref[:3]) > 1.0  # the single linearisation is metres off here
+    assert it.nis == one.nis and np.array_equal(it.S, one.S)
+    ekf = TrackEKF(make_motion("ca", 0.01), x_bar, P, 0.0, iterations=20)
+    ekf.update(m, z)
+    np.testing.assert_allclose(ekf.x, it.x, rtol=0, atol=1e-9)
