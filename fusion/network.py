@@ -77,20 +77,29 @@ trackers run without feedback.
 *Local trackers.* A node groups its sensor's plots into frames
 (:class:`fusion.mtt.FrameGrouper`; the sensor's watermark closes them), gates them
 against its local tracks' predictions (χ², GNN), updates the tracks that took one and
-reports each (``track`` = the node's own id ``L1, L2, …``: local ids differ per node),
-sends the other plots up as requests, and deletes a local track after
-``delete_misses`` frames without a plot, or when the centre says ``drop``. Every mode
+reports each (``track`` = its local id), sends the other plots up as requests, and
+deletes a local track after ``delete_misses`` frames without a plot or when its
+position σ exceeds ``max_pos_std`` — and then tells the centre (a ``drop`` uplink) —,
+or when the centre says ``drop``. Every mode
 waits for the centre's horizon before a frame (as PHHNV does with one target), so the
 inits and drops of earlier frames are in, and the result is independent of timing.
 
-*Track-to-track association at the centre*, per node and frame: a local id seen
-before keeps its fused track while ``d²`` of the pair (position and velocity; with
-the cross-covariance where it is known, :meth:`fusion.track_fusion.TrackFuser.cross_covariance`)
-stays in the χ² gate (:func:`fusion.association.track_distance2`); a new local id is
-assigned by GNN among the fused tracks that sent this node an init; a mapped track
-that leaves its gate is dropped (the node deletes it) and the node is sent the
-fused track again. One local track per node per fused track; a new one replaces the
-old one (dropped). Each fused track has its own :class:`~fusion.track_fusion.TrackFuser`
+*Memberships.* The centre names every local track it starts: the init carries its
+local id (``L1, L2, …`` per node, never reused for that node), so the local track is
+its fused track's member from birth, and the centre's records follow the node's
+track list exactly — an init adds a member, a drop either way removes it. (A local
+id the node chose itself would be unknown until its first report: a track that died
+before that would leave the centre waiting for it, and a restarted node's ``L1``
+would be taken for its previous incarnation's.) A track a node starts alone (no
+centre) is ``A1, A2, …``, a name the centre never gives, and it is dropped.
+
+*Track-to-track association at the centre*, per node and frame: a local track keeps
+its fused track while ``d²`` of the pair (position and velocity; with the
+cross-covariance where it is known, :meth:`fusion.track_fusion.TrackFuser.cross_covariance`)
+stays in the χ² gate (:func:`fusion.association.track_distance2`); one that leaves its
+gate is dropped (the node deletes it) and the node is sent the fused track again.
+One local track per node per fused track; a new one replaces the old one (dropped).
+Each fused track has its own :class:`~fusion.track_fusion.TrackFuser`
 and fuses its reports as the one-target centre does; a fused track without reports
 coasts. Management is :class:`fusion.association.TrackLogic` (M-of-N, K misses,
 ``max_pos_std``): a tentative track scores a hit with reports or gated requests of two
@@ -129,6 +138,7 @@ class Uplink:
     seq: int
     estimate: Estimate | None = None
     measurement: Measurement | None = None
+    drop: bool = False  # many targets: the node deleted its local track ``estimate.track``
 
     @property
     def sensor(self) -> str:  # the scan grouper's notion of "source"
@@ -142,12 +152,18 @@ class Uplink:
     def init_request(self) -> bool:
         return self.estimate is None and self.measurement is not None
 
+    @property
+    def report(self) -> bool:
+        """A local track's estimate (not a request, not a deletion notice)."""
+        return self.estimate is not None and not self.drop
+
 
 @dataclass(frozen=True)
 class Downlink:
     """A prior sent down to one node; ``estimate.extra`` may carry the centre's own
     update with that node's measurement (``sensor_x``, ``sensor_P``; DDHNV). With many
-    targets, ``drop`` tells the node to delete its local track ``estimate.track``."""
+    targets, ``init`` starts the local track ``estimate.track`` (named by the centre),
+    and ``drop`` tells the node to delete its local track ``estimate.track``."""
 
     node: str
     estimate: Estimate
@@ -214,9 +230,9 @@ class LocalNode:
             return min(sensor_watermark, _before(self.pending[0].t))
         return sensor_watermark
 
-    def _uplink(self, t: float, estimate=None, measurement=None) -> Uplink:
+    def _uplink(self, t: float, estimate=None, measurement=None, drop: bool = False) -> Uplink:
         self._seq += 1
-        return Uplink(float(t), self.node, self._seq, estimate, measurement)
+        return Uplink(float(t), self.node, self._seq, estimate, measurement, drop)
 
     def _blocked(self, m: Measurement) -> str | None:
         return None
@@ -457,8 +473,9 @@ class StationCentre(Centre):
 class MultiTrackNode(LocalNode):
     """A local node tracking many targets on its own sensor's plots (module docstring,
     "Many targets"): frames of plots, χ²/GNN association to its local tracks, one
-    uplink per updated track (``track`` = its local id) and one initialisation request
-    per plot no local track took."""
+    uplink per updated track (``track`` = its local id), one initialisation request
+    per plot no local track took, and one deletion notice (``drop``) per local track
+    it deletes on its own."""
 
     kinds = KINDS_3D
 
@@ -475,7 +492,10 @@ class MultiTrackNode(LocalNode):
         self.motion = config.motion_model()
         self.tracks: dict[str, LocalTracker] = {}  # local id -> tracker, in creation order
         self.misses: dict[str, int] = {}
-        self._ids = TrackIds("L")  # node-local ids: the centre maps them to its own
+        # The centre names the local tracks it starts (the init's ``track``); a track the
+        # node starts alone is ``A<n>``, a name the centre never gives, so it is never
+        # taken for one of the centre's.
+        self._alone_ids = TrackIds("A")
         self._frames = FrameGrouper(config.pair_tol)
 
     def offer(self, m: Measurement) -> None:
@@ -506,11 +526,8 @@ class MultiTrackNode(LocalNode):
         if d.drop:
             self.tracks.pop(e.track, None)
             self.misses.pop(e.track, None)
-        elif d.init:  # a new local track on one of the centre's tracks
-            lid = self._ids.next()
-            self.tracks[lid] = LocalTracker(self.node, self.motion, self.method, lid)
-            self.tracks[lid].initialise(e.x, e.P, e.t)
-            self.misses[lid] = 0
+        elif d.init:  # a new local track on one of the centre's tracks, named by the centre
+            self._start(e.track, e.x, e.P, e.t)
         elif self.mode != "track" and e.track in self.tracks:
             tr = self.tracks[e.track]
             if e.t >= tr.ekf.t:  # not older than where the track already is
@@ -543,21 +560,25 @@ class MultiTrackNode(LocalNode):
         hit = set(taken.values())
         for lid in ids:
             self.misses[lid] = 0 if lid in hit else self.misses[lid] + 1
-            P = self.tracks[lid].ekf.P
+            ekf = self.tracks[lid].ekf
             if self.misses[lid] >= self.association.delete_misses or \
-                    math.sqrt(float(np.trace(P[:3, :3]))) > self.association.max_pos_std:
+                    math.sqrt(float(np.trace(ekf.P[:3, :3]))) > self.association.max_pos_std:
                 del self.tracks[lid], self.misses[lid]
+                # Tell the centre, which would otherwise keep it as its fused track's member.
+                out.append(self._uplink(t, Estimate(t, ekf.x, ekf.P, self.method, self.node, lid), drop=True))
         for c, m in enumerate(frame):
             if c in taken:
                 continue
             if alone:  # no centre: a local track from this plot alone
-                lid = self._ids.next()
-                self.tracks[lid] = LocalTracker(self.node, self.motion, self.method, lid)
-                self.tracks[lid].initialise(*initial_state([m], self.motion.n_x, self.config.priors()), m.t)
-                self.misses[lid] = 0
+                self._start(self._alone_ids.next(), *initial_state([m], self.motion.n_x, self.config.priors()), m.t)
             else:
                 out.append(self._uplink(m.t, measurement=m))
         return out
+
+    def _start(self, lid: str, x: np.ndarray, P: np.ndarray, t: float) -> None:
+        self.tracks[lid] = LocalTracker(self.node, self.motion, self.method, lid)
+        self.tracks[lid].initialise(x, P, t)
+        self.misses[lid] = 0
 
 
 class _Fused:
@@ -567,7 +588,6 @@ class _Fused:
         self.key, self.fuser, self.logic, self.last = key, fuser, logic, last
         self.id: str | None = None  # published id, given at confirmation
         self.members: dict[str, str] = {}  # node -> its local id on this track
-        self.invited: set[str] = set()  # nodes sent an init, whose local track is not yet mapped
         self.joins: set[str] = set()  # nodes to send an init after this frame
 
 
@@ -594,7 +614,7 @@ class MultiTrackCentre(GroupedCentre):
         self._ids = TrackIds()
         self._births = 0
         self._mapped: dict[tuple[str, str], _Fused] = {}  # (node, local id) -> fused track
-        self._ignored: set[tuple[str, str]] = set()  # local tracks no fused track takes
+        self._local_ids: dict[str, TrackIds] = {}  # node -> the names of the local tracks it is sent
         self._kinds: dict[str, str] = {}  # node -> its sensor's measurement kind
 
     # -- one frame -------------------------------------------------------------------------
@@ -604,7 +624,10 @@ class MultiTrackCentre(GroupedCentre):
         t = frame[0].t
         predicted = {f.key: f.fuser.predicted(t) for f in self.tracks}
         reports: dict[str, list[Uplink]] = {f.key: [] for f in self.tracks}
-        for node, ups in _by_node(u for u in frame if not u.init_request).items():
+        for u in frame:
+            if u.drop:  # the node deleted a local track: it is no member any more
+                self._forget(u.node, u.estimate.track)
+        for node, ups in _by_node(u for u in frame if u.report).items():
             for f, u in self._associate_reports(node, ups, t, predicted):
                 reports[f.key].append(u)
         seen: dict[str, set[str]] = {f.key: {u.node for u in reports[f.key] if _hit(u)} for f in self.tracks}
@@ -641,14 +664,12 @@ class MultiTrackCentre(GroupedCentre):
         for f in self.tracks:
             if f.logic.status == DELETED:
                 for node, lid in sorted(f.members.items()):
-                    self._drop(node, lid, f, f.last)
+                    self._drop(node, lid, f.last)
                 continue
             if f.logic.status == CONFIRMED and f.id is None:
                 f.id = self._ids.next()
             for node in sorted(f.joins):  # from the latest fused state (late joiners too)
-                f.fuser.add_node(node)
-                f.invited.add(node)
-                self._send(node, Estimate(f.fuser.t, f.fuser.x, f.fuser.P, self.name, "centre", f.key), True)
+                self._join(node, f)
             f.joins = set()
         self.tracks = [f for f in self.tracks if f.logic.status != DELETED]
         confirmed = sorted((f for f in self.tracks if f.id is not None), key=lambda f: int(f.id[1:]))
@@ -669,69 +690,65 @@ class MultiTrackCentre(GroupedCentre):
         return confirmed and any("range" in KIND_COMPONENTS[self._kinds.get(n, "azel")] for n in nodes)
 
     def _associate_reports(self, node: str, ups: list[Uplink], t: float, predicted) -> list[tuple[_Fused, Uplink]]:
-        """Track-to-track association of one node's reports with the fused tracks. A
-        local track keeps the fused track it is mapped to while it stays in the gate;
-        a new local id may take a fused track that invited this node (sent it an init);
-        a mapped track leaving its gate is dropped (ignored from then on) and the node
-        is invited again."""
-        from .association import associate_tracks, gate_threshold, track_distance2
+        """Track-to-track association of one node's reports with the fused tracks. Every
+        local track the centre knows was started by its init, so it is mapped from
+        birth; it keeps its fused track while the pair stays in the χ² gate
+        (``d²/G ≤ 1``). A mapped track leaving its gate is dropped and the node is sent
+        the fused track again; a local id the centre does not know (its fused track was
+        deleted, or the node started it alone) is dropped."""
+        from .association import gate_threshold, track_distance2
 
-        cost = np.full((len(ups), len(self.tracks)), np.inf)
-        keep = {}
-        col = {f.key: j for j, f in enumerate(self.tracks)}
-        for i, u in enumerate(ups):
-            key = (node, u.estimate.track)
-            if key in self._ignored:
-                continue
-            if key in self._mapped:
-                js = [col[self._mapped[key].key]]
-                keep[i] = js[0]
-            else:
-                js = [j for j, f in enumerate(self.tracks) if node in f.invited]
-            e = _at(u.estimate, t)
-            for j in js:
-                f = self.tracks[j]
-                d2, rank = track_distance2(e.x, e.P, *predicted[f.key], f.fuser.cross_covariance(t, e), _COMPARED)
-                cost[i, j] = d2 / gate_threshold(rank, self.association.gate_prob) if rank else 0.0
         out = []
-        pairs = dict(associate_tracks(cost, keep))
-        for i, u in enumerate(ups):
-            key = (node, u.estimate.track)
-            if i in pairs:
-                f = self.tracks[pairs[i]]
-                if key not in self._mapped:  # a new local track: the node's track on f from now on
-                    if node in f.members:  # it replaces the one before (that the node had lost)
-                        self._drop(node, f.members[node], f, u.estimate)
-                    f.members[node] = u.estimate.track
-                    f.invited.discard(node)
-                    self._mapped[key] = f
+        for u in ups:
+            lid = u.estimate.track
+            f = self._mapped.get((node, lid))
+            if f is None:
+                self._drop(node, lid, u.estimate)
+                continue
+            e = _at(u.estimate, t)
+            d2, rank = track_distance2(e.x, e.P, *predicted[f.key], f.fuser.cross_covariance(t, e), _COMPARED)
+            if not rank or d2 <= gate_threshold(rank, self.association.gate_prob):
                 out.append((f, u))
-            elif key in self._mapped:  # left its gate: the node starts again from the fused track
-                f = self._mapped[key]
-                self._drop(node, u.estimate.track, f, u.estimate)
+            else:  # left its gate: the node starts again from the fused track
+                self._drop(node, lid, u.estimate)
                 f.joins.add(node)
-            elif key not in self._ignored:  # a local track of no fused track (deleted meanwhile)
-                self._drop(node, u.estimate.track, None, u.estimate)
         return out
 
-    def _drop(self, node: str, lid: str, f: _Fused | None, e: Estimate) -> None:
-        """Forget the node's local track ``lid`` and tell the node to delete it (the
-        downlink carries ``e``, whose state does not matter)."""
-        self._ignored.add((node, lid))
-        self._mapped.pop((node, lid), None)
+    def _join(self, node: str, f: _Fused) -> None:
+        """Send ``node`` a new local track on ``f`` from the latest fused state, named
+        here (``L<n>``, never reused for that node: not after a drop, nor by a
+        restarted node), so it is ``f``'s member from now on; it replaces the node's
+        local track on ``f`` before, if any (one per node per fused track)."""
+        if node in f.members:
+            self._drop(node, f.members[node], f.last)
+        lid = self._local_ids.setdefault(node, TrackIds("L")).next()
+        f.members[node] = lid
+        self._mapped[(node, lid)] = f
+        f.fuser.add_node(node)
+        self._send(node, Estimate(f.fuser.t, f.fuser.x, f.fuser.P, self.name, "centre", lid), True)
+
+    def _forget(self, node: str, lid: str) -> None:
+        """The node's local track ``lid`` is no member of its fused track any more."""
+        f = self._mapped.pop((node, lid), None)
         if f is not None and f.members.get(node) == lid:
             del f.members[node]
+
+    def _drop(self, node: str, lid: str, e: Estimate) -> None:
+        """Forget the node's local track ``lid`` and tell the node to delete it (the
+        downlink carries ``e``, whose state does not matter)."""
+        self._forget(node, lid)
         self._send(node, Estimate(e.t, e.x, e.P, self.name, "centre", lid), False, drop=True)
 
     def _associate_requests(self, node: str, plots: list[Measurement], t: float, predicted):
-        """χ²/GNN of one node's request plots with the fused tracks that hold no local
-        track of that node: a plot in such a track's gate makes the node join it (the
-        request initialises, as in the one-target handshake, and is not used again).
-        Returns the plots left for initiation and the tracks joined."""
+        """χ²/GNN of one node's request plots with the fused tracks: a plot in a track's
+        gate makes the node join it (the request initialises, as in the one-target
+        handshake, and is not used again). A track the node is a member of takes part:
+        a plot its local track did not take says that track may be lost, and the new
+        one replaces it. Returns the plots left for initiation and the tracks joined."""
         from .association import gate_threshold, gnn, mahalanobis2
         from .sensors3d import SphericalModel
 
-        free = [f for f in self.tracks if node not in f.invited]  # a member may be lost to the node
+        free = self.tracks
         if not free:
             return plots, []
         model = SphericalModel.from_measurement(plots[0], self.motion.n_x)
@@ -847,7 +864,7 @@ class NetworkMethod:
                 node.set_horizon(self.centre.horizon)
                 for u in node.step():
                     sent = True
-                    if u.estimate is not None:
+                    if u.report:
                         self._out.append(u.estimate)
                     self._out += self.centre.process(u)
             if not downs and not sent:
@@ -877,7 +894,7 @@ class NetworkMethod:
         out = self._settle(math.inf)
         for node in self.nodes.values():  # nothing can answer a node that still waits now
             for u in node.step(alone=True):
-                if u.estimate is not None:
+                if u.report:
                     out.append(u.estimate)
                 out += self.centre.process(u)
         return out + self.centre.finish()

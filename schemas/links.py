@@ -4,7 +4,9 @@ topologies on the wire (:mod:`fusion.network` has their meaning).
 An uplink travels as one or two ordinary messages from the local tracker, in this
 order: its estimate (kind ``track``, or ``prediction``) and/or its raw measurement
 (a measurement kind, ``sensor`` = the node's sensor). DDHNV's uplink carries both, as
-two messages with the same ``t`` and consecutive ``seq``. A downlink is a ``track``
+two messages with the same ``t`` and consecutive ``seq``. With many targets, a node
+that deletes a local track says so by a ``track`` message of that track whose
+``extra`` holds ``drop`` (``[1.0]``; absent otherwise). A downlink is a ``track``
 message from the fuser whose ``extra`` holds ``init`` (``[1.0]`` or ``[0.0]``) and,
 for DDHNV, ``sensor_x``/``sensor_P``; with many targets, ``drop`` (``[1.0]``, absent
 otherwise) asks the node to delete its local track ``track``. The fuser's feedback *horizon* is a
@@ -51,6 +53,8 @@ def encode_uplink(u: Uplink, src: str, seq: int) -> list[bytes]:
     out = []
     if u.estimate is not None:
         e, kind = _estimate_to_wire(u.estimate)
+        if u.drop:
+            e = dataclasses.replace(e, extra={**e.extra, "drop": [1.0]})
         out.append(encode_estimate(e, src, seq, kind))
         seq += 1
     if u.measurement is not None:
@@ -63,8 +67,10 @@ def uplink(node: str, msg: Message, measurement: Message | None = None) -> Uplin
     message, or both."""
     if msg.kind in ("track", "prediction"):
         e = estimate_from_wire(msg)
+        extra = dict(e.extra)
+        drop = _flag(extra.pop("drop", None))
         m = to_measurement(measurement) if measurement is not None else None
-        return Uplink(msg.t, node, msg.seq, e, m)
+        return Uplink(msg.t, node, msg.seq, dataclasses.replace(e, extra=extra), m, drop)
     return Uplink(msg.t, node, msg.seq, None, to_measurement(msg))
 
 
@@ -78,10 +84,14 @@ def encode_downlink(d: Downlink, src: str, seq: int) -> bytes:
 def downlink(node: str, msg: Message) -> Downlink:
     e = to_estimate(msg)
     extra = dict(e.extra)
-    init = np.asarray(extra.pop("init", [0.0]), dtype=float).ravel()
-    drop = np.asarray(extra.pop("drop", [0.0]), dtype=float).ravel()
-    return Downlink(node, dataclasses.replace(e, extra=extra), bool(init.size and init[0] == 1.0),
-                    bool(drop.size and drop[0] == 1.0))
+    init, drop = _flag(extra.pop("init", None)), _flag(extra.pop("drop", None))
+    return Downlink(node, dataclasses.replace(e, extra=extra), init, drop)
+
+
+def _flag(value) -> bool:
+    """A flag extra (``[1.0]`` set; ``[0.0]`` or absent not)."""
+    v = np.asarray([] if value is None else value, dtype=float).ravel()
+    return bool(v.size and v[0] == 1.0)
 
 
 def horizon_message(src: str, seq: int, t: float) -> bytes:

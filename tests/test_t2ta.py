@@ -154,6 +154,158 @@ def test_the_drop_downlink_travels():
         assert (back.init, back.drop, back.estimate.track) == (d.init, d.drop, "L7")
 
 
+# Memberships: the centre's records follow the nodes' local tracks ------------------------------
+def _run(sc, method, hook):
+    """``method`` in process on run 0 of ``sc``; ``hook(network, t)`` after each instant
+    is settled (every node and the centre complete up to ``t``)."""
+    network = NetworkMethod(method, dict(sc.tracker))
+    out, t_prev = [], None
+    for m in merged_measurements(sc, 0):
+        if t_prev is not None and m.t > t_prev:
+            out += network.advance(t_prev)
+            hook(network, t_prev)
+        out += network.process(m)
+        t_prev = m.t
+    return network, out + network.finish()
+
+
+def _members(centre: MultiTrackCentre, node: str) -> dict[str, str]:
+    """The centre's record of ``node``: its local id -> fused track key."""
+    return {f.members[node]: f.key for f in centre.tracks if node in f.members}
+
+
+def _quiet(network) -> bool:
+    """The centre has processed every uplink sent and every downlink is delivered."""
+    return network.centre._grouper.held_since() is None and not network.centre._down
+
+
+def _held_to_the_end(sc, out, fid: str, t0: float) -> bool:
+    """The target fused track ``fid`` holds at ``t0`` keeps it, by that id, to the end."""
+    s = score_tracks(track_steps(sc, out, 0), 1000.0)
+    i = next(k for k, t in enumerate(s.t) if t >= t0)
+    truth = next(k for k, v in s.assignments[i].items() if v == fid)
+    return [a.get(truth) for a in s.assignments[i:]] == [fid] * (len(s.t) - i)
+
+
+def _lose(node, lid: str) -> None:
+    """Make the node's local track ``lid`` miss from now on (moved 20 km away, out of
+    every plot's gate) and reach ``delete_misses`` at its next frame: the node deletes
+    it by its own rule."""
+    tr = node.tracks[lid]
+    tr.ekf.x = tr.ekf.x + np.r_[20000.0, 20000.0, np.zeros(len(tr.ekf.x) - 2)]
+    node.misses[lid] = node.association.delete_misses - 1
+
+
+@pytest.mark.parametrize("method", DISTRIBUTED)
+def test_the_centre_knows_every_local_track_and_only_those(crossing, method):
+    """Crossing aircraft in clutter: whenever the network is quiet, the local tracks the
+    centre counts as its fused tracks' members are exactly the local tracks each node
+    holds — a node that deletes a track on its own (misses, covariance) says so, and an
+    init's local track is a member from birth."""
+    checked = []
+
+    def check(network, t):
+        if _quiet(network):
+            for name, node in network.nodes.items():
+                assert set(_members(network.centre, name)) == set(node.tracks), (t, name)
+            checked.append(t)
+
+    _run(crossing, method, check)
+    assert len(checked) > 50  # the network is quiet at most of the 60 scan instants
+
+
+def test_a_node_that_deletes_a_local_track_is_forgotten_and_invited_again(crossing):
+    """HNV, 20 s in: the radar's local track on a confirmed fused track misses until the
+    radar deletes it. The radar says so: in that frame the centre forgets it (no drop
+    sent down — the centre learnt it from the node), and as the radar's next plot of
+    the target gates the fused track, invites the radar again with a new local id.
+    The target keeps its published id to the end."""
+    seen = {}
+
+    def hook(network, t):
+        centre, radar = network.centre, network.nodes["radar"]
+        if "lost" not in seen and t >= 20.0:
+            f = next(f for f in centre.tracks if f.id is not None and "radar" in f.members)
+            seen["lost"] = (f.key, f.id, f.members["radar"], t)
+            _lose(radar, f.members["radar"])
+            centre.take_downlinks()  # nothing pending (quiet); start counting from here
+            network.centre._send = _record(centre._send, seen.setdefault("down", []))
+
+    network, out = _run(crossing, "HNV", hook)
+    key, fid, old, t0 = seen["lost"]
+    assert not any(drop and e.track == old for _, e, _, drop in seen["down"])  # learnt, not dropped
+    assert old not in _members(network.centre, "radar") and old not in network.nodes["radar"].tracks
+    assert any(init for node, e, init, _ in seen["down"] if node == "radar")  # invited again ...
+    f = next(f for f in network.centre.tracks if f.key == key)
+    assert f.id == fid and f.members["radar"] not in (None, old)  # ... onto the same fused track
+    assert _held_to_the_end(crossing, out, fid, t0)
+
+
+def _record(send, log: list):
+    """``Centre._send`` that also logs ``(node, estimate, init, drop)``."""
+    def recording(node, e, init, drop=False):
+        log.append((node, e, init, drop))
+        send(node, e, init, drop)
+    return recording
+
+
+def test_a_local_track_that_dies_before_its_first_report_is_replaced(crossing):
+    """HNV, 20 s in: the radar loses its local track of a confirmed fused track (without
+    a word); its next plot of the target is a request, and the centre sends it an init.
+    The local track of that init dies before its first report. The radar's next plot
+    of the target gates the fused track again and the radar is invited again (before,
+    the centre waited for the dead track's first report forever, and the radar's plots
+    started a duplicate). The target keeps its published id to the end, held with the
+    radar's reports."""
+    seen = {}
+
+    def hook(network, t):
+        centre, radar = network.centre, network.nodes["radar"]
+        if "lost" not in seen and t >= 20.0:
+            f = next(f for f in centre.tracks if f.id is not None and "radar" in f.members)
+            seen["lost"] = (f, f.members["radar"], t)
+            radar.tracks.pop(f.members["radar"])  # silently: the radar's plots become requests
+            radar.misses.pop(f.members["radar"])
+        elif "lost" in seen and "killed" not in seen:
+            # A local track the radar did not have at the previous instant came with an
+            # init and has processed no frame yet; the one on f (nearest) dies.
+            f = seen["lost"][0]
+            new = set(radar.tracks) - seen["before"]
+            if new:
+                seen["killed"] = min(new, key=lambda lid: np.linalg.norm(radar.tracks[lid].ekf.x[:3] - f.last.x[:3]))
+                _lose(radar, seen["killed"])
+        seen["before"] = set(radar.tracks)
+
+    network, out = _run(crossing, "HNV", hook)
+    f, old, t0 = seen["lost"]
+    assert "killed" in seen
+    lid = f.members.get("radar")
+    assert lid not in (None, old, seen["killed"]) and lid in network.nodes["radar"].tracks
+    assert f in network.centre.tracks and _held_to_the_end(crossing, out, f.id, t0)
+
+
+def test_a_restarted_node_s_local_ids_are_new(crossing):
+    """HNV, 20 s in, the radar's node restarts (a new node, no tracks, its ids from
+    scratch). Its plots are requests; the centre invites it to the fused tracks they
+    gate, with local ids it never gave the radar before: every local track of the new
+    node is a member of its fused track (none taken for the old node's, whose records
+    the new tracks replace), and every target keeps its published id to the end."""
+    seen = {}
+
+    def hook(network, t):
+        if "old" not in seen and t >= 20.0:
+            seen["old"] = set(network.nodes["radar"].tracks), t
+            seen["ids"] = {f.id for f in network.centre.tracks if f.id is not None}
+            network.nodes["radar"] = NetworkMethod("HNV", dict(crossing.tracker))._node("radar")
+
+    network, out = _run(crossing, "HNV", hook)
+    old, t0 = seen["old"]
+    radar = network.nodes["radar"]
+    assert radar.tracks and not set(radar.tracks) & old
+    assert set(_members(network.centre, "radar")) == set(radar.tracks)
+    assert all(_held_to_the_end(crossing, out, fid, t0) for fid in seen["ids"])
+
+
 # Reduction to the one-target methods -------------------------------------------------------
 @pytest.mark.parametrize("rule", ["info", "bar-shalom-campo", "ci"])
 @pytest.mark.parametrize("method", DISTRIBUTED)
