@@ -90,7 +90,7 @@ from .angles import wrap_pi
 from .association import CONFIRMED, DELETED, ManagementRule, TrackIds, TrackLogic, gate_threshold, gnn, mahalanobis2
 from .config import config_values
 from .init3d import initial_state, spherical_to_position
-from .patent import KINDS_3D, CentralisedMethod, ScanGrouper
+from .patent import CentralisedMethod, ScanGrouper, uses
 from .sensors3d import SphericalModel
 from .types import KIND_COMPONENTS, Estimate, Measurement
 
@@ -202,9 +202,7 @@ class MultiTargetMethod:
     def process(self, m: Measurement) -> list[Estimate]:
         if self._network is not None:
             return self._network.process(m)
-        if m.kind not in KINDS_3D:
-            raise ValueError(f"{self.name} cannot use a {m.kind!r} measurement (sensor {m.sensor!r})")
-        if m.kind not in self.kinds:
+        if not uses(self.name, self.kinds, m):
             return []
         return self._run(self._grouper.push(m))
 

@@ -250,6 +250,14 @@ class ScanGrouper:
         return self._open[0].t if self._open else None
 
 
+def uses(name: str, kinds: frozenset, m: Measurement) -> bool:
+    """Whether method ``name``, which takes measurements of ``kinds``, uses ``m``; a
+    measurement no 3D method can use (a bearing) is an error, not silently ignored."""
+    if m.kind not in KINDS_3D:
+        raise ValueError(f"{name} cannot use a {m.kind!r} measurement (sensor {m.sensor!r})")
+    return m.kind in kinds
+
+
 class ScanMethod:
     """Base of the patent methods: streaming interface on top of :class:`ScanGrouper`.
 
@@ -271,9 +279,7 @@ class ScanMethod:
         return f"{type(self).__name__}({self.name!r})"
 
     def process(self, m: Measurement) -> list[Estimate]:
-        if m.kind not in KINDS_3D:
-            raise ValueError(f"{self.name} cannot use a {m.kind!r} measurement (sensor {m.sensor!r})")
-        if m.kind not in self.kinds:
+        if not uses(self.name, self.kinds, m):
             return []
         return self._run(self._grouper.push(m))
 
