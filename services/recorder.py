@@ -10,9 +10,10 @@ each shows)::
                                            (with range; a 2D radar also its elevation arc) or
                                            rays (angles only; DF bearings on the map plane)
     world/truth/<target>                   true position and its path so far
-    world/tracks/<node>/<track>            estimate, 3σ ellipsoid (3D) or ellipse (map plane),
-                                           its path; node ``centre`` is the fused output,
-                                           other nodes are local trackers
+    world/tracks/<node>/<track>            estimate labelled with its id, 3σ ellipsoid (3D) or
+                                           ellipse (map plane), its path; node ``centre`` is the
+                                           fused output (ids ``T<n>``, ``E<n>``), other nodes
+                                           are local trackers (node-local ids ``L<n>``)
     world/tracks/<node>/<track>/prediction a published prediction (two-stage topology)
     world/tracks/<sensor>/uplink           measurements a local tracker sent up: raw (two-stage)
                                            or smoothed bearings (KF+TR); not sensor reports again
@@ -27,6 +28,33 @@ each shows)::
     status/<process>/events                text log: state changes, source declared dead /
                                            rejoined, feedback timeouts, jammer on/off
     status/<process>/counters/<name>       every other counter a process reports
+
+Many targets: every track has an entity of its own, keyed by (node, id), with its own
+path, and is cleared (``rr.Clear``, recursively: its prediction goes too) once it is
+gone, so the scene shows the live picture and not every track that ever was:
+
+* a track is gone when its stream (``fused``, ``local/<node>``, ``feedback/<node>``)
+  has reported ``delete_misses`` frames without it (the scenario's ``[tracker]`` key,
+  default 3; a frame is a distinct time of the stream's track reports). A confirmed
+  fused track is reported every frame until it is deleted, and a local tracker
+  deletes a track after that many frames without a plot, and the recorder counts only
+  frames in which the node reported something, so such a track is gone for sure. It
+  is cleared at the time of the first frame after those: a stream that stops
+  reporting altogether leaves its last tracks drawn;
+* a local track is cleared at once when the centre tells its node to ``drop`` it
+  (a ``track`` message on ``feedback/<node>`` with ``drop`` in its extras; it is not
+  drawn as feedback). An ``init`` downlink is drawn as feedback.
+
+A cleared track's path and frame bookkeeping are forgotten, so a long run holds state
+for the live tracks only.
+
+Paths: a truth or track path gets a point at most every ``TRAIL_STEP_S`` of scenario
+time, and a 3D one is logged (the whole path, up to ``PATH_MAX`` points) only with the
+row that adds a point; rows in between leave the last one drawn. Logged with every
+update, as it once was, it made a fused track at 1,000 updates/s send about 48 MB/s to
+the Rerun SDK, which holds it until written; with the recorder short of CPU its memory
+grew (``benchmarks/README.md``, memory). A map-plane track's path shares its component
+with the ellipse, so it is logged with every row.
 
 Rows are not logged one by one: :class:`Recording` queues them and sends each entity's
 rows in one ``send_columns`` call, at least every ``SEND_PERIOD_S`` (and before every
@@ -56,8 +84,10 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
+from fusion.mtt import AssociationConfig
 from fusion.types import KIND_COMPONENTS, Estimate
 from schemas import MEASUREMENT_KINDS, KeySpace, Message, SchemaError, decode, to_estimate, to_measurement
+from schemas.links import downlink
 
 from . import recorder_draw as draw
 from .node import Node, RejectLog
@@ -69,6 +99,9 @@ DEFAULT_RAY_M = 20_000.0
 TRUTH_CACHE = 4096  # truth samples kept per target, to score estimates against
 PENDING_MAX = 4096  # estimates waiting for the truth sample of their time
 PATH_MAX = 2000  # points kept in a drawn path (truth, track, airborne site)
+# A truth or track path gets a point (and a row) at most this often in scenario time, so
+# the bytes it sends do not grow with the update rate (module docstring, "Paths").
+TRAIL_STEP_S = 0.5
 SEQ_WINDOW = 4096  # recent sequence numbers remembered per source (duplicate detection)
 BACKLOG_MAX = 50_000  # queued samples before the recorder starts dropping (and counting): seconds of traffic
 SEND_PERIOD_S = 0.2  # queued rows go out at least this often (wall clock)
@@ -170,6 +203,33 @@ class Recording(rr.RecordingStream):
         super().disconnect()
 
 
+class Reports:
+    """Which tracks one stream reported in which of its frames (a frame: a distinct time
+    of its reports), to tell when a track has gone (module docstring)."""
+
+    def __init__(self) -> None:
+        self.t = -math.inf  # the current frame's time
+        self.frame = 0
+        self._last: dict[str, int] = {}  # track entity -> the frame it was last reported in
+
+    def report(self, path: str, t: float, misses: int) -> list[str]:
+        """Note a report of ``path`` at ``t``; returns the tracks that a new frame shows
+        to have missed ``misses`` frames (forgotten from now on)."""
+        gone = []
+        if t > self.t:
+            self.t = t
+            self.frame += 1
+            gone = [p for p, f in self._last.items() if self.frame - 1 - f >= misses]
+            for p in gone:
+                del self._last[p]
+        self._last[path] = max(self._last.get(path, 0), self.frame)
+        return gone
+
+    def forget(self, path: str) -> bool:
+        """Stop following ``path``; whether it was followed."""
+        return self._last.pop(path, None) is not None
+
+
 class Trail:
     """A drawn path: the latest ``PATH_MAX`` points.
 
@@ -181,6 +241,11 @@ class Trail:
     def __init__(self) -> None:
         self._buf = np.empty((2 * PATH_MAX, 3))
         self._start = self._end = 0
+        self.t = -math.inf  # time of the latest point, for callers that space them out
+
+    @property
+    def points(self) -> np.ndarray:
+        return self._buf[self._start:self._end]
 
     def add(self, pos: np.ndarray) -> np.ndarray:
         if self._end == len(self._buf):
@@ -232,7 +297,6 @@ class Recorder:
         self.rec = rec
         self.keys = keys
         self.reject = reject if reject is not None else RejectLog("recorder")
-        self.rows: dict[str, int] = {}
         self.now = 0.0  # latest time of validity seen in data: the time of undated status
         self.finished: set[str] = set()  # processes that reported done/stopped
         self.uplinked = 0  # measurements local trackers sent up on local/* (drawn as the node's)
@@ -250,6 +314,9 @@ class Recorder:
         self._truth: dict[str, OrderedDict[float, np.ndarray]] = {}
         self._truth_paths: dict[str, Trail] = {}
         self._track_paths: dict[str, Trail] = {}
+        self.delete_misses = AssociationConfig.delete_misses  # the trackers' default; the scenario may set it
+        self._reports: dict[tuple[str, str], Reports] = {}  # by stream (family, key id)
+        self._node_of: dict[str, str] = {}  # local/<id> -> the node its estimates name
         self._pending: OrderedDict[float, list[tuple[Estimate, tuple[str, ...]]]] = OrderedDict()
         self._n_pending = 0
         self._states: dict[str, str] = {}
@@ -359,7 +426,6 @@ class Recorder:
 
     def _log(self, path: str, t: float, *parts: Part) -> None:
         self.rec.row(path, t, parts)  # one row per call
-        self.rows[path] = self.rows.get(path, 0) + 1
 
     def _style(self, path: str, *parts: Part) -> None:
         """Static properties of an entity, logged once (built only then)."""
@@ -372,12 +438,20 @@ class Recorder:
             self.now = t
 
     @staticmethod
-    @staticmethod
-    def _trail(store: dict[str, Trail], key: str, pos: np.ndarray) -> np.ndarray:
+    def _trail(store: dict[str, Trail], key: str) -> Trail:
         trail = store.get(key)
         if trail is None:
             trail = store[key] = Trail()
-        return trail.add(pos)
+        return trail
+
+    def _path(self, store: dict[str, Trail], key: str, t: float, pos: np.ndarray) -> tuple[np.ndarray, bool]:
+        """The path so far, and whether it gained a point: it does once ``TRAIL_STEP_S`` has
+        passed since its last one (module docstring, "Paths")."""
+        trail = self._trail(store, key)
+        if t < trail.t + TRAIL_STEP_S - 1e-9:  # (scenario times are sums of float steps)
+            return trail.points, False
+        trail.t = t
+        return trail.add(pos), True
 
     # -- scenario --------------------------------------------------------------------------------
 
@@ -385,6 +459,9 @@ class Recorder:
         from sensors_sim.spec import DF_KINDS
 
         self.horizon = float(sc.duration) + HORIZON_SLACK_S
+        association, _ = AssociationConfig.split(sc.tracker)
+        if association is not None:
+            self.delete_misses = association.delete_misses
         self.df_sensors = {sid for sid, s in sc.sensors.items() if s.kind in DF_KINDS}
         # The scenario's scale, from where its sensors and jammers are during the run (not its targets).
         times = np.linspace(0.0, float(sc.duration), 9)
@@ -408,7 +485,7 @@ class Recorder:
         if prev is not None and np.linalg.norm(prev - pos) <= 1.0:
             return prev
         self._sites[sensor] = pos
-        path = self._trail(self._site_paths, sensor, pos)
+        path = self._trail(self._site_paths, sensor).add(pos)
         c = draw.color_of(sensor)
         parts = [part(rr.Points3D, positions=[pos], labels=[sensor], colors=[c], radii=_ui(7.0), show_labels=[True])]
         if len(path) > 1:
@@ -501,10 +578,11 @@ class Recorder:
             else:
                 del self._pending[msg.t]
         pos = x[:3] if x.size >= 3 else np.array([x[0], x[1], 0.0])
-        path = self._trail(self._truth_paths, tgt, pos)
-        self._log(_p("world", "truth", tgt), msg.t,
-                  part(rr.Points3D, positions=[pos], labels=[tgt], colors=[draw.TRUTH_COLOR], radii=_ui(5.0)),
-                  part(rr.LineStrips3D, strips=[path], colors=[draw.TRUTH_COLOR], radii=_ui(1.0)))
+        parts = [part(rr.Points3D, positions=[pos], labels=[tgt], colors=[draw.TRUTH_COLOR], radii=_ui(5.0))]
+        path, grew = self._path(self._truth_paths, tgt, msg.t, pos)
+        if grew:  # else the path drawn last still shows
+            parts.append(part(rr.LineStrips3D, strips=[path], colors=[draw.TRUTH_COLOR], radii=_ui(1.0)))
+        self._log(_p("world", "truth", tgt), msg.t, *parts)
 
     def _draw_estimate(self, path: str, e: Estimate, color: tuple[int, int, int], label: str) -> np.ndarray | None:
         """Point + 3σ ellipsoid / ellipse + path so far; a smoothed bearing as a ray with its
@@ -525,14 +603,15 @@ class Recorder:
         if layout is None:
             return None
         pos = draw.position3(e.x)
-        trail = self._trail(self._track_paths, path, pos)
+        trail, grew = self._path(self._track_paths, path, e.t, pos)
         parts = [part(rr.Points3D, positions=[pos], labels=[label], colors=[color], radii=radius)]
         if layout == "3d":
             half, quat = draw.ellipsoid(e.P[:3, :3])
             parts.append(part(rr.Ellipsoids3D, centers=[pos], half_sizes=[half], quaternions=[quat], colors=[color],
                               line_radii=_ui(0.75)))
-            parts.append(part(rr.LineStrips3D, strips=[trail], colors=[draw.dim(color)], radii=line))
-        else:
+            if grew:  # else the path drawn last still shows
+                parts.append(part(rr.LineStrips3D, strips=[trail], colors=[draw.dim(color)], radii=line))
+        else:  # the ellipse shares the component with the path: both, every row (map-plane fixes are slow)
             ring = draw.ellipse(pos, e.P[:2, :2])
             parts.append(part(rr.LineStrips3D, strips=[ring, trail], colors=[color, draw.dim(color)], radii=line))
         self._log(path, e.t, *parts)
@@ -542,13 +621,17 @@ class Recorder:
         e = to_estimate(msg)
         self._advance(e.t)
         fused = e.node == FUSED_NODE
+        if family == "local" and ident:
+            self._node_of[ident] = e.node  # drops on feedback/<ident> name this node's tracks
+        track = _p("world", "tracks", e.node, e.track)
+        self._reported((family, ident or ""), track, e.t)
         color = draw.CENTRE_COLOR if fused else draw.color_of(e.node)
         if msg.kind == "prediction":
             self._draw_estimate(_p("world", "tracks", e.node, e.track, "prediction"), e, draw.dim(color),
                                 f"{e.node} {e.track} (pred.)")
             return
         label = f"{e.method} {e.track}" if fused else f"{e.node} {e.track}"
-        pos = self._draw_estimate(_p("world", "tracks", e.node, e.track), e, color, label)
+        pos = self._draw_estimate(track, e, color, label)
         if pos is not None and (fused or self._ref_pos is None):
             self._ref_pos = pos
         prefix = (e.method,) if fused else (e.method, e.node)
@@ -569,10 +652,33 @@ class Recorder:
             self._n_pending -= len(dropped)
 
     def _on_feedback(self, family: str, ident: str | None, msg: Message) -> None:
-        e = to_estimate(msg)
+        d = downlink(ident or "", msg)
+        e = d.estimate
         self._advance(e.t)
-        self._draw_estimate(_p("world", "feedback", ident or e.node, e.track), e, draw.FEEDBACK_COLOR,
-                            f"to {ident}")
+        if d.drop:  # the node deletes its local track e.track: so does the picture
+            node = self._node_of.get(ident or "")
+            reports = self._reports.get(("local", ident or ""))
+            track = _p("world", "tracks", node, e.track) if node is not None else None
+            if reports is not None and track is not None and reports.forget(track):
+                self._clear(track, e.t)
+            return
+        path = _p("world", "feedback", ident or e.node, e.track)
+        self._reported((family, ident or ""), path, e.t)
+        self._draw_estimate(path, e, draw.FEEDBACK_COLOR, f"{e.track} to {ident}" + (" (init)" if d.init else ""))
+
+    def _reported(self, stream: tuple[str, str], track: str, t: float) -> None:
+        """A report of a track's entity on its stream: clears the tracks the stream has stopped reporting."""
+        reports = self._reports.get(stream)
+        if reports is None:
+            reports = self._reports[stream] = Reports()
+        for gone in reports.report(track, t, self.delete_misses):
+            self._clear(gone, t)
+
+    def _clear(self, track: str, t: float) -> None:
+        """The track is gone: from ``t`` on it is not drawn (nor its prediction), and its paths are forgotten."""
+        self._log(track, t, part(rr.Clear, is_recursive=[True]))
+        for path in [p for p in self._track_paths if p == track or p.startswith(track + "/")]:
+            del self._track_paths[path]
 
     def _score(self, e: Estimate, prefix: tuple[str, ...], x_truth: np.ndarray) -> None:
         ref = draw.truth_part(x_truth, e.x.size)

@@ -396,7 +396,7 @@ def test_hostile_input_is_counted_by_cause_and_changes_nothing(batch):
 N_FLOOD = 10_000
 FLOOD_REPEAT = 5
 FLOOD_SEED = 20240610
-SPEED = "4"  # 7.5 s of scenario playback: room for the flood while the run is going
+SPEED = "2"  # 15 s of scenario playback: room for the flood while the run is going, even on a loaded machine
 RSS_MARGIN = 8 * 2**20  # bytes the fuser may grow by between the first and last quarter of the flood (measured: ~2 MiB)
 
 

@@ -12,6 +12,7 @@ import signal
 import socket
 import subprocess
 import sys
+import textwrap
 import time
 from pathlib import Path
 
@@ -492,3 +493,123 @@ def test_run_with_recorder_killed_half_way_completes_unchanged(tmp_path, deploym
     assert doc["exit_codes"]["recorder"] == -signal.SIGKILL and doc["exit_codes"]["fuser"] == 0
     # losing the recorder loses the recording, not the run
     assert launcher.returncode == 0, err[-3000:]
+
+
+# Many targets ------------------------------------------------------------------------------------
+def _crossing(tmp_path: Path) -> Path:
+    from test_mtt import CROSSING
+
+    path = tmp_path / "crossing.toml"
+    path.write_text(textwrap.dedent(CROSSING))
+    return path
+
+
+def _track_entity(node: str, track: str) -> str:
+    return f"/world/tracks/{node}/{track}"
+
+
+def test_many_target_tracks_have_entities_by_id_and_are_cleared_once_gone(tmp_path):
+    """Three crossing aircraft in clutter, distributed (HNV: fused ``T<n>`` and per-node
+    ``L<n>`` tracks, coming and going), fed to the recorder as the processes publish
+    them: every (node, id) is an entity of its own with one drawn row per estimate,
+    labelled with its id; a track its stream stops reporting is cleared once the
+    stream has reported ``delete_misses`` frames without it, and not before."""
+    from fusion.mtt import AssociationConfig
+    from fusion.network import Uplink
+    from schemas.keys import tracker_id
+    from schemas.links import encode_uplink
+    from services.evaluation import run_method
+
+    sc = load_scenario(_crossing(tmp_path))
+    K = AssociationConfig.split(sc.tracker)[0].delete_misses
+    out = run_method(sc, "HNV")
+    s = Session(tmp_path, scenario=sc)
+    seqs: dict[str, int] = {}
+    frames: dict[str, list[float]] = {}  # stream -> its frame times
+    life: dict[tuple[str, str], list[float]] = {}  # (node, id) -> its report times
+    for e in out:
+        fused = e.node == "centre"
+        src = "fuser" if fused else tracker_id(e.node)
+        seq = seqs[src] = seqs.get(src, 0) + 1
+        if fused:
+            s.put(KEYS.fused(), encode_estimate(e, src, seq, "track"))
+        else:
+            [data] = encode_uplink(Uplink(e.t, e.node, seq, e), src, seq)
+            s.put(KEYS.local(src), data)
+        if not frames.setdefault(src, []) or frames[src][-1] < e.t:
+            frames[src].append(e.t)
+        life.setdefault((e.node, e.track), []).append(e.t)
+    assert s.reject.total == 0
+    rows = s.close()
+
+    expected_clear = {}
+    for (node, track), times in life.items():
+        stream = frames["fuser" if node == "centre" else tracker_id(node)]
+        after = [t for t in stream if t > times[-1]]
+        expected_clear[(node, track)] = after[K] if len(after) > K else None
+    gone = [key for key, t in expected_clear.items() if t is not None]
+    assert any(n == "centre" for n, _ in gone) and any(n != "centre" for n, _ in gone), gone  # both kinds go
+    drawn_entities = {p for p, rs in rows.items() if p.startswith("/world/tracks/")
+                      and any("Points3D:positions" in r for r in rs)}
+    assert drawn_entities == {_track_entity(*key) for key in life}
+    for (node, track), times in life.items():
+        rs = rows[_track_entity(node, track)]
+        drawn = [r for r in rs if "Points3D:positions" in r]
+        assert [r["t"] for r in drawn] == times, (node, track)
+        assert all(track in r["Points3D:labels"][0] for r in drawn)
+        clears = [r["t"] for r in rs if r.get("Clear:is_recursive") is not None]
+        want = expected_clear[(node, track)]
+        assert clears == ([want] if want is not None else []), (node, track, clears, want)
+        assert all(r["t"] <= clears[0] for r in drawn) if clears else True
+
+
+@pytest.mark.slow
+def test_many_target_run_records_every_fused_track_by_id(tmp_path, deployment):
+    """`zfusion run` on the crossing scenario: the recording has one entity per fused
+    track id the fuser published, with one drawn row per published estimate."""
+    from _runs import run_cmd
+
+    from schemas import decode
+
+    ep = f"tcp/127.0.0.1:{_free_port()}"
+    keys = KeySpace(deployment)
+    session = zenoh.open(ZenohOptions(listen=[ep]).to_config())
+    published: dict[str, int] = {}  # fused estimates per track id, as the fuser published them
+
+    def on_fused(sample) -> None:
+        msg = decode(sample.payload.to_bytes())
+        if msg.kind == "track":
+            published[msg.body["track"]] = published.get(msg.body["track"], 0) + 1
+
+    sub = session.declare_subscriber(keys.fused(), on_fused)
+    try:
+        p = subprocess.run(run_cmd(tmp_path, str(_crossing(tmp_path)), deployment, "--speed", "max", "--connect", ep),
+                           capture_output=True, text=True, timeout=300)
+    finally:
+        sub.undeclare()
+        session.close()
+    assert p.returncode == 0, p.stderr[-3000:]
+    path = tmp_path / "out.rrd"
+    verify(path)
+    rows = read_rrd(path)
+    drawn = {e.rsplit("/", 1)[1]: sum("Points3D:positions" in r for r in rs) for e, rs in rows.items()
+             if e.startswith("/world/tracks/centre/") and e.count("/") == 4}
+    assert len(published) >= 3 and drawn == published
+
+
+def test_a_path_gets_a_point_per_trail_step_whatever_the_update_rate(tmp_path):
+    """A track updated at 100 Hz: one row per update, but its path (each row of it the
+    whole path so far) gets a point, and is logged, every TRAIL_STEP_S only, so what the
+    recorder sends does not grow with the update rate times the path."""
+    s = Session(tmp_path)
+    n, dt = 200, 0.01
+    xs = [[6000.0 + 100 * k * dt, 8000.0, 2000.0, 100.0, 0, 0, 0, 0, 0] for k in range(n)]
+    for k, x in enumerate(xs):
+        s.put(KEYS.fused(), _est(k * dt, x, np.eye(9), seq=k + 1))
+    rows = s.close()["/world/tracks/centre/T1"]
+    assert len(rows) == n
+    kept = list(range(0, n, round(recorder_mod.TRAIL_STEP_S / dt)))  # the first update of every step
+    assert 1 < len(kept) < n / 10
+    with_path = [r for r in rows if r.get("LineStrips3D:strips") is not None]
+    assert [r["t"] for r in with_path] == pytest.approx([k * dt for k in kept])
+    np.testing.assert_allclose(with_path[-1]["LineStrips3D:strips"][0], [xs[k][:3] for k in kept])
