@@ -76,6 +76,19 @@ class TrackScore:
     n_tracks: int = 0
     assignments: list[dict[str, str]] = field(default_factory=list)
 
+    COUNTS = ("truth_steps", "held_steps", "breaks", "break_chances", "track_steps", "dominant_steps",
+              "false_tracks", "false_track_steps", "n_tracks")
+
+    @classmethod
+    def merged(cls, scores: Sequence["TrackScore"]) -> "TrackScore":
+        """Several runs as one score: counts summed, per-step series concatenated, so the
+        rates (held, break rate, purity, mean GOSPA) are over all of their steps."""
+        out = cls(**{k: sum(getattr(s, k) for s in scores) for k in cls.COUNTS})
+        for s in scores:
+            for series in ("t", "gospa", "ospa", "n_missed", "n_false", "assignments"):
+                getattr(out, series).extend(getattr(s, series))
+        return out
+
     @property
     def held(self) -> float:
         return self.held_steps / self.truth_steps if self.truth_steps else float("nan")

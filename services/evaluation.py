@@ -261,6 +261,12 @@ def _scan_groups(scenario, sensor_ids: Sequence[str], tol: float) -> list[tuple[
     return groups
 
 
+def _pair_tol(scenario, default: float) -> float:
+    """The common ``[tracker]`` grouping tolerance (s), else the methods' ``default``."""
+    tol = scenario.tracker.get("pair_tol", default)
+    return float(tol) if isinstance(tol, (int, float)) else default
+
+
 def crb_summary(scenario, runs: int) -> dict | None:
     """The bound on position RMSE at the methods' output times, or None if none applies.
 
@@ -374,9 +380,9 @@ def _crb_emitter(scenario, target: str) -> dict | None:
         return {"t": [], "rmse_pos": [], "notes": ["the emitter moves: no static-emitter bound"]}
     p = truth_trajectory(scenario, target, 0).state(0.0)[:3]
     sensors = [s for s, spec in scenario.sensors.items() if target in spec.targets and spec.measurement_kind == "bearing"]
-    tol = scenario.tracker.get("pair_tol", 0.0)
-    tol = float(tol) if isinstance(tol, (int, float)) else 0.0
-    groups = _scan_groups(scenario, sensors, tol)
+    from fusion.df.methods import DFConfig
+
+    groups = _scan_groups(scenario, sensors, _pair_tol(scenario, DFConfig.pair_tol))
     J = np.zeros((2, 2))
     times, rms, regular = [], [], True
     C = None
@@ -426,8 +432,9 @@ def track_steps(scenario, estimates: Sequence[Estimate], run: int = 0, node: str
     from fusion.mtt_metrics import Step
     from sensors_sim import truth_trajectory
 
-    tol = scenario.tracker.get("pair_tol", 1e-3)
-    tol = float(tol) if isinstance(tol, (int, float)) else 1e-3
+    from fusion.patent import TrackerConfig
+
+    tol = _pair_tol(scenario, TrackerConfig.pair_tol)
     starts = [g[0] for g in _scan_groups(scenario, list(scenario.sensors), tol)]
     trajs = {tid: truth_trajectory(scenario, tid, run) for tid in scenario.targets}
     tracks: list[dict[str, np.ndarray]] = [{} for _ in starts]

@@ -184,25 +184,22 @@ def tracks_summary(scores: Sequence) -> dict:
     :class:`fusion.mtt_metrics.TrackScore`. The DESIGN's per-target fields do not apply
     (null); the set metrics do: mean GOSPA (and its per-step series, averaged over runs
     when the runs share their steps), held fraction, breaks, purity, false tracks."""
-    steps = [len(s.t) for s in scores]
     same_steps = all(s.t == scores[0].t for s in scores)
     gospa = np.mean([s.gospa for s in scores], axis=0) if same_steps else np.asarray(scores[0].gospa)
-    tot = {k: sum(getattr(s, k) for s in scores) for k in (
-        "truth_steps", "held_steps", "breaks", "break_chances", "track_steps", "dominant_steps", "n_tracks",
-        "false_tracks", "false_track_steps")}
-    all_gospa = [g for s in scores for g in s.gospa]
+    run = type(scores[0]).merged(scores)
+    finite = lambda v: float(v) if math.isfinite(v) else None  # noqa: E731  (no steps: no rate)
     return {
         "rmse_pos": None, "rmse_vel": None, "rmse_acc": None, "cep50": None, "anees": None,
-        "n_updates": tot["track_steps"],
+        "n_updates": run.track_steps,
         "series": {"t": list(scores[0].t), "gospa": [float(g) for g in gospa]},
-        "gospa": float(np.mean(all_gospa)) if all_gospa else None,
-        "held": tot["held_steps"] / tot["truth_steps"] if tot["truth_steps"] else None,
-        "breaks": tot["breaks"],
-        "break_rate": tot["breaks"] / tot["break_chances"] if tot["break_chances"] else 0.0,
-        "purity": tot["dominant_steps"] / tot["track_steps"] if tot["track_steps"] else None,
-        "tracks": tot["n_tracks"],
-        "false_tracks": tot["false_tracks"],
-        "steps": int(sum(steps)),
+        "gospa": finite(run.mean_gospa),
+        "held": finite(run.held),
+        "breaks": run.breaks,
+        "break_rate": run.break_rate,
+        "purity": finite(run.purity),
+        "tracks": run.n_tracks,
+        "false_tracks": run.false_tracks,
+        "steps": len(run.t),
     }
 
 
