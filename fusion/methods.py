@@ -3,10 +3,13 @@
 The 3D methods of the patent live in :mod:`fusion.patent`, the bearings-only methods of
 the theses in :mod:`fusion.df.methods`; both register factories ``make(config)``
 returning an object with ``process`` / ``advance`` / ``finish`` (see those modules).
-A ``[tracker]`` table with ``association`` wraps the named method for many targets, and
-the method keeps its name: a 3D method in :class:`fusion.mtt.MultiTargetMethod`, a DF
-method in :class:`fusion.df.multi.MultiEmitterMethod` (many emitters: bearing
-association and ghost rejection, each emitter localised by the named method).
+A ``[tracker]`` table with ``association`` makes the named method a many-target one, and
+the method keeps its name: a centralised 3D method is wrapped in
+:class:`fusion.mtt.MultiTargetMethod`, a DF method in
+:class:`fusion.df.multi.MultiEmitterMethod` (many emitters: bearing association and ghost
+rejection, each emitter localised by the named method); HNV, PHHNV and DDHNV associate
+in their own nodes and centre (:mod:`fusion.network`, "Many targets") and get the table
+as it is.
 """
 
 from __future__ import annotations
@@ -33,8 +36,11 @@ def make_method(name: str, config: dict | None = None) -> Any:
     if name not in reg:
         raise ValueError(f"unknown method {name!r}; known: {', '.join(reg)}")
     from .mtt import AssociationConfig, MultiTargetMethod
+    from .patent import TRACK_FUSION_METHODS
 
     association, rest = AssociationConfig.split(config)
+    if association is not None and name in TRACK_FUSION_METHODS:
+        return reg[name](dict(config or {}))
     if association is not None:
         from .df.methods import DF_METHODS
         from .df.multi import MultiEmitterMethod

@@ -173,16 +173,7 @@ class MultiTargetMethod:
         self.name = name
         self._make_track = make_track
         proto = make_track()
-        self._network = None
-        from .network import NetworkMethod, TRACK_SPLITS
-
-        if isinstance(proto, NetworkMethod) and name in TRACK_SPLITS:
-            # HNV, PHHNV, DDHNV: the local nodes and the centre associate themselves
-            # (fusion.network, "Many targets"); this object only hands the stream over.
-            keys = {k: v for k, v in dataclasses.asdict(config).items() if v != math.inf}  # inf: the default, not a key
-            self._network = NetworkMethod(name, {**proto.config, **keys})
-            return
-        if not isinstance(proto, CentralisedMethod):
+        if not isinstance(proto, CentralisedMethod):  # HNV, PHHNV, DDHNV associate themselves (fusion.methods)
             raise ValueError(f"association is available for the centralised methods (LCDD, HNDD, SS, RADAR2D, "
                              f"ANGLE, RADAR3D) and HNV, PHHNV, DDHNV, not {name}")
         self.kinds = proto.kinds
@@ -200,20 +191,14 @@ class MultiTargetMethod:
 
     # Streaming interface -------------------------------------------------------------
     def process(self, m: Measurement) -> list[Estimate]:
-        if self._network is not None:
-            return self._network.process(m)
         if not uses(self.name, self.kinds, m):
             return []
         return self._run(self._grouper.push(m))
 
     def advance(self, t: float) -> list[Estimate]:
-        if self._network is not None:
-            return self._network.advance(t)
         return self._run(self._grouper.advance(t))
 
     def finish(self) -> list[Estimate]:
-        if self._network is not None:
-            return self._network.finish()
         return self._run(self._grouper.finish())
 
     def _run(self, frames: list[list[Measurement]]) -> list[Estimate]:

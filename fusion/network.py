@@ -814,9 +814,6 @@ SPLITS: dict[str, Split] = {
 }
 
 
-TRACK_SPLITS = ("HNV", "PHHNV", "DDHNV")
-
-
 def split(name: str) -> Split:
     try:
         return SPLITS[name]
