@@ -66,13 +66,27 @@ class KeySpace:
     def status(self, process: str) -> str:
         return self._key("status", process)
 
-    def alive(self, process: str) -> str:
-        """Liveliness token of a process: present while its session is open."""
-        return self._key("alive", process)
+    def alive(self, process: str, incarnation: str = "*") -> str:
+        """Liveliness token of one incarnation of a process (its Zenoh session id),
+        present while that session is open; ``*`` watches every incarnation.
+
+        The incarnation is in the key because Zenoh merges tokens on the same key: a
+        restarted process that declares its token before the loss of the old one is
+        noticed would otherwise be seen neither to go nor to come back."""
+        inc = incarnation if incarnation == "*" else check_id(incarnation, "incarnation")
+        return f"{self._key('alive', process)}/{inc}"
 
     def all(self, family: str | None = None) -> str:
         """Wildcard over one family (``meas``, ``status``, ...) or the whole deployment."""
         return f"{self.prefix}/{family}/**" if family else f"{self.prefix}/**"
+
+    def alive_process(self, key: str) -> tuple[str, str]:
+        """(process, incarnation) of a concrete liveliness token key."""
+        family, process = self.family_and_id(key)
+        parts = key.split("/")
+        if family != "alive" or process is None or len(parts) != 5:
+            raise ValueError(f"key {key!r} is not a liveliness token of {self.prefix}/")
+        return process, parts[4]
 
     def family_and_id(self, key: str) -> tuple[str, str | None]:
         """Split a concrete key of this deployment into (family, id)."""

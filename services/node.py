@@ -248,7 +248,8 @@ class Node:
     def announce(self) -> None:
         """Declare this process alive (after its subscribers, so a peer that sees the
         token knows they are declared)."""
-        self._declared.append(self.session.liveliness().declare_token(self.keys.alive(self.id)))
+        self._declared.append(self.session.liveliness().declare_token(
+            self.keys.alive(self.id, str(self.session.zid()))))
 
     def wait_for(self, process_ids: Iterable[str], timeout: float) -> None:
         """Block until every named process has announced itself (or raise)."""
@@ -261,7 +262,7 @@ class Node:
         def on_token(sample: zenoh.Sample) -> None:
             if sample.kind == zenoh.SampleKind.PUT:
                 with cond:
-                    seen.add(str(sample.key_expr).rsplit("/", 1)[-1])
+                    seen.add(self.keys.alive_process(str(sample.key_expr))[0])
                     cond.notify_all()
 
         sub = self.session.liveliness().declare_subscriber(self.keys.all("alive"), on_token, history=True)

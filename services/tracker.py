@@ -10,8 +10,8 @@ seconds, the node runs on alone — updating from its own last estimate, or star
 from its own measurement — and says so in its status events; when downlinks come
 back it takes them again.
 
-A *restarted* fuser (its liveliness token goes and comes back) knows nothing of this
-node: the node drops its track and re-runs the initialisation handshake, sending its
+A *restarted* fuser (a liveliness token of a new incarnation, i.e. Zenoh session, of
+the fuser appears) knows nothing of this node: the node drops its track and re-runs the initialisation handshake, sending its
 next measurement up as a request (:mod:`services.fuser`, "Restart"). A restarted
 tracker is a new node to the fuser: it asks to join and starts from the latest fused
 state.
@@ -66,7 +66,7 @@ def run(sensor: str, scenario_ref: str, method_name: str, overrides: dict, keys:
     config = method_config(scenario.tracker, method_name, overrides)
     local = split(method_name).node(sensor, config)
     feed = _Feed(local)
-    fuser_token: queue.SimpleQueue[bool] = queue.SimpleQueue()  # True: the fuser's token appeared
+    fuser_token: queue.SimpleQueue[str] = queue.SimpleQueue()  # incarnations of the fuser that appeared
     with Node(me, "tracker", keys, zopts) as node:
         inbox = Inbox(node.stop)
         # Its one sensor is never declared dead here: the tracker waits for it to come back
@@ -77,7 +77,9 @@ def run(sensor: str, scenario_ref: str, method_name: str, overrides: dict, keys:
         node.subscribe(keys.feedback(me), inbox)
         pub = node.publisher(keys.local(me))
         watch = node.session.liveliness().declare_subscriber(
-            keys.alive(fuser_id), lambda s: fuser_token.put(s.kind == zenoh.SampleKind.PUT))
+            keys.alive(fuser_id),
+            lambda s: s.kind == zenoh.SampleKind.PUT and fuser_token.put(keys.alive_process(str(s.key_expr))[1]),
+            history=True)
         try:  # be reachable from the fuser before a sensor (waiting for this token) starts
             node.wait_for([fuser_id], 60.0)
         except TimeoutError as e:
@@ -113,7 +115,7 @@ def run(sensor: str, scenario_ref: str, method_name: str, overrides: dict, keys:
                 alone = False
                 node.event("downlink from the fuser restored")
 
-        fuser_gone = False
+        fuser_incarnation: str | None = None  # the one this node's track comes from
 
         def restart_handshake() -> None:
             """A new node with this one's unprocessed measurements: it asks to join again."""
@@ -128,12 +130,11 @@ def run(sensor: str, scenario_ref: str, method_name: str, overrides: dict, keys:
 
         while not node.stop.is_set():
             while not fuser_token.empty():
-                if not fuser_token.get():
-                    fuser_gone = True
-                elif fuser_gone:
-                    fuser_gone = False
-                    if isinstance(local, TrackNode):  # a DF station needs no initial state
-                        restart_handshake()
+                incarnation = fuser_token.get()
+                if fuser_incarnation is not None and incarnation != fuser_incarnation \
+                        and isinstance(local, TrackNode):  # a DF station needs no initial state
+                    restart_handshake()
+                fuser_incarnation = incarnation
             try:
                 key, data = inbox.get(timeout=0.05)
                 while True:

@@ -62,7 +62,7 @@ class Watcher:
         self.samples.append((str(sample.key_expr), sample.payload.to_bytes()))
 
     def announce(self, name: str = NAME) -> None:
-        self._token = self.session.liveliness().declare_token(self.keys.alive(name))
+        self._token = self.session.liveliness().declare_token(self.keys.alive(name, str(self.session.zid())))
 
     def wait_alive(self, name: str, timeout: float) -> bool:
         """Whether process ``name`` announces itself within ``timeout`` seconds."""

@@ -6,6 +6,7 @@ from __future__ import annotations
 import socket
 import subprocess
 import sys
+import time
 
 import pytest
 import zenoh
@@ -25,7 +26,7 @@ def _capture(deployment: str, seed: int) -> list[bytes]:
     session = zenoh.open(ZenohOptions(listen=[ep]).to_config())
     try:
         sub = session.declare_subscriber(keys.meas("radar2d"), lambda smp: got.append(smp.payload.to_bytes()))
-        token = session.liveliness().declare_token(keys.alive("probe"))
+        token = session.liveliness().declare_token(keys.alive("probe", "test"))
         p = subprocess.run([sys.executable, "-m", "services.cli", "sensor", "--scenario", "patent-3d", "--id",
                             "radar2d", "--speed", "max", "--seed", str(seed), "--wait-for", "probe",
                             "--deployment", deployment, "--connect", ep], capture_output=True, text=True, timeout=60)
@@ -46,3 +47,42 @@ def test_same_seed_same_bytes_other_seed_other_bytes(deployment):
     assert decode(a[-1]).body["final"] is True
     assert a == b
     assert [x for x in a if decode(x).kind == "range_az"] != [x for x in c if decode(x).kind == "range_az"]
+
+
+def test_a_restart_that_overlaps_the_old_session_is_seen(deployment):
+    """A restarted process may declare its token before the loss of the old session is
+    noticed (kill -9 under load). Tokens are per incarnation (``alive/<id>/<session>``),
+    so the watcher sees the new one appear anyway: Zenoh merges tokens on one key, and a
+    second token on the old key would go unseen. This is how a tracker notices a
+    restarted fuser."""
+    keys = KeySpace(deployment)
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        ep = f"tcp/127.0.0.1:{s.getsockname()[1]}"
+    watcher = zenoh.open(ZenohOptions(listen=[ep]).to_config())
+    old = zenoh.open(ZenohOptions(connect=[ep]).to_config())
+    new = zenoh.open(ZenohOptions(connect=[ep]).to_config())
+    seen: list[tuple[str, str]] = []
+    try:
+        sub = watcher.liveliness().declare_subscriber(
+            keys.alive("fuser"), lambda smp: seen.append((str(smp.kind), *keys.alive_process(str(smp.key_expr)))),
+            history=True)
+        old_inc, new_inc = str(old.zid()), str(new.zid())
+        old_token = old.liveliness().declare_token(keys.alive("fuser", old_inc))
+        deadline = time.monotonic() + 10
+        while len(seen) < 1 and time.monotonic() < deadline:
+            time.sleep(0.02)
+        new_token = new.liveliness().declare_token(keys.alive("fuser", new_inc))  # the old one still alive
+        while len(seen) < 2 and time.monotonic() < deadline:
+            time.sleep(0.02)
+        put = str(zenoh.SampleKind.PUT)
+        assert seen == [(put, "fuser", old_inc), (put, "fuser", new_inc)]
+        for x in (new_token, old_token, sub):
+            x.undeclare()
+    finally:
+        for s in (new, old, watcher):
+            s.close()
+    with pytest.raises(ValueError, match="incarnation"):
+        keys.alive("fuser", "a/b")
+    with pytest.raises(ValueError, match="not a liveliness token"):
+        keys.alive_process(keys.status("fuser"))
