@@ -41,7 +41,12 @@ Track management
 :class:`TrackLogic` holds one track's life: born *tentative* on a plot no track
 claimed; *confirmed* once it has ``M`` hits (birth included) within its first ``N``
 frames; deleted while tentative as soon as ``M`` can no longer be reached, and once
-confirmed after ``K`` consecutive missed frames. :class:`TrackIds` issues the
+confirmed after ``K`` consecutive missed frames. :class:`DuplicateWatch` removes the
+second track of one target: two tracks whose positions and velocities agree within
+the χ² gate of :func:`track_distance2` (``P₁₂`` unknown, so the test leans towards
+"same") for ``F`` consecutive frames are one target twice, and the one that came later
+(confirmed after, or still tentative) is deleted. Crossing aircraft do not merge: their
+velocities differ by far more than their tracks' uncertainty. :class:`TrackIds` issues the
 published ids ``T1, T2, …`` in order of confirmation, never reused, so an id names one
 track for the whole run (tentative tracks are internal and have no id on the wire).
 """
@@ -156,6 +161,51 @@ def associate_tracks(cost: np.ndarray, keep: dict[int, int] | None = None) -> li
 
 
 # Track management -----------------------------------------------------------------------
+class DuplicateWatch:
+    """Finds tracks that follow a target another track already holds (module docstring).
+
+    Args:
+        frames: consecutive frames a pair must agree before the later track goes
+            (0: never).
+        gate_prob: χ² gate probability of the agreement test.
+        dims: the compared state components (position and velocity).
+    """
+
+    def __init__(self, frames: int, gate_prob: float, dims=(0, 1, 2, 3, 4, 5)):
+        if frames < 0:
+            raise ValueError(f"merge_frames must be >= 0, got {frames}")
+        self.frames = frames
+        self.gate_prob = gate_prob
+        self.dims = np.asarray(dims)
+        self._streak: dict[tuple, int] = {}
+
+    def duplicates(self, tracks) -> list:
+        """One frame: ``tracks`` are ``(key, x, P)`` at the frame's time, the track that
+        keeps priority first (confirmed in id order, then tentative in birth order).
+        Returns the keys of the tracks to delete."""
+        if not self.frames or len(tracks) < 2:
+            self._streak = {}
+            return []
+        keys = [k for k, _, _ in tracks]
+        X = np.array([np.asarray(x, float)[self.dims] for _, x, _ in tracks])
+        T = np.array([np.trace(np.asarray(P, float)[np.ix_(self.dims[:3], self.dims[:3])]) for _, _, P in tracks])
+        # d² ≥ |Δpos|² / tr(T_pos): pairs farther apart than that bound allows cannot agree.
+        D2 = np.sum((X[:, None, :3] - X[None, :, :3]) ** 2, axis=-1)
+        bound = gate_threshold(len(self.dims), self.gate_prob) * (T[:, None] + T[None, :])
+        streak: dict[tuple, int] = {}
+        gone: set[int] = set()
+        for i, j in zip(*np.nonzero(np.triu(D2 <= bound, 1))):
+            (ki, xi, Pi), (kj, xj, Pj) = tracks[i], tracks[j]
+            d2, rank = track_distance2(xi, Pi, xj, Pj, dims=self.dims)
+            if rank and d2 > gate_threshold(rank, self.gate_prob):
+                continue
+            n = streak[(ki, kj)] = self._streak.get((ki, kj), 0) + 1
+            if n >= self.frames and i not in gone:
+                gone.add(j)
+        self._streak = {k: n for k, n in streak.items() if not ({k[0], k[1]} & {keys[g] for g in gone})}
+        return [keys[g] for g in sorted(gone)]
+
+
 @dataclass(frozen=True)
 class ManagementRule:
     """M-of-N confirmation and K-miss deletion (module docstring)."""

@@ -34,7 +34,9 @@ One frame, at the time ``t`` of its first plot:
    without plots coasts on its prediction.
 4. **Initiate** tentative tracks from the plots no track took (below).
 5. **Manage**: M-of-N confirmation, deletion after K missed frames or when the position
-   standard deviation exceeds ``max_pos_std`` (:class:`fusion.association.TrackLogic`).
+   standard deviation exceeds ``max_pos_std`` (:class:`fusion.association.TrackLogic`),
+   and of the later of two tracks that have agreed for ``merge_frames`` frames
+   (:class:`fusion.association.DuplicateWatch`).
    A confirmed track scores a hit in a frame where it took a plot; a tentative one
    needs plots of two sensors (when the frame holds two): one angle or radar plot
    fixes only a line or a circle, which false alarms and neighbouring targets satisfy.
@@ -74,6 +76,12 @@ confirm_m         3         M hits ...
 confirm_n         4         ... within the first N frames (birth included) confirm a track
 delete_misses     3         K consecutive missed frames delete a confirmed track
 max_pos_std       inf       m; a track whose √trace(P_pos) exceeds it is deleted
+local_max_pos_std max_pos_… the same for the local tracks of HNV nodes, which get no
+                            feedback (:mod:`fusion.network`): one deleted rejoins from the
+                            fused track
+merge_frames      3         F frames in which two tracks agree make the later one a
+                            duplicate, deleted (:class:`fusion.association.DuplicateWatch`;
+                            0: never)
 ================  ========  ===============================================================
 """
 
@@ -87,7 +95,7 @@ from typing import Callable
 import numpy as np
 
 from .angles import wrap_pi
-from .association import CONFIRMED, DELETED, ManagementRule, TrackIds, TrackLogic, gate_threshold, gnn, mahalanobis2
+from .association import CONFIRMED, DELETED, DuplicateWatch, ManagementRule, TrackIds, TrackLogic, gate_threshold, gnn, mahalanobis2
 from .config import config_values
 from .init3d import initial_state, spherical_to_position
 from .patent import CentralisedMethod, ScanGrouper, uses
@@ -109,8 +117,11 @@ class AssociationConfig:
     confirm_n: int = 4
     delete_misses: int = 3
     max_pos_std: float = math.inf
+    local_max_pos_std: float | None = None
+    merge_frames: int = 3
 
-    KEYS = ("association", "gate_prob", "confirm_m", "confirm_n", "delete_misses", "max_pos_std")
+    KEYS = ("association", "gate_prob", "confirm_m", "confirm_n", "delete_misses", "max_pos_std",
+            "local_max_pos_std", "merge_frames")
 
     @classmethod
     def split(cls, config: dict | None) -> tuple["AssociationConfig | None", dict]:
@@ -123,7 +134,7 @@ class AssociationConfig:
                 raise ValueError(f"tracker config keys {sorted(mine)} need 'association' (one of {ASSOCIATIONS})")
             return None, config
         values = config_values(cls, mine, "tracker config")
-        for key in ("confirm_m", "confirm_n", "delete_misses"):
+        for key in ("confirm_m", "confirm_n", "delete_misses", "merge_frames"):
             if key in values and (not float(values[key]).is_integer()):
                 raise ValueError(f"tracker config {key!r} must be an integer, got {values[key]!r}")
             if key in values:
@@ -135,11 +146,22 @@ class AssociationConfig:
             raise ValueError(f"tracker config 'gate_prob' must lie in (0, 1), got {cfg.gate_prob}")
         if not cfg.max_pos_std > 0.0:
             raise ValueError(f"tracker config 'max_pos_std' must be > 0, got {cfg.max_pos_std}")
+        if cfg.local_max_pos_std is not None and not cfg.local_max_pos_std > 0.0:
+            raise ValueError(f"tracker config 'local_max_pos_std' must be > 0, got {cfg.local_max_pos_std}")
         cfg.rule()  # M <= N, K >= 1
+        cfg.duplicate_watch()  # F >= 0
         return cfg, config
+
+    @property
+    def local_pos_std_limit(self) -> float:
+        """The ``max_pos_std`` of an HNV node's local tracks."""
+        return self.max_pos_std if self.local_max_pos_std is None else self.local_max_pos_std
 
     def rule(self) -> ManagementRule:
         return ManagementRule(self.confirm_m, self.confirm_n, self.delete_misses)
+
+    def duplicate_watch(self) -> DuplicateWatch:
+        return DuplicateWatch(self.merge_frames, self.gate_prob)
 
 
 class FrameGrouper(ScanGrouper):
@@ -184,6 +206,7 @@ class MultiTargetMethod:
         self._grouper = FrameGrouper(proto.config.pair_tol)
         self._ids = TrackIds()
         self._births = 0
+        self._duplicates = config.duplicate_watch()
         self.tracks: list[_Track] = []  # confirmed in id order, then tentative in birth order
 
     def __repr__(self) -> str:
@@ -247,6 +270,9 @@ class MultiTargetMethod:
             sensors = len({m.sensor for m in taken.get(i, ())})
             tr.logic.record(sensors >= (1 if tr.logic.status == CONFIRMED else evidence))
             self._check_spread(tr)
+        live = {tr.birth: tr for tr in self.tracks if tr.logic.status != DELETED}  # in priority order
+        for birth in self._duplicates.duplicates([(b, tr.last.x, tr.last.P) for b, tr in live.items()]):
+            live[birth].logic.status = DELETED
         for first, more in self._initiator.groups(sorted(left, key=lambda m: m.order_key)):
             self._start(first, more)
 

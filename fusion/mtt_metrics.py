@@ -15,6 +15,13 @@ exactly when GOSPA counts it as localising that target. Over the run:
 * **purity** of a track: the fraction of its steps spent on the target it is on most
   often (steps on no target count against it); ``purity`` = Σ those dominant counts /
   Σ track-steps.
+* **hold** of a target: from the first step it is held on, the fraction of its steps
+  at which it is held (``hold_fractions``: one per target of each run; a target never
+  held counts 0). Its minimum says whether *every* target was held once found.
+* **ghost persistence** (``longest_ghost``, one per run): the longest run of
+  consecutive steps any one track spent on no target.
+* **found at the end** (``found_at_end``, one per run): the fraction of the targets of
+  the last step that are held there.
 * **false tracks**: tracks that are on no target at any step of their life;
   ``false_track_steps``: track-steps on no target (GOSPA's false count, summed).
 
@@ -75,6 +82,9 @@ class TrackScore:
     false_track_steps: int = 0
     n_tracks: int = 0
     assignments: list[dict[str, str]] = field(default_factory=list)
+    hold_fractions: list[float] = field(default_factory=list)
+    longest_ghost: list[int] = field(default_factory=list)
+    found_at_end: list[float] = field(default_factory=list)
 
     COUNTS = ("truth_steps", "held_steps", "breaks", "break_chances", "track_steps", "dominant_steps",
               "false_tracks", "false_track_steps", "n_tracks")
@@ -85,7 +95,8 @@ class TrackScore:
         rates (held, break rate, purity, mean GOSPA) are over all of their steps."""
         out = cls(**{k: sum(getattr(s, k) for s in scores) for k in cls.COUNTS})
         for s in scores:
-            for series in ("t", "gospa", "ospa", "n_missed", "n_false", "assignments"):
+            for series in ("t", "gospa", "ospa", "n_missed", "n_false", "assignments", "hold_fractions", "longest_ghost",
+                           "found_at_end"):
                 getattr(out, series).extend(getattr(s, series))
         return out
 
@@ -102,13 +113,19 @@ class TrackScore:
         return self.dominant_steps / self.track_steps if self.track_steps else float("nan")
 
     @property
+    def worst_hold(self) -> float:
+        return min(self.hold_fractions) if self.hold_fractions else float("nan")
+
+    @property
     def mean_gospa(self) -> float:
         return float(np.mean(self.gospa)) if self.gospa else float("nan")
 
     def summary(self) -> dict:
         return {"mean_gospa": self.mean_gospa, "mean_ospa": float(np.mean(self.ospa)) if self.ospa else None,
                 "held": self.held, "breaks": self.breaks, "break_rate": self.break_rate,
-                "purity": self.purity, "tracks": self.n_tracks, "false_tracks": self.false_tracks,
+                "purity": self.purity, "worst_hold": self.worst_hold, "tracks": self.n_tracks,
+                "longest_ghost": max(self.longest_ghost, default=0),
+                "all_found_runs": sum(f == 1.0 for f in self.found_at_end), "false_tracks": self.false_tracks,
                 "false_track_steps": self.false_track_steps,
                 "missed_steps": int(sum(self.n_missed)), "steps": len(self.t)}
 
@@ -118,6 +135,9 @@ def score_tracks(steps: Sequence[Step], c: float, p: float = 2.0) -> TrackScore:
     out = TrackScore()
     last_on: dict[str, str | None] = {}  # truth -> track at its previous step (None: not held)
     on_counts: dict[str, Counter] = {}  # track -> Counter of the truths it was on (None: nothing)
+    found: dict[str, list[int]] = {}  # truth -> [steps held, steps since first held]
+    ghost: dict[str, int] = {}  # track -> consecutive steps on no target, up to now
+    longest = 0
     for s in steps:
         pairs = assign(s.truths, s.tracks, c, p)
         X = [np.asarray(s.truths[i], dtype=float) for i in s.truths]
@@ -137,7 +157,13 @@ def score_tracks(steps: Sequence[Step], c: float, p: float = 2.0) -> TrackScore:
                 out.break_chances += 1
                 out.breaks += int(pairs.get(truth) != before)
             last_on[truth] = pairs.get(truth)
+            f = found.setdefault(truth, [0, 0])
+            if truth in pairs or f[1]:
+                f[0] += int(truth in pairs)
+                f[1] += 1
         by_track = {k: tr for tr, k in pairs.items()}
+        ghost = {k: ghost.get(k, 0) + 1 for k in s.tracks if k not in by_track}
+        longest = max(longest, *ghost.values(), 0)
         for k in s.tracks:
             on_counts.setdefault(k, Counter())[by_track.get(k)] += 1
     for counts in on_counts.values():
@@ -148,4 +174,9 @@ def score_tracks(steps: Sequence[Step], c: float, p: float = 2.0) -> TrackScore:
         out.false_track_steps += counts.get(None, 0)
         out.false_tracks += int(not on_target)
     out.n_tracks = len(on_counts)
+    out.hold_fractions = [held / since if since else 0.0 for held, since in found.values()]
+    out.longest_ghost = [longest]
+    if steps:
+        last = steps[-1]
+        out.found_at_end = [len(assign(last.truths, last.tracks, c, p)) / len(last.truths) if last.truths else 1.0]
     return out

@@ -79,7 +79,9 @@ trackers run without feedback.
 against its local tracks' predictions (χ², GNN), updates the tracks that took one and
 reports each (``track`` = its local id), sends the other plots up as requests, and
 deletes a local track after ``delete_misses`` frames without a plot or when its
-position σ exceeds ``max_pos_std`` — and then tells the centre (a ``drop`` uplink) —,
+position σ exceeds ``max_pos_std`` (``local_max_pos_std`` for HNV, whose local tracks
+drift along what their sensor does not measure: past it the track rejoins from the
+fused one) — and then tells the centre (a ``drop`` uplink) —,
 or when the centre says ``drop``. Every mode
 waits for the centre's horizon before a frame (as PHHNV does with one target), so the
 inits and drops of earlier frames are in, and the result is independent of timing.
@@ -102,7 +104,8 @@ One local track per node per fused track; a new one replaces the old one (droppe
 Each fused track has its own :class:`~fusion.track_fusion.TrackFuser`
 and fuses its reports as the one-target centre does; a fused track without reports
 coasts. Management is :class:`fusion.association.TrackLogic` (M-of-N, K misses,
-``max_pos_std``): a tentative track scores a hit with reports or gated requests of two
+``max_pos_std``) and :class:`fusion.association.DuplicateWatch` (the later of two
+fused tracks that agree for ``merge_frames`` frames is deleted, its members dropped): a tentative track scores a hit with reports or gated requests of two
 sensors, a confirmed one with two, or with one that measures range, in every topology
 (an angle sensor's local track alone would hold a fused track whose range drifts away
 from the radar plots, which start a second track on the target: a ghost along the
@@ -497,6 +500,10 @@ class MultiTrackNode(LocalNode):
         # taken for one of the centre's.
         self._alone_ids = TrackIds("A")
         self._frames = FrameGrouper(config.pair_tol)
+        # Without feedback (HNV) a local track drifts along what its sensor does not
+        # measure; it rejoins from the fused track past its own limit. A fed-back track
+        # is re-anchored every frame (and DDHNV's holds only predictions).
+        self._max_pos_std = association.local_pos_std_limit if mode == "track" else association.max_pos_std
 
     def offer(self, m: Measurement) -> None:
         if m.kind not in self.kinds:
@@ -562,7 +569,7 @@ class MultiTrackNode(LocalNode):
             self.misses[lid] = 0 if lid in hit else self.misses[lid] + 1
             ekf = self.tracks[lid].ekf
             if self.misses[lid] >= self.association.delete_misses or \
-                    math.sqrt(float(np.trace(ekf.P[:3, :3]))) > self.association.max_pos_std:
+                    math.sqrt(float(np.trace(ekf.P[:3, :3]))) > self._max_pos_std:
                 del self.tracks[lid], self.misses[lid]
                 # Tell the centre, which would otherwise keep it as its fused track's member.
                 out.append(self._uplink(t, Estimate(t, ekf.x, ekf.P, self.method, self.node, lid), drop=True))
@@ -613,6 +620,7 @@ class MultiTrackCentre(GroupedCentre):
         self._grouper = FrameGrouper(config.pair_tol)
         self._ids = TrackIds()
         self._births = 0
+        self._duplicates = association.duplicate_watch()
         self._mapped: dict[tuple[str, str], _Fused] = {}  # (node, local id) -> fused track
         self._local_ids: dict[str, TrackIds] = {}  # node -> the names of the local tracks it is sent
         self._kinds: dict[str, str] = {}  # node -> its sensor's measurement kind
@@ -653,6 +661,9 @@ class MultiTrackCentre(GroupedCentre):
             f.logic.record(self._hit(seen[f.key], f.logic.status == CONFIRMED, evidence))
             if math.sqrt(float(np.trace(f.fuser.P[:3, :3]))) > self.association.max_pos_std:
                 f.logic.status = DELETED
+        live = {f.key: f for f in self.tracks if f.logic.status != DELETED}  # in priority order
+        for key in self._duplicates.duplicates([(k, f.last.x, f.last.P) for k, f in live.items()]):
+            live[key].logic.status = DELETED
         for first, more in self._initiator.groups(sorted(left, key=lambda m: m.order_key)):
             x, P = initial_state(first, self.motion.n_x, self.config.priors())
             self._births += 1

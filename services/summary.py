@@ -197,6 +197,9 @@ def tracks_summary(scores: Sequence) -> dict:
         "breaks": run.breaks,
         "break_rate": run.break_rate,
         "purity": finite(run.purity),
+        "worst_hold": finite(run.worst_hold),
+        "longest_ghost": max(run.longest_ghost, default=0),
+        "all_found_runs": sum(f == 1.0 for f in run.found_at_end),
         "tracks": run.n_tracks,
         "false_tracks": run.false_tracks,
         "steps": len(run.t),
@@ -258,11 +261,17 @@ def format_table(doc: dict) -> str:
                      "'CEP 50 %' (distance of the median point from truth)")
     many = {n: m for n, m in methods.items() if "gospa" in m}
     if many:
-        lines.append(f"{'tracks':<{width}}{'gospa':>10}{'held':>10}{'breaks':>10}{'purity':>10}{'tracks':>10}"
-                     f"{'false':>10}   (GOSPA p = 2, cut-off {doc.get('gospa_cutoff', '—')} m)")
+        lines.append(f"{'tracks':<{width}}{'gospa':>10}{'held':>10}{'min hold':>10}{'breaks':>10}{'brk rate':>10}"
+                     f"{'purity':>10}{'tracks':>10}{'false':>10}{'ghost':>10}{'all found':>10}   (GOSPA p = 2, "
+                     f"cut-off {doc.get('gospa_cutoff', '—')} m)")
         for name, m in many.items():
-            lines.append(f"{name:<{width}}{_fmt(m['gospa'])}{_fmt(m['held'])}{m['breaks']:>10d}{_fmt(m['purity'])}"
-                         f"{m['tracks']:>10d}{m['false_tracks']:>10d}")
+            lines.append(f"{name:<{width}}{_fmt(m['gospa'])}{_fmt(m['held'])}{_fmt(m.get('worst_hold'))}"
+                         f"{m['breaks']:>10d}{_fmt(m['break_rate'])}{_fmt(m['purity'])}"
+                         f"{m['tracks']:>10d}{m['false_tracks']:>10d}{m.get('longest_ghost', 0):>10d}"
+                         f"{m.get('all_found_runs', 0):>7d}/{doc['runs']:<2d}")
+        lines.append("min hold: the least fraction of steps a target was held from the first (any run); "
+                     "ghost: the most consecutive steps a track spent on no target; all found: runs whose last "
+                     "step held every target")
     for src, s in doc.get("sources", {}).items():
         if s.get("dead_intervals") or s.get("rejected"):
             lines.append(f"source {src}: dead {s.get('dead_intervals')}, rejected {s.get('rejected', 0)}")

@@ -16,7 +16,7 @@ from fusion.mtt import MultiTargetMethod
 from fusion.mtt_metrics import Step, score_tracks
 from fusion.types import Measurement
 from sensors_sim import load_scenario
-from services.evaluation import run_method, score_tracks_of, score_tracks_run
+from services.evaluation import merged_measurements, run_method, score_tracks_of, score_tracks_run, track_steps
 from services.summary import tracks_summary
 
 from _runs import run_cmd
@@ -47,6 +47,12 @@ def test_association_keys_are_checked():
         make_method("SS", {"association": "jpda"})
     with pytest.raises(ValueError, match="confirm_m <= confirm_n"):
         make_method("SS", {"association": "gnn", "confirm_m": 5, "confirm_n": 4})
+    with pytest.raises(ValueError, match="'merge_frames' must be an integer"):
+        make_method("SS", {"association": "gnn", "merge_frames": 1.5})
+    with pytest.raises(ValueError, match="merge_frames must be >= 0"):
+        make_method("SS", {"association": "gnn", "merge_frames": -1})
+    with pytest.raises(ValueError, match="'local_max_pos_std' must be > 0"):
+        make_method("HNV", {"association": "gnn", "local_max_pos_std": 0.0})
     assert isinstance(make_method("SS", {"association": "gnn", "q": 0.1}), MultiTargetMethod)
 
 
@@ -203,6 +209,21 @@ def test_metrics_closed_forms():
     np.testing.assert_allclose(s.gospa, [5.0, math.sqrt(25 + 5000), math.sqrt(25 + 5000 + 5000), 5.0, 5.0])
     assert s.n_missed == [0, 0, 1, 0, 0] and s.n_false == [0, 1, 1, 0, 0]
     assert s.assignments[2] == {"X": "1"}
+    # Hold: X all 5 steps; Y from step 0, 4 of 5. Track 4's 2 steps are the longest
+    # ghost; both targets are held at the last step.
+    assert sorted(s.hold_fractions) == [0.8, 1.0] and s.worst_hold == 0.8
+    assert s.longest_ghost == [2] and s.found_at_end == [1.0]
+    # A third target never held holds 0 and is not found at the end.
+    Z = np.array([0.0, -9000.0, 0.0])
+    seq2 = [({**truths, "Z": Z}, tracks) for truths, tracks in seq]
+    s2 = score_tracks(steps_from(seq2), c=100.0, p=2.0)
+    assert sorted(s2.hold_fractions) == [0.0, 0.8, 1.0] and s2.found_at_end == [2 / 3]
+    merged = type(s).merged([s, s2])
+    assert merged.longest_ghost == [2, 2] and merged.worst_hold == 0.0 and merged.found_at_end == [1.0, 2 / 3]
+    # A ghost's count restarts when it passes over a target: false 2 + on 1 + false 2 is 2.
+    W = np.array([0.0, 0.0, 0.0])
+    seq3 = [({"W": W}, {"g": W if t == 2 else far}) for t in range(5)]
+    assert score_tracks(steps_from(seq3), c=100.0).longest_ghost == [2]
 
 
 def test_an_id_swap_is_two_breaks_and_lowers_purity():
@@ -233,3 +254,39 @@ def test_many_targets_over_zenoh_equal_in_process(crossing, tmp_path, deployment
     for key in ("held", "breaks", "purity", "tracks", "false_tracks", "n_updates"):
         assert got[key] == ref[key], key
     assert got["rmse_pos"] is None and got["tracks"] >= 3
+
+
+@pytest.mark.parametrize("merge_frames", [0, 3])
+def test_a_second_track_on_a_target_is_merged_away(crossing, merge_frames):
+    """SS + GNN on the crossing scenario; at t = 20 s a confirmed track is duplicated
+    (a copy under a new id, as a wrong initiation would make one). The two share the
+    target's plots and agree; with ``merge_frames = 3`` the copy is deleted within 3
+    frames and the original keeps the target to the end; with 0 the copy lives on
+    until its misses delete it (the original wins the plots: it comes first)."""
+    import copy
+
+    method = make_method("SS", {**crossing.tracker, "merge_frames": merge_frames})
+    out, t_prev, copied = [], None, None
+    for m in merged_measurements(crossing, 0):
+        if t_prev is not None and m.t > t_prev:
+            out += method.advance(t_prev)
+            if copied is None and t_prev >= 20.0:
+                original = method.tracks[0]
+                twin = copy.deepcopy(original)
+                twin.method.track, twin.birth = method._ids.next(), method._births + 1
+                method._births += 1
+                method.tracks.append(twin)
+                copied = (original.method.track, twin.method.track, t_prev)
+        out += method.process(m)
+        t_prev = m.t
+    out += method.finish()
+    kept, twin_id, t0 = copied
+    twin_times = sorted({e.t for e in out if e.track == twin_id})
+    if merge_frames:
+        assert len(twin_times) <= merge_frames and all(t <= t0 + merge_frames for t in twin_times), twin_times
+        s = score_tracks(track_steps(crossing, out, 0), 1000.0)
+        i = s.t.index(t0)
+        truth = next(k for k, v in s.assignments[i].items() if v == kept)
+        assert all(a.get(truth) == kept for a in s.assignments[i:])
+    else:
+        assert len(twin_times) > 3, twin_times
