@@ -125,6 +125,32 @@ def test_association_wraps_df_methods_for_many_emitters_and_3d_methods_for_many_
     assert type(make_method("SS", {"association": "gnn"})).__name__ == "MultiTargetMethod"
 
 
+def test_a_station_is_gated_with_an_estimate_that_leaves_it_out():
+    """A track pulled 1 km off A by a wrong bearing of S3: the estimate it gates S3 with
+    comes from its S1 and S2 bearings alone (one Torrieri step), back within metres of
+    A (one linearised step from 1 km off: within 100 m), so S3's true bearing of A is
+    in that gate and the wrong one is not; with one
+    other station there is no such estimate and the track's own is used."""
+    from fusion.association import ManagementRule, TrackLogic
+    from fusion.df.multi import _Emitter
+    from fusion.types import Estimate
+
+    x_off = A + np.array([1000.0, 0.0])
+    tr = _Emitter(None, TrackLogic(ManagementRule()), 1, Estimate(0.0, x_off, np.eye(2) * 100.0**2, "EKF", "centre"),
+                  window=3)
+    for _ in range(3):  # noise-free bearings of A from S1, S2; S3's is of B
+        tr.taken.append((np.array([S1, S2, S3]), np.array([bearing(A, S1), bearing(A, S2), bearing(B, S3)]),
+                         np.full(3, SIGMA), ["df1", "df2", "df3"]))
+    x, P = tr.without("df3")
+    assert np.linalg.norm(x - A) < 100.0 and np.all(np.linalg.eigvalsh(P) > 0)
+    d2 = bearing_d2(x, P, np.array([S3, S3]), np.array([bearing(A, S3), bearing(B, S3)]), np.full(2, SIGMA))
+    assert d2[0] < 1.0 and d2[1] > G
+    tr.taken.clear()
+    tr.taken.append((np.array([S1, S3]), np.array([bearing(A, S1), bearing(B, S3)]), np.full(2, SIGMA), ["df1", "df3"]))
+    x, P = tr.without("df3")
+    assert x is tr.last.x and P is tr.last.P
+
+
 # df-multi, in-process ----------------------------------------------------------------
 RUNS = range(10)
 
@@ -139,31 +165,25 @@ def _score(sc, run):
 
 def test_df_multi_localises_every_emitter_and_ghosts_do_not_persist():
     """Measured on runs 0–29 (EKF, the scenario's tracker): at the last epoch every
-    emitter had a confirmed track within 250 m in 28/30 runs (the largest such distance:
-    248 m; in the other two an emitter was without a track, its track having been deleted
-    by the consistency test a few epochs before the end); the longest-lived ghost (a
-    confirmed track on no emitter within 1 km) lasted ≤ 10 epochs in 26/30 runs (12, 15,
-    22 and 26 epochs in the others: mixed tracks holding one station's bearing of a
-    neighbouring emitter, and one slow start). Runs 0–9 gave 10/10 and 9/10. The bounds
-    below, 500 m in ≥ 8 of 10 runs and ≤ 10 ghost epochs in ≥ 8 of 10, leave room for
-    that spread and fail if association or ghost rejection breaks (without the third
-    station's check or the persistence window, ghosts last the whole run in most runs)."""
+    emitter had a confirmed track within 260 m in 29/30 runs (median run 165 m), and
+    the longest run of epochs any track spent on no emitter was ≤ 10 in 29/30 (≤ 5 but
+    in one more). The exception, run 2, is a swap ghost pair: E1 and E5 lie near the
+    df1–df3 diagonal, and two tracks, each taking df1's and df3's bearing of one of
+    them and df2's and df4's of the other, fit every bearing within ~2σ for 23 epochs
+    (final error 551 m). Without the gating of each station with an estimate that
+    leaves that station out (module docstring, step 1), two tracks could also swap one
+    station's bearings for good: 6 of those 30 runs failed (ghosts of 28–47 epochs;
+    runs 2 and 9 of the ten below). The bound leaves room for one such run in ten."""
     sc = load_scenario("df-multi")
-    localised = ghost_free = 0
+    good = 0
     for r in RUNS:
         steps, score = _score(sc, r)
         last = steps[-1]
         err = [min((np.linalg.norm(x[:2] - p[:2]) for x in last.tracks.values()), default=np.inf)
                for p in last.truths.values()]
-        localised += max(err) <= 500.0
-        ghost: dict[str, int] = {}
-        for st, pairs in zip(steps, score.assignments):
-            for k in set(st.tracks) - set(pairs.values()):
-                ghost[k] = ghost.get(k, 0) + 1
-        ghost_free += max(ghost.values(), default=0) <= 10
+        good += max(err) <= 400.0 and score.longest_ghost[0] <= 10
         assert all(e.startswith("E") for st in steps for e in st.tracks)
-    assert localised >= 8, localised
-    assert ghost_free >= 8, ghost_free
+    assert good >= 9, good
 
 
 # Through the processes -------------------------------------------------------------------

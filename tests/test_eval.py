@@ -128,6 +128,31 @@ def check_sweep(md: str, bundle: dict) -> int:
     return n
 
 
+def check_many(md: str, bundle: dict) -> int:
+    (table,) = md_tables(md)[:1]
+    methods = bundle["evaluation"]["methods"]
+    runs = bundle["runs"]
+    ref = methods.get(bundle["criteria"]["reference"] or "")
+    assert [r["method"].strip("`") for r in table] == list(methods)
+    n = 0
+    for row in table:
+        m = methods[row["method"].strip("`")]
+        assert same(row["GOSPA (m)"], m["gospa"]) and same(row["held"], m["held"])
+        assert same(row["min hold"], m["worst_hold"]) and same(row["purity"], m["purity"])
+        assert same(row["break %"], 100 * m["break_rate"])
+        assert (int(row["breaks"]), int(row["tracks"]), int(row["false"]), int(row["ghost"])) == \
+            (m["breaks"], m["tracks"], m["false_tracks"], m["longest_ghost"])
+        assert row["all found"] == f"{m['all_found_runs']}/{runs}"
+        if ref is not None:
+            assert same(row[f"/ {bundle['criteria']['reference']}"], m["gospa"] / ref["gospa"])
+        n += 1
+    # one verdict line per method, saying meets exactly when every criterion holds
+    for name in methods:
+        line = next(x for x in md.splitlines() if x.startswith(f"* **{name}: "))
+        assert ("meets" in line) == ("✗" not in line)
+    return n
+
+
 # The harness ------------------------------------------------------------------------------
 def test_common_random_numbers_and_parallel_equals_serial():
     sc = load_scenario("patent-3d")
@@ -221,9 +246,15 @@ def test_tiny_reports_tables_equal_their_json(tmp_path):
     md = report.write_sweep_report(b, tmp_path).read_text()
     assert check_sweep(md, json.loads((tmp_path / "jammed-df-sweep.json").read_text())) == 2 * 5
 
+    b = report.build_many("df-multi", runs=2)
+    md = report.write_many_report(b, tmp_path).read_text()
+    assert check_many(md, json.loads((tmp_path / "df-multi.json").read_text())) == 10
+    assert (tmp_path / "df-multi" / "gospa.png").is_file()
+
 
 @pytest.mark.parametrize("name,check", [("patent-3d", check_patent), ("patent-3d-60", check_patent),
-                                        ("thesis-cep", check_thesis), ("jammed-df-sweep", check_sweep)])
+                                        ("thesis-cep", check_thesis), ("jammed-df-sweep", check_sweep),
+                                        ("air-picture", check_many), ("df-multi", check_many)])
 def test_committed_reports_match_their_json(name, check):
     md, js = RESULTS / f"{name}.md", RESULTS / f"{name}.json"
     assert md.is_file() and js.is_file(), f"regenerate with: python -m services.report {name}"

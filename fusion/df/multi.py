@@ -32,7 +32,13 @@ reported in it and ``need = min(3, K)``:
 
    and the gate is ``d² ≤ G = χ²⁻¹(P_G; 1)``. Within one station each track takes at
    most one bearing and each bearing goes to at most one track: global nearest
-   neighbour on the ``d²`` (:func:`fusion.association.gnn`).
+   neighbour on the ``d²`` (:func:`fusion.association.gnn`). The ``(x̂, P)`` that gates
+   station ``s`` *leaves s out*: one Torrieri step from the track's estimate on the
+   bearings it took from the other stations in its last ``init_epochs`` epochs (its
+   estimate itself if those come from fewer than two stations). With its own estimate,
+   two tracks whose emitters one station sees 4σ apart could hold each other's bearing
+   of that station for good: each estimate, pulled ~1 km towards the wrong bearing,
+   then prefers it.
 2. **The other bearings are grouped afresh** (:func:`initiate`): every pair of them from
    two stations that meets in a well-conditioned point (:func:`fusion.df.init.usable_pairs`,
    the ``ipu`` test with ``ipu_max_rel``) is a candidate ``x_ab`` with covariance
@@ -58,7 +64,8 @@ reported in it and ``need = min(3, K)``:
    bearings of two stations (a fix); M-of-N confirmation (``confirm_m``, ``confirm_n``),
    deletion after ``delete_misses`` missed epochs, when ``√trace P`` exceeds
    ``max_pos_std``, or when the ``d²`` of a confirmed track's bearings over its last
-   ``init_epochs`` epochs sum beyond ``χ²⁻¹(P_G; n)`` (``n`` bearings): a track that holds
+   ``init_epochs`` epochs sum beyond ``χ²⁻¹(1 − 10⁻⁵; n)`` (``n`` bearings;
+   :data:`CONSISTENCY_FALSE_ALARM`): a track that holds
    one station's bearing of a neighbouring emitter fits each bearing within the gate
    but not all of them together, over time.
 5. **Report** one estimate per confirmed track, in id order, stamped with the epoch's
@@ -66,10 +73,15 @@ reported in it and ``need = min(3, K)``:
    (:class:`fusion.association.TrackIds`).
 
 What it does not do: it does not resolve two emitters that every station sees within
-its bearing noise of each other (they form one track), and a static ghost that by
-chance lies on a bearing of *every* station survives if, in every epoch, it wins those
-bearings from the real emitters in the per-station assignment (the scenario
-``df-multi`` is laid out so that the emitters are at least 4σ apart from every station).
+its bearing noise of each other (they form one track), and it does not always reject
+a *swap ghost pair*: when two emitters lie near the line through two stations (in
+``df-multi``, E1 and E5 near the df1–df3 diagonal), two ghosts — each taking those two
+stations' bearings of one emitter and the other stations' bearings of the other —
+explain every bearing of the pair within ~2σ. If they are started before the real
+emitters' tracks, they hold those bearings until the consistency test (step 4) sees
+their residuals; in 50 runs of ``df-multi`` that took 23 and 32 epochs in two runs
+(``docs/results/df-multi.md``). A global multi-epoch assignment (S-D assignment over
+the stations) would weigh both hypotheses at once; this tracker is greedy.
 
 Configuration: the keys of :class:`fusion.mtt.AssociationConfig` (``association``,
 ``gate_prob``, ``confirm_m``, ``confirm_n``, ``delete_misses``, ``max_pos_std``) and
@@ -94,6 +106,13 @@ from .init import usable_pairs
 from .methods import DFMethod
 from .models import bearing, bearing_of, stated_sigma
 from .triangulation import intersection_jacobian
+
+#: false-alarm probability of the consistency test of a confirmed track (step 4). It is
+#: run every epoch on every track: at the gate's 1e-3 true tracks were deleted about
+#: once per thousand epochs (df-multi, EKF, runs 0–49: 55 breaks, one emitter of run 40
+#: lost two epochs before the end; at 1e-5: 1 break). A track holding a neighbour's
+#: bearing 4σ off adds ~16 per epoch and still fails it within its window.
+CONSISTENCY_FALSE_ALARM = 1e-5
 
 #: stations whose bearings a new emitter needs (fewer if fewer stations report):
 #: with two stations every crossing is a candidate and nothing can tell a ghost.
@@ -190,14 +209,30 @@ def initiate(sites, betas, sigmas, stations: Sequence[str], gate: float, need: i
 
 
 class _Emitter:
-    """One emitter track: its DF method instance, its life, and its latest estimate."""
+    """One emitter track: its DF method instance, its life, its latest estimate, and the
+    bearings it took in its last ``window`` epochs."""
 
-    __slots__ = ("method", "logic", "birth", "last", "id", "nis")
+    __slots__ = ("method", "logic", "birth", "last", "id", "nis", "taken")
 
     def __init__(self, method: DFMethod, logic: TrackLogic, birth: int, last: Estimate, window: int):
         self.method, self.logic, self.birth, self.last = method, logic, birth, last
         self.id: str | None = None  # issued at confirmation
         self.nis: deque = deque(maxlen=window)  # (Σ d², number of bearings) of its last epochs as confirmed
+        self.taken: deque = deque(maxlen=window)  # per epoch: (sites, betas, sigmas, stations) it took
+
+    def without(self, station: str) -> tuple[np.ndarray, np.ndarray]:
+        """``(x, P)`` to gate ``station``'s bearings with: one Torrieri step from the
+        estimate on the track's bearings of its last epochs from the *other* stations
+        (module docstring, step 1), or the estimate itself if they are fewer than two
+        stations."""
+        rows = [(site, b, sg, st) for sites, betas, sigmas, stations in self.taken
+                for site, b, sg, st in zip(sites, betas, sigmas, stations) if st != station]
+        if len({r[3] for r in rows}) < 2:
+            return self.last.x, self.last.P
+        sites = np.array([r[0] for r in rows])
+        x, P = _refine(np.asarray(self.last.x, dtype=float)[None, :2], sites, np.array([r[1] for r in rows]),
+                       np.array([r[2] for r in rows]), np.ones((1, len(rows)), dtype=bool))
+        return x[0], P[0]
 
 
 class MultiEmitterMethod:
@@ -251,6 +286,12 @@ class MultiEmitterMethod:
     def _sigma(self, m: Measurement) -> float:
         return stated_sigma(m) if self.df.sigma == "sensor" else float(self.df.sigma)
 
+    def _bearings(self, ms: list[Measurement]) -> tuple:
+        """``(sites (n, 2), betas (n,), sigmas (n,), stations)`` of bearing measurements."""
+        pairs = [bearing_of(m) for m in ms]
+        return (np.array([p[0][:2] for p in pairs]).reshape(-1, 2), np.array([p[1] for p in pairs]),
+                np.array([self._sigma(m) for m in ms]), [m.sensor for m in ms])
+
     def _epoch(self, epoch: list[Measurement]) -> list[Estimate]:
         t = max(m.t for m in epoch)
         sites = np.array([bearing_of(m)[0] for m in epoch])
@@ -268,7 +309,7 @@ class MultiEmitterMethod:
         free = np.ones(len(epoch), dtype=bool)
         for s in sorted(set(stations)) if confirmed else ():
             cols = [c for c, sid in enumerate(stations) if sid == s]
-            d2 = np.array([bearing_d2(tr.last.x, tr.last.P, sites[cols], betas[cols], sigmas[cols]) for tr in confirmed])
+            d2 = np.array([bearing_d2(*tr.without(s), sites[cols], betas[cols], sigmas[cols]) for tr in confirmed])
             for r, c in gnn(d2, self._gate):
                 taken.setdefault(r, []).append(cols[c])
                 free[cols[c]] = False
@@ -314,6 +355,7 @@ class MultiEmitterMethod:
             est = self._localise(tr.method, [epoch[c] for c in mine], epoch[0].t)
             if est is not None:
                 tr.last = est
+        tr.taken.append(self._bearings([epoch[c] for c in mine]))
         tr.logic.record(len({epoch[c].sensor for c in mine}) >= enough)
         if tr.logic.status != DELETED and math.sqrt(float(np.trace(tr.last.P))) > self.config.max_pos_std:
             tr.logic.status = DELETED
@@ -324,7 +366,7 @@ class MultiEmitterMethod:
         if tr.logic.status == DELETED:
             return
         total, n = (sum(v) for v in zip(*tr.nis))
-        if n and total > gate_threshold(int(n), self.config.gate_prob):
+        if n and total > gate_threshold(int(n), 1.0 - CONSISTENCY_FALSE_ALARM):
             tr.logic.status = DELETED
 
     def _localise(self, method: DFMethod, bearings: list[Measurement], t0: float) -> Estimate | None:
@@ -341,4 +383,6 @@ class MultiEmitterMethod:
         if est is None:
             return
         self._births += 1
-        self.tracks.append(_Emitter(method, TrackLogic(self._rule), self._births, est, int(self.df.init_epochs)))
+        tr = _Emitter(method, TrackLogic(self._rule), self._births, est, int(self.df.init_epochs))
+        tr.taken.append(self._bearings(bearings))
+        self.tracks.append(tr)

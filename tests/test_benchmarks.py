@@ -1,0 +1,33 @@
+"""The in-process benchmark scripts run from a checkout, each with its one documented
+command (here with tiny arguments), and print the tables benchmarks/README.md quotes.
+They measure speed; this only checks that they still run and report (issue 9). The
+Zenoh benchmarks (bench_fuser, bench_scaling, bench_memory) start a process set per
+level and take minutes even with tiny arguments; they are left to their own commands."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+CASES = {
+    "bench_ekf.py": (["--repeats", "1", "--tracks", "50", "--loop-tracks", "5"],
+                     ["FilterPy", "Stone Soup", "batch.ekf_step", "## Targets"]),
+    "bench_montecarlo.py": (["--runs", "4"], ["vectorised", "run by run"]),
+    "profile_fuser.py": (["--measurements", "400", "--repeats", "1", "--top", "5"], ["encode_estimate"]),
+}
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("script", sorted(CASES))
+def test_benchmark_runs_and_prints_its_tables(script):
+    args, expected = CASES[script]
+    p = subprocess.run([sys.executable, str(ROOT / "benchmarks" / script), *args], cwd=ROOT,
+                       capture_output=True, text=True, timeout=300)
+    assert p.returncode == 0, (p.stdout[-2000:], p.stderr[-3000:])
+    for text in expected:
+        assert text in p.stdout, (text, p.stdout[-3000:])
