@@ -128,6 +128,15 @@ def dumps(obj, indent: int = 0) -> str:
     return json.dumps(obj, ensure_ascii=False, allow_nan=False)
 
 
+def _write(out_dir: Path, name: str, bundle: dict, text: list[str]) -> Path:
+    """A report's ``NAME.json`` (every number it shows) and ``NAME.md``; the path of the latter."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    (out_dir / f"{name}.json").write_text(dumps(bundle) + "\n")
+    path = out_dir / f"{name}.md"
+    path.write_text("\n".join(text))
+    return path
+
+
 # Plots -------------------------------------------------------------------------------
 def _plt():
     import matplotlib
@@ -566,11 +575,7 @@ def write_patent_report(bundle: dict, out_dir: Path) -> Path:
         f"![NIS]({name}/{f_nis})",
         "",
     ]
-    out_dir.mkdir(parents=True, exist_ok=True)
-    (out_dir / f"{name}.json").write_text(dumps(bundle) + "\n")
-    path = out_dir / f"{name}.md"
-    path.write_text("\n".join(text))
-    return path
+    return _write(out_dir, name, bundle, text)
 
 
 # Reproduction: the MEKF thesis's CEP tables -------------------------------------------------
@@ -753,11 +758,7 @@ def write_thesis_report(bundle: dict, out_dir: Path) -> Path:
     ]
     for name, png in figs:
         text += [f"### {name}", "", f"![{name}](thesis-cep/{png})", ""]
-    out_dir.mkdir(parents=True, exist_ok=True)
-    (out_dir / "thesis-cep.json").write_text(dumps(bundle) + "\n")
-    path = out_dir / "thesis-cep.md"
-    path.write_text("\n".join(text))
-    return path
+    return _write(out_dir, "thesis-cep", bundle, text)
 
 
 # Reproduction: the IMM thesis's sweep -------------------------------------------------------
@@ -931,11 +932,7 @@ def write_sweep_report(bundle: dict, out_dir: Path) -> Path:
                  tables[(law, "cep")], ""]
     text += ["## Verdict", "", *_sweep_verdicts(bundle), "",
              "## Plot", "", f"![MS error and CEP50 against SNR](jammed-df-sweep/{png})", ""]
-    out_dir.mkdir(parents=True, exist_ok=True)
-    (out_dir / "jammed-df-sweep.json").write_text(dumps(bundle) + "\n")
-    path = out_dir / "jammed-df-sweep.md"
-    path.write_text("\n".join(text))
-    return path
+    return _write(out_dir, "jammed-df-sweep", bundle, text)
 
 
 # Many targets: the acceptance of issue 11 ---------------------------------------------------
@@ -1036,11 +1033,7 @@ def write_many_report(bundle: dict, out_dir: Path) -> Path:
         f"![GOSPA against time]({name}/{png})",
         "",
     ]
-    out_dir.mkdir(parents=True, exist_ok=True)
-    (out_dir / f"{name}.json").write_text(dumps(bundle) + "\n")
-    path = out_dir / f"{name}.md"
-    path.write_text("\n".join(text))
-    return path
+    return _write(out_dir, name, bundle, text)
 
 
 # Command line -----------------------------------------------------------------------------

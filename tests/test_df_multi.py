@@ -151,6 +151,48 @@ def test_a_station_is_gated_with_an_estimate_that_leaves_it_out():
     assert x is tr.last.x and P is tr.last.P
 
 
+def test_a_swap_ghost_pair_is_exchanged_into_the_two_emitters():
+    """Emitters P and Q near the diagonal of four stations at the corners of a 40 km
+    square: tracks g and h hold, for 5 epochs, df1's and df3's bearings of P with df2's
+    and df4's of Q, and the reverse — two ghosts whose static fits cost 68 (χ², noise-
+    free bearings) against 0 for the real pairing. Exchanging df2's and df4's bearings
+    between them makes each a real emitter: both tracks end on P and Q, within metres,
+    every bearing of each from one emitter."""
+    from fusion.association import CONFIRMED, ManagementRule, TrackLogic
+    from fusion.df.multi import _Emitter
+
+    sites = np.array([[0.0, 0.0], [40.0, 0.0], [40.0, 40.0], [0.0, 40.0]]) * KM
+    P, Q = np.array([14.0, 17.0]) * KM, np.array([26.0, 23.0]) * KM
+    method = make_method("EKF", {"association": "gnn", "sigma": SIGMA, "q22": 0.0})
+
+    def ghost(first, second):  # df1, df3 see `first`, df2, df4 `second`
+        tr = None
+        for k in range(5):
+            ms = [dataclasses.replace(bearing_measurements(
+                [k + 1.0], [f"df{s + 1}"], sites[s:s + 1], [[bearing(first if s in (0, 2) else second, sites[s])]],
+                SIGMA)[0], seq=s) for s in range(4)]
+            if tr is None:
+                emitter = method._make_emitter()
+                tr = _Emitter(emitter, TrackLogic(ManagementRule(1, 1)), k, method._localise(emitter, ms, k + 1.0), 5)
+            else:
+                tr.last = method._localise(tr.method, ms, k + 1.0)
+            tr.taken.append(method._bearings(ms, k + 1.0))
+        assert tr.logic.status == CONFIRMED
+        return tr
+
+    g, h = ghost(P, Q), ghost(Q, P)
+    method._resolve_swaps([g, h])
+    ends = sorted([g, h], key=lambda tr: tr.last.x[0])
+    for tr, emitter in zip(ends, (P, Q)):
+        assert np.linalg.norm(tr.last.x - emitter) < 10.0, (tr.last.x, emitter)
+        for sites_e, betas, *_ in tr.taken:
+            np.testing.assert_allclose(betas, [bearing(emitter, s) for s in sites_e], atol=1e-9)
+    # a real pair is left alone
+    before = [tr.last.x.copy() for tr in (g, h)]
+    method._resolve_swaps([g, h])
+    assert all(np.array_equal(b, tr.last.x) for b, tr in zip(before, (g, h)))
+
+
 # df-multi, in-process ----------------------------------------------------------------
 RUNS = range(10)
 
@@ -165,15 +207,14 @@ def _score(sc, run):
 
 def test_df_multi_localises_every_emitter_and_ghosts_do_not_persist():
     """Measured on runs 0–29 (EKF, the scenario's tracker): at the last epoch every
-    emitter had a confirmed track within 260 m in 29/30 runs (median run 165 m), and
-    the longest run of epochs any track spent on no emitter was ≤ 10 in 29/30 (≤ 5 but
-    in one more). The exception, run 2, is a swap ghost pair: E1 and E5 lie near the
-    df1–df3 diagonal, and two tracks, each taking df1's and df3's bearing of one of
-    them and df2's and df4's of the other, fit every bearing within ~2σ for 23 epochs
-    (final error 551 m). Without the gating of each station with an estimate that
-    leaves that station out (module docstring, step 1), two tracks could also swap one
-    station's bearings for good: 6 of those 30 runs failed (ghosts of 28–47 epochs;
-    runs 2 and 9 of the ten below). The bound leaves room for one such run in ten."""
+    emitter had a confirmed track within 260 m in 30/30 runs (median run 159 m), and
+    the longest run of epochs any track spent on no emitter was ≤ 10 in 30/30 (≤ 5 but
+    in one). Without the gating of each station with an estimate that leaves that
+    station out (module docstring, step 1), two tracks could swap one station's
+    bearings for good, and without the exchange test (step 4) a swap ghost pair (E1
+    and E5 lie near the df1–df3 diagonal) held for 23 epochs: 6 of those 30 runs failed
+    without both (ghosts of 23–47 epochs; runs 2 and 9 of the ten below). The bound
+    leaves room for one bad run in ten (over 50 runs: docs/results/df-multi.md)."""
     sc = load_scenario("df-multi")
     good = 0
     for r in RUNS:

@@ -67,21 +67,26 @@ reported in it and ``need = min(3, K)``:
    ``init_epochs`` epochs sum beyond ``χ²⁻¹(1 − 10⁻⁵; n)`` (``n`` bearings;
    :data:`CONSISTENCY_FALSE_ALARM`): a track that holds
    one station's bearing of a neighbouring emitter fits each bearing within the gate
-   but not all of them together, over time.
+   but not all of them together, over time. And two confirmed tracks exchange some
+   stations' bearings of their last ``init_epochs`` epochs (and are rebuilt from them)
+   when that lowers the χ² cost of their static least-squares fixes by more than
+   :data:`SWAP_MARGIN`; tried for pairs with a track whose cost is above its χ² 99 %
+   point (:data:`SUSPECT_PROB`). This undoes a *swap ghost pair*: two emitters near the line through two
+   stations give two ghosts, each with those stations' bearings of one emitter and the
+   other stations' of the other, that fit within ~2σ.
 5. **Report** one estimate per confirmed track, in id order, stamped with the epoch's
    time; ids ``E1, E2, …`` in order of confirmation, never reused
    (:class:`fusion.association.TrackIds`).
 
 What it does not do: it does not resolve two emitters that every station sees within
-its bearing noise of each other (they form one track), and it does not always reject
-a *swap ghost pair*: when two emitters lie near the line through two stations (in
-``df-multi``, E1 and E5 near the df1–df3 diagonal), two ghosts — each taking those two
-stations' bearings of one emitter and the other stations' bearings of the other —
-explain every bearing of the pair within ~2σ. If they are started before the real
-emitters' tracks, they hold those bearings until the consistency test (step 4) sees
-their residuals; in 50 runs of ``df-multi`` that took 23 and 32 epochs in two runs
-(``docs/results/df-multi.md``). A global multi-epoch assignment (S-D assignment over
-the stations) would weigh both hypotheses at once; this tracker is greedy.
+its bearing noise of each other (they form one track), and a ghost that lies on
+bearings of every station can hold them while the real emitters have no track: in
+``df-multi`` E5 lies near the df1–df3 diagonal and E2 near the df2–df4 one, so the
+crossing of those lines near (20, 20) km fits df1's and df3's bearings of E5 and df2's
+and df4's of E2 at the noise level. Started first (run 37), it leaves E5 with two free
+stations, too few to start a track, and no partner for the exchange test; it lasted
+32 epochs. A global multi-epoch assignment over the stations (S-D assignment) would
+weigh both hypotheses at once; this tracker is greedy.
 
 Configuration: the keys of :class:`fusion.mtt.AssociationConfig` (``association``,
 ``gate_prob``, ``confirm_m``, ``confirm_n``, ``delete_misses``, ``max_pos_std``) and
@@ -92,11 +97,14 @@ the σ of the gates, ``pair_tol`` the epoch, ``ipu_max_rel`` the candidates' tes
 from __future__ import annotations
 
 import dataclasses
+import functools
+import itertools
 import math
 from collections import deque
 from typing import Callable, Sequence
 
 import numpy as np
+from scipy.stats import chi2
 
 from ..angles import wrap_pi
 from ..association import CONFIRMED, DELETED, TrackIds, TrackLogic, gate_threshold, gnn
@@ -105,7 +113,7 @@ from ..types import Estimate, Measurement
 from .init import usable_pairs
 from .methods import DFMethod
 from .models import bearing, bearing_of, stated_sigma
-from .triangulation import intersection_jacobian
+from .triangulation import GeometryError, intersection_jacobian, torrieri
 
 #: false-alarm probability of the consistency test of a confirmed track (step 4). It is
 #: run every epoch on every track: at the gate's 1e-3 true tracks were deleted about
@@ -113,6 +121,13 @@ from .triangulation import intersection_jacobian
 #: lost two epochs before the end; at 1e-5: 1 break). A track holding a neighbour's
 #: bearing 4σ off adds ~16 per epoch and still fails it within its window.
 CONSISTENCY_FALSE_ALARM = 1e-5
+
+#: how much lower (χ²) the two tracks' window costs must be with some stations' bearings
+#: exchanged for the exchange to be made (step 4): a swap ghost pair's bearings sit ~2σ
+#: off each, i.e. tens over a window, a real pair's at the noise
+SWAP_MARGIN = 2 * gate_threshold(1, 0.999)
+#: a track whose window cost is above this point of its χ² is tried for an exchange
+SUSPECT_PROB = 0.99
 
 #: stations whose bearings a new emitter needs (fewer if fewer stations report):
 #: with two stations every crossing is a candidate and nothing can tell a ghost.
@@ -218,14 +233,14 @@ class _Emitter:
         self.method, self.logic, self.birth, self.last = method, logic, birth, last
         self.id: str | None = None  # issued at confirmation
         self.nis: deque = deque(maxlen=window)  # (Σ d², number of bearings) of its last epochs as confirmed
-        self.taken: deque = deque(maxlen=window)  # per epoch: (sites, betas, sigmas, stations) it took
+        self.taken: deque = deque(maxlen=window)  # per epoch: (sites, betas, sigmas, stations, bearings, t0)
 
     def without(self, station: str) -> tuple[np.ndarray, np.ndarray]:
         """``(x, P)`` to gate ``station``'s bearings with: one Torrieri step from the
         estimate on the track's bearings of its last epochs from the *other* stations
         (module docstring, step 1), or the estimate itself if they are fewer than two
         stations."""
-        rows = [(site, b, sg, st) for sites, betas, sigmas, stations in self.taken
+        rows = [(site, b, sg, st) for sites, betas, sigmas, stations, *_ in self.taken
                 for site, b, sg, st in zip(sites, betas, sigmas, stations) if st != station]
         if len({r[3] for r in rows}) < 2:
             return self.last.x, self.last.P
@@ -286,11 +301,12 @@ class MultiEmitterMethod:
     def _sigma(self, m: Measurement) -> float:
         return stated_sigma(m) if self.df.sigma == "sensor" else float(self.df.sigma)
 
-    def _bearings(self, ms: list[Measurement]) -> tuple:
-        """``(sites (n, 2), betas (n,), sigmas (n,), stations)`` of bearing measurements."""
+    def _bearings(self, ms: list[Measurement], t0: float) -> tuple:
+        """``(sites (n, 2), betas (n,), sigmas (n,), stations, ms, t0)`` of one epoch's
+        bearing measurements ``ms`` (the epoch starting at ``t0``)."""
         pairs = [bearing_of(m) for m in ms]
         return (np.array([p[0][:2] for p in pairs]).reshape(-1, 2), np.array([p[1] for p in pairs]),
-                np.array([self._sigma(m) for m in ms]), [m.sensor for m in ms])
+                np.array([self._sigma(m) for m in ms]), [m.sensor for m in ms], list(ms), t0)
 
     def _epoch(self, epoch: list[Measurement]) -> list[Estimate]:
         t = max(m.t for m in epoch)
@@ -334,6 +350,7 @@ class MultiEmitterMethod:
             self._update(tr, epoch, sorted(taken.get(k, ())), 2)
             tr.nis.append((nis[k], len(taken.get(k, ()))))
             self._check_consistency(tr)
+        self._resolve_swaps([tr for tr in confirmed if tr.logic.status == CONFIRMED])
         for r, tr in enumerate(tentative):
             self._update(tr, epoch, groups[continued[r]] if r in continued else [], need)
         for c, g in enumerate(groups):
@@ -355,10 +372,54 @@ class MultiEmitterMethod:
             est = self._localise(tr.method, [epoch[c] for c in mine], epoch[0].t)
             if est is not None:
                 tr.last = est
-        tr.taken.append(self._bearings([epoch[c] for c in mine]))
+        tr.taken.append(self._bearings([epoch[c] for c in mine], epoch[0].t))
         tr.logic.record(len({epoch[c].sensor for c in mine}) >= enough)
         if tr.logic.status != DELETED and math.sqrt(float(np.trace(tr.last.P))) > self.config.max_pos_std:
             tr.logic.status = DELETED
+
+    def _resolve_swaps(self, tracks: list[_Emitter]) -> None:
+        """Exchange some stations' bearings between two confirmed tracks when that fits
+        their last ``init_epochs`` epochs of bearings much better (module docstring,
+        step 4): a swap ghost pair becomes the two emitters it was made of. Each track is
+        judged by the χ² cost of the static least-squares fix (Torrieri) of its window;
+        only pairs with a track above the :data:`SUSPECT_PROB` point of its χ² are tried
+        (one ghost of a swap pair may fit well; the other does not)."""
+        full = [tr for tr in tracks if len(tr.taken) == tr.taken.maxlen]
+        cost = {id(tr): _fit_cost(tr.taken, tr.last.x) for tr in full}
+        suspect = {id(tr) for tr in full if cost[id(tr)] is not None and cost[id(tr)][0] > cost[id(tr)][1]}
+        for a, b in itertools.combinations(full, 2):
+            if not ({id(a), id(b)} & suspect) or cost[id(a)] is None or cost[id(b)] is None \
+                    or [e[5] for e in a.taken] != [e[5] for e in b.taken]:
+                continue
+            shared = sorted({st for e in a.taken for st in e[3]} & {st for e in b.taken for st in e[3]})
+            base = cost[id(a)][0] + cost[id(b)][0]
+            best = None
+            for k in range(1, len(shared)):
+                for group in itertools.combinations(shared, k):
+                    if shared[0] in group:  # a group and its complement are one exchange
+                        continue
+                    a2, b2 = _exchange(a.taken, b.taken, set(group))
+                    ca, cb = _fit_cost(a2), _fit_cost(b2)
+                    if ca is None or cb is None:
+                        continue
+                    if ca[0] + cb[0] < base - SWAP_MARGIN and (best is None or ca[0] + cb[0] < best[0]):
+                        best = (ca[0] + cb[0], a2, b2)
+            if best is not None:
+                for tr, window in ((a, best[1]), (b, best[2])):
+                    self._rebuild(tr, window)
+                    cost[id(tr)] = _fit_cost(tr.taken, tr.last.x)
+                suspect -= {id(a), id(b)}
+
+    def _rebuild(self, tr: _Emitter, window) -> None:
+        """Track ``tr`` (its id and life kept) restarted from the bearings ``window``."""
+        tr.method = self._make_emitter()
+        tr.taken.clear()
+        tr.nis.clear()
+        for epoch in window:
+            est = self._localise(tr.method, epoch[4], epoch[5]) if epoch[4] else None
+            if est is not None:
+                tr.last = est
+            tr.taken.append(epoch)
 
     def _check_consistency(self, tr: _Emitter) -> None:
         """Delete a confirmed track whose bearings of the last ``init_epochs`` epochs are,
@@ -384,5 +445,51 @@ class MultiEmitterMethod:
             return
         self._births += 1
         tr = _Emitter(method, TrackLogic(self._rule), self._births, est, int(self.df.init_epochs))
-        tr.taken.append(self._bearings(bearings))
+        tr.taken.append(self._bearings(bearings, t0))
         self.tracks.append(tr)
+
+
+def _fit_cost(window, x0=None) -> tuple[float, float] | None:
+    """``(χ² cost, its SUSPECT_PROB point)`` of the static least-squares fix of the
+    bearings of ``window`` (epochs as in ``_Emitter.taken``), or None without two
+    stations: three Gauss–Newton steps (Torrieri) from ``x0`` or the bearings' mean
+    pairwise intersection, enough to tell a ghost's tens from the noise."""
+    sites = np.concatenate([e[0] for e in window if len(e[1])]) if any(len(e[1]) for e in window) else None
+    if sites is None or len({st for e in window for st in e[3]}) < 2:
+        return None
+    betas = np.concatenate([e[1] for e in window])
+    sigmas = np.concatenate([e[2] for e in window])
+    try:
+        fix = torrieri(sites, betas, sigmas, x0=x0, iterations=3)
+    except (GeometryError, np.linalg.LinAlgError, ValueError):
+        return None
+    return fix.chi2, _suspect_level(len(betas) - 2)
+
+
+@functools.lru_cache(maxsize=256)
+def _suspect_level(dof: int) -> float:
+    return float(chi2.ppf(SUSPECT_PROB, dof))
+
+
+def _exchange(a, b, stations: set) -> tuple[list, list]:
+    """The windows of two tracks with their bearings of ``stations`` exchanged, epoch
+    by epoch (the epochs of both windows are the same)."""
+    def split(e):
+        keep = [i for i, st in enumerate(e[3]) if st not in stations]
+        give = [i for i, st in enumerate(e[3]) if st in stations]
+        return keep, give
+
+    def build(e, keep, other, give):
+        rows = [(e, i) for i in keep] + [(other, i) for i in give]
+        rows.sort(key=lambda r: r[0][4][r[1]].order_key)
+        return (np.array([r[0][0][r[1]] for r in rows]).reshape(-1, 2), np.array([r[0][1][r[1]] for r in rows]),
+                np.array([r[0][2][r[1]] for r in rows]), [r[0][3][r[1]] for r in rows],
+                [r[0][4][r[1]] for r in rows], e[5])
+
+    out_a, out_b = [], []
+    for ea, eb in zip(a, b):
+        ka, ga = split(ea)
+        kb, gb = split(eb)
+        out_a.append(build(ea, ka, eb, gb))
+        out_b.append(build(eb, kb, ea, ga))
+    return out_a, out_b
