@@ -95,8 +95,8 @@ class TrackScore:
         rates (held, break rate, purity, mean GOSPA) are over all of their steps."""
         out = cls(**{k: sum(getattr(s, k) for s in scores) for k in cls.COUNTS})
         for s in scores:
-            for series in ("t", "gospa", "ospa", "n_missed", "n_false", "assignments", "hold_fractions", "longest_ghost",
-                           "found_at_end"):
+            for series in ("t", "gospa", "ospa", "n_missed", "n_false", "assignments", "hold_fractions",
+                           "longest_ghost", "found_at_end"):
                 getattr(out, series).extend(getattr(s, series))
         return out
 

@@ -105,7 +105,8 @@ Each fused track has its own :class:`~fusion.track_fusion.TrackFuser`
 and fuses its reports as the one-target centre does; a fused track without reports
 coasts. Management is :class:`fusion.association.TrackLogic` (M-of-N, K misses,
 ``max_pos_std``) and :class:`fusion.association.DuplicateWatch` (the later of two
-fused tracks that agree for ``merge_frames`` frames is deleted, its members dropped): a tentative track scores a hit with reports or gated requests of two
+fused tracks that agree for ``merge_frames`` frames is deleted, its members
+dropped): a tentative track scores a hit with reports or gated requests of two
 sensors, a confirmed one with two, or with one that measures range, in every topology
 (an angle sensor's local track alone would hold a fused track whose range drifts away
 from the radar plots, which start a second track on the target: a ghost along the

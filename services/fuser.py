@@ -16,8 +16,8 @@ waits for no t = 0 data; a source not heard within ``--start-grace`` is declared
   t = 0.
 * Distributed, feedback, two-stage: the centre starts uninitialised and the network
   re-runs the start-up handshake: each local tracker sees the liveliness token of a new
-  incarnation of the fuser, drops its track and sends its next measurement up as an initialisation
-  request (:mod:`services.tracker`). The alternative — restarting the centre from the
+  incarnation of the fuser, drops its track and sends its next measurement up as an
+  initialisation request (:mod:`services.tracker`). The alternative — restarting the centre from the
   trackers' latest tracks — would leave the ``info`` and ``bar-shalom-campo`` rules
   without the common prior and cross-covariances they need (the centre sent them and
   forgot them); the handshake rebuilds them exactly, with the code that runs at t = 0,

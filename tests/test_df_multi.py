@@ -122,6 +122,8 @@ def test_bearings_go_to_their_emitters_and_outliers_to_none():
 def test_association_wraps_df_methods_for_many_emitters_and_3d_methods_for_many_targets():
     # the DF methods keep their names under association; a 3D method still gets the 3D wrapper
     assert make_method("TORRIERI", {"association": "gnn"}).name == "TORRIERI"
+    with pytest.raises(ValueError, match="apply to 3D tracks"):
+        make_method("EKF", {"association": "gnn", "merge_frames": 5})
     assert type(make_method("SS", {"association": "gnn"})).__name__ == "MultiTargetMethod"
 
 

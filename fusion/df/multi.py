@@ -71,9 +71,9 @@ reported in it and ``need = min(3, K)``:
    stations' bearings of their last ``init_epochs`` epochs (and are rebuilt from them)
    when that lowers the χ² cost of their static least-squares fixes by more than
    :data:`SWAP_MARGIN`; tried for pairs with a track whose cost is above its χ² 99 %
-   point (:data:`SUSPECT_PROB`). This undoes a *swap ghost pair*: two emitters near the line through two
-   stations give two ghosts, each with those stations' bearings of one emitter and the
-   other stations' of the other, that fit within ~2σ.
+   point (:data:`SUSPECT_PROB`). This undoes a *swap ghost pair*: two emitters near the
+   line through two stations give two ghosts, each with those stations' bearings of one
+   emitter and the other stations' of the other, that fit within ~2σ.
 5. **Report** one estimate per confirmed track, in id order, stamped with the epoch's
    time; ids ``E1, E2, …`` in order of confirmation, never reused
    (:class:`fusion.association.TrackIds`).
@@ -89,7 +89,8 @@ stations, too few to start a track, and no partner for the exchange test; it las
 weigh both hypotheses at once; this tracker is greedy.
 
 Configuration: the keys of :class:`fusion.mtt.AssociationConfig` (``association``,
-``gate_prob``, ``confirm_m``, ``confirm_n``, ``delete_misses``, ``max_pos_std``) and
+``gate_prob``, ``confirm_m``, ``confirm_n``, ``delete_misses``, ``max_pos_std``; its
+``merge_frames`` and ``local_max_pos_std`` are for 3D tracks and refused here) and
 those of the wrapped DF method (:class:`fusion.df.methods.DFConfig`; ``sigma`` is also
 the σ of the gates, ``pair_tol`` the epoch, ``ipu_max_rel`` the candidates' test).
 """
@@ -264,6 +265,8 @@ class MultiEmitterMethod:
         proto = make_emitter()
         if not isinstance(proto, DFMethod):
             raise ValueError(f"MultiEmitterMethod needs a DF method, got {name}")
+        if config.local_max_pos_std is not None or config.merge_frames != AssociationConfig.merge_frames:
+            raise ValueError(f"{name}: 'merge_frames' and 'local_max_pos_std' apply to 3D tracks, not to emitters")
         self.name = name
         self.config = config
         self.df = proto.config
