@@ -113,6 +113,16 @@ class TrackScore:
         return self.dominant_steps / self.track_steps if self.track_steps else float("nan")
 
     @property
+    def max_ghost(self) -> int:
+        """The longest ghost of all runs (``longest_ghost`` is one per run)."""
+        return max(self.longest_ghost, default=0)
+
+    @property
+    def all_found_runs(self) -> int:
+        """Runs whose last step held every target."""
+        return sum(f == 1.0 for f in self.found_at_end)
+
+    @property
     def worst_hold(self) -> float:
         return min(self.hold_fractions) if self.hold_fractions else float("nan")
 
@@ -124,8 +134,7 @@ class TrackScore:
         return {"mean_gospa": self.mean_gospa, "mean_ospa": float(np.mean(self.ospa)) if self.ospa else None,
                 "held": self.held, "breaks": self.breaks, "break_rate": self.break_rate,
                 "purity": self.purity, "worst_hold": self.worst_hold, "tracks": self.n_tracks,
-                "longest_ghost": max(self.longest_ghost, default=0),
-                "all_found_runs": sum(f == 1.0 for f in self.found_at_end), "false_tracks": self.false_tracks,
+                "longest_ghost": self.max_ghost, "all_found_runs": self.all_found_runs, "false_tracks": self.false_tracks,
                 "false_track_steps": self.false_track_steps,
                 "missed_steps": int(sum(self.n_missed)), "steps": len(self.t)}
 

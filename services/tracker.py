@@ -12,9 +12,9 @@ back it takes them again.
 
 A *restarted* fuser (a liveliness token of a new incarnation, i.e. Zenoh session, of
 the fuser appears) knows nothing of this node: the node drops its track and re-runs
-the initialisation handshake, sending its next measurement up as a request (:mod:`services.fuser`, "Restart"). A restarted
-tracker is a new node to the fuser: it asks to join and starts from the latest fused
-state.
+the initialisation handshake, sending its next measurement up as a request
+(:mod:`services.fuser`, "Restart"). A restarted tracker is a new node to the fuser:
+it asks to join and starts from the latest fused state.
 """
 
 from __future__ import annotations

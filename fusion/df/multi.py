@@ -241,13 +241,12 @@ class _Emitter:
         estimate on the track's bearings of its last epochs from the *other* stations
         (module docstring, step 1), or the estimate itself if they are fewer than two
         stations."""
-        rows = [(site, b, sg, st) for sites, betas, sigmas, stations, *_ in self.taken
-                for site, b, sg, st in zip(sites, betas, sigmas, stations) if st != station]
-        if len({r[3] for r in rows}) < 2:
+        sites, betas, sigmas, stations = _stacked(self.taken)
+        keep = stations != station
+        if len(set(stations[keep])) < 2:
             return self.last.x, self.last.P
-        sites = np.array([r[0] for r in rows])
-        x, P = _refine(np.asarray(self.last.x, dtype=float)[None, :2], sites, np.array([r[1] for r in rows]),
-                       np.array([r[2] for r in rows]), np.ones((1, len(rows)), dtype=bool))
+        x, P = _refine(np.asarray(self.last.x, dtype=float)[None, :2], sites[keep], betas[keep], sigmas[keep],
+                       np.ones((1, int(keep.sum())), dtype=bool))
         return x[0], P[0]
 
 
@@ -452,16 +451,23 @@ class MultiEmitterMethod:
         self.tracks.append(tr)
 
 
+def _stacked(window) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The bearings of ``window`` (epochs as in ``_Emitter.taken``) as one set:
+    ``(sites (n, 2), betas (n,), sigmas (n,), stations (n,))``, in epoch order."""
+    if not window:
+        return np.zeros((0, 2)), np.zeros(0), np.zeros(0), np.array([], dtype=object)
+    return (np.concatenate([e[0] for e in window]), np.concatenate([e[1] for e in window]),
+            np.concatenate([e[2] for e in window]), np.array([st for e in window for st in e[3]], dtype=object))
+
+
 def _fit_cost(window, x0=None) -> tuple[float, float] | None:
     """``(χ² cost, its SUSPECT_PROB point)`` of the static least-squares fix of the
     bearings of ``window`` (epochs as in ``_Emitter.taken``), or None without two
     stations: three Gauss–Newton steps (Torrieri) from ``x0`` or the bearings' mean
     pairwise intersection, enough to tell a ghost's tens from the noise."""
-    sites = np.concatenate([e[0] for e in window if len(e[1])]) if any(len(e[1]) for e in window) else None
-    if sites is None or len({st for e in window for st in e[3]}) < 2:
+    sites, betas, sigmas, stations = _stacked(window)
+    if len(set(stations)) < 2:
         return None
-    betas = np.concatenate([e[1] for e in window])
-    sigmas = np.concatenate([e[2] for e in window])
     try:
         fix = torrieri(sites, betas, sigmas, x0=x0, iterations=3)
     except (GeometryError, np.linalg.LinAlgError, ValueError):
