@@ -46,9 +46,18 @@ reported in it and ``need = min(3, K)``:
    bearing of least ``d²`` against ``(x_ab, P_ab)``, if inside the gate. The candidate
    is refined by one Torrieri step on its group (``x̂, P̂``) and given a *persistence
    cost*: over this epoch and the ``init_epochs − 1`` before it, every (epoch, station)
-   cell adds the least ``min(d², G)`` of its bearings against ``(x̂, P̂)``. The candidate
-   with the most supporting stations (``n_st``; ties: least persistence cost) becomes a
-   group if ``n_st ≥ need``, its bearings leave the pool, and the pool is searched again.
+   cell adds the least ``min(d², G)`` of its bearings against ``(x̂, P̂)``. The groups
+   are chosen among the candidates with ``n_st ≥ need`` supporting stations all at once
+   (:func:`_packing`, a small integer program): no bearing in two groups, as many
+   groups of the most stations as can be, then of one station fewer, and so on; of
+   the sets that tie, the one of least total persistence cost. Their bearings leave
+   the pool, and the pool is searched again (a candidate may have lost its best
+   support to a group and have another). Picking the best candidate first instead
+   fails where two emitters lie near the two diagonals of four stations (``df-multi``:
+   E5 and E2): the crossing of the diagonals can fit df1's and df3's bearings of one
+   and df2's and df4's of the other better than either emitter fits its own four, and
+   picked first it leaves each emitter two stations — no track (run 37: a ghost for
+   32 epochs).
    Ghost rejection is in three parts: a real emitter has the support of every station
    that heard it, a ghost only of the two that made it plus chance passers-by; once the
    real emitters have taken their bearings, a ghost has lost the bearings it was made
@@ -79,14 +88,12 @@ reported in it and ``need = min(3, K)``:
    (:class:`fusion.association.TrackIds`).
 
 What it does not do: it does not resolve two emitters that every station sees within
-its bearing noise of each other (they form one track), and a ghost that lies on
-bearings of every station can hold them while the real emitters have no track: in
-``df-multi`` E5 lies near the df1–df3 diagonal and E2 near the df2–df4 one, so the
-crossing of those lines near (20, 20) km fits df1's and df3's bearings of E5 and df2's
-and df4's of E2 at the noise level. Started first (run 37), it leaves E5 with two free
-stations, too few to start a track, and no partner for the exchange test; it lasted
-32 epochs. A global multi-epoch assignment over the stations (S-D assignment) would
-weigh both hypotheses at once; this tracker is greedy.
+its bearing noise of each other (they form one track); and it associates, it does not
+correct the wrapped method. In ``df-multi`` the cross-fed MEKF#1 and MEKF#4 tracks hold
+their emitters' bearings (MEKF#4, run 12: all of E6's, every epoch) yet sit 1–5 km
+off (1.4–1.8 km there, where the EKF's track of E6 ends within 100 m), so they score as
+ghosts. Once a ghost is confirmed, only the consistency and exchange tests of step 4
+remove it: the grouping of step 2 sees only the bearings confirmed tracks left.
 
 Configuration: the keys of :class:`fusion.mtt.AssociationConfig` (``association``,
 ``gate_prob``, ``confirm_m``, ``confirm_n``, ``delete_misses``, ``max_pos_std``; its
@@ -105,6 +112,7 @@ from collections import deque
 from typing import Callable, Sequence
 
 import numpy as np
+from scipy.optimize import Bounds, LinearConstraint, milp
 from scipy.stats import chi2
 
 from ..angles import wrap_pi
@@ -189,39 +197,84 @@ def initiate(sites, betas, sigmas, stations: Sequence[str], gate: float, need: i
     free = np.ones(len(betas), dtype=bool)
     groups: list[list[int]] = []
     while True:
-        idx = np.flatnonzero(free)
-        i, j, x = usable_pairs(sites[idx], betas[idx], sigmas[idx], max_rel)
-        keep = station[idx[i]] != station[idx[j]]  # two stations at one site stay two stations
-        i, j, x = idx[i[keep]], idx[j[keep]], x[keep]
-        if len(i) == 0:
+        member, n_st, cost = _candidates(sites, betas, sigmas, station, free, gate, max_rel, cells)
+        chosen = _packing(member, n_st, cost, need)
+        if not chosen:
             return groups
-        m = np.arange(len(i))
-        F = intersection_jacobian(sites[i], betas[i], sites[j], betas[j])
-        P = np.einsum("mak,mk,mbk->mab", F, np.stack([sigmas[i] ** 2, sigmas[j] ** 2], axis=1), F)
-        d2 = bearing_d2(x, P, sites, betas, sigmas)                          # (pairs, bearings)
-        d2[:, ~free] = np.inf
-        d2[(station[None, :] == station[i][:, None]) | (station[None, :] == station[j][:, None])] = np.inf
-        member = np.zeros(d2.shape, dtype=bool)
-        member[m, i] = member[m, j] = True
-        for s in np.unique(station):
-            cols = np.flatnonzero(station == s)
-            best = cols[np.argmin(d2[:, cols], axis=1)]
-            member[m, best] |= d2[m, best] <= gate
-        n_st = member.sum(axis=1)
-        # Persistence: the refined candidate against every epoch of the window, each
-        # (epoch, station) cell scoring its best bearing's d², capped at the gate.
-        xr, Pr = _refine(x, sites, betas, sigmas, member)
-        cost = np.zeros(len(i))
-        for cs, cb, cg, cst in cells:
-            e2 = np.minimum(bearing_d2(xr, Pr, cs, cb, cg), gate)
-            for s in np.unique(cst):
-                cost += e2[:, cst == s].min(axis=1)
-        k = int(np.lexsort((cost, -n_st))[0])
-        if n_st[k] < need:
-            return groups
-        group = [int(b) for b in np.flatnonzero(member[k])]
-        free[group] = False
-        groups.append(group)
+        for k in chosen:
+            group = [int(b) for b in np.flatnonzero(member[k])]
+            free[group] = False
+            groups.append(group)
+
+
+def _candidates(sites, betas, sigmas, station, free, gate, max_rel, cells):
+    """Every candidate group of the ``free`` bearings (module docstring, step 2), one per
+    usable pair: ``(member (m, n) mask, n_st (m,) stations, cost (m,) persistence)``."""
+    idx = np.flatnonzero(free)
+    i, j, x = usable_pairs(sites[idx], betas[idx], sigmas[idx], max_rel)
+    keep = station[idx[i]] != station[idx[j]]  # two stations at one site stay two stations
+    i, j, x = idx[i[keep]], idx[j[keep]], x[keep]
+    member = np.zeros((len(i), len(betas)), dtype=bool)
+    if len(i) == 0:
+        return member, np.zeros(0, dtype=int), np.zeros(0)
+    m = np.arange(len(i))
+    F = intersection_jacobian(sites[i], betas[i], sites[j], betas[j])
+    P = np.einsum("mak,mk,mbk->mab", F, np.stack([sigmas[i] ** 2, sigmas[j] ** 2], axis=1), F)
+    d2 = bearing_d2(x, P, sites, betas, sigmas)                          # (pairs, bearings)
+    d2[:, ~free] = np.inf
+    d2[(station[None, :] == station[i][:, None]) | (station[None, :] == station[j][:, None])] = np.inf
+    member[m, i] = member[m, j] = True
+    for s in np.unique(station):
+        cols = np.flatnonzero(station == s)
+        best = cols[np.argmin(d2[:, cols], axis=1)]
+        member[m, best] |= d2[m, best] <= gate
+    # Persistence: the refined candidate against every epoch of the window, each
+    # (epoch, station) cell scoring its best bearing's d², capped at the gate.
+    xr, Pr = _refine(x, sites, betas, sigmas, member)
+    cost = np.zeros(len(i))
+    for cs, cb, cg, cst in cells:
+        e2 = np.minimum(bearing_d2(xr, Pr, cs, cb, cg), gate)
+        for s in np.unique(cst):
+            cost += e2[:, cst == s].min(axis=1)
+    return member, member.sum(axis=1), cost
+
+
+def _packing(member, n_st, cost, need) -> list[int]:
+    """The candidates (rows of ``member``) to make groups of, in the order most stations,
+    least cost: disjoint, each with at least ``need`` stations; as many groups of the
+    most stations as can be, then of one station fewer, ...; among such sets, the one of
+    least total persistence cost. The greedy rule of step 2, made for the whole pool at
+    once: one 4-station ghost picked first can take the bearings of two emitters."""
+    ok = np.flatnonzero(n_st >= need)
+    if len(ok) == 0:
+        return []
+    # One candidate per distinct group (pairs of one group's bearings give it again).
+    order = ok[np.lexsort((cost[ok],))]
+    _, first = np.unique(member[order], axis=0, return_index=True)
+    cand = order[np.sort(first)]
+    A = member[cand].T.astype(float)                 # (bearings, candidates): each bearing once
+    if np.all(A.sum(axis=1) <= 1):                   # no two candidates share a bearing
+        chosen = cand
+    else:
+        constraints = [LinearConstraint(A, -np.inf, 1.0)]
+        n = n_st[cand]
+        for level in range(int(n.max()), need - 1, -1):
+            at = (n == level).astype(float)
+            if not at.any():
+                continue
+            most = _solve(-at, constraints)
+            constraints.append(LinearConstraint(at[None, :], -most.fun - 0.5, np.inf))
+        chosen = cand[_solve(cost[cand], constraints).x > 0.5]
+    return [int(k) for k in chosen[np.lexsort((cost[chosen], -n_st[chosen]))]]
+
+
+def _solve(c, constraints):
+    """``min c·z`` over binary ``z`` under ``constraints`` (HiGHS, solved exactly)."""
+    res = milp(c, integrality=np.ones(len(c)), bounds=Bounds(0, 1), constraints=constraints,
+               options={"mip_rel_gap": 0.0})
+    if res.x is None:
+        raise RuntimeError(f"bearing grouping: {res.message}")
+    return res
 
 
 class _Emitter:
