@@ -234,6 +234,13 @@ class LocalNode:
             return min(sensor_watermark, _before(self.pending[0].t))
         return sensor_watermark
 
+    def centre_restarted(self) -> bool:
+        """A new centre knows nothing of this node: drop the tracks it gave this node and
+        start again as a node that has just joined (the pending measurements kept).
+        Returns whether there was anything to drop."""
+        self.horizon = -math.inf
+        return False
+
     def _uplink(self, t: float, estimate=None, measurement=None, drop: bool = False) -> Uplink:
         self._seq += 1
         return Uplink(float(t), self.node, self._seq, estimate, measurement, drop)
@@ -259,6 +266,12 @@ class TrackNode(LocalNode):
         self.mode = mode
         self.tracker = LocalTracker(sensor, config.motion_model(), method, track)
         self._requested = False
+
+    def centre_restarted(self) -> bool:
+        super().centre_restarted()
+        self.tracker = LocalTracker(self.node, self.tracker.motion, self.tracker.method, self.tracker.track)
+        self._requested = False
+        return True
 
     def receive(self, d: Downlink) -> None:
         e = d.estimate
@@ -528,6 +541,12 @@ class MultiTrackNode(LocalNode):
         if self._frames.held_since() is not None:
             held.append(self._frames.held_since())
         return min([sensor_watermark, *(_before(t) for t in held)])
+
+    def centre_restarted(self) -> bool:
+        super().centre_restarted()
+        self.tracks.clear()
+        self.misses.clear()
+        return True
 
     def receive(self, d: Downlink) -> None:
         e = d.estimate

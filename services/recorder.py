@@ -305,7 +305,7 @@ class Recorder:
         self.default_ray = DEFAULT_RAY_M
         # per-entity state
         self._styled: set[str] = set()
-        self._seqs: dict[tuple[str, ...], OrderedDict[int, None]] = {}
+        self._seqs: dict[tuple[str, ...], OrderedDict[int, int]] = {}  # stream -> seq -> hash of the bytes
         self._sites: dict[str, np.ndarray] = {}
         self._site_paths: dict[str, Trail] = {}
         self._scan: dict[str, tuple[float, dict[str, list[np.ndarray]]]] = {}  # by entity path
@@ -341,7 +341,7 @@ class Recorder:
         except SchemaError as e:
             self.reject(hint, e.cause, str(e))
             return None
-        handler, why = self._route(family, ident, msg)
+        handler, why = self._route(family, ident, msg, hash(data))
         if handler is None:
             self.reject(hint, why[0], why[1])
             return None
@@ -354,18 +354,21 @@ class Recorder:
             self.finished.add(msg.src)
         return msg
 
-    def _route(self, family: str, ident: str | None, msg: Message) -> tuple[Callable | None, tuple[str, str]]:
+    def _route(self, family: str, ident: str | None, msg: Message,
+               digest: int) -> tuple[Callable | None, tuple[str, str]]:
         kind = msg.kind
         if kind != "status" and msg.t > self.horizon:
             return None, ("future", f"t = {msg.t:g} s is beyond the scenario's end ({self.horizon:g} s)")
-        if kind != "status" and msg.t < 0.0:  # scenario time starts at 0; rows must fit the timeline
+        # Scenario time starts at 0; rows must fit the timeline. A watermark just before 0
+        # (a node holding a plot at t = 0 promises nothing earlier) is no row, and no error.
+        if kind not in ("status", "watermark") and msg.t < 0.0:
             return None, ("past", f"t = {msg.t:g} s is before the scenario's start")
         handler, why = self._route_kind(family, ident, msg)
         if handler is not None and kind not in ("watermark", "status"):
-            # one row per message: a repeated (src, seq) is dropped. Measurements and estimates
-            # are told apart: a process may count them separately.
+            # one row per message: a repeated message (src, seq and bytes) is dropped.
+            # Measurements and estimates are told apart: a process may count them separately.
             stream = (family, ident or "", msg.src, "meas" if kind in MEASUREMENT_KINDS else kind)
-            if self._repeated(stream, msg.seq):
+            if self._repeated(stream, msg.seq, digest):
                 return None, ("duplicate", f"{kind} seq {msg.seq} from {msg.src} already recorded")
         return handler, why
 
@@ -413,11 +416,16 @@ class Recorder:
             return self._on_status, ("", "")
         return None, ("key", f"no such family {family!r}")
 
-    def _repeated(self, stream: tuple[str, ...], seq: int) -> bool:
+    def _repeated(self, stream: tuple[str, ...], seq: int, digest: int) -> bool:
+        """Whether this message (its ``seq`` on ``stream``, ``digest`` the hash of its bytes)
+        was recorded already. A restarted process numbers its messages from 1 again, and
+        its "ready" status, published as its session opens, may reach no one: a reused
+        seq with other bytes is a new message, not a repeat."""
         seen = self._seqs.setdefault(stream, OrderedDict())
-        if seq in seen:
+        if seen.get(seq) == digest:
             return True
-        seen[seq] = None
+        seen[seq] = digest
+        seen.move_to_end(seq)
         if len(seen) > SEQ_WINDOW:
             seen.popitem(last=False)
         return False
@@ -741,10 +749,6 @@ class Recorder:
 
     def _on_status(self, family: str, ident: str | None, msg: Message) -> None:
         b, src = msg.body, msg.src
-        if b["state"] in ("starting", "ready") and self._states.get(src) not in (None, "starting", "ready"):
-            # a restarted process numbers its messages from 1 again: they are not repeats
-            for stream in [s for s in self._seqs if s[2] == src]:
-                del self._seqs[stream]
         # Processes stamp status with their scenario time when they have one; else it is "now".
         t = msg.t if msg.t > 0 else self.now
         t = min(t, self.horizon)

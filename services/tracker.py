@@ -11,9 +11,9 @@ from its own measurement — and says so in its status events; when downlinks co
 back it takes them again.
 
 A *restarted* fuser (a liveliness token of a new incarnation, i.e. Zenoh session, of
-the fuser appears) knows nothing of this node: the node drops its track and re-runs
-the initialisation handshake, sending its next measurement up as a request
-(:mod:`services.fuser`, "Restart"). A restarted tracker is a new node to the fuser:
+the fuser appears) knows nothing of this node: the node drops its tracks (one, or a
+many-target node's ``L<n>`` and ``A<n>``) and re-runs the initialisation handshake,
+sending its next plots up as requests (:mod:`services.fuser`, "Restart"). A restarted tracker is a new node to the fuser:
 it asks to join and starts from the latest fused state.
 """
 
@@ -25,7 +25,7 @@ import time
 
 import zenoh
 from fusion.config import method_config
-from fusion.network import TrackNode, split
+from fusion.network import split
 from schemas import KeySpace, SchemaError, decode, encode, tracker_id
 from schemas.links import downlink, encode_uplink
 
@@ -118,21 +118,17 @@ def run(sensor: str, scenario_ref: str, method_name: str, overrides: dict, keys:
         fuser_incarnation: str | None = None  # the one this node's track comes from
 
         def restart_handshake() -> None:
-            """A new node with this one's unprocessed measurements: it asks to join again."""
-            nonlocal local, alone, waiting_since, sent_wm
-            fresh = split(method_name).node(sensor, config)
-            for m in local.pending:
-                fresh.offer(m)
-            local = feed.node = fresh
+            """The node drops what the dead fuser gave it and asks to join again."""
+            nonlocal alone, waiting_since, sent_wm
+            if local.centre_restarted():
+                node.event(f"{fuser_id} restarted: tracks dropped, asking it for initial states again")
             alone, waiting_since = False, None
             sent_wm = -math.inf  # the new fuser has heard no watermark from us yet
-            node.event(f"{fuser_id} restarted: track dropped, asking it for an initial state again")
 
         while not node.stop.is_set():
             while not fuser_token.empty():
                 incarnation = fuser_token.get()
-                if fuser_incarnation is not None and incarnation != fuser_incarnation \
-                        and isinstance(local, TrackNode):  # a DF station needs no initial state
+                if fuser_incarnation is not None and incarnation != fuser_incarnation:
                     restart_handshake()
                 fuser_incarnation = incarnation
             try:

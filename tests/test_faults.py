@@ -74,10 +74,44 @@ def test_tracker_then_fuser_killed_in_the_feedback_topology(tmp_path, deployment
     t = np.array(got["t"])
     assert np.all(np.diff(t) > 0) and t[-1] == 60.0
     assert set(np.arange(0.0, 34.0)) <= set(t)  # an estimate every scan through the tracker's outage
-    assert err.count("fuser restarted: track dropped, asking it for an initial state again") == 2
+    assert err.count("fuser restarted: tracks dropped, asking it for initial states again") == 2
     ref = in_process("patent-3d-60", "PHHNV")["series"]
     _recovered(got, ref, trk["t_up"] + 5, 33.0)
     _recovered(got, ref, fuser["t_up"] + 5)
+
+
+def test_fuser_killed_with_many_targets_in_the_feedback_topology(tmp_path, deployment):
+    """Three crossing aircraft in clutter, feedback (PHHNV): kill -9 of the fuser. The
+    restarted fuser's centre knows none of the nodes' local tracks: the nodes drop them
+    when they see the new fuser, send their plots up as requests, and the new centre
+    starts fused tracks from them. Every aircraft is held again, and the GOSPA from then
+    on is the undisturbed run's. Measured: all three held from 0–1 s after the fuser was
+    back. When the nodes kept their tracks (and the centre dropped each as it was
+    reported), no aircraft was held for 9 s and one not for 16 s: a mean GOSPA of 398 m
+    over the window below, against 108 m undisturbed."""
+    import textwrap
+
+    from sensors_sim import load_scenario
+    from services.evaluation import GOSPA_CUTOFF, run_method, score_tracks_of
+    from services.summary import tracks_summary
+    from test_mtt import CROSSING
+
+    path = tmp_path / "crossing.toml"
+    path.write_text(textwrap.dedent(CROSSING))
+    doc, err = _disturb(tmp_path, str(path), deployment, 3.0, [(25.0, "fuser", "fuser")], "--topology", "feedback")
+    fuser = _outage(doc, "fuser", 25.0)
+    assert err.count("fuser restarted: tracks dropped, asking it for initial states again") == 2
+    got = doc["methods"]["PHHNV"]
+    t, gospa = np.array(got["series"]["t"]), np.array(got["series"]["gospa"])
+    assert t[-1] == 60.0
+    sc = load_scenario(path)
+    ref = tracks_summary([score_tracks_of(sc, run_method(sc, "PHHNV"))])["series"]
+    ref_gospa = dict(zip(ref["t"], ref["gospa"]))
+    after = t >= fuser["t_up"] + 8.0  # a new track is confirmed 3 of 4 frames after its first
+    assert after.sum() >= 10
+    assert np.mean(gospa[after]) <= 1.5 * np.mean([ref_gospa[s] for s in t[after]]) + 50.0, (gospa[after], ref)
+    # every aircraft held at the end: one missed or false target alone costs c/√2 (p = 2)
+    assert gospa[-1] < GOSPA_CUTOFF / np.sqrt(2), gospa[-20:]
 
 
 def test_recorder_then_fuser_killed_centralised(tmp_path, deployment):

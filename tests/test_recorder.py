@@ -183,6 +183,9 @@ def test_bad_input_is_counted_and_dropped(tmp_path, monkeypatch):
     }
     for cause, (key, data) in bad.items():
         assert s.put(key, data) is None, cause
+    # not bad: a local tracker holding a plot at t = 0 says "nothing before 0" (the watermark
+    # just below 0 of every distributed run)
+    assert s.put(KEYS.local("trk-radar2d"), encode("watermark", "trk-radar2d", 1, -5e-324)) is not None
     s.put(KEYS.truth("T1"), _truth(1, 1.0, target="T2"))  # truth of T2 on truth/T1
     s.put(KEYS.status("fuser"), _status("angle", 1, 0.0))  # status of angle on status/fuser
     s.put(KEYS.jam("jammer"), _truth(2, 1.0))  # a truth message on jam/
@@ -216,7 +219,13 @@ def test_a_restarted_process_is_recorded_again_from_its_first_message(tmp_path):
     s.put(KEYS.status("fuser"), _status("fuser", 1, 0.0, state="ready", role="fuser"))
     assert s.put(KEYS.fused(), _est(5.0, np.zeros(9), np.eye(9), seq=1)) is not None
     assert s.reject.by_cause["duplicate"] == 1
-    assert [r["t"] for r in s.close()["/world/tracks/centre/T1"]] == [1.0, 5.0]
+    # restarted again, and its "ready" (published as its session opens) reached no one:
+    # its seq 1 and 2, other messages, are recorded; a replay of the same bytes is not
+    assert s.put(KEYS.fused(), _est(9.0, np.zeros(9), np.eye(9), seq=1)) is not None
+    assert s.put(KEYS.fused(), _est(10.0, np.zeros(9), np.eye(9), seq=2)) is not None
+    assert s.put(KEYS.fused(), _est(10.0, np.zeros(9), np.eye(9), seq=2)) is None
+    assert s.reject.by_cause["duplicate"] == 2
+    assert [r["t"] for r in s.close()["/world/tracks/centre/T1"]] == [1.0, 5.0, 9.0, 10.0]
 
 
 def test_local_tracks_feedback_predictions_and_uplinked_measurements(tmp_path):
