@@ -22,6 +22,8 @@ each shows)::
     metrics/error_pos/<method>[/<node>]    position error against truth (fused; local per node)
     metrics/nees/<method>[/<node>][/lo|/hi]  NEES against its two-sided 95 % χ² bounds
     metrics/nis/<method>[/<node>][/lo|/hi]   NIS against its bounds
+    metrics/gospa/<method>                 many targets: GOSPA of the fused picture per frame
+    metrics/picture/<method>/missed|false  ... and its targets missed and false tracks
     jamming/<jammer>/on                    1 while the jammer is on
     jamming/<jammer>/affects/<sensor>      1 while it jams that sensor
     jamming/<sensor>/jammed|outliers       the sensor's own contamination counters
@@ -47,6 +49,14 @@ gone, so the scene shows the live picture and not every track that ever was:
 
 A cleared track's path and frame bookkeeping are forgotten, so a long run holds state
 for the live tracks only.
+
+With many targets a track's id names no target, so the fused picture is scored as a
+whole, as ``zfusion eval`` scores it: GOSPA (cut-off ``GOSPA_CUTOFF``, p = 2) of each
+frame's confirmed tracks (the fused estimates of one time) against every target's truth
+at that time, with the number of targets missed and of false tracks. A frame is scored
+once the method's next frame begins (or the recording ends) and the truth of its time
+is in; a frame without a confirmed track is not seen, so not scored. Local tracks
+(``L<n>``) are not scored.
 
 Paths: a truth or track path gets a point at most every ``TRAIL_STEP_S`` of scenario
 time, and a 3D one is logged (the whole path, up to ``PATH_MAX`` points) only with the
@@ -89,7 +99,10 @@ from fusion.types import KIND_COMPONENTS, Estimate
 from schemas import MEASUREMENT_KINDS, KeySpace, Message, SchemaError, decode, to_estimate, to_measurement
 from schemas.links import downlink
 
+from fusion.metrics import gospa
+
 from . import recorder_draw as draw
+from .evaluation import GOSPA_CUTOFF, many_targets
 from .node import Node, RejectLog
 
 log = logging.getLogger("zfusion")
@@ -113,14 +126,22 @@ HORIZON_SLACK_S = 1.0  # as the fuser: data beyond the scenario's end + this is 
 FUSED_NODE = "centre"
 
 
-def blueprint(df: bool = False) -> rrb.Blueprint:
-    """Scene | error and consistency plots | event log, jamming and counters."""
+def blueprint(df: bool = False, many: bool = False) -> rrb.Blueprint:
+    """Scene | error and consistency plots (many targets: the picture's GOSPA, targets
+    missed and false tracks, NIS) | event log, jamming and counters."""
     scene = rrb.Spatial3DView(origin="world", name="Map (ENU; DF on the plane z = 0)" if df else "Scene (ENU)")
-    plots = rrb.Vertical(
-        rrb.TimeSeriesView(origin="metrics/error_pos", name="Position error (m)"),
-        rrb.TimeSeriesView(origin="metrics/nees", name="NEES vs 95% χ² bounds"),
-        rrb.TimeSeriesView(origin="metrics/nis", name="NIS vs 95% χ² bounds"),
-    )
+    if many:
+        plots = rrb.Vertical(
+            rrb.TimeSeriesView(origin="metrics/gospa", name=f"GOSPA (m; c = {GOSPA_CUTOFF:g} m, p = 2)"),
+            rrb.TimeSeriesView(origin="metrics/picture", name="Targets missed, false tracks"),
+            rrb.TimeSeriesView(origin="metrics/nis", name="NIS vs 95% χ² bounds"),
+        )
+    else:
+        plots = rrb.Vertical(
+            rrb.TimeSeriesView(origin="metrics/error_pos", name="Position error (m)"),
+            rrb.TimeSeriesView(origin="metrics/nees", name="NEES vs 95% χ² bounds"),
+            rrb.TimeSeriesView(origin="metrics/nis", name="NIS vs 95% χ² bounds"),
+        )
     side = rrb.Vertical(
         rrb.TextLogView(origin="status", name="Events"),
         rrb.TimeSeriesView(origin="jamming", name="Jamming and contamination"),
@@ -319,6 +340,10 @@ class Recorder:
         self._node_of: dict[str, str] = {}  # local/<id> -> the node its estimates name
         self._pending: OrderedDict[float, list[tuple[Estimate, tuple[str, ...]]]] = OrderedDict()
         self._n_pending = 0
+        self.many: bool | None = None  # many targets (from the scenario; else: more than one truth seen)
+        # many targets: per method, its frames not scored yet (time -> fused positions) and its state size
+        self._pictures: dict[str, OrderedDict[float, list[np.ndarray]]] = {}
+        self._picture_size: dict[str, int] = {}
         self._states: dict[str, str] = {}
         self._jam: dict[str, tuple] = {}
         self._jam_victims: dict[str, set[str]] = {}
@@ -471,6 +496,7 @@ class Recorder:
         if association is not None:
             self.delete_misses = association.delete_misses
         self.df_sensors = {sid for sid, s in sc.sensors.items() if s.kind in DF_KINDS}
+        self.many = many_targets(sc)
         # The scenario's scale, from where its sensors and jammers are during the run (not its targets).
         times = np.linspace(0.0, float(sc.duration), 9)
         pts = [site.position(float(t)) for site in [s.site for s in sc.sensors.values()]
@@ -585,6 +611,8 @@ class Recorder:
                 self._pending[msg.t] = keep
             else:
                 del self._pending[msg.t]
+        if self._pictures:
+            self._score_pictures()
         pos = x[:3] if x.size >= 3 else np.array([x[0], x[1], 0.0])
         parts = [part(rr.Points3D, positions=[pos], labels=[tgt], colors=[draw.TRUTH_COLOR], radii=_ui(5.0))]
         path, grew = self._path(self._truth_paths, tgt, msg.t, pos)
@@ -647,6 +675,10 @@ class Recorder:
             self._series("nis", prefix, e.t, float(e.nis), int(e.nis_dof))
         if draw.TRUTH_INDEX.get(e.x.size) is None:
             return
+        if self.many or (self.many is None and len(self._truth) > 1):
+            if fused:
+                self._picture(e)
+            return
         truth = self._truth.get(e.track)
         if truth is None and len(self._truth) == 1:
             truth = next(iter(self._truth.values()))
@@ -703,6 +735,42 @@ class Recorder:
             return
         if math.isfinite(nees):
             self._series("nees", prefix, e.t, nees, e.x.size)
+
+    def _picture(self, e: Estimate) -> None:
+        """A confirmed fused track of a many-target method: into its frame (module docstring)."""
+        frames = self._pictures.setdefault(e.method, OrderedDict())
+        self._picture_size[e.method] = e.x.size
+        frames.setdefault(e.t, []).append(e.x[:draw.position_dims(e.x.size)].astype(float))
+        while len(frames) > PENDING_MAX:  # no truth is coming
+            frames.popitem(last=False)
+        self._score_pictures()
+
+    def _score_pictures(self, final: bool = False) -> None:
+        """Score every complete frame whose truth is in; drop one whose time the truth has
+        passed without a sample."""
+        for method, frames in self._pictures.items():
+            n = self._picture_size[method]
+            while len(frames) > (0 if final else 1) and self._truth:
+                t = next(iter(frames))
+                truths = [cache.get(t) for cache in self._truth.values()]
+                if any(x is None for x in truths):
+                    if not final and any(not cache or next(reversed(cache)) < t for cache in self._truth.values()):
+                        break  # the truth of this time is still to come
+                    frames.popitem(last=False)
+                    continue
+                refs = [draw.truth_part(x, n) for x in truths]
+                d = draw.position_dims(n)
+                g = gospa(frames.popitem(last=False)[1], [r[:d] for r in refs if r is not None], GOSPA_CUTOFF, 2.0)
+                self._style(_p("metrics", "gospa", method), part(rr.SeriesLines, names=[method]))
+                self._log(_p("metrics", "gospa", method), t, part(rr.Scalars, scalars=[g.distance]))
+                for name, count in (("missed", g.n_missed), ("false", g.n_false)):
+                    path = _p("metrics", "picture", method, name)
+                    self._style(path, part(rr.SeriesLines, names=[f"{method} {name}"]))
+                    self._log(path, t, part(rr.Scalars, scalars=[float(count)]))
+
+    def finish(self) -> None:
+        """The recording ends: score the frames still open."""
+        self._score_pictures(final=True)
 
     def _series(self, metric: str, prefix: tuple[str, ...], t: float, value: float, dof: int) -> None:
         lo, hi = draw.chi2_bounds(dof)
@@ -776,12 +844,12 @@ def has_display() -> bool:
 
 
 def open_recording(rrd_path: str, app: str = "zfusion", spawn: bool = False, df: bool = False,
-                   port: int = VIEWER_PORT) -> tuple[Recording, bool]:
+                   port: int = VIEWER_PORT, many: bool = False) -> tuple[Recording, bool]:
     """A recording stream writing to ``rrd_path`` and, with ``spawn`` and a display, to a
     Rerun viewer it starts (or one already listening on ``port``). Returns the stream and
     whether a viewer is attached."""
     rec = Recording(app)
-    bp = blueprint(df)
+    bp = blueprint(df, many)
     sinks: list[Any] = [rr.FileSink(rrd_path)]
     live = False
     if spawn and not has_display():
@@ -834,7 +902,7 @@ def run(process_id: str, keys: KeySpace, zopts, rrd_path: str, expect: list[str]
 
     with Node(process_id, "recorder", keys, zopts) as node:
         # The file is opened once SIGTERM/SIGINT are handled, so a stop at any time leaves a whole file.
-        rec, _ = open_recording(rrd_path, app, spawn=spawn, df=df)
+        rec, _ = open_recording(rrd_path, app, spawn=spawn, df=df, many=sc is not None and many_targets(sc))
         recorder = Recorder(rec, keys, node.reject, sc)
         node.subscribe(keys.all(), on_sample)
         node.announce()
@@ -858,6 +926,7 @@ def run(process_id: str, keys: KeySpace, zopts, rrd_path: str, expect: list[str]
                 node.publish_status("running", recorder.now)
                 _flush(rec, 0.0)  # keep the file current: a killed recorder loses little
                 last_status = time.monotonic()
+        recorder.finish()
         _flush(rec, 10.0)
         node.counters.update(dropped=dropped[0], uplinked=recorder.uplinked, backlog=inbox.qsize())
         node.publish_status("done" if not node.stop.is_set() else "stopped", recorder.now)

@@ -85,6 +85,7 @@ class Session:
         return self.r.offer(key, data)
 
     def close(self) -> dict[str, list[dict]]:
+        self.r.finish()
         self.rec.flush()
         self.rec.disconnect()
         verify(self.path)
@@ -572,6 +573,43 @@ def test_many_target_tracks_have_entities_by_id_and_are_cleared_once_gone(tmp_pa
         assert all(r["t"] <= clears[0] for r in drawn) if clears else True
 
 
+@pytest.mark.parametrize("truth_first", [True, False])
+def test_many_target_picture_is_scored_as_eval_scores_it(tmp_path, truth_first):
+    """Three crossing aircraft in clutter (SS): the recording's GOSPA, targets missed and
+    false tracks per frame are the in-process scorer's (``zfusion eval``: scan groups,
+    every target), at every frame with a confirmed track, whether the truth of a frame
+    comes before its tracks (as in a run) or after all of them. No per-track error is
+    logged: a ``T<n>`` names no target."""
+    from fusion.metrics import gospa
+    from sensors_sim import truth_events
+    from services.evaluation import GOSPA_CUTOFF, run_method, track_steps
+
+    sc = load_scenario(_crossing(tmp_path))
+    out = run_method(sc, "SS")
+    samples = list(truth_events(sc))
+    truth = [(x.t, KEYS.truth(x.target), encode("truth", "truth", k + 1, x.t, target=x.target, x=x.x))
+             for k, x in enumerate(samples)]
+    fused = [(e.t, KEYS.fused(), encode_estimate(e, "fuser", k + 1, "track")) for k, e in enumerate(out)]
+    if truth_first:  # each truth sample just before the estimates of its time
+        stream = sorted(truth + fused, key=lambda r: (r[0], r[1] == KEYS.fused()))
+    else:
+        stream = fused + truth
+    s = Session(tmp_path, scenario=sc)
+    for _, key, data in stream:
+        assert s.put(key, data) is not None
+    rows = s.close()
+
+    steps = [st for st in track_steps(sc, out) if st.tracks]
+    want = [gospa(list(st.tracks.values()), list(st.truths.values()), GOSPA_CUTOFF) for st in steps]
+    assert len(steps) > 50 and sum(g.n_missed for g in want) > 0
+    got = rows["/metrics/gospa/SS"]
+    assert [r["t"] for r in got] == [st.t for st in steps]
+    np.testing.assert_allclose([r["Scalars:scalars"][0] for r in got], [g.distance for g in want], rtol=1e-12)
+    for name, attr in (("missed", "n_missed"), ("false", "n_false")):
+        assert [r["Scalars:scalars"][0] for r in rows[f"/metrics/picture/SS/{name}"]] == [getattr(g, attr) for g in want]
+    assert not any(p.startswith("/metrics/error_pos") or p.startswith("/metrics/nees") for p in rows)
+
+
 @pytest.mark.slow
 def test_many_target_run_records_every_fused_track_by_id(tmp_path, deployment):
     """`zfusion run` on the crossing scenario: the recording has one entity per fused
@@ -604,6 +642,13 @@ def test_many_target_run_records_every_fused_track_by_id(tmp_path, deployment):
     drawn = {e.rsplit("/", 1)[1]: sum("Points3D:positions" in r for r in rs) for e, rs in rows.items()
              if e.startswith("/world/tracks/centre/") and e.count("/") == 4}
     assert len(published) >= 3 and drawn == published
+    # the picture's GOSPA in the recording is the run summary's, at every frame it scored
+    doc = json.loads((tmp_path / "out.json").read_text())
+    [(method, summary)] = doc["methods"].items()
+    series = dict(zip(summary["series"]["t"], summary["series"]["gospa"]))
+    scored = rows[f"/metrics/gospa/{method}"]
+    assert len(scored) > 50
+    np.testing.assert_allclose([r["Scalars:scalars"][0] for r in scored], [series[r["t"]] for r in scored], rtol=1e-12)
 
 
 def test_a_path_gets_a_point_per_trail_step_whatever_the_update_rate(tmp_path):
