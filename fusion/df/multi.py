@@ -90,9 +90,10 @@ reported in it and ``need = min(3, K)``:
 What it does not do: it does not resolve two emitters that every station sees within
 its bearing noise of each other (they form one track); and it associates, it does not
 correct the wrapped method. In ``df-multi`` the cross-fed MEKF#1 and MEKF#4 tracks hold
-their emitters' bearings (MEKF#4, run 12: all of E6's, every epoch) yet sit 1–5 km
-off (1.4–1.8 km there, where the EKF's track of E6 ends within 100 m), so they score as
-ghosts. Once a ghost is confirmed, only the consistency and exchange tests of step 4
+their emitters' bearings as well as the EKF's do (98.75 % and 98.77 % of the bearings
+confirmed tracks took, runs 0–49, were of the track's main emitter; the EKF's 98.77 %)
+yet sit 1–5 km off (MEKF#4, run 12: 1.4–1.8 km off E6 all run, where the EKF's worst
+track ends 151 m off), so they score as ghosts. Once a ghost is confirmed, only the consistency and exchange tests of step 4
 remove it: the grouping of step 2 sees only the bearings confirmed tracks left.
 
 Configuration: the keys of :class:`fusion.mtt.AssociationConfig` (``association``,
