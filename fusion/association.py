@@ -31,10 +31,10 @@ only widens the gate). :func:`track_distance2` returns ``d² = Δᵀ T⁺ Δ`` o
 components together with the rank of ``T`` there, which is its χ² number of degrees
 of freedom: ``T`` is singular when the two share a prior (a track updated from the
 other's prediction differs from it by ``K ν`` only, ``T = K S Kᵀ``, and ``d²`` is then
-the update's NIS). :func:`associate_tracks` pairs the tracks of one node with the
-fused tracks: pairs already made (the node's local id mapped to a fused track) are
-kept while they stay inside their gate, so the fused ids do not change with every
-scan; the rest is global nearest neighbour on the costs ``d² / G`` (a gate of one).
+the update's NIS). The many-target centre (:class:`fusion.network.MultiTrackCentre`)
+needs no assignment of local to fused tracks: it names every local track it starts, so
+a local track is its fused track's member from birth, and ``d²`` only tells when a
+member has left its fused track's gate.
 
 Track management
 ----------------
@@ -142,22 +142,6 @@ def track_distance2(x1, P1, x2, P2, P12=None, dims=None) -> tuple[float, int]:
     keep = w > _PINV_RTOL * max(float(w.max(initial=0.0)), 1e-300)
     y = V[:, keep].T @ (d / s)
     return float(np.sum(y * y / w[keep])), int(keep.sum())
-
-
-def associate_tracks(cost: np.ndarray, keep: dict[int, int] | None = None) -> list[tuple[int, int]]:
-    """Rows (one node's tracks) to columns (fused tracks) on normalised costs ``d²/G``
-    (``inf``: not allowed). ``keep`` maps rows to the column they were paired with
-    before; such a pair is kept if its cost is ``≤ 1``, the others go through
-    :func:`gnn` with a gate of one. Returns ``(row, column)`` pairs in row order."""
-    cost = np.atleast_2d(np.asarray(cost, dtype=float))
-    n, m = cost.shape
-    pairs = [(r, c) for r, c in sorted((keep or {}).items()) if cost[r, c] <= 1.0]
-    rows = [r for r in range(n) if r not in {p[0] for p in pairs}]
-    cols = [c for c in range(m) if c not in {p[1] for p in pairs}]
-    if rows and cols:
-        sub = cost[np.ix_(rows, cols)]
-        pairs += [(rows[r], cols[c]) for r, c in gnn(np.where(np.isfinite(sub), sub, np.inf), 1.0)]
-    return sorted(pairs)
 
 
 # Track management -----------------------------------------------------------------------

@@ -10,7 +10,7 @@ import math
 import numpy as np
 import pytest
 
-from fusion.association import associate_tracks, gate_threshold, track_distance2
+from fusion.association import track_distance2
 from fusion.motion import make_motion
 from fusion.mtt_metrics import score_tracks
 from fusion.network import Downlink, MultiTrackCentre, NetworkMethod
@@ -69,56 +69,7 @@ def test_a_track_updated_from_the_fused_prediction_is_at_its_nis():
     assert fuser.cross_covariance(1.0, other.predict(1.0)) is None
 
 
-# Association on constructed cases ------------------------------------------------------------
-def _cost(local, fused, P_local, P_fused, prob=0.999):
-    """Normalised costs d²/G of local position tracks against fused ones."""
-    C = np.empty((len(local), len(fused)))
-    for i, x in enumerate(local):
-        for j, y in enumerate(fused):
-            d2, rank = track_distance2(x, P_local, y, P_fused)
-            C[i, j] = d2 / gate_threshold(rank, prob)
-    return C
-
-
-def test_two_close_tracks_are_told_apart_by_the_global_assignment():
-    """Fused tracks 120 m apart (σ = 20 m each axis); the node's track on the first lies
-    70 m from it and 50 m from the second, its track on the second 20 m from it and
-    100 m from the first — all four pairs in the gate. A nearest-neighbour pick for the
-    first would steal the second's; GNN pairs both correctly (least total cost)."""
-    P = np.eye(2) * 20.0**2
-    fused = [np.array([0.0, 0.0]), np.array([120.0, 0.0])]
-    local = [np.array([70.0, 0.0]), np.array([100.0, 0.0])]
-    C = _cost(local, fused, P, P)
-    assert (C <= 1.0).all() and C[0, 1] < C[0, 0]  # the first local is nearer the second fused track
-    assert associate_tracks(C) == [(0, 0), (1, 1)]
-
-
-def test_crossing_tracks_keep_their_ids():
-    """At a crossing both local tracks gate with both fused tracks and the swapped
-    pairing is cheaper; the pairs made before are kept (ids stable), and without that
-    history GNN takes the cheaper swap."""
-    P = np.eye(2) * 100.0**2
-    fused = [np.array([0.0, 0.0]), np.array([0.0, 60.0])]
-    local = [np.array([0.0, 50.0]), np.array([0.0, 10.0])]
-    C = _cost(local, fused, P, P)
-    assert (C <= 1.0).all() and C[0, 1] + C[1, 0] < C[0, 0] + C[1, 1]
-    assert associate_tracks(C, keep={0: 0, 1: 1}) == [(0, 0), (1, 1)]
-    assert associate_tracks(C) == [(0, 1), (1, 0)]
-
-
-def test_a_node_that_drops_a_track():
-    """The node lost its track on fused track 1 and started a new one there: the kept
-    pair of the surviving track stays, the new track takes the free fused track, and a
-    kept pair that has left its gate is released (its row goes to GNN, which finds
-    nothing in the gate)."""
-    P = np.eye(2) * 30.0**2
-    fused = [np.array([0.0, 0.0]), np.array([5000.0, 0.0])]
-    C = _cost([np.array([10.0, 5.0]), np.array([4990.0, 20.0])], fused, P, P)
-    assert associate_tracks(C, keep={0: 0}) == [(0, 0), (1, 1)]
-    C = _cost([np.array([900.0, 0.0])], fused, P, P)  # 900 m off: outside every gate
-    assert associate_tracks(C, keep={0: 0}) == []
-
-
+# A local track the centre drops ---------------------------------------------------------------
 def test_a_dropped_local_track_is_replaced_and_the_fused_id_survives(crossing):
     """HNV on the crossing scenario: 20 s in, the radar node loses its local track of
     one fused track. The centre, finding the radar's next plot of that target among the
