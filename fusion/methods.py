@@ -7,9 +7,9 @@ A ``[tracker]`` table with ``association`` makes the named method a many-target 
 the method keeps its name: a centralised 3D method is wrapped in
 :class:`fusion.mtt.MultiTargetMethod`, a DF method in
 :class:`fusion.df.multi.MultiEmitterMethod` (many emitters: bearing association and ghost
-rejection, each emitter localised by the named method); HNV, PHHNV and DDHNV associate
-in their own nodes and centre (:mod:`fusion.network`, "Many targets") and get the table
-as it is.
+rejection, each emitter localised by the named method); the methods split into nodes
+and a centre — HNV, PHHNV, DDHNV, KF+TR and MKF+TR — associate in their own nodes and
+centre (:mod:`fusion.network`, "Many targets") and get the table as it is.
 """
 
 from __future__ import annotations
@@ -36,11 +36,11 @@ def make_method(name: str, config: dict | None = None) -> Any:
     if name not in reg:
         raise ValueError(f"unknown method {name!r}; known: {', '.join(reg)}")
     from .mtt import AssociationConfig, MultiTargetMethod
-    from .patent import TRACK_FUSION_METHODS
+    from .network import SPLITS, NetworkMethod
 
     association, rest = AssociationConfig.split(config)
-    if association is not None and name in TRACK_FUSION_METHODS:
-        return reg[name](dict(config or {}))
+    if association is not None and name in SPLITS:  # it associates in its own nodes and centre
+        return NetworkMethod(name, dict(config or {}))
     if association is not None:
         from .df.methods import DF_METHODS
         from .df.multi import MultiEmitterMethod

@@ -57,7 +57,9 @@ measurement; the result is then timing-dependent, and the process says so.
 Many targets
 ------------
 With ``association`` in the ``[tracker]`` table (:class:`fusion.mtt.AssociationConfig`)
-HNV, PHHNV and DDHNV split into :class:`MultiTrackNode` and :class:`MultiTrackCentre`.
+HNV, PHHNV and DDHNV split into :class:`MultiTrackNode` and :class:`MultiTrackCentre`,
+and KF+TR and MKF+TR into :class:`MultiStationNode` and :class:`StationCentre` ("Many
+emitters", below).
 
 *Who starts tracks: the centre, in every topology.* A 2D radar plot fixes a circle
 and an angle plot a ray, and a local tracker of one such sensor cannot observe the
@@ -113,6 +115,17 @@ from the radar plots, which start a second track on the target: a ghost along th
 ray). Confirmed tracks get the published ids ``T1, T2, …`` and are reported every
 frame. With one target, no clutter,
 P_D = 1 and M = N = 1 this is exactly the one-target network (``tests/test_t2ta.py``).
+
+*Many emitters* (KF+TR, MKF+TR: :class:`MultiStationNode`, :class:`StationCentre`). A
+station hears every emitter and cannot tell which bearing is whose, so it keeps
+*bearing tracks*: its bearings of a scan are gated (χ²(1)) against each track's smoothed
+bearing and assigned by global nearest neighbour, a bearing no track takes starts one,
+and a track without bearings for ``delete_misses`` scans goes. Each track's smoothed
+bearing goes up as a bearing of the station, with the smoothed std and no id: the
+centre associates them into emitters as the centralised tracker does raw bearings
+(:class:`fusion.df.multi.MultiEmitterMethod`, ghost rejection included) and localises
+each emitter by Torrieri on its latest smoothed bearing from every station. Station
+tracks need no feedback, so a station node never waits for the centre.
 """
 
 from __future__ import annotations
@@ -467,27 +480,68 @@ def _at(e: Estimate, t: float) -> Estimate:
 
 class StationCentre(Centre):
     """The centre of KF+TR / MKF+TR: Torrieri on the latest smoothed bearings
-    (:class:`fusion.df.methods.SmootherTorrieriMethod` with the smoothing done upstream)."""
+    (:class:`fusion.df.methods.SmootherTorrieriMethod` with the smoothing done upstream);
+    with ``association`` in the table, on each emitter's: the smoothed bearings are
+    associated into emitters as raw ones are (:class:`fusion.df.multi.MultiEmitterMethod`)."""
 
     def __init__(self, name: str, config: dict | None):
         from .df.methods import SmootherTorrieriMethod
+        from .df.multi import MultiEmitterMethod
+        from .mtt import AssociationConfig
 
         super().__init__()
         self.name = name
-        self.method = SmootherTorrieriMethod(name == "MKF+TR", config, smoothed_upstream=True)
+        association, rest = AssociationConfig.split(config)
+
+        def make() -> SmootherTorrieriMethod:
+            return SmootherTorrieriMethod(name == "MKF+TR", rest, smoothed_upstream=True)
+
+        self.method = make() if association is None else MultiEmitterMethod(name, make, association)
 
     def process(self, u: Uplink) -> list[Estimate]:
         return self.method.process(u.measurement)
 
     def advance(self, t: float) -> list[Estimate]:
-        return self.method.advance(t)
+        # t = inf is the end, which finish() closes (the DF methods take finite watermarks)
+        return self.method.advance(t) if math.isfinite(t) else []
 
     def finish(self) -> list[Estimate]:
         return self.method.finish()
 
 
 # Many targets --------------------------------------------------------------------------
-class MultiTrackNode(LocalNode):
+class FramedNode(LocalNode):
+    """Base of the many-target nodes: the sensor's reports are grouped into frames
+    (:class:`fusion.mtt.FrameGrouper`, closed by the sensor's watermark), and a frame,
+    not a measurement, is the unit :meth:`_process` takes."""
+
+    def __init__(self, node: str, pair_tol: float):
+        from .mtt import FrameGrouper
+
+        super().__init__(node, pair_tol)
+        self._frames = FrameGrouper(pair_tol)
+
+    def offer(self, m: Measurement) -> None:
+        if m.kind not in self.kinds:
+            raise ValueError(f"{self.node}: cannot use a {m.kind!r} measurement (takes {', '.join(sorted(self.kinds))})")
+        self.pending.extend(self._frames.push(m))
+
+    def set_watermark(self, w: float) -> None:
+        self.pending.extend(self._frames.advance(w))
+
+    def step(self, alone: bool = False) -> list[Uplink]:
+        if alone:  # the stream has ended or the centre is gone: no frame will complete otherwise
+            self.pending.extend(self._frames.finish())
+        return super().step(alone)
+
+    def upstream_watermark(self, sensor_watermark: float) -> float:
+        held = [self.pending[0][0].t] if self.pending else []
+        if self._frames.held_since() is not None:
+            held.append(self._frames.held_since())
+        return min([sensor_watermark, *(_before(t) for t in held)])
+
+
+class MultiTrackNode(FramedNode):
     """A local node tracking many targets on its own sensor's plots (module docstring,
     "Many targets"): frames of plots, χ²/GNN association to its local tracks, one
     uplink per updated track (``track`` = its local id), one initialisation request
@@ -497,8 +551,6 @@ class MultiTrackNode(LocalNode):
     kinds = KINDS_3D
 
     def __init__(self, sensor: str, config: TrackerConfig, method: str, mode: str, association):
-        from .mtt import FrameGrouper
-
         if mode not in MODES:
             raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
         super().__init__(sensor, config.pair_tol)
@@ -513,34 +565,10 @@ class MultiTrackNode(LocalNode):
         # node starts alone is ``A<n>``, a name the centre never gives, so it is never
         # taken for one of the centre's.
         self._alone_ids = TrackIds("A")
-        self._frames = FrameGrouper(config.pair_tol)
         # Without feedback (HNV) a local track drifts along what its sensor does not
         # measure; it rejoins from the fused track past its own limit. A fed-back track
         # is re-anchored every frame (and DDHNV's holds only predictions).
         self._max_pos_std = association.local_pos_std_limit if mode == "track" else association.max_pos_std
-
-    def offer(self, m: Measurement) -> None:
-        if m.kind not in self.kinds:
-            raise ValueError(f"{self.node}: cannot use a {m.kind!r} measurement (takes {', '.join(sorted(self.kinds))})")
-        self.pending.extend(self._frames.push(m))
-
-    def set_watermark(self, w: float) -> None:
-        self.pending.extend(self._frames.advance(w))
-
-    @property
-    def waiting_for(self) -> str | None:
-        return self._blocked(self.pending[0]) if self.pending else None
-
-    def step(self, alone: bool = False) -> list[Uplink]:
-        if alone:  # the stream has ended or the centre is gone: no frame will complete otherwise
-            self.pending.extend(self._frames.finish())
-        return super().step(alone)
-
-    def upstream_watermark(self, sensor_watermark: float) -> float:
-        held = [self.pending[0][0].t] if self.pending else []
-        if self._frames.held_since() is not None:
-            held.append(self._frames.held_since())
-        return min([sensor_watermark, *(_before(t) for t in held)])
 
     def centre_restarted(self) -> bool:
         super().centre_restarted()
@@ -606,6 +634,57 @@ class MultiTrackNode(LocalNode):
         self.tracks[lid] = LocalTracker(self.node, self.motion, self.method, lid)
         self.tracks[lid].initialise(x, P, t)
         self.misses[lid] = 0
+
+
+class MultiStationNode(FramedNode):
+    """A DF station of KF+TR / MKF+TR with many emitters (module docstring, "Many
+    targets"): the bearings of a scan are plots of *bearing tracks*, one smoother each
+    (:func:`fusion.df.methods.make_station_smoother`), taken by χ²(1) gate on the
+    smoother's prediction and global nearest neighbour. A bearing no track takes starts
+    one; a track without a bearing for ``delete_misses`` scans is deleted. Every track's
+    smoothed bearing goes up as a bearing of the station: nothing says which emitter,
+    the centre associates them as it does raw bearings."""
+
+    kinds = frozenset({"bearing"})
+
+    def __init__(self, sensor: str, config: dict | None, cross_fed: bool, association):
+        from .df.methods import DFConfig
+
+        c = DFConfig.from_dict(config)
+        super().__init__(sensor, c.pair_tol)
+        self.config, self.cross_fed, self.association = c, cross_fed, association
+        self.tracks: list = []  # bearing smoothers, in birth order
+        self.misses: list[int] = []
+
+    def _process(self, frame: list[Measurement], alone: bool) -> list[Uplink]:
+        from .angles import wrap_pi
+        from .association import gate_threshold, gnn
+        from .df.methods import make_station_smoother
+        from .df.models import bearing_of, stated_sigma
+
+        betas = np.array([bearing_of(m)[1] for m in frame])
+        sigmas = np.array([stated_sigma(m) if self.config.sigma == "sensor" else float(self.config.sigma)
+                           for m in frame])
+        taken: dict[int, int] = {}  # bearing -> track
+        if self.tracks:
+            x = np.array([tr.x[0] for tr in self.tracks])
+            var = np.array([tr.P[0, 0] + tr.q for tr in self.tracks])  # the smoother's predicted variance
+            r = wrap_pi(betas[None, :] - x[:, None])
+            taken = {c: k for k, c in gnn(r * r / (var[:, None] + sigmas[None, :] ** 2),
+                                          gate_threshold(1, self.association.gate_prob))}
+        old = len(self.tracks)
+        self.misses = [0 if k in taken.values() else n + 1 for k, n in enumerate(self.misses)]
+        out = []
+        for c, m in enumerate(frame):
+            if c not in taken:
+                taken[c] = len(self.tracks)
+                self.tracks.append(make_station_smoother(self.config, self.cross_fed))
+                self.misses.append(0)
+            out.append(self._uplink(m.t, measurement=self.tracks[taken[c]].update(m)))
+        keep = [k for k in range(len(self.tracks)) if k >= old or self.misses[k] < self.association.delete_misses]
+        self.tracks = [self.tracks[k] for k in keep]
+        self.misses = [self.misses[k] for k in keep]
+        return out
 
 
 class _Fused:
@@ -836,12 +915,25 @@ def _track_split(name: str, mode: str, topology: str) -> Split:
     return Split(topology, node, centre)
 
 
+def _station_split(name: str) -> Split:
+    """KF+TR / MKF+TR: one emitter, or many with ``association`` in the table."""
+    from .mtt import AssociationConfig
+
+    def node(sensor, config):
+        association, rest = AssociationConfig.split(config)
+        if association is None:
+            return StationNode(sensor, rest, name == "MKF+TR")
+        return MultiStationNode(sensor, rest, name == "MKF+TR", association)
+
+    return Split("distributed", node, lambda c: StationCentre(name, c))
+
+
 SPLITS: dict[str, Split] = {
     "HNV": _track_split("HNV", "track", "distributed"),
     "PHHNV": _track_split("PHHNV", "feedback", "feedback"),
     "DDHNV": _track_split("DDHNV", "predict", "two-stage"),
-    "KF+TR": Split("distributed", lambda s, c: StationNode(s, c, False), lambda c: StationCentre("KF+TR", c)),
-    "MKF+TR": Split("distributed", lambda s, c: StationNode(s, c, True), lambda c: StationCentre("MKF+TR", c)),
+    "KF+TR": _station_split("KF+TR"),
+    "MKF+TR": _station_split("MKF+TR"),
 }
 
 

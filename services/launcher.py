@@ -48,6 +48,7 @@ import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Iterable
 
 from fusion.patent import TRACK_FUSION_METHODS, track_fusion_rule
 from fusion.types import Estimate
@@ -91,6 +92,12 @@ class Children:
         log.debug("starting %s: %s", name, " ".join(cmd))
         self.argv[name] = argv
         self.procs[name] = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, preexec_fn=die_with_parent)
+
+    def exited(self, names: Iterable[str]) -> str | None:
+        """Which of ``names`` have exited, with their exit codes (None if none has)."""
+        dead = [f"{n} exited with code {self.procs[n].poll()}" for n in names
+                if n in self.procs and self.procs[n].poll() is not None]
+        return "; ".join(dead) + " (its error is above)" if dead else None
 
     def wait(self, name: str, timeout: float) -> int | None:
         try:
@@ -267,7 +274,7 @@ def run(args) -> int:
     statuses: dict[str, dict] = {}
     heard_at: dict[str, float] = {}  # monotonic time of each process's latest status
     children = Children()
-    interrupted = False
+    interrupted = not_started = False
     started: list[float] = []  # wall-clock epoch of scenario time 0, once the sources start
 
     def clock() -> float | None:
@@ -317,12 +324,13 @@ def run(args) -> int:
             children.start(RECORDER_ID, ["record", "--rrd", rrd, "--id", RECORDER_ID, "--scenario", args.scenario,
                                          *seed, *(["--spawn"] if getattr(args, "spawn", False) else []),
                                          "--expect", ",".join([FUSER_ID, *trackers.values(), *sources]), *common])
-            node.wait_for([FUSER_ID, RECORDER_ID], timeout=60.0)
+            node.wait_for([FUSER_ID, RECORDER_ID], timeout=60.0,
+                          gone=lambda: children.exited([FUSER_ID, RECORDER_ID]))
             for sensor, tid in trackers.items():
                 children.start(tid, ["tracker", "--scenario", args.scenario, "--sensor", sensor, "--method", method,
                                      "--fuser", FUSER_ID, "--feedback-timeout", str(timeout), *seed, *(
                                          ["--fusion-rule", args.fusion_rule] if args.fusion_rule else []), *common])
-            node.wait_for(trackers.values(), timeout=60.0)
+            node.wait_for(trackers.values(), timeout=60.0, gone=lambda: children.exited(trackers.values()))
             sup.restartable = {FUSER_ID, RECORDER_ID, *trackers.values()}
             start_at = time.time() + (0.0 if math.isinf(speed) else 0.5)
             started.append(start_at)
@@ -366,13 +374,18 @@ def run(args) -> int:
                 else:
                     children.wait(RECORDER_ID, 30.0)
                 drain(0.2)
-        except TimeoutError as e:
-            log.error("%s", e)
-            interrupted = True
+        except TimeoutError as e:  # a process did not come up (or Ctrl-C while waiting)
+            interrupted = node.stop.is_set()
+            not_started = not interrupted
+            if not_started:
+                log.error("%s", e)
         finally:
             sup.restart = False
             children.stop_all()
     codes = sup.finish()
+    if not_started:
+        print("zfusion run: the run could not start; all processes stopped", file=sys.stderr)
+        return 1
     if interrupted:
         print("zfusion run: interrupted; all processes stopped", file=sys.stderr)
         return 130

@@ -251,8 +251,11 @@ class Node:
         self._declared.append(self.session.liveliness().declare_token(
             self.keys.alive(self.id, str(self.session.zid()))))
 
-    def wait_for(self, process_ids: Iterable[str], timeout: float) -> None:
-        """Block until every named process has announced itself (or raise)."""
+    def wait_for(self, process_ids: Iterable[str], timeout: float,
+                 gone: Callable[[], str | None] | None = None) -> None:
+        """Block until every named process has announced itself (or raise). ``gone``,
+        if given, is asked as it waits: a text saying that a process it waits for has
+        exited (it will not announce itself) ends the wait at once."""
         wanted = set(process_ids)
         if not wanted:
             return
@@ -274,6 +277,9 @@ class Node:
                     if left <= 0 or self.stop.is_set():
                         raise TimeoutError(f"{self.id}: gave up after {timeout:.0f} s waiting for "
                                            f"{', '.join(sorted(wanted - seen))}")
+                    why = gone() if gone is not None else None
+                    if why:
+                        raise TimeoutError(f"{self.id}: stopped waiting for {', '.join(sorted(wanted - seen))}: {why}")
                     cond.wait(min(left, 0.1))
         finally:
             sub.undeclare()

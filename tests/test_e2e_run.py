@@ -181,3 +181,23 @@ def test_garbage_on_the_wire_changes_nothing(tmp_path, deployment):
                                rtol=0)
     assert doc["sources"]["radar2d"]["rejected"] >= 5 * 10
     assert "angle" in doc["sources"] and doc["sources"]["angle"]["rejected"] == 0
+
+
+def test_a_process_that_dies_at_start_up_ends_the_wait_at_once(deployment):
+    """The launcher waits up to 60 s for the fuser and recorder to come up; one that has
+    exited (here a fuser given a scenario that does not exist) will not, so the wait
+    ends as soon as it is seen, with its exit code, and `zfusion run` fails (exit 1)
+    instead of hanging for a minute."""
+    from services.launcher import Children, free_port
+    from services.node import Node
+
+    children = Children()
+    children.start("fuser", ["fuser", "--scenario", "no-such-scenario", "--method", "EKF", "--id", "fuser",
+                             "--deployment", deployment, "--connect", f"tcp/127.0.0.1:{free_port()}"])
+    with Node("launcher", "launcher", KeySpace(deployment), ZenohOptions(listen=[f"tcp/127.0.0.1:{free_port()}"])) as node:
+        start = time.monotonic()
+        with pytest.raises(TimeoutError, match=r"stopped waiting for fuser: fuser exited with code [1-9]"):
+            node.wait_for(["fuser"], 60.0, gone=lambda: children.exited(["fuser"]))
+        assert time.monotonic() - start < 30.0
+    assert children.exited(["fuser"]).startswith("fuser exited with code")
+    children.stop_all()
