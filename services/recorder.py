@@ -94,12 +94,11 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
+from fusion.metrics import gospa
 from fusion.mtt import AssociationConfig
 from fusion.types import KIND_COMPONENTS, Estimate
 from schemas import MEASUREMENT_KINDS, KeySpace, Message, SchemaError, decode, to_estimate, to_measurement
 from schemas.links import downlink
-
-from fusion.metrics import gospa
 
 from . import recorder_draw as draw
 from .evaluation import GOSPA_CUTOFF, many_targets

@@ -93,8 +93,9 @@ correct the wrapped method. In ``df-multi`` the cross-fed MEKF#1 and MEKF#4 trac
 their emitters' bearings as well as the EKF's do (98.75 % and 98.77 % of the bearings
 confirmed tracks took, runs 0–49, were of the track's main emitter; the EKF's 98.77 %)
 yet sit 1–5 km off (MEKF#4, run 12: 1.4–1.8 km off E6 all run, where the EKF's worst
-track ends 151 m off), so they score as ghosts. Once a ghost is confirmed, only the consistency and exchange tests of step 4
-remove it: the grouping of step 2 sees only the bearings confirmed tracks left.
+track ends 151 m off), so they score as ghosts. And once a ghost is confirmed, only the
+consistency and exchange tests of step 4 remove it: the grouping of step 2 sees only
+the bearings confirmed tracks left.
 
 Configuration: the keys of :class:`fusion.mtt.AssociationConfig` (``association``,
 ``gate_prob``, ``confirm_m``, ``confirm_n``, ``delete_misses``, ``max_pos_std``; its
