@@ -37,9 +37,8 @@ One frame, at the time ``t`` of its first plot:
    standard deviation exceeds ``max_pos_std`` (:class:`fusion.association.TrackLogic`),
    and of the later of two tracks that have agreed for ``merge_frames`` frames
    (:class:`fusion.association.DuplicateWatch`).
-   A confirmed track scores a hit in a frame where it took a plot; a tentative one
-   needs plots of two sensors (when the frame holds two): one angle or radar plot
-   fixes only a line or a circle, which false alarms and neighbouring targets satisfy.
+   A tentative track scores a hit with plots of two sensors (when the frame holds
+   two), a confirmed one with two or with one that measures range (:func:`scores_hit`).
 6. **Report** one estimate per confirmed track (``track`` = its id, ``node="centre"``),
    in id order. Tentative tracks are not reported.
 
@@ -90,7 +89,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass
-from typing import Callable
+from typing import Callable, Sequence
 
 import numpy as np
 
@@ -256,10 +255,7 @@ class MultiTargetMethod:
                 free = [j for j in free if j not in used]
             left += [plots[j] for j in free]
 
-        # A tentative track scores a hit only with plots of two sensors (when the frame has
-        # two): one angle or radar plot fixes a line or a circle, and such a track would be
-        # confirmed on false alarms or on another target's plots.
-        evidence = min(2, len({m.sensor for m in frame}))
+        evidence = min(2, len({m.sensor for m in frame}))  # sensors a hit needs (scores_hit)
         for i, tr in enumerate(self.tracks):
             if i in taken:
                 tr.last = tr.method._process_scan(sorted(taken[i], key=lambda m: m.order_key))[-1]
@@ -267,8 +263,8 @@ class MultiTargetMethod:
                 tr.method.ekf.predict(t)
                 ekf = tr.method.ekf
                 tr.last = Estimate(ekf.t, ekf.x, ekf.P, tr.method.name, "centre")
-            sensors = len({m.sensor for m in taken.get(i, ())})
-            tr.logic.record(sensors >= (1 if tr.logic.status == CONFIRMED else evidence))
+            sensors = {m.sensor: m.kind for m in taken.get(i, ())}
+            tr.logic.record(scores_hit(list(sensors.values()), tr.logic.status == CONFIRMED, evidence))
             self._check_spread(tr)
         live = {tr.birth: tr for tr in self.tracks if tr.logic.status != DELETED}  # in priority order
         for birth in self._duplicates.duplicates([(b, tr.last.x, tr.last.P) for b, tr in live.items()]):
@@ -306,6 +302,24 @@ class MultiTargetMethod:
         tr = _Track(method, TrackLogic(self.rule), self._births, last)
         self.tracks.append(tr)  # confirmed at birth if M = 1: given its id with the others
         return tr
+
+def scores_hit(kinds: Sequence[str], confirmed: bool, evidence: int) -> bool:
+    """Whether a track scores a hit in a frame (module docstring, step 5), in every
+    topology: ``kinds`` are the measurement kinds of the sensors whose plots (or local
+    tracks) it took, one per sensor; ``evidence`` is two, or one if the frame holds one
+    sensor.
+
+    A tentative track needs ``evidence`` sensors: one angle or radar plot fixes only a
+    line or a circle, which false alarms and neighbouring targets satisfy. A confirmed
+    one needs them too, or one sensor that measures range: fed by an angle sensor
+    alone, a track's range drifts away from the target's radar plots while the
+    target's rays keep it alive — a ghost along the ray. (air-picture, SS, run 0: a
+    track fed by angle2 alone in 25 of 30 frames, 1.5–2 km off every aircraft, lived
+    34 frames with a hit from one sensor of any kind.)"""
+    if len(kinds) >= evidence:
+        return True
+    return confirmed and any("range" in KIND_COMPONENTS[k] for k in kinds)
+
 
 class Initiator:
     """New tracks from the plots of one frame that no track took (module docstring,

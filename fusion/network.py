@@ -109,10 +109,10 @@ coasts. Management is :class:`fusion.association.TrackLogic` (M-of-N, K misses,
 ``max_pos_std``) and :class:`fusion.association.DuplicateWatch` (the later of two
 fused tracks that agree for ``merge_frames`` frames is deleted, its members
 dropped): a tentative track scores a hit with reports or gated requests of two
-sensors, a confirmed one with two, or with one that measures range, in every topology
-(an angle sensor's local track alone would hold a fused track whose range drifts away
-from the radar plots, which start a second track on the target: a ghost along the
-ray). Confirmed tracks get the published ids ``T1, T2, …`` and are reported every
+sensors, a confirmed one with two, or with one that measures range — the rule of the
+centralised tracker (:func:`fusion.mtt.scores_hit`; an angle sensor's local track alone
+would hold a fused track whose range drifts away from the radar plots, which start a
+second track on the target: a ghost along the ray). Confirmed tracks get the published ids ``T1, T2, …`` and are reported every
 frame. With one target, no clutter,
 P_D = 1 and M = N = 1 this is exactly the one-target network (``tests/test_t2ta.py``).
 
@@ -139,9 +139,10 @@ import numpy as np
 
 from .association import TrackIds
 from .init3d import initial_state
+from .mtt import scores_hit
 from .patent import KINDS_3D, LocalTracker, ScanGrouper, TrackerConfig
 from .track_fusion import TrackFuser
-from .types import KIND_COMPONENTS, Estimate, Measurement
+from .types import Estimate, Measurement
 
 MODES = ("track", "feedback", "predict")
 
@@ -787,17 +788,11 @@ class MultiTrackCentre(GroupedCentre):
         return [dataclasses.replace(f.last, track=f.id) for f in confirmed]
 
     def _hit(self, nodes: set[str], confirmed: bool, evidence: int) -> bool:
-        """A tentative track needs two sensors (as in fusion.mtt); a confirmed one two,
-        or one that measures range, in every topology. An angle sensor's local track
-        does not observe range: alone, it would hold a fused track (fed back to it
-        under PHHNV/DDHNV) whose range drifts away from the radar plots, which then
-        start a second track on the target and leave this one a ghost along the
-        angle sensor's ray. The centralised GNN starves such a ghost (the good track
-        takes the angle plot); a node's GNN cannot, as it sees only its own local
-        tracks."""
-        if len(nodes) >= evidence:
-            return True
-        return confirmed and any("range" in KIND_COMPONENTS[self._kinds.get(n, "azel")] for n in nodes)
+        """:func:`fusion.mtt.scores_hit` on the kinds of the nodes' sensors. Here the
+        ghost along an angle sensor's ray is a local angle track alone holding a fused
+        track (fed back to it under PHHNV/DDHNV) whose range drifts away from the radar
+        plots, which then start a second track on the target."""
+        return scores_hit([self._kinds.get(n, "azel") for n in nodes], confirmed, evidence)
 
     def _associate_reports(self, node: str, ups: list[Uplink], t: float, predicted) -> list[tuple[_Fused, Uplink]]:
         """Track-to-track association of one node's reports with the fused tracks. Every
