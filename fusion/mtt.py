@@ -303,6 +303,7 @@ class MultiTargetMethod:
         self.tracks.append(tr)  # confirmed at birth if M = 1: given its id with the others
         return tr
 
+
 def scores_hit(kinds: Sequence[str], confirmed: bool, evidence: int) -> bool:
     """Whether a track scores a hit in a frame (module docstring, step 5), in every
     topology: ``kinds`` are the measurement kinds of the sensors whose plots (or local

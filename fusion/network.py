@@ -112,9 +112,9 @@ dropped): a tentative track scores a hit with reports or gated requests of two
 sensors, a confirmed one with two, or with one that measures range — the rule of the
 centralised tracker (:func:`fusion.mtt.scores_hit`; an angle sensor's local track alone
 would hold a fused track whose range drifts away from the radar plots, which start a
-second track on the target: a ghost along the ray). Confirmed tracks get the published ids ``T1, T2, …`` and are reported every
-frame. With one target, no clutter,
-P_D = 1 and M = N = 1 this is exactly the one-target network (``tests/test_t2ta.py``).
+second track on the target: a ghost along the ray). Confirmed tracks get the published
+ids ``T1, T2, …`` and are reported every frame. With one target, no clutter, P_D = 1
+and M = N = 1 this is exactly the one-target network (``tests/test_t2ta.py``).
 
 *Many emitters* (KF+TR, MKF+TR: :class:`MultiStationNode`, :class:`StationCentre`). A
 station hears every emitter and cannot tell which bearing is whose, so it keeps

@@ -13,8 +13,9 @@ back it takes them again.
 A *restarted* fuser (a liveliness token of a new incarnation, i.e. Zenoh session, of
 the fuser appears) knows nothing of this node: the node drops its tracks (one, or a
 many-target node's ``L<n>`` and ``A<n>``) and re-runs the initialisation handshake,
-sending its next plots up as requests (:mod:`services.fuser`, "Restart"). A restarted tracker is a new node to the fuser:
-it asks to join and starts from the latest fused state.
+sending its next plots up as requests (:mod:`services.fuser`, "Restart"). A restarted
+tracker is a new node to the fuser: it asks to join and starts from the latest fused
+state.
 """
 
 from __future__ import annotations

@@ -234,7 +234,8 @@ def test_a_station_of_the_distributed_kf_tr_smooths_each_emitter_apart():
     want, got = [], []
     for k in range(8):
         noisy = {e: b + (0.5 if k % 2 else -0.5) * SIGMA * (1 if e == "A" else -1) for e, b in truth.items()}
-        scan = [(e, noisy[e]) for e in rng.permutation(sorted(noisy))] + ([("outlier", truth["A"] + 0.4)] if k == 2 else [])
+        scan = [(e, noisy[e]) for e in rng.permutation(sorted(noisy))]
+        scan += [("outlier", truth["A"] + 0.4)] if k == 2 else []
         ms = [dataclasses.replace(bearing_measurements([k + 1.0], ["df1"], S1[None, :], [[b]], SIGMA)[0], seq=j)
               for j, (_, b) in enumerate(scan)]
         for (e, _), m in zip(scan, ms):

@@ -194,7 +194,8 @@ def test_a_process_that_dies_at_start_up_ends_the_wait_at_once(deployment):
     children = Children()
     children.start("fuser", ["fuser", "--scenario", "no-such-scenario", "--method", "EKF", "--id", "fuser",
                              "--deployment", deployment, "--connect", f"tcp/127.0.0.1:{free_port()}"])
-    with Node("launcher", "launcher", KeySpace(deployment), ZenohOptions(listen=[f"tcp/127.0.0.1:{free_port()}"])) as node:
+    zopts = ZenohOptions(listen=[f"tcp/127.0.0.1:{free_port()}"])
+    with Node("launcher", "launcher", KeySpace(deployment), zopts) as node:
         start = time.monotonic()
         with pytest.raises(TimeoutError, match=r"stopped waiting for fuser: fuser exited with code [1-9]"):
             node.wait_for(["fuser"], 60.0, gone=lambda: children.exited(["fuser"]))

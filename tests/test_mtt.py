@@ -93,7 +93,8 @@ def test_a_confirmed_track_fed_by_an_angle_sensor_alone_scores_misses(alone, kep
     for k in range(10):
         plots = _plots(float(k), p0 + k * v, k, ("range_az", "azel") if k < 6 else (alone,))
         if k >= 6:  # the other sensor reports something else, far away: the frame has two sensors
-            plots += _plots(float(k), np.array([-30e3, 20e3, 3e3]), k, {"azel": ("range_az",), "range_az": ("azel",)}[alone])
+            other = {"azel": ("range_az",), "range_az": ("azel",)}[alone]
+            plots += _plots(float(k), np.array([-30e3, 20e3, 3e3]), k, other)
         for m in sorted(plots, key=lambda m: m.order_key):
             out += method.advance(m.t - 0.5) + method.process(m)
     out += method.finish()
