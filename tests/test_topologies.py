@@ -19,7 +19,7 @@ from services.launcher import resolve_topology
 from services.summary import method_summary, truth_function
 from sensors_sim import load_scenario
 
-from _runs import child, in_process, run_cmd, same_series
+from _runs import FusedWatch, child, in_process, run_cmd, same_series
 
 pytestmark = pytest.mark.slow
 
@@ -78,8 +78,22 @@ def test_topology_and_method_must_agree():
 def test_sensor_killed_and_restarted(tmp_path, deployment):
     """kill -9 of the angle sensor half-way: the fuser declares it dead, carries on with
     the radar alone, takes it back when it is restarted, and the summary says when."""
+    import zenoh
+
+    from schemas import KeySpace
+
     speed = 3.0
-    proc = subprocess.Popen(run_cmd(tmp_path, "patent-3d-60", deployment, "--speed", str(speed)),
+    watch = FusedWatch(deployment)  # a session the run's processes dial: it sees their liveliness
+    keys = KeySpace(deployment)
+    announced: list[tuple[str, float]] = []  # the angle sensor's incarnations, as they come up
+
+    def on_token(sample) -> None:
+        if sample.kind == zenoh.SampleKind.PUT:
+            announced.append((keys.alive_process(str(sample.key_expr))[1], time.time()))
+
+    tokens = watch.session.liveliness().declare_subscriber(keys.alive("angle"), on_token, history=True)
+    proc = subprocess.Popen(run_cmd(tmp_path, "patent-3d-60", deployment, "--speed", str(speed),
+                                    "--connect", watch.endpoint),
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         launcher = psutil.Process(proc.pid)
@@ -88,8 +102,9 @@ def test_sensor_killed_and_restarted(tmp_path, deployment):
         start_at = float(cmdline[cmdline.index("--start-at") + 1])
         time.sleep(max(0.0, start_at + 15.0 / speed - time.time()))  # scenario t = 15 s
         angle.kill()
-        # Under load the sleeps overshoot; judge the interval against the scenario times
-        # at which the kill and the restart really happened.
+        # Under load the sleeps overshoot, and a new process takes a while to come up:
+        # judge the interval against the scenario times at which the kill happened and
+        # the restarted sensor announced itself.
         killed_at = (time.time() - start_at) * speed
         time.sleep(max(0.0, start_at + 33.0 / speed - time.time()))  # back at t = 33 s
         restarted_at = (time.time() - start_at) * speed
@@ -100,14 +115,18 @@ def test_sensor_killed_and_restarted(tmp_path, deployment):
         if proc.poll() is None:
             proc.send_signal(signal.SIGINT)
             proc.wait(30)
+        tokens.undeclare()
+        watch.close()
     assert proc.returncode == 0, err[-3000:]
+    assert len({zid for zid, _ in announced}) == 2, announced  # the first sensor, then the restarted one
+    up_at = (announced[-1][1] - start_at) * speed
     doc = json.loads((tmp_path / "out.json").read_text())
     (gap,) = doc["sources"]["angle"]["dead_intervals"]
     # The interval runs from the time the fuser had released when it declared the source
     # dead (at most the sensor's last watermark, one 1 s period after its last scan) to the
-    # time it was back.
-    assert killed_at - 3.0 <= gap[0] <= killed_at + 1.0 and restarted_at <= gap[1] <= restarted_at + 7.0, \
-        (gap, killed_at, restarted_at)
+    # time it was back: the first scan the restarted sensor sent once up.
+    assert killed_at - 3.0 <= gap[0] <= killed_at + 1.0 and restarted_at <= gap[1] <= up_at + 7.0, \
+        (gap, killed_at, restarted_at, up_at)
     assert doc["sources"]["radar2d"]["dead_intervals"] == []
     got = doc["methods"]["SS"]["series"]
     t = np.array(got["t"])
