@@ -362,9 +362,11 @@ def run(args) -> int:
             if not interrupted:
                 for sid in [*sources, *trackers.values()]:
                     children.wait(sid, 10.0)
-                if sup.restarts.get(RECORDER_ID):
+                never_back = [n for n, outs in sup.outages.items() if outs[-1]["t_up"] is None]
+                if sup.restarts.get(RECORDER_ID) or never_back:
                     # It may have missed the "done" of processes that ended before it came
-                    # up: once it reports an empty backlog it has everything; stop it.
+                    # up, and a process killed and not restarted (--no-restart) sends none:
+                    # once it reports an empty backlog it has everything; stop it.
                     since, deadline = time.monotonic(), time.monotonic() + 30.0
                     while children.procs[RECORDER_ID].poll() is None and time.monotonic() < deadline:
                         drain(0.1)

@@ -114,6 +114,29 @@ def test_fuser_killed_with_many_targets_in_the_feedback_topology(tmp_path, deplo
     assert gospa[-1] < GOSPA_CUTOFF / np.sqrt(2), gospa[-20:]
 
 
+def test_no_restart_ends_the_run_after_the_sources(tmp_path, deployment):
+    """``--no-restart``: a killed fuser stays dead. The run still ends (END_GRACE after
+    the last source finished; measured 28 s for the test, 57 s before the recorder was
+    stopped as below), exits 0 with the summary of what was fused before the kill, and
+    reports the outage as never over."""
+    from services.launcher import END_GRACE
+
+    start = time.monotonic()
+    doc, err = _disturb(tmp_path, "patent-3d", deployment, 3.0, [(10.0, "fuser", "fuser")], "--no-restart")
+    assert time.monotonic() - start < 30.0 / 3.0 + END_GRACE + 30.0  # the sources' 10 s, the grace, start-up
+    (out,) = doc["outages"]["fuser"]
+    assert out["exit_code"] == -signal.SIGKILL and out["t_up"] is None and 8.0 <= out["t_down"] <= 18.0, out
+    assert doc["exit_codes"]["fuser"] == -signal.SIGKILL
+    assert "fuser killed (signal 9)" in err and "restarting it" not in err and "is back" not in err
+    t = doc["methods"]["SS"]["series"]["t"]
+    assert 8.0 <= t[-1] <= out["t_down"] + 1.0 and t == sorted(t)  # nothing fused after the kill
+    # the recorder hears no "done" from the dead fuser: it is stopped once it has recorded
+    # everything (before, the launcher waited 30 s more for it), and its file is whole
+    from test_recorder import verify
+
+    verify(tmp_path / "out.rrd")
+
+
 def test_recorder_then_fuser_killed_centralised(tmp_path, deployment):
     """Centralised (SS): kill -9 of the recorder, later of the fuser. The recorder's loss
     changes nothing fused and its restart records the rest of the run in a second,
