@@ -661,11 +661,10 @@ class MultiStationNode(FramedNode):
         from .angles import wrap_pi
         from .association import gate_threshold, gnn
         from .df.methods import make_station_smoother
-        from .df.models import bearing_of, stated_sigma
+        from .df.models import bearing_of
 
         betas = np.array([bearing_of(m)[1] for m in frame])
-        sigmas = np.array([stated_sigma(m) if self.config.sigma == "sensor" else float(self.config.sigma)
-                           for m in frame])
+        sigmas = np.array([self.config.sigma_of(m) for m in frame])
         taken: dict[int, int] = {}  # bearing -> track
         if self.tracks:
             x = np.array([tr.x[0] for tr in self.tracks])

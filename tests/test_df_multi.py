@@ -300,10 +300,10 @@ def test_the_cross_fed_filters_misses_are_their_estimates_not_the_association(mo
     taken: dict[str, list[str]] = {}
     update = MultiEmitterMethod._update
 
-    def spy(self, tr, epoch, mine, enough):
-        update(self, tr, epoch, mine, enough)
-        for c in mine if tr.id is not None else ():
-            site, beta = bearing_of(epoch[c])
+    def spy(self, tr, mine, enough):
+        update(self, tr, mine, enough)
+        for m in mine[4] if tr.id is not None else ():
+            site, beta = bearing_of(m)
             off = {k: abs(wrap_pi(beta - bearing(p, site))) for k, p in emitters.items()}
             taken.setdefault(tr.id, []).append(min(off, key=off.get))
 

@@ -137,6 +137,11 @@ class DFConfig:
     smoother_q: float = 0.0
     gate: float = 0.0
 
+    def sigma_of(self, m: Measurement) -> float:
+        """The std the filters and gates assume for the bearing ``m``: ``sigma``, or the
+        sensor's stated std with ``sigma = "sensor"``."""
+        return stated_sigma(m) if self.sigma == "sensor" else float(self.sigma)
+
     @classmethod
     def from_dict(cls, config: dict | None) -> "DFConfig":
         cfg = cls(**config_values(cls, config, "DF tracker config", {"sigma": ("sensor",)}))
@@ -223,9 +228,6 @@ class DFMethod:
         group, self._group = self._group, []
         est = self._epoch(group)
         return [] if est is None else [est]
-
-    def _sigma(self, m: Measurement) -> float:
-        return stated_sigma(m) if self.config.sigma == "sensor" else float(self.config.sigma)
 
     def _estimate(self, group: list[Measurement], x, P, nis=None, nis_dof=None, **extra) -> Estimate:
         return Estimate(t=max(m.t for m in group), x=np.array(x, dtype=float), P=np.array(P, dtype=float),
@@ -324,7 +326,7 @@ class _RecursiveMethod(DFMethod):
         return nis
 
     def _epoch(self, group):
-        bearings = [(*bearing_of(m), self._sigma(m)) for m in group]
+        bearings = [(*bearing_of(m), self.config.sigma_of(m)) for m in group]
         if self._window is not None:
             nis = self._robust(bearings)
         else:
@@ -412,7 +414,7 @@ class TorrieriMethod(DFMethod):
             site, beta = bearing_of(m)
             self._sites.append(site)
             self._betas.append(beta)
-            self._sigmas.append(self._sigma(m))
+            self._sigmas.append(self.config.sigma_of(m))
         sites, betas, sigmas = np.array(self._sites), np.array(self._betas), np.array(self._sigmas)
         if len(betas) < 2:
             return None

@@ -123,7 +123,7 @@ from ..mtt import AssociationConfig, FrameGrouper
 from ..types import Estimate, Measurement
 from .init import usable_pairs
 from .methods import DFMethod
-from .models import bearing, bearing_of, stated_sigma
+from .models import bearing, bearing_of
 from .triangulation import GeometryError, intersection_jacobian, torrieri
 
 #: false-alarm probability of the consistency test of a confirmed track (step 4). It is
@@ -355,22 +355,17 @@ class MultiEmitterMethod:
         return [e for epoch in epochs for e in self._epoch(epoch)]
 
     # One epoch -----------------------------------------------------------------------
-    def _sigma(self, m: Measurement) -> float:
-        return stated_sigma(m) if self.df.sigma == "sensor" else float(self.df.sigma)
-
     def _bearings(self, ms: list[Measurement], t0: float) -> tuple:
         """``(sites (n, 2), betas (n,), sigmas (n,), stations, ms, t0)`` of one epoch's
         bearing measurements ``ms`` (the epoch starting at ``t0``)."""
         pairs = [bearing_of(m) for m in ms]
         return (np.array([p[0][:2] for p in pairs]).reshape(-1, 2), np.array([p[1] for p in pairs]),
-                np.array([self._sigma(m) for m in ms]), [m.sensor for m in ms], list(ms), t0)
+                np.array([self.df.sigma_of(m) for m in ms]), [m.sensor for m in ms], list(ms), t0)
 
     def _epoch(self, epoch: list[Measurement]) -> list[Estimate]:
         t = max(m.t for m in epoch)
-        sites = np.array([bearing_of(m)[0] for m in epoch])
-        betas = np.array([bearing_of(m)[1] for m in epoch])
-        sigmas = np.array([self._sigma(m) for m in epoch])
-        stations = [m.sensor for m in epoch]
+        bearings = self._bearings(epoch, epoch[0].t)  # decoded once; tracks take slices of it
+        sites, betas, sigmas, stations = bearings[:4]
         need = min(SUPPORT, len(set(stations)))
 
         confirmed = [tr for tr in self.tracks if tr.logic.status == CONFIRMED]
@@ -404,15 +399,15 @@ class MultiEmitterMethod:
         continued = dict(gnn(cost, self._gate))
 
         for k, tr in enumerate(confirmed):
-            self._update(tr, epoch, sorted(taken.get(k, ())), 2)
+            self._update(tr, _subset(bearings, sorted(taken.get(k, ()))), 2)
             tr.nis.append((nis[k], len(taken.get(k, ()))))
             self._check_consistency(tr)
         self._resolve_swaps([tr for tr in confirmed if tr.logic.status == CONFIRMED])
         for r, tr in enumerate(tentative):
-            self._update(tr, epoch, groups[continued[r]] if r in continued else [], need)
+            self._update(tr, _subset(bearings, groups[continued[r]] if r in continued else []), need)
         for c, g in enumerate(groups):
             if c not in continued.values():
-                self._start([epoch[i] for i in g], epoch[0].t)
+                self._start(_subset(bearings, g))
 
         for tr in self.tracks:
             if tr.logic.status == CONFIRMED and tr.id is None:
@@ -422,15 +417,16 @@ class MultiEmitterMethod:
         self.tracks = confirmed + sorted((tr for tr in live if tr.logic.status != CONFIRMED), key=lambda tr: tr.birth)
         return [dataclasses.replace(tr.last, t=t, track=tr.id, node="centre") for tr in confirmed]
 
-    def _update(self, tr: _Emitter, epoch: list[Measurement], mine: list[int], enough: int) -> None:
-        """Track ``tr`` with its bearings ``mine`` of the epoch: localise, then a hit if
-        they come from ``enough`` stations (module docstring, step 4)."""
-        if mine:
-            est = self._localise(tr.method, [epoch[c] for c in mine], epoch[0].t)
+    def _update(self, tr: _Emitter, mine: tuple, enough: int) -> None:
+        """Track ``tr`` with its bearings ``mine`` of the epoch (as :meth:`_bearings`):
+        localise, then a hit if they come from ``enough`` stations (module docstring,
+        step 4)."""
+        if mine[4]:
+            est = self._localise(tr.method, mine[4], mine[5])
             if est is not None:
                 tr.last = est
-        tr.taken.append(self._bearings([epoch[c] for c in mine], epoch[0].t))
-        tr.logic.record(len({epoch[c].sensor for c in mine}) >= enough)
+        tr.taken.append(mine)
+        tr.logic.record(len(set(mine[3])) >= enough)
         if tr.logic.status != DELETED and math.sqrt(float(np.trace(tr.last.P))) > self.config.max_pos_std:
             tr.logic.status = DELETED
 
@@ -494,16 +490,24 @@ class MultiEmitterMethod:
         out += method.advance(t0 + self.df.pair_tol)
         return out[-1] if out else None
 
-    def _start(self, bearings: list[Measurement], t0: float) -> None:
-        """A tentative track from one initiation group, if its method gives a fix on it."""
+    def _start(self, group: tuple) -> None:
+        """A tentative track from one initiation group (as :meth:`_bearings`), if its
+        method gives a fix on it."""
         method = self._make_emitter()
-        est = self._localise(method, bearings, t0)
+        est = self._localise(method, group[4], group[5])
         if est is None:
             return
         self._births += 1
         tr = _Emitter(method, TrackLogic(self._rule), self._births, est, int(self.df.init_epochs))
-        tr.taken.append(self._bearings(bearings, t0))
+        tr.taken.append(group)
         self.tracks.append(tr)
+
+
+def _subset(bearings: tuple, idx) -> tuple:
+    """The bearings ``idx`` (indices, in order) of an epoch's :meth:`MultiEmitterMethod._bearings`."""
+    idx = list(idx)
+    sites, betas, sigmas, stations, ms, t0 = bearings
+    return sites[idx], betas[idx], sigmas[idx], [stations[i] for i in idx], [ms[i] for i in idx], t0
 
 
 def _stacked(window) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
