@@ -197,7 +197,8 @@ def main() -> None:
     s = io.StringIO()
     pstats.Stats(pr, stream=s).sort_stats("tottime").print_stats(args.top)
     print("\ncProfile of the loop, by own time:\n")
-    print("\n".join(line for line in s.getvalue().splitlines() if line.strip())[:6000])
+    out = s.getvalue().replace(str(C.REPO) + "/", "")  # paths relative to the repository
+    print("\n".join(line for line in out.splitlines() if line.strip())[:6000])
 
 
 if __name__ == "__main__":

@@ -98,7 +98,9 @@ def mahalanobis2(model, x: np.ndarray, P: np.ndarray, Z: np.ndarray) -> np.ndarr
 
 # Global nearest neighbour ---------------------------------------------------------------
 def gnn(d2: np.ndarray, gate: float) -> list[tuple[int, int]]:
-    """Least-cost assignment of tracks (rows) to plots (columns); see the module docstring.
+    """Least-cost assignment of tracks (rows) to plots (columns) from their ``d²``: each
+    track takes at most one plot and each plot goes to at most one track, a track left
+    without a plot costs ``gate``, and pairs with ``d² > gate`` are forbidden.
 
     Returns the assigned ``(row, column)`` pairs in row order; a row not listed is a
     missed track, a column not listed a plot no track takes.
@@ -192,7 +194,9 @@ class DuplicateWatch:
 
 @dataclass(frozen=True)
 class ManagementRule:
-    """M-of-N confirmation and K-miss deletion (module docstring)."""
+    """M-of-N confirmation and K-miss deletion: a track is confirmed once it has
+    ``confirm_m`` hits (birth included) within its first ``confirm_n`` frames, and a
+    confirmed track is deleted after ``delete_misses`` consecutive missed frames."""
 
     confirm_m: int = 3
     confirm_n: int = 4

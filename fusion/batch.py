@@ -3,41 +3,24 @@ r"""The EKF step of :mod:`fusion.sensors3d` over many tracks at once (vectorised
 Same maths as :func:`fusion.sensors3d.ekf_predict` / :func:`~fusion.sensors3d.ekf_update`
 (:mod:`fusion.kalman`: angle-wrapped innovation, Joseph form, symmetrised, NIS), on a
 stack of ``N`` tracks: ``x`` is ``(N, n_x)``, ``P`` is ``(N, n_x, n_x)``. One call
-replaces ``N`` calls of the single-track path and equals it to round-off
-(``tests/test_batch.py``: 1e-10 over random geometries). Typical use: many tracks
-updated at one scan, or every Monte Carlo run of a scenario advanced together.
+replaces ``N`` calls of the single-track path and equals it to round-off. Typical use:
+many tracks updated at one scan, or every Monte Carlo run of a scenario advanced together.
 
-Where the time goes, and what is done about it (``benchmarks/README.md`` has figures):
+Predict with one ``F``, ``Q`` for the whole stack, ``(F P) Fᵀ`` as one BLAS product of the
+stacked rows. A spherical measurement depends on position only, ``H = [H_p  0]``, so
+``H P = H_p P[:3, :]`` and ``S = (H P)[:, :3] H_pᵀ + R``, and the Joseph product is two
+rank-``n_z`` corrections (still the Joseph form, not the "optimal gain" shortcut)::
 
-* Per-call overhead of numpy (~1 µs a call) is paid once per stack instead of once per
-  track; what is left is memory traffic and numpy's stacked ``matmul``. That runs BLAS
-  on contiguous (or row-sliced) operands and a generic loop, several times slower, on
-  transposed views, so every product here has contiguous operands.
-* Predict with one ``F``, ``Q`` for the whole stack: ``F P`` as a broadcast product, then
-  ``(F P) Fᵀ`` as *one* BLAS product of the stacked rows ``(N·n × n) · (n × n)``.
-* A spherical measurement depends on position only: ``H = [H_p  0]`` with ``H_p`` the
-  ``n_z × 3`` gradient, so ``H P = H_p P[:3, :]`` and ``S = (H P)[:, :3] H_pᵀ + R``. The
-  Joseph product ``(I − K H) P (I − K H)ᵀ + K R Kᵀ`` is formed as two rank-``n_z``
-  corrections — still the Joseph form (a congruence plus ``K R Kᵀ``), not the expanded
-  "optimal gain" form::
+    Kᵀ = S⁻¹ (H P)
+    B  = (I − K H) P  = P − K (H P)
+    P⁺ = B (I − K H)ᵀ + K R Kᵀ = B + (K R − B[:, :3] H_pᵀ) Kᵀ
 
-      Kᵀ = S⁻¹ (H P)
-      B  = (I − K H) P  = P − K (H P)
-      P⁺ = B (I − K H)ᵀ + K R Kᵀ = B + (K R − B[:, :3] H_pᵀ) Kᵀ
-
-* ``S⁻¹`` comes from a Cholesky factorisation written over the stack (a loop over the
-  ``n_z`` rows, each step one vector operation over all tracks): numpy's batched
-  ``inv``/``solve`` call LAPACK once per 3 × 3 matrix and cost ~10× more. The single
-  path uses a Cholesky solve too.
-* The few ``(N, n, n)`` temporaries are reused work arrays (see :func:`_scratch`):
-  with glibc's allocator, fresh ones of a few hundred kB come back page by page.
-
-Singular geometry (a target straight above a site for an angle row, or at a site for a
-range row) raises ``ValueError`` naming the first offending track, and an innovation
-covariance that is not positive definite raises ``LinAlgError``, as the single-track
-path does for its one track.
-
-Pure: numpy only, no I/O, no clocks.
+``S⁻¹`` comes from a Cholesky factorisation written over the stack (one vector operation
+per row of ``S`` over all tracks), every product has contiguous operands, and the large
+temporaries are reused work arrays (:func:`_scratch`); ``benchmarks/README.md`` has the
+figures. Singular geometry (a target straight above a site for an angle row, or at a
+site for a range row) raises ``ValueError`` naming the first offending track; an
+innovation covariance that is not positive definite raises ``LinAlgError``.
 """
 
 from __future__ import annotations
@@ -74,8 +57,8 @@ def _scratch(slot: str, shape: tuple[int, ...]) -> np.ndarray:
     """A reusable work array (one per slot and thread) for a large temporary of one call.
 
     glibc hands a freed block of a few hundred kB back to the system (heap trimming), so
-    a fresh (N, n, n) temporary each call comes back page by page: at N = 1000 that was
-    ~40 % of a step in page faults. The contents never outlive the call that fills them.
+    a fresh (N, n, n) temporary each call would come back page by page. The contents
+    never outlive the call that fills them.
     """
     store = getattr(_SCRATCH, "arrays", None)
     if store is None:

@@ -161,7 +161,10 @@ def _phi(v, s):
 
 def noise_fisher_information(sigma1: float, p: float = 0.0, sigma2: float | None = None,
                              law: str = "laplacian") -> NoiseInformation:
-    """Fisher information of ``(1 − p)·N(0, σ₁²) + p·outlier(σ₂)`` (module docstring)."""
+    """Location Fisher information ``I_f = ∫ f'(v)²/f(v) dv`` of the noise density
+    ``f = (1 − p)·N(0, σ₁²) + p·outlier(σ₂)``, outliers ``law`` (Laplacian or uniform); it
+    replaces ``1/σ²`` in the bound. For uniform outliers the density jumps, the bound's
+    regularity conditions fail, and the result says ``regular=False``."""
     s1 = float(sigma1)
     p = float(p)
     if not (np.isfinite(s1) and s1 > 0.0) or not 0.0 <= p <= 1.0:

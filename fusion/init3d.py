@@ -133,7 +133,9 @@ def spherical_to_position(site, az: float, el: float, rng: float, range_site=Non
 
 
 def initial_state(scan: Sequence[Measurement], n_x: int, priors: InitPriors = InitPriors()):
-    """Initial ``(x, P)`` (n_x = 6 or 9) from the first scan; see the module docstring."""
+    """Initial ``(x, P)`` (n_x = 6 or 9) from the first scan: position from the best
+    azimuth (and elevation at its site) and the best range, else the ``priors``, with the
+    converted covariance; velocity and acceleration zero with their prior stds."""
     if n_x not in (6, 9):
         raise ValueError(f"3D track state length must be 6 (CV) or 9 (CA), got {n_x}")
     scan = list(scan)

@@ -160,7 +160,7 @@ def empirical_cep50(fixes, truth) -> float:
 
 
 def median_point_distance(fixes, truth) -> float:
-    """The thesis's "CEP 50 %" (seed 000): distance from truth to the coordinate-wise
+    """The thesis's "CEP 50 %" (document 000): distance from truth to the coordinate-wise
     median of the fixes. A bias measure — NOT the CEP radius (see module docstring)."""
     med = np.median(np.asarray(fixes, dtype=float)[..., :2].reshape(-1, 2), axis=0)
     return float(np.hypot(*(med - np.asarray(truth, dtype=float)[:2])))

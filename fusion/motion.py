@@ -1,6 +1,6 @@
 r"""Kinematic motion models for 3D targets.
 
-State layout (DESIGN.md): ``[px py pz vx vy vz ax ay az]`` for constant acceleration
+State layout (docs/design.md, Conventions): ``[px py pz vx vy vz ax ay az]`` for constant acceleration
 (CA), its first six for constant velocity (CV). The layout is *derivative-major*: index
 ``3·d + axis`` holds the d-th derivative on ``axis`` (0 = east, 1 = north, 2 = up).
 Each axis follows the same independent 1D model, so with a per-axis block ``F₁``,
@@ -161,14 +161,18 @@ class KinematicModel:
 
 
 class ConstantVelocity(KinematicModel):
-    """3D constant velocity, state ``[px py pz vx vy vz]``; see the module docstring."""
+    """3D constant velocity, state ``[px py pz vx vy vz]``: per axis
+    ``F₁ = [[1, dt], [0, 1]]``, process noise white acceleration (``q`` in m²/s³) or
+    discrete white-noise acceleration (``q`` in m²/s⁴)."""
 
     order = 2
     name = "cv"
 
 
 class ConstantAcceleration(KinematicModel):
-    """3D constant acceleration, state ``[px py pz vx vy vz ax ay az]``; see the module docstring."""
+    """3D constant acceleration, state ``[px py pz vx vy vz ax ay az]``: per axis
+    ``F₁ = [[1, dt, dt²/2], [0, 1, dt], [0, 0, 1]]``, process noise white jerk (``q`` in
+    m²/s⁵) or the discrete Wiener-process acceleration (``q`` in m²/s⁴)."""
 
     order = 3
     name = "ca"

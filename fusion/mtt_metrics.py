@@ -52,7 +52,8 @@ class Step:
 
 def assign(truths: Mapping[str, np.ndarray], tracks: Mapping[str, np.ndarray], c: float,
            p: float = 2.0) -> dict[str, str]:
-    """Truth id -> track id, as GOSPA pairs them (module docstring)."""
+    """Truth id -> track id, as GOSPA pairs them: the assignment of least ``Σ dᵖ`` with
+    costs capped at ``cᵖ``, keeping only pairs closer than ``c``."""
     if not truths or not tracks:
         return {}
     tid, kid = list(truths), list(tracks)
@@ -65,7 +66,9 @@ def assign(truths: Mapping[str, np.ndarray], tracks: Mapping[str, np.ndarray], c
 
 @dataclass
 class TrackScore:
-    """Per-step series and run totals (module docstring)."""
+    """One run's many-target score: per step GOSPA, OSPA, missed and false counts, and
+    the run's totals (truth-steps held, breaks and their chances, track purity, false
+    tracks, hold fractions, longest ghost, found at the end)."""
 
     t: list[float] = field(default_factory=list)
     gospa: list[float] = field(default_factory=list)

@@ -15,7 +15,7 @@ Messages::
                              (the shared initial state, or the fused state for a node
                              that joins later) or feedback (PHHNV, DDHNV)
 
-Topologies (DESIGN.md; ``mode`` of :class:`TrackNode`):
+Topologies (docs/design.md; ``mode`` of :class:`TrackNode`):
 
 ==========  ==========  ==================================================================
 method      topology    local node                        centre

@@ -1,4 +1,4 @@
-r"""The patent's six 3D fusion methods (SEEDS.md §2) and single-sensor baselines.
+r"""The patent's six 3D fusion methods (document 004, docs/algorithms.md) and single-sensor baselines.
 
 Sensors: 2D radars (kind ``range_az``: azimuth, slant range) and angle sensors (kind
 ``azel``: azimuth, elevation); 3D radars (``az_el_range``) for the baseline. A

@@ -234,7 +234,9 @@ def fuse_ci(xs, Ps, criterion: str = "trace") -> tuple[np.ndarray, np.ndarray, n
 
 
 def fuse_info(xs, Ps, prior_xs, prior_Ps, x_c, P_c) -> tuple[np.ndarray, np.ndarray]:
-    """Information fusion subtracting each track's prior; see the module docstring."""
+    """Information fusion subtracting each track's prior ``(x̄ᵢ, P̄ᵢ)`` from its estimate
+    and adding the centre's prior ``(x_c, P_c)`` once:
+    ``P_f⁻¹ = P_c⁻¹ + Σ (Pᵢ⁻¹ − P̄ᵢ⁻¹)``, and the same for the information vectors."""
     xs, Ps = _check(xs, Ps)
     prior_xs, prior_Ps = _check(prior_xs, prior_Ps)
     if len(prior_xs) != len(xs):

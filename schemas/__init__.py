@@ -1,4 +1,4 @@
-"""Wire format (msgpack) and Zenoh key space. See DESIGN.md, "Wire format"."""
+"""Wire format (msgpack) and Zenoh key space. See docs/design.md, "Wire format"."""
 
 from .keys import KeySpace, check_id, tracker_id
 from .messages import (

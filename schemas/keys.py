@@ -1,4 +1,4 @@
-"""The Zenoh key space, in one place (DESIGN.md, "Key space").
+"""The Zenoh key space, in one place (docs/design.md, "Key space").
 
 Every key lives under ``zf/<deployment>/``. Ids (sensors, nodes, processes, targets)
 become single key chunks, so they are restricted to ``[A-Za-z0-9_.+-]``: no ``/`` and

@@ -84,7 +84,9 @@ def scan_times(scenario: Scenario, sensor_id: str) -> np.ndarray:
 
 
 def sensor_events(scenario: Scenario, sensor_id: str, run: int = 0) -> Iterator[SensorEvent]:
-    """The sensor's events in time order (see the module docstring)."""
+    """The sensor's events in time order: at each scan, per object in view, coverage,
+    detection, jamming and noise from the scan's fixed pattern of draws, then the
+    scan's clutter, with ``seq`` in publication order."""
     sensor = scenario.sensor(sensor_id)
     kind = sensor.measurement_kind
     is_range = np.array([c == "range" for c in sensor.components])

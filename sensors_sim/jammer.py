@@ -4,7 +4,7 @@ Both are pure functions of the scenario and the time, so a sensor process comput
 it is jammed from the scenario alone (not from ``jam/*`` messages): a distributed run
 and an in-process run contaminate identically.
 
-Who is affected (seed 003: barrage vs spot)
+Who is affected (document 003: barrage vs spot)
 -------------------------------------------
 A jammer is on during its schedule intervals ``[t_on, t_off)``. While on, it affects a
 sensor within its reach (distance ≤ ``reach``) if

@@ -22,7 +22,7 @@ Laws
   discretisation of continuous white jerk, so sampling the process on a grid of step
   ``dt`` and keeping every n-th node has exactly the law of sampling it at ``n·dt``.
 * Gaussian measurement noise: ``σ·n`` with ``n ~ N(0, 1)``.
-* Outliers (the IMM thesis's jamming noise, seed 001, appendix C), from one uniform
+* Outliers (the IMM thesis's jamming noise, document 001, appendix C), from one uniform
   ``u ~ U(0, 1)`` per component by the inverse CDF, with standard deviation ``σ₂``:
 
   - ``laplacian``: scale ``b = σ₂/√2``, ``x = −b·sgn(u − ½)·ln(1 − 2|u − ½|)``;
@@ -44,7 +44,9 @@ OUTLIER_LAWS = ("laplacian", "uniform")
 
 
 def process_rng(seed: int, process_id: str, run: int = 0) -> np.random.Generator:
-    """The generator of one process for one run (see the module docstring)."""
+    """The generator of one process for one run: PCG64 seeded by
+    ``SeedSequence([seed, run, crc32(process_id)])``, so a process draws the same numbers
+    in a distributed run and in run ``run`` of the in-process evaluation."""
     if not isinstance(seed, (int, np.integer)) or seed < 0:
         raise ValueError(f"seed must be a non-negative int, got {seed!r}")
     if not isinstance(run, (int, np.integer)) or run < 0:

@@ -1,4 +1,4 @@
-"""The ``zfusion`` command line (contract: DESIGN.md, "Command line")."""
+"""The ``zfusion`` command line (contract: docs/design.md, "Command line")."""
 
 from __future__ import annotations
 

@@ -80,7 +80,7 @@ def measurement_kinds(scenario) -> set[str]:
 
 
 def default_methods(scenario) -> list[str]:
-    """Every registered method the scenario's sensors can feed, in the seeds' table order.
+    """Every registered method the scenario's sensors can feed, in the source documents' table order.
 
     3D scenarios: the single-sensor baselines whose sensor kind is present, and the six
     patent methods (LCDD/HNDD only with both a 2D radar and an angle sensor; HNDD only if
@@ -169,7 +169,7 @@ def evaluate(scenario, variants: Sequence[Variant], runs: int, *, jobs: int = 1,
              progress: Callable[[int, int], None] | None = None, crb: bool = True,
              topology: str = "in-process", fusion_rule: str | None = None) -> dict:
     """Monte Carlo evaluation of ``variants`` over runs ``0..runs-1``; returns the
-    ``--json`` summary of DESIGN.md (``methods`` keyed by variant label, ``crb`` filled
+    ``--json`` summary of docs/design.md (``methods`` keyed by variant label, ``crb`` filled
     where :func:`crb_summary` applies). ``progress(done, total)`` is called per run."""
     if runs < 1:
         raise ValueError(f"evaluate: runs must be >= 1, got {runs}")

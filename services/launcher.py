@@ -223,7 +223,7 @@ def resolve_topology(scenario, topology: str | None, method: str | None) -> tupl
         df = all(scenario.kind_of(s) in ("df", "airborne_df") for s in scenario.sensors)
         method = DEFAULT_METHODS[topology][1 if df else 0]
         if method is None:
-            raise SystemExit(f"zfusion run: no DF method runs in the {topology!r} topology (DESIGN.md, Topologies)")
+            raise SystemExit(f"zfusion run: no DF method runs in the {topology!r} topology (docs/design.md, Topologies)")
     method = method or default
     if not method:
         raise SystemExit("zfusion run: no --method given and the scenario names no default method")

@@ -1,79 +1,27 @@
 """The recorder process: everything on the deployment's keys into one Rerun recording.
 
-Timeline ``sim_time`` (scenario seconds). Entity layout (``docs/viewing.md`` describes what
-each shows)::
+Timeline ``sim_time`` (scenario seconds). Entities live under ``world/`` (sites,
+measurements as points or rays, truth, tracks per node with their 3σ ellipsoids or
+ellipses, predictions, uplinks, feedback, jammers), ``metrics/`` (position error, NEES
+and NIS against their χ² bounds, a many-target picture's GOSPA, missed and false
+tracks) and ``status/`` (events and counters); docs/design.md ("Recording") lists them
+and docs/viewing.md says what each shows. A blueprint lays out the panels.
 
-    world                                  ENU, z up (view coordinates)
-    world/sites/<sensor>                   labelled sensor position (DF: on the map plane z = 0);
-                                           a moving (airborne) site also carries its path
-    world/meas/<sensor>                    that sensor's reports of the current scan: points
-                                           (with range; a 2D radar also its elevation arc) or
-                                           rays (angles only; DF bearings on the map plane)
-    world/truth/<target>                   true position and its path so far
-    world/tracks/<node>/<track>            estimate labelled with its id, 3σ ellipsoid (3D) or
-                                           ellipse (map plane), its path; node ``centre`` is the
-                                           fused output (ids ``T<n>``, ``E<n>``), other nodes
-                                           are local trackers (node-local ids ``L<n>``)
-    world/tracks/<node>/<track>/prediction a published prediction (two-stage topology)
-    world/tracks/<sensor>/uplink           measurements a local tracker sent up: raw (two-stage)
-                                           or smoothed bearings (KF+TR); not sensor reports again
-    world/feedback/<node>/<track>          the fused state sent back down to a node
-    world/jam/<jammer>                     jammer position, on/off, lines to the sensors it jams
-    metrics/error_pos/<method>[/<node>]    position error against truth (fused; local per node)
-    metrics/nees/<method>[/<node>][/lo|/hi]  NEES against its two-sided 95 % χ² bounds
-    metrics/nis/<method>[/<node>][/lo|/hi]   NIS against its bounds
-    metrics/gospa/<method>                 many targets: GOSPA of the fused picture per frame
-    metrics/picture/<method>/missed|false  ... and its targets missed and false tracks
-    jamming/<jammer>/on                    1 while the jammer is on
-    jamming/<jammer>/affects/<sensor>      1 while it jams that sensor
-    jamming/<sensor>/jammed|outliers       the sensor's own contamination counters
-    status/<process>/events                text log: state changes, source declared dead /
-                                           rejoined, feedback timeouts, jammer on/off
-    status/<process>/counters/<name>       every other counter a process reports
+Many targets: each track is an entity keyed by (node, id) and is cleared (``rr.Clear``,
+recursively) once its stream has reported ``delete_misses`` frames without it, or at
+once when the centre tells its node to ``drop`` it; a cleared track's path and frame
+bookkeeping are forgotten, so state is held for the live tracks only. The fused picture
+is scored per frame as ``zfusion eval`` scores it (GOSPA, cut-off ``GOSPA_CUTOFF``).
 
-Many targets: every track has an entity of its own, keyed by (node, id), with its own
-path, and is cleared (``rr.Clear``, recursively: its prediction goes too) once it is
-gone, so the scene shows the live picture and not every track that ever was:
-
-* a track is gone when its stream (``fused``, ``local/<node>``, ``feedback/<node>``)
-  has reported ``delete_misses`` frames without it (the scenario's ``[tracker]`` key,
-  default 3; a frame is a distinct time of the stream's track reports). A confirmed
-  fused track is reported every frame until it is deleted, and a local tracker
-  deletes a track after that many frames without a plot, and the recorder counts only
-  frames in which the node reported something, so such a track is gone for sure. It
-  is cleared at the time of the first frame after those: a stream that stops
-  reporting altogether leaves its last tracks drawn;
-* a local track is cleared at once when the centre tells its node to ``drop`` it
-  (a ``track`` message on ``feedback/<node>`` with ``drop`` in its extras; it is not
-  drawn as feedback). An ``init`` downlink is drawn as feedback.
-
-A cleared track's path and frame bookkeeping are forgotten, so a long run holds state
-for the live tracks only.
-
-With many targets a track's id names no target, so the fused picture is scored as a
-whole, as ``zfusion eval`` scores it: GOSPA (cut-off ``GOSPA_CUTOFF``, p = 2) of each
-frame's confirmed tracks (the fused estimates of one time) against every target's truth
-at that time, with the number of targets missed and of false tracks. A frame is scored
-once the method's next frame begins (or the recording ends) and the truth of its time
-is in; a frame without a confirmed track is not seen, so not scored. Local tracks
-(``L<n>``) are not scored.
-
-Paths: a truth or track path gets a point at most every ``TRAIL_STEP_S`` of scenario
-time, and a 3D one is logged (the whole path, up to ``PATH_MAX`` points) only with the
-row that adds a point; rows in between leave the last one drawn. Logged with every
-update, as it once was, it made a fused track at 1,000 updates/s send about 48 MB/s to
-the Rerun SDK, which holds it until written; with the recorder short of CPU its memory
-grew (``benchmarks/README.md``, memory). A map-plane track's path shares its component
-with the ellipse, so it is logged with every row.
-
-Rows are not logged one by one: :class:`Recording` queues them and sends each entity's
-rows in one ``send_columns`` call, at least every ``SEND_PERIOD_S`` (and before every
-flush), so the recorder keeps up with a fuser at full rate. The recorder is only a
-listener: the fusion path never waits on it. Its subscription is
-served by Zenoh's threads into a bounded queue (overflow is counted and dropped, never
-pushed back to a publisher); the fuser's publishers do not know it exists. Every sample
-that fails to decode, arrives on the wrong key, repeats, or lies beyond the scenario's end
-is counted by cause and dropped (:class:`~services.node.RejectLog`).
+Bounded work per row: a path gets a point at most every ``TRAIL_STEP_S`` of scenario
+time and keeps ``PATH_MAX`` points; a 3D path is logged only with the row that adds a
+point; :class:`Recording` queues rows and sends each entity's in one ``send_columns``
+call at least every ``SEND_PERIOD_S``. The recorder only listens: its subscription
+feeds a bounded queue (overflow counted and dropped, never pushed back to a publisher),
+and every sample that fails to decode, arrives on the wrong key, repeats, or lies
+beyond the scenario's end is counted by cause and dropped
+(:class:`~services.node.RejectLog`). docs/notes.md ("Recorder paths") says why paths
+are thinned.
 """
 
 from __future__ import annotations
@@ -478,7 +426,7 @@ class Recorder:
 
     def _path(self, store: dict[str, Trail], key: str, t: float, pos: np.ndarray) -> tuple[np.ndarray, bool]:
         """The path so far, and whether it gained a point: it does once ``TRAIL_STEP_S`` has
-        passed since its last one (module docstring, "Paths")."""
+        passed since its last one, and at most ``PATH_MAX`` points are kept."""
         trail = self._trail(store, key)
         if t < trail.t + TRAIL_STEP_S - 1e-9:  # (scenario times are sums of float steps)
             return trail.points, False

@@ -1,7 +1,7 @@
 """Geometry and styling for the recorder: pure numpy, no Rerun and no I/O.
 
 Conventions are the project's: ENU metres, compass azimuth (clockwise from north),
-elevation above the horizontal. State layouts (DESIGN.md): a 3D target is
+elevation above the horizontal. State layouts (docs/design.md, Conventions): a 3D target is
 ``[px py pz vx vy vz (ax ay az)]``, an emitter fix ``[px py]``. The recorder also meets
 a few layouts other processes may publish as local tracks; :func:`state_layout` names
 what it knows how to draw and score.

@@ -6,7 +6,7 @@ Two uses:
   RMSE against time per method (with the Cramér–Rao bound), NEES and NIS against their
   χ² bounds, and for emitter fixes a scatter of the final fixes with error ellipses.
 * ``python -m services.report NAME [--runs N] [--jobs J] [--out DIR]`` — the
-  reproduction reports of the seeds' tables (``docs/results/``):
+  reproduction reports of the source documents' tables (``docs/results/``):
 
   ``patent-3d``, ``patent-3d-60``
       the patent's Tables 1.1/1.2: every method and the single-sensor and 3D-radar
@@ -24,7 +24,7 @@ Two uses:
 
 Every number in a report's tables is read from the JSON written next to it
 (``NAME.json``: the command, the run count and every evaluation summary, each in the
-``--json`` format of DESIGN.md), and every summary comes from
+``--json`` format of docs/design.md), and every summary comes from
 :func:`services.evaluation.evaluate` — the code ``zfusion eval`` runs. Verdict
 sentences are computed from the same numbers, so a regenerated report says what its
 data say.
@@ -51,7 +51,7 @@ DEFAULT_RUNS = {"patent-3d": 100, "patent-3d-60": 100, "thesis-cep": 100, "jamme
                 "air-picture": 50, "df-multi": 50}
 REPORT_NAMES = tuple(DEFAULT_RUNS)
 
-# The seeds' published numbers (SEEDS.md), for the side-by-side columns --------------------
+# The source documents' published numbers (docs/algorithms.md), for the side-by-side columns
 #: the patent's Tables 1.1 (T = 30 s) and 1.2 (T = 60 s): RMSE pos / vel / acc
 PATENT_TABLE = {
     "patent-3d": {
@@ -392,7 +392,8 @@ def _patent_verdicts(bundle: dict) -> list[str]:
         f"this scenario's bound (SS {fmt(ss['rmse_pos'])} m against a CRB of {fmt(crb['overall']['rmse_pos'])} m "
         f"over the run); the patent's fused "
         f"{fmt(pat['LCDD'])} m would need more accurate sensors or another geometry. Its parameters are not "
-        "given (SEEDS.md), so only the relations between methods can be compared, not the absolute numbers."]
+        "given (docs/algorithms.md, Scenarios), so only the relations between methods can be compared, "
+        "not the absolute numbers."]
     # 1. fused << single sensor
     out.append(
         f"* **Fused ≪ single sensor — holds, and more strongly than in the patent.** SS's position RMSE "
@@ -415,8 +416,8 @@ def _patent_verdicts(bundle: dict) -> list[str]:
         f"* **SS vs HNDD — the patent's gap does not reproduce.** From one initial state the stacked (SS) and "
         f"pre-fused (HNDD) updates are the same linear update; their position RMSEs differ by {100 * d:.2g} % "
         f"({fmt(ss['rmse_pos'], 4)} vs {fmt(naive['HNDD']['rmse_pos'], 4)} m). The patent's SS error ({fmt(pat['SS'], 1)} m "
-        f"vs {fmt(pat['HNDD'], 1)} m) is most plausibly a start-up transient of its own SS initialisation (SEEDS.md), not a "
-        f"property of stacking. "
+        f"vs {fmt(pat['HNDD'], 1)} m) is most plausibly a start-up transient of its own SS initialisation "
+        f"(docs/algorithms.md, Two theorems), not a property of stacking. "
         f"LCDD, which discards the radar azimuth, is {fmt(naive['LCDD']['rmse_pos'], 4)} m: the 1° radar "
         f"azimuth adds almost nothing to a 0.05° angle sensor.")
     # 3. PHHNV/DDHNV lowest velocity error?
@@ -542,7 +543,7 @@ def write_patent_report(bundle: dict, out_dir: Path) -> Path:
         "with). Over the first seconds the velocity bound exceeds the filters' actual error: the true initial "
         "velocity is one fixed value, the bound averages over the prior.",
         "",
-        "## Whole run (every scan of every run, as the DESIGN's `rmse_*`)",
+        "## Whole run (every scan of every run, as the summary's `rmse_*`)",
         "",
         "Patent columns: its Table " + ("1.1 (T = 30 s)" if name == "patent-3d" else "1.2 (T = 60 s)")
         + ", printed beside the `naive` rows (the rule the patent uses). "
@@ -710,7 +711,7 @@ def write_thesis_report(bundle: dict, out_dir: Path) -> Path:
         f"{runs} Monte Carlo runs per scenario (the thesis's 100), seed 1; common random numbers: in each run "
         "every method is fed the same bearings. Filters as in the thesis: Q = diag(0, 0.025² km²) per bearing, "
         "σ = 0.0175 rad, `ipu` two-bearing initialisation (full covariance), MEKF hand-off swapping states and "
-        "covariances (SEEDS.md decisions). Scenario files: `sensors_sim/scenarios/thesis-*.toml`.",
+        "covariances (the decisions of docs/algorithms.md). Scenario files: `sensors_sim/scenarios/thesis-*.toml`.",
         "",
         "Three different statistics, named apart (all in metres, at the **last epoch**):",
         "",
@@ -908,12 +909,12 @@ def write_sweep_report(bundle: dict, out_dir: Path) -> Path:
         "* `EKF` — EKFT on raw bearings (σ₁ assumed). It and the IMMs start from the robust initialiser "
         "(the scenario's `init = \"robust\"`: the best-supported bearing pair of the first 5 epochs), not the "
         "thesis's first pair, which holds an outlier in 1 − (1 − p)² of the runs.",
-        f"* `LOO` — leave-one-out (seed 003): batch Torrieri/Gauss–Newton fix on all bearings, dropping the "
+        f"* `LOO` — leave-one-out (document 003): batch Torrieri/Gauss–Newton fix on all bearings, dropping the "
         f"bearing with the largest studentised residual while it exceeds {bundle['gate']} σ (`TORRIERI` with "
         "`gate`, run as one epoch).",
         "* `ML` — the same batch fix without rejection (the Gaussian ML fix).",
         "* `IMM (symmetric)` / `IMM (iid)` — two EKFTs (σ₁, σ₂), p matched to the jammer's, transition "
-        "[[1−p, p], [p, 1−p]] (the seeds') or rows [1−p, p] (i.i.d. contamination).",
+        "[[1−p, p], [p, 1−p]] (the source documents') or rows [1−p, p] (i.i.d. contamination).",
         "* `CRB` — the static-emitter bound with each bearing's Fisher information taken from the actual "
         "mixture density (`fusion.crb3d.noise_fisher_information`). For uniform outliers the density jumps at "
         "±√3σ₂, the CRB's regularity conditions fail and the bound is indicative only.",

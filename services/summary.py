@@ -1,4 +1,4 @@
-"""Score estimates against truth and build the ``--json`` summary of DESIGN.md.
+"""Score estimates against truth and build the ``--json`` summary (docs/design.md).
 
 Shared by ``zfusion run`` (one run, estimates received over Zenoh) and ``zfusion eval``
 (many in-process Monte Carlo runs), so both report the same numbers the same way.
@@ -8,7 +8,7 @@ error records (so a Monte Carlo worker can return a few numbers per estimate ins
 the estimates), and :func:`aggregate` turns the records of all runs into one method's
 summary. :func:`method_summary` does both.
 
-Per method (DESIGN.md fields first, then extras):
+Per method (the fields of docs/design.md first, then extras):
 
 ``rmse_pos``/``rmse_vel``/``rmse_acc``
     ``√mean‖e‖²`` over every scored estimate of every run (3D position for tracks, the
@@ -181,7 +181,7 @@ def method_summary(runs: Sequence[Sequence[Estimate]], truth: TruthFn, node: str
 
 def tracks_summary(scores: Sequence) -> dict:
     """Metrics of one many-target method over Monte Carlo runs, each a
-    :class:`fusion.mtt_metrics.TrackScore`. The DESIGN's per-target fields do not apply
+    :class:`fusion.mtt_metrics.TrackScore`. The per-target fields of docs/design.md do not apply
     (null); the set metrics do: mean GOSPA (and its per-step series, averaged over runs
     when the runs share their steps), held fraction, breaks, purity, false tracks."""
     same_steps = all(s.t == scores[0].t for s in scores)
@@ -231,7 +231,7 @@ def _fmt(v: float | None, w: int = 10) -> str:
 
 
 def format_table(doc: dict) -> str:
-    """The summary as a fixed-width table for the terminal (the seeds' table shape:
+    """The summary as a fixed-width table for the terminal (the source documents' table shape:
     one row per method, RMSE of position / velocity / acceleration or CEP, NEES beside)."""
     methods = doc["methods"]
     any_fix = any(m.get("median_point_distance") is not None for m in methods.values())

@@ -111,7 +111,7 @@ def test_torrieri_rows_are_the_bearing_gradient_by_finite_differences():
 
 
 def test_torrieri_one_step_is_the_thesis_closed_form():
-    # seed 002 eqs (2.22)-(2.26), written out independently of the matrix code
+    # document 002 eqs (2.22)-(2.26), written out independently of the matrix code
     rng = np.random.default_rng(9)
     sites, betas, sig = _scatter_geometry(rng, 4)
     x0 = EMITTER + np.array([300.0, -200.0])

@@ -1,4 +1,4 @@
-"""Bearings-only emitter localisation (seeds 000–003, SEEDS.md section 1).
+"""Bearings-only emitter localisation (documents 000–003, docs/algorithms.md).
 
 Modules: :mod:`.models` (geometry, edge conversions), :mod:`.filters` (EKFT/EKFS/SKF,
 cross-fed MEKF), :mod:`.imm`, :mod:`.init` (robust choice of the initial ``ipu`` pair

@@ -1,6 +1,6 @@
 r"""Bearing filters for a static emitter: EKFT, EKFS, SKF and the cross-fed MEKF.
 
-All three filters of the thesis (seed 000) run the same Kalman step — predict with
+All three filters of the thesis (document 000) run the same Kalman step — predict with
 ``Φ = I``, ``+Q``, then a scalar update through :func:`fusion.kalman.update` (Joseph
 form) — and differ *only* in how the innovation ``ν`` and the row ``H`` are formed.
 Write ``Δx = x̂_e − x_k``, ``Δy = ŷ_e − y_k``, ``r² = Δx² + Δy²``, ``u = Δy/Δx`` and
@@ -10,7 +10,7 @@ Write ``Δx = x̂_e − x_k``, ``Δy = ŷ_e − y_k``, ``r² = Δx² + Δy²``, 
     EKFS (linearises the slope u)   ν = wrap(β − h)    H = [(−u/Δx)/x̂_e, (1/Δx)/ŷ_e]
     SKF  (pseudo-linear)            ν = wrap(β − h)    H = [0.5·h/x̂_e, 0.5·h/ŷ_e]
 
-EKFT is the proper EKF (the seeds' ``[−u/((1+u²)Δx), 1/((1+u²)Δx)]`` multiplied out,
+EKFT is the proper EKF (the source documents' ``[−u/((1+u²)Δx), 1/((1+u²)Δx)]`` multiplied out,
 which removes its singularity at ``Δx = 0``). EKFS and SKF are implemented *as printed*
 in the thesis; they are not derived and are not invariant:
 
@@ -183,7 +183,10 @@ MEKF_VARIANTS: dict[int, tuple[str, str]] = {
 
 
 class MEKF(CrossFed):
-    """Modified EKF #1..#5: two bearing filters cross-fed (see the module docstring)."""
+    """Modified EKF #1..#5: two bearing filters A1, A2 (``MEKF_VARIANTS[variant]``) that
+    both process every bearing, each starting its next update from the other's output;
+    the estimate reported is A1's. ``handoff`` says whether covariances swap with the
+    states (``"swap"``) or A2's stays at ``P0`` as in the printed listing."""
 
     def __init__(self, variant: int, x0: np.ndarray, P0: np.ndarray, Q: np.ndarray, handoff: str = "swap"):
         if variant not in MEKF_VARIANTS:

@@ -1,4 +1,4 @@
-r"""Interacting Multiple Model estimator (Bar-Shalom), as used against jamming (seed 003).
+r"""Interacting Multiple Model estimator (Bar-Shalom), as used against jamming (document 003).
 
 Two bearing EKFs (EKFT) with the same ``Φ = I`` and ``Q`` but different bearing noise —
 model 1 ``R₁ = σ₁²`` (clean), model 2 ``R₂ = σ₂²`` (outlier) — and a Markov transition
@@ -26,7 +26,7 @@ Initialisation (the ``ipu`` pair or the robust choice of :mod:`fusion.df.init`) 
 the streaming method's business (:mod:`fusion.df.methods`); the estimator here takes
 initial states, covariances and mode probabilities.
 
-Transition forms: ``"symmetric"`` ``[[1−p, p], [p, 1−p]]`` (the seeds: modes persist)
+Transition forms: ``"symmetric"`` ``[[1−p, p], [p, 1−p]]`` (the source documents': modes persist)
 and ``"iid"`` ``[[1−p, p], [1−p, p]]`` (each bearing is an outlier with probability p
 independently of the last; then ``c̄ = [1−p, p]`` always).
 """

@@ -1,59 +1,27 @@
 r"""Robust initialisation of the recursive bearing filters (EKF, MEKF, IMM).
 
-The theses start every recursive filter from ``ipu``, the intersection of the *first two*
-bearings (:func:`fusion.df.triangulation.ipu`). Under jamming (seed 003: each bearing is,
-with probability ``p``, replaced by an outlier of std ``σ₂``) that pair holds an outlier
-with probability ``1 − (1 − p)²`` (51 % at ``p = 0.3``): the filter then starts kilometres
-off with a covariance that claims a few hundred metres, every clean bearing that follows
-looks like an outlier to it, and a few such runs decide the RMS error of a Monte Carlo.
+The theses start every recursive filter from ``ipu``, the crossing of the *first two*
+bearings (:func:`fusion.df.triangulation.ipu`). Under jamming each bearing is an outlier
+with probability ``p``, so that pair holds one with probability ``1 − (1 − p)²``: the
+filter then starts kilometres off with a covariance that claims a few hundred metres.
 
-**The robust initialiser** keeps the thesis's initial fix — the ``ipu`` of one pair of
-bearings, with that pair's covariance — and only chooses *which* pair, using the first
-``K`` epochs of bearings instead of the first two (an exhaustive MLESAC, Torr &
-Zisserman 2000, over the two-bearing minimal samples):
+The robust initialiser keeps the ``ipu`` fix and its covariance and only chooses *which*
+pair, from the first ``K`` epochs (an exhaustive MLESAC over two-bearing samples):
 
-1. *Hypotheses*: the intersection ``x_ab`` of every pair ``(a, b)`` of bearings from
-   distinct sites whose rays meet ahead of both sites in a well-conditioned fix (the same
-   test as ``ipu``: 1σ semi-major axis of ``F diag(σ_a², σ_b²) Fᵀ`` at most ``max_rel``
-   times the range from the nearer site).
-2. *Score*: the log-likelihood of **all** window bearings at ``x_ab`` under the
-   contamination model the IMM itself assumes (each bearing clean, ``N(0, σᵢ²)``, with
-   probability ``1 − p``, an outlier, ``N(0, σ₂²)``, with probability ``p``)::
+1. hypotheses: the crossing ``x_ab`` of every pair of bearings from distinct sites that
+   meet ahead of both in a well-conditioned fix (the ``ipu`` test, ``max_rel``);
+2. score: the log-likelihood of *all* the window's bearings under the contamination
+   model the IMM assumes::
 
        L(x) = Σᵢ log[(1 − p) N(rᵢ; 0, σᵢ²) + p N(rᵢ; 0, σ₂²)],   rᵢ = wrap(βᵢ − h(x))
 
-   A clean pair's intersection lies where the other clean bearings cross too, so it
-   gathers ``N(rᵢ; σᵢ)`` terms; a pair holding an outlier lies off that consensus and
-   most other bearings score only about ``p N(rᵢ; σ₂)`` there. No threshold, no gate:
-   each bearing's term weighs the two noise hypotheses by their priors.
-3. *Choice*: the highest score (ties: the earliest pair, in arrival order).
+3. choice: the highest score (ties: the earliest pair in arrival order).
 
 Every hypothesis fits its own two bearings exactly, so the score compares the fits of
-the *other* bearings. The pair is then consumed by ``ipu`` as in the thesis and every
-other bearing of the window is replayed through the filter, in arrival order — nothing
-is counted twice (a batch fix of the window used as the prior, followed by a replay of
-the same bearings, would count each of them twice and make the covariance
-overconfident).
-
-How the streaming methods use it (:mod:`fusion.df.methods`, ``init = "robust"``): while
-the window is open (the first ``init_epochs`` epochs) each epoch re-chooses the pair
-over all bearings so far and re-runs the filter from it, so the provisional outputs are
-the same estimator on fewer bearings; at the close of the ``init_epochs``-th epoch (or,
-if none gave a usable pair, of the first epoch that does) the choice is final and the
-filter runs on recursively.
-
-Window length. With three stations and ``p = 0.3`` (σ₁ = 0.0175, σ₂ = 0.25 rad,
-Laplacian outliers), the chosen pair holds a bearing off by more than 3σ₁ in 12 % of
-2-epoch windows, 3.8 % of 3-epoch, 0.4 % of 5-epoch and none of 4000 10-epoch windows;
-the thesis's first pair does in about 40 % of runs. One epoch (three bearings, three
-pairs, one bearing to arbitrate) is not enough. On the jammed-df Monte Carlo (100 runs,
-seeds 1–10) the IMM's RMS is at most 0.7 × the EKF's (both started robustly) for 1/10
-seeds with a 1-epoch window, 7–8/10 with 2, and 10/10 with 3, 5 and 10 (ratio 0.13–0.17
-throughout): the default, 5 epochs, lies inside that plateau, not at its edge. It costs
-a re-run of at most 5 epochs per epoch while the window is open.
-
-Cost: ``O(n²)`` pairs scored against ``n`` bearings, ``n`` the window's bearings
-(15 for 5 epochs of 3 stations: 75 pairs).
+the others; no threshold or gate is needed. The chosen pair is consumed by ``ipu`` and
+the window's other bearings are replayed through the filter, so none is counted twice.
+Cost: ``O(n²)`` pairs scored against the window's ``n`` bearings. docs/algorithms.md
+("Initialisation") says how the streaming methods use it, docs/notes.md why ``K = 5``.
 """
 
 from __future__ import annotations

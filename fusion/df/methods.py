@@ -1,4 +1,4 @@
-r"""The bearings-only localisation methods as streaming Methods.
+"""The bearings-only localisation methods as streaming Methods.
 
 Every method follows the library's streaming interface::
 
@@ -6,17 +6,14 @@ Every method follows the library's streaming interface::
     advance(t) -> list[Estimate]   # watermark: nothing with time <= t will come
     finish()   -> list[Estimate]   # end of stream
 
-**Epochs.** Bearings whose times lie within ``pair_tol`` of the first bearing of the
-current group form one *epoch* (one scan of the DF network; one bearing per epoch for a
-single moving observer). An epoch is closed by the first later bearing
-(``t > t₀ + pair_tol``), by a watermark ``≥ t₀ + pair_tol``, or by :meth:`finish`; on
-closing, its bearings are processed (sequentially, in arrival order) and one
-:class:`~fusion.types.Estimate` of the emitter position ``[px, py]`` (ENU m) with its
-covariance is emitted, stamped with the epoch's latest bearing time — from the first
-epoch where a fix exists. A watermark only lets an epoch out earlier; the output
-sequence depends on the bearings alone. If an epoch is incomplete (a station's
-bearing missing), whatever arrived is processed: the recursive filters update
-sequentially on it, KF+TR reuses the missing stations' latest smoothed bearings.
+**Epochs.** Bearings within ``pair_tol`` of the first bearing of a group form one epoch
+(one scan of the DF network; one bearing for a single moving observer). An epoch closes
+at the first later bearing (``t > t₀ + pair_tol``), a watermark ``≥ t₀ + pair_tol``, or
+:meth:`finish`, so the output depends on the bearings alone. Its bearings are processed
+in arrival order and one :class:`~fusion.types.Estimate` of ``[px, py]`` (ENU m) is
+emitted, stamped with the epoch's latest bearing time, from the first epoch with a fix.
+An incomplete epoch is processed as it is (KF+TR reuses the missing stations' latest
+smoothed bearings).
 
 **Methods** (``DF_METHODS[name](config)``):
 
@@ -29,71 +26,12 @@ KF+TR      per-station scalar KF bearing smoothers; Torrieri on their latest out
 MKF+TR     as KF+TR with two cross-fed KFs per station
 ========== ===========================================================================
 
-**Initialisation** of the recursive filters (EKF, MEKF, IMM), key ``init``:
-
-* ``"ipu"`` (default; the theses'): the intersection of the first two bearings from
-  distinct sites whose rays meet ahead of both in a well-conditioned fix
-  (``ipu_max_rel``; for a single moving observer: two epochs), covariance
-  ``F diag(σ₁², σ₂²) Fᵀ``. Those two bearings are consumed by the initialisation (not
-  used again); bearings that arrived before a usable pair are replayed, in arrival
-  order, right after it.
-* ``"robust"``: the same ``ipu`` fix and covariance, but of the pair of bearings, among
-  all usable pairs of the first ``init_epochs`` epochs, whose intersection has the
-  highest likelihood of *all* those bearings under the contamination model
-  (``imm_p``, ``imm_sigma2``; see :mod:`fusion.df.init`). The pair is consumed and the
-  window's other bearings are replayed in arrival order. While the window is open,
-  every epoch re-chooses the pair over the bearings so far and re-runs the filter from
-  it (provisional outputs, from the first epoch with a usable pair, as with ``ipu``);
-  at the close of the ``init_epochs``-th epoch the choice is final (if no epoch so far
-  gave a usable pair: at the first one that does, over all bearings up to it).
-  Every recursive method scores with the same (``imm_p``, ``imm_sigma2``), so an EKF
-  and an IMM driven by one table start from the same pair.
-
-The IMM starts both models at the initial fix with the covariance its own noise model
-gives the two bearings: each is an outlier with probability ``imm_mu0``, so the fix's
-covariance is moment-matched over the clean/outlier hypotheses,
-``F diag(σ̄₁², σ̄₂²) Fᵀ`` with ``σ̄ᵢ² = (1−μ₀)σᵢ² + μ₀σ₂²`` (whether a crossing is
-well-conditioned is judged with the clean σ, as for the EKF, so both start alike).
-
-Why ``ipu`` stays the default, the IMM's included: it is what the theses specify and
-what their tables were produced with, and with clean bearings both initialisers give
-results of the same quality. Under jamming the first pair holds an outlier in
-``1 − (1 − p)²`` of the runs (51 % at p = 0.3) and a few of those runs diverge and decide
-the Monte Carlo RMS of the EKF and of the IMM alike; a jamming set-up should therefore
-say ``init = "robust"`` (for every method it compares).
-
-**Config** (the scenario's ``[tracker]`` table; every DF method accepts every key
-below, so one table can drive several methods; any other key is an error):
-
-====================== =========== =======================================================
-key                    default     meaning
-====================== =========== =======================================================
-q22                    625.0       process noise on y (m²) added before every bearing
-                                   (the theses' 0.025² km²); 0 = static-emitter model
-q11                    0.0         process noise on x (m²); the theses have 0
-sigma                  0.0175      bearing std assumed by the filters (rad), or
-                                   ``"sensor"`` to use each measurement's stated std
-pair_tol               0.0         epoch grouping tolerance (s); 0 = one epoch per timestamp, so
-                                   the watermark at that time closes it with no extra latency
-ipu_cov                "full"      ``"full"`` or ``"diagonal"`` (the thesis's) initial covariance
-ipu_max_rel            1.0         refuse an ``ipu`` fix whose 1σ semi-major axis exceeds this
-                                   multiple of its range (ill-conditioned crossing); 0 = accept any
-init                   "ipu"       initialisation of EKF/MEKF/IMM: ``"ipu"`` (first usable pair) or
-                                   ``"robust"`` (best-supported pair of the first ``init_epochs``)
-init_epochs            5           epochs in the robust initialiser's window (integer >= 1); at
-                                   p = 0.3 the chosen pair holds a bearing off by > 3σ in 0.4 %
-                                   of 5-epoch windows of 3 stations (12 % with 2, 3.8 % with 3)
-mekf_handoff           "swap"      MEKF/MKF hand-over: ``"swap"`` (states and covariances) or
-                                   ``"printed"`` (the thesis listing: A2's covariance stays P₀)
-imm_p                  0.1         IMM mode-switch/outlier probability p, in (0, 1)
-imm_sigma2             0.25        IMM outlier-model bearing std σ₂ (rad; a std, not a variance)
-imm_transition         "symmetric" ``"symmetric"`` [[1−p,p],[p,1−p]] or ``"iid"`` [[1−p,p],[1−p,p]]
-imm_mu0                0.05        initial probability of the outlier model (the thesis's 0.05)
-torrieri_iterations    0           0 = Gauss–Newton to convergence; k ≥ 1 = k Torrieri steps
-smoother_q             0.0         KF/MKF bearing-smoother process noise (rad² per bearing)
-gate                   0.0         leave-one-out bound (studentised residual, in σ) for
-                                   TORRIERI and the KF+TR/MKF+TR centre; 0 = off
-====================== =========== =======================================================
+The recursive filters start from ``init = "ipu"`` (the crossing of the first usable pair
+of bearings, consumed; earlier bearings replayed after it) or ``"robust"`` (the pair of
+the first ``init_epochs`` epochs that best explains all of them, :mod:`fusion.df.init`);
+the IMM starts both models with the fix's covariance moment-matched over its clean and
+outlier hypotheses. docs/algorithms.md ("Bearings-only emitter localisation") has the
+maths and the decisions; :class:`DFConfig` the keys.
 """
 
 from __future__ import annotations
@@ -118,7 +56,38 @@ INITS = ("ipu", "robust")
 
 @dataclass(frozen=True)
 class DFConfig:
-    """Validated ``[tracker]`` table of the DF methods (see the module docstring)."""
+    """Validated ``[tracker]`` table of the DF methods. Every DF method accepts every key,
+    so one table can drive several methods; any other key is an error.
+
+    ====================== =========== =======================================================
+    key                    default     meaning
+    ====================== =========== =======================================================
+    q22                    625.0       process noise on y (m²) added before every bearing
+                                       (the theses' 0.025² km²); 0 = static-emitter model
+    q11                    0.0         process noise on x (m²); the theses have 0
+    sigma                  0.0175      bearing std assumed by the filters (rad), or
+                                       ``"sensor"`` to use each measurement's stated std
+    pair_tol               0.0         epoch grouping tolerance (s); 0 = one epoch per timestamp, so
+                                       the watermark at that time closes it with no extra latency
+    ipu_cov                "full"      ``"full"`` or ``"diagonal"`` (the thesis's) initial covariance
+    ipu_max_rel            1.0         refuse an ``ipu`` fix whose 1σ semi-major axis exceeds this
+                                       multiple of its range (ill-conditioned crossing); 0 = accept any
+    init                   "ipu"       initialisation of EKF/MEKF/IMM: ``"ipu"`` (first usable pair) or
+                                       ``"robust"`` (best-supported pair of the first ``init_epochs``)
+    init_epochs            5           epochs in the robust initialiser's window (integer >= 1;
+                                       docs/notes.md, "Robust initialiser window")
+    mekf_handoff           "swap"      MEKF/MKF hand-over: ``"swap"`` (states and covariances) or
+                                       ``"printed"`` (the thesis listing: A2's covariance stays P₀)
+    imm_p                  0.1         IMM mode-switch/outlier probability p, in (0, 1)
+    imm_sigma2             0.25        IMM outlier-model bearing std σ₂ (rad; a std, not a variance)
+    imm_transition         "symmetric" ``"symmetric"`` [[1−p,p],[p,1−p]] or ``"iid"`` [[1−p,p],[1−p,p]]
+    imm_mu0                0.05        initial probability of the outlier model (the thesis's 0.05)
+    torrieri_iterations    0           0 = Gauss–Newton to convergence; k ≥ 1 = k Torrieri steps
+    smoother_q             0.0         KF/MKF bearing-smoother process noise (rad² per bearing)
+    gate                   0.0         leave-one-out bound (studentised residual, in σ) for
+                                       TORRIERI and the KF+TR/MKF+TR centre; 0 = off
+    ====================== =========== =======================================================
+    """
 
     q22: float = THESIS_Q22
     q11: float = 0.0

@@ -1,4 +1,4 @@
-r"""Bearings-only emitter model (seeds 000–003).
+r"""Bearings-only emitter model (documents 000–003).
 
 Geometry is the horizontal plane of the local ENU frame, in metres. The emitter is
 stationary, state ``X = [x_e, y_e]``. Inside ``fusion.df`` a bearing ``β`` is a *math*
@@ -39,7 +39,7 @@ def bearing(p, site):
 def bearing_jacobian(p, site):
     """``∂β/∂p = [−Δy, Δx] / r²`` (shape ``(..., 2)``).
 
-    This is the seeds' ``[−u/((1+u²)Δx), 1/((1+u²)Δx)]`` with ``u = Δy/Δx`` multiplied
+    This is the source documents' ``[−u/((1+u²)Δx), 1/((1+u²)Δx)]`` with ``u = Δy/Δx`` multiplied
     out, so it has no singularity at ``Δx = 0``; only ``r = 0`` (emitter on the site) is
     singular, and that raises.
     """

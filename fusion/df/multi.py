@@ -1,107 +1,31 @@
 r"""Many emitters in a network of DF stations: bearing association, ghost rejection and
-localisation of each emitter with a thesis method.
+localisation of each emitter by a DF method of :mod:`fusion.df.methods`.
 
-Switched on, as for the 3D methods, by ``association = "gnn"`` in the scenario's
-``[tracker]`` table: :func:`fusion.methods.make_method` then wraps the named DF method
-(``EKF``, ``IMM``, ``TORRIERI``, ...) in :class:`MultiEmitterMethod`, and every emitter
-track is one instance of that method, fed only the bearings assigned to it. The
-estimates keep the method's name and carry the track ids ``E1, E2, …``.
+A station reports one bearing per emitter it hears, with nothing that says which. Two
+stations' bearings always cross, so ``n`` emitters give ``n²`` crossings of which
+``n(n − 1)`` are ghosts; a third station tells them apart. Bearings are grouped into
+epochs (:class:`fusion.mtt.FrameGrouper`), and per epoch, with ``need = min(3, K)`` of
+the ``K`` stations that reported:
 
-The problem
------------
-A station hears every emitter and reports one bearing per emitter, with nothing that
-says which. Two bearings from two stations always meet, so ``n`` emitters seen by two
-stations give ``n²`` intersections of which ``n(n − 1)`` are *ghosts* — points where
-no emitter is. A third station decides between them: a real emitter lies on one of its
-bearings too, a ghost (the crossing of two bearings of two different emitters) in
-general does not.
+1. confirmed tracks take their bearings, station by station, by a χ²(1) gate and GNN on
+   ``d² = wrap(β − h(x̂))² / (σ² + J P Jᵀ)``, ``J = [−Δy, Δx]/ρ²``, where the ``(x̂, P)``
+   that gates a station leaves that station's bearings out;
+2. the other bearings are grouped afresh (:func:`initiate`): each well-conditioned pair
+   is a candidate, supported by the best gated bearing of every other station and
+   scored by a persistence cost over the last ``init_epochs`` epochs; the groups are
+   chosen at once by set packing (:func:`_packing`, ``scipy.optimize.milp``): most
+   groups of the most stations, then least total cost;
+3. a group continues the tentative track whose gate holds it, else starts one; each
+   track is one instance of the wrapped DF method, fed only its own bearings;
+4. tracks are managed by :class:`fusion.association.TrackLogic` (M-of-N, misses,
+   ``max_pos_std``), a χ² consistency test over each confirmed track's window, and an
+   exchange test that undoes a swap ghost pair;
+5. one estimate per confirmed track is reported, ids ``E1, E2, …`` in confirmation order.
 
-Epochs
-------
-Bearings are grouped into epochs as the 3D trackers group plots into frames
-(:class:`fusion.mtt.FrameGrouper`: times within ``pair_tol`` of the epoch's first
-bearing; closed by a later bearing, a watermark past it, or ``finish``), so the output
-depends on the bearings alone. One epoch, with ``K`` the number of stations that
-reported in it and ``need = min(3, K)``:
-
-1. **Confirmed tracks take their bearings**, station by station. A track with estimate
-   ``(x̂, P)`` and a bearing ``β`` of a station at ``s`` with std ``σ``::
-
-       r = wrap(β − h(x̂)),  h(x) = atan2(y − s_y, x − s_x),   J = ∂h/∂x(x̂) = [−Δy, Δx]/ρ²
-       d² = r² / (σ² + J P Jᵀ)                                  ~ χ²(1) if the pair is right
-
-   and the gate is ``d² ≤ G = χ²⁻¹(P_G; 1)``. Within one station each track takes at
-   most one bearing and each bearing goes to at most one track: global nearest
-   neighbour on the ``d²`` (:func:`fusion.association.gnn`). The ``(x̂, P)`` that gates
-   station ``s`` *leaves s out*: one Torrieri step from the track's estimate on the
-   bearings it took from the other stations in its last ``init_epochs`` epochs (its
-   estimate itself if those come from fewer than two stations). With its own estimate,
-   two tracks whose emitters one station sees 4σ apart could hold each other's bearing
-   of that station for good: each estimate, pulled ~1 km towards the wrong bearing,
-   then prefers it.
-2. **The other bearings are grouped afresh** (:func:`initiate`): every pair of them from
-   two stations that meets in a well-conditioned point (:func:`fusion.df.init.usable_pairs`,
-   the ``ipu`` test with ``ipu_max_rel``) is a candidate ``x_ab`` with covariance
-   ``P_ab = F diag(σ_a², σ_b²) Fᵀ``. Each other station supports it with its free
-   bearing of least ``d²`` against ``(x_ab, P_ab)``, if inside the gate. The candidate
-   is refined by one Torrieri step on its group (``x̂, P̂``) and given a *persistence
-   cost*: over this epoch and the ``init_epochs − 1`` before it, every (epoch, station)
-   cell adds the least ``min(d², G)`` of its bearings against ``(x̂, P̂)``. The groups
-   are chosen among the candidates with ``n_st ≥ need`` supporting stations all at once
-   (:func:`_packing`, a small integer program): no bearing in two groups, as many
-   groups of the most stations as can be, then of one station fewer, and so on; of
-   the sets that tie, the one of least total persistence cost. Their bearings leave
-   the pool, and the pool is searched again (a candidate may have lost its best
-   support to a group and have another). Picking the best candidate first instead
-   fails where two emitters lie near the two diagonals of four stations (``df-multi``:
-   E5 and E2): the crossing of the diagonals can fit df1's and df3's bearings of one
-   and df2's and df4's of the other better than either emitter fits its own four, and
-   picked first it leaves each emitter two stations — no track (run 37: a ghost for
-   32 epochs).
-   Ghost rejection is in three parts: a real emitter has the support of every station
-   that heard it, a ghost only of the two that made it plus chance passers-by; once the
-   real emitters have taken their bearings, a ghost has lost the bearings it was made
-   of; and a static ghost's misfit is a fixed bias, so its persistence cost grows with
-   every epoch while a real emitter's stays at the noise (≈ 1 per cell).
-3. **Localise**: a group continues the tentative track whose gate holds all its
-   bearings (GNN on the mean ``d²``), else starts a tentative track; each track's
-   bearings (in stream order) are one epoch of its own DF method (:mod:`fusion.df.methods`:
-   ``ipu`` start and EKF/IMM/MEKF updates, or Torrieri's least squares on all its
-   bearings so far); a track without bearings keeps its estimate.
-4. **Manage** (:class:`fusion.association.TrackLogic`): a tentative track scores a hit
-   when it continues with bearings of ``need`` stations, a confirmed one when it took
-   bearings of two stations (a fix); M-of-N confirmation (``confirm_m``, ``confirm_n``),
-   deletion after ``delete_misses`` missed epochs, when ``√trace P`` exceeds
-   ``max_pos_std``, or when the ``d²`` of a confirmed track's bearings over its last
-   ``init_epochs`` epochs sum beyond ``χ²⁻¹(1 − 10⁻⁵; n)`` (``n`` bearings;
-   :data:`CONSISTENCY_FALSE_ALARM`): a track that holds
-   one station's bearing of a neighbouring emitter fits each bearing within the gate
-   but not all of them together, over time. And two confirmed tracks exchange some
-   stations' bearings of their last ``init_epochs`` epochs (and are rebuilt from them)
-   when that lowers the χ² cost of their static least-squares fixes by more than
-   :data:`SWAP_MARGIN`; tried for pairs with a track whose cost is above its χ² 99 %
-   point (:data:`SUSPECT_PROB`). This undoes a *swap ghost pair*: two emitters near the
-   line through two stations give two ghosts, each with those stations' bearings of one
-   emitter and the other stations' of the other, that fit within ~2σ.
-5. **Report** one estimate per confirmed track, in id order, stamped with the epoch's
-   time; ids ``E1, E2, …`` in order of confirmation, never reused
-   (:class:`fusion.association.TrackIds`).
-
-What it does not do: it does not resolve two emitters that every station sees within
-its bearing noise of each other (they form one track); and it associates, it does not
-correct the wrapped method. In ``df-multi`` the cross-fed MEKF#1 and MEKF#4 tracks hold
-their emitters' bearings as well as the EKF's do (98.75 % and 98.77 % of the bearings
-confirmed tracks took, runs 0–49, were of the track's main emitter; the EKF's 98.77 %)
-yet sit 1–5 km off (MEKF#4, run 12: 1.4–1.8 km off E6 all run, where the EKF's worst
-track ends 151 m off), so they score as ghosts. And once a ghost is confirmed, only the
-consistency and exchange tests of step 4 remove it: the grouping of step 2 sees only
-the bearings confirmed tracks left.
-
-Configuration: the keys of :class:`fusion.mtt.AssociationConfig` (``association``,
-``gate_prob``, ``confirm_m``, ``confirm_n``, ``delete_misses``, ``max_pos_std``; its
-``merge_frames`` and ``local_max_pos_std`` are for 3D tracks and refused here) and
-those of the wrapped DF method (:class:`fusion.df.methods.DFConfig`; ``sigma`` is also
-the σ of the gates, ``pair_tol`` the epoch, ``ipu_max_rel`` the candidates' test).
+Switched on by ``association = "gnn"``; the keys are those of
+:class:`fusion.mtt.AssociationConfig` and of the wrapped method's
+:class:`fusion.df.methods.DFConfig`. docs/algorithms.md ("Many emitters") gives the
+reasoning, docs/notes.md what the tests on ``df-multi`` showed.
 """
 
 from __future__ import annotations
@@ -127,10 +51,8 @@ from .models import bearing, bearing_of
 from .triangulation import GeometryError, intersection_jacobian, torrieri
 
 #: false-alarm probability of the consistency test of a confirmed track (step 4). It is
-#: run every epoch on every track: at the gate's 1e-3 true tracks were deleted about
-#: once per thousand epochs (df-multi, EKF, runs 0–49: 55 breaks, one emitter of run 40
-#: lost two epochs before the end; at 1e-5: 1 break). A track holding a neighbour's
-#: bearing 4σ off adds ~16 per epoch and still fails it within its window.
+#: run every epoch on every track, so it must be far below the gate's; a track holding a
+#: neighbour's bearing 4σ off adds ~16 per epoch and still fails it within its window.
 CONSISTENCY_FALSE_ALARM = 1e-5
 
 #: how much lower (χ²) the two tracks' window costs must be with some stations' bearings
@@ -146,8 +68,9 @@ SUPPORT = 3
 
 
 def bearing_d2(x, P, sites, betas, sigmas) -> np.ndarray:
-    """``d² = wrap(β − h(x))² / (σ² + J P Jᵀ)`` of each bearing against the estimate
-    ``(x, P)`` (module docstring); ``(n,)``, ``inf`` where ``x`` is on the site.
+    """``d² = wrap(β − h(x))² / (σ² + J P Jᵀ)``, ``J = ∂h/∂x``, of each bearing against the
+    estimate ``(x, P)``; χ²(1) when the pair is right. ``(n,)``, ``inf`` where ``x`` is on
+    the site.
 
     ``x`` may also be a stack ``(m, 2)`` with ``P`` ``(m, 2, 2)``: the result is ``(m, n)``.
     """
@@ -177,9 +100,11 @@ def _refine(x, sites, betas, sigmas, member) -> tuple[np.ndarray, np.ndarray]:
 
 def initiate(sites, betas, sigmas, stations: Sequence[str], gate: float, need: int, max_rel: float = 1.0,
              window: Sequence[tuple] = ()) -> list[list[int]]:
-    """Groups of bearing indices, one per new emitter, chosen greedily (module docstring,
-    step 3). Every bearing is in at most one group; each group holds at most one bearing
-    per station and bearings of at least ``need`` stations.
+    """Groups of bearing indices, one per new emitter. Candidates are made from every
+    usable pair (:func:`_candidates`), the groups chosen among them by set packing
+    (:func:`_packing`); their bearings leave the pool and the pool is searched again
+    until no group is left. Every bearing is in at most one group; each group holds at
+    most one bearing per station and bearings of at least ``need`` stations.
 
     Args:
         sites: ``(n, 2)`` station positions; betas: ``(n,)`` math bearings; sigmas:
@@ -210,8 +135,11 @@ def initiate(sites, betas, sigmas, stations: Sequence[str], gate: float, need: i
 
 
 def _candidates(sites, betas, sigmas, station, free, gate, max_rel, cells):
-    """Every candidate group of the ``free`` bearings (module docstring, step 2), one per
-    usable pair: ``(member (m, n) mask, n_st (m,) stations, cost (m,) persistence)``."""
+    """Every candidate group of the ``free`` bearings, one per usable pair from two
+    stations: the pair's ``ipu`` fix and covariance, the gated bearing of least ``d²`` of
+    every other station, one Torrieri step on the group, and its persistence cost (each
+    (epoch, station) cell of ``cells`` adds its best ``min(d², gate)``). Returns
+    ``(member (m, n) mask, n_st (m,) stations, cost (m,) persistence)``."""
     idx = np.flatnonzero(free)
     i, j, x = usable_pairs(sites[idx], betas[idx], sigmas[idx], max_rel)
     keep = station[idx[i]] != station[idx[j]]  # two stations at one site stay two stations
@@ -245,8 +173,8 @@ def _packing(member, n_st, cost, need) -> list[int]:
     """The candidates (rows of ``member``) to make groups of, in the order most stations,
     least cost: disjoint, each with at least ``need`` stations; as many groups of the
     most stations as can be, then of one station fewer, ...; among such sets, the one of
-    least total persistence cost. The greedy rule of step 2, made for the whole pool at
-    once: one 4-station ghost picked first can take the bearings of two emitters."""
+    least total persistence cost. Chosen for the whole pool at once, as an integer
+    program: a 4-station ghost picked first could take the bearings of two emitters."""
     ok = np.flatnonzero(n_st >= need)
     if len(ok) == 0:
         return []
@@ -293,9 +221,10 @@ class _Emitter:
 
     def without(self, station: str) -> tuple[np.ndarray, np.ndarray]:
         """``(x, P)`` to gate ``station``'s bearings with: one Torrieri step from the
-        estimate on the track's bearings of its last epochs from the *other* stations
-        (module docstring, step 1), or the estimate itself if they are fewer than two
-        stations."""
+        estimate on the track's bearings of its last epochs from the *other* stations, or
+        the estimate itself if they come from fewer than two stations. Gating a station
+        with an estimate its own bearings pulled would let a track keep a neighbour's
+        bearing of that station for good."""
         sites, betas, sigmas, stations = _stacked(self.taken)
         keep = stations != station
         if len(set(stations[keep])) < 2:
@@ -306,8 +235,10 @@ class _Emitter:
 
 
 class MultiEmitterMethod:
-    """Bearing association, ghost rejection and track management around a DF method
-    (module docstring).
+    """A streaming method (``process``/``advance``/``finish``) that tracks many emitters:
+    per epoch it assigns bearings to confirmed tracks, groups the rest into new tracks,
+    localises each track with its own instance of the wrapped DF method, manages the
+    tracks and reports the confirmed ones.
 
     Args:
         name: the wrapped DF method's name (the estimates carry it).
@@ -419,8 +350,8 @@ class MultiEmitterMethod:
 
     def _update(self, tr: _Emitter, mine: tuple, enough: int) -> None:
         """Track ``tr`` with its bearings ``mine`` of the epoch (as :meth:`_bearings`):
-        localise, then a hit if they come from ``enough`` stations (module docstring,
-        step 4)."""
+        localise, then score a hit if they come from ``enough`` stations; delete it when
+        its position std exceeds ``max_pos_std``."""
         if mine[4]:
             est = self._localise(tr.method, mine[4], mine[5])
             if est is not None:
@@ -432,8 +363,8 @@ class MultiEmitterMethod:
 
     def _resolve_swaps(self, tracks: list[_Emitter]) -> None:
         """Exchange some stations' bearings between two confirmed tracks when that fits
-        their last ``init_epochs`` epochs of bearings much better (module docstring,
-        step 4): a swap ghost pair becomes the two emitters it was made of. Each track is
+        their last ``init_epochs`` epochs of bearings better by more than
+        :data:`SWAP_MARGIN`: a swap ghost pair becomes the two emitters it was made of. Each track is
         judged by the χ² cost of the static least-squares fix (Torrieri) of its window;
         only pairs with a track above the :data:`SUSPECT_PROB` point of its χ² are tried
         (one ghost of a swap pair may fit well; the other does not)."""
@@ -476,7 +407,7 @@ class MultiEmitterMethod:
 
     def _check_consistency(self, tr: _Emitter) -> None:
         """Delete a confirmed track whose bearings of the last ``init_epochs`` epochs are,
-        together, outside the χ² gate (module docstring, step 4)."""
+        together, beyond the χ² point at :data:`CONSISTENCY_FALSE_ALARM`."""
         if tr.logic.status == DELETED:
             return
         total, n = (sum(v) for v in zip(*tr.nis))

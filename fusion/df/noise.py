@@ -1,4 +1,4 @@
-r"""Bearing-noise samplers (seeds 001, 003). Every function draws from the numpy
+r"""Bearing-noise samplers (documents 001, 003). Every function draws from the numpy
 Generator it is given, and nothing else.
 
 * :func:`gaussian` — zero-mean Gaussian, one std per site (sites may differ: instrument,
@@ -60,6 +60,6 @@ def mixture_variance(sigma1: float, sigma2: float, p: float) -> float:
 def snr_db(sigma1: float, sigma2: float, p: float) -> float:
     """The IMM thesis's abscissa ``SNR = 10·log10(1/((1−p)σ₁² + pσ₂²))`` dB (rad⁻²).
 
-    (Its code has ``2pσ₂²``; the text and SEEDS.md have ``pσ₂²``, which is the variance.)
+    (Its code has ``2pσ₂²``; the text has ``pσ₂²``, which is the variance.)
     """
     return float(10.0 * np.log10(1.0 / mixture_variance(sigma1, sigma2, p)))

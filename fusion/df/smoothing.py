@@ -1,4 +1,4 @@
-r"""Per-station bearing smoothing for KF+TR and MKF+TR (seed 002, 000).
+r"""Per-station bearing smoothing for KF+TR and MKF+TR (documents 002, 000).
 
 Each DF station smooths its *own* bearing sequence with a scalar random-constant
 Kalman filter, ``Φ = 1, H = 1, R = σ², Q = q``::
@@ -97,7 +97,9 @@ class BearingSmoother:
 
 
 class CrossFedBearingSmoother(BearingSmoother):
-    """MKF: two scalar KF smoothers cross-fed (see the module docstring)."""
+    """MKF: two scalar KF bearing smoothers cross-fed as in MEKF (each starts its next
+    update from the other's output; the first one's is reported). With the ``"swap"``
+    hand-off it equals :class:`BearingSmoother`."""
 
     def __init__(self, q: float = 0.0, sigma: float | None = None, handoff: str = "swap"):
         super().__init__(q, sigma)

@@ -1,4 +1,4 @@
-r"""Fixes from bearings of several sites (seeds 002, 003): triangulation and least squares.
+r"""Fixes from bearings of several sites (documents 002, 003): triangulation and least squares.
 
 Angles here are *math* bearings ``β`` (ccw from east, radians); sites are ENU ``(x, y)``
 in metres; ``σ`` is a bearing standard deviation in radians. Every angular residual is
@@ -273,7 +273,7 @@ def studentised_residuals(x, P, sites, betas, sigmas) -> np.ndarray:
 
 
 def leave_one_out(sites, betas, sigmas, gate: float, x0=None, iterations: int = 0) -> Fix:
-    """Leave-one-out outlier rejection (seed 003) around Torrieri's fix.
+    """Leave-one-out outlier rejection (document 003) around Torrieri's fix.
 
     Fit; if the largest |studentised leave-one-out residual| exceeds ``gate`` (in
     standard deviations), drop that bearing and refit; repeat while at least three
