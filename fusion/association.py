@@ -1,54 +1,25 @@
 r"""Measurement-to-track association and track management for many targets.
 
-Pure functions and small classes; :mod:`fusion.mtt` puts them around the patent's
-per-track filters.
+Pure functions and small classes that :mod:`fusion.mtt`, :mod:`fusion.network` and
+:mod:`fusion.df.multi` put around their per-track filters.
 
-Gating
-------
-A track predicted to ``(x, P)`` and a measurement ``z`` of a sensor with model ``h``
-(:class:`fusion.sensors3d.SphericalModel`) give the innovation ``ν = z − h(x)``
-(angles wrapped to (−π, π]) with covariance ``S = H P Hᵀ + R``, ``H = ∂h/∂x(x)``. If the
-track is right, ``d² = νᵀ S⁻¹ ν`` is χ² with ``n_z`` degrees of freedom, so the gate
-``d² ≤ G``, ``G = χ²⁻¹(P_G; n_z)``, keeps the true measurement with probability ``P_G``.
-``H`` and ``S`` depend on the track and the sensor only, never on ``z``, so
-:func:`mahalanobis2` evaluates every plot of one sensor's scan against a track at once.
+*Gating.* A track predicted to ``(x, P)`` and a plot ``z`` of a sensor with model ``h``
+give ``ν = z − h(x)`` (angles wrapped) and ``S = H P Hᵀ + R``; if the pair is right
+``d² = νᵀ S⁻¹ ν`` is χ²(n_z), so the gate ``d² ≤ G = χ²⁻¹(P_G; n_z)`` keeps the true plot
+with probability ``P_G``. ``H`` and ``S`` do not depend on ``z``, so :func:`mahalanobis2`
+scores a whole scan against a track at once.
 
-Global nearest neighbour
-------------------------
-Given the ``d²`` of every (track, plot) pair of one sensor's scan, :func:`gnn` picks
-the assignment (each track at most one plot, each plot at most one track) of least
-total cost, where a track left without a plot costs the gate ``G``: a pair is worth
-making only if its ``d² < G``, and pairs outside the gate are forbidden. This is
-``scipy.optimize.linear_sum_assignment`` on the matrix ``[D | diag(G)]`` (one "miss"
-column per track).
+*Global nearest neighbour* (:func:`gnn`): the least-cost assignment with one "miss"
+column of cost ``G`` per track, ``linear_sum_assignment`` on ``[D | diag(G)]``.
 
-Track-to-track association
---------------------------
-Two estimates ``(x₁, P₁)`` and ``(x₂, P₂)`` of one target at one time differ by
-``Δ = x₁ − x₂`` with covariance ``T = P₁ + P₂ − P₁₂ − P₁₂ᵀ`` (``P₁₂ = Cov(e₁, e₂)``;
-zero when unknown, which overstates ``T`` for positively correlated tracks and so
-only widens the gate). :func:`track_distance2` returns ``d² = Δᵀ T⁺ Δ`` on chosen
-components together with the rank of ``T`` there, which is its χ² number of degrees
-of freedom: ``T`` is singular when the two share a prior (a track updated from the
-other's prediction differs from it by ``K ν`` only, ``T = K S Kᵀ``, and ``d²`` is then
-the update's NIS). The many-target centre (:class:`fusion.network.MultiTrackCentre`)
-needs no assignment of local to fused tracks: it names every local track it starts, so
-a local track is its fused track's member from birth, and ``d²`` only tells when a
-member has left its fused track's gate.
+*Track-to-track distance* (:func:`track_distance2`): two estimates of one state differ by
+``Δ = x₁ − x₂`` with covariance ``T = P₁ + P₂ − P₁₂ − P₁₂ᵀ`` (``P₁₂ = 0`` when unknown,
+which only widens the gate); ``d² = Δᵀ T⁺ Δ`` with the rank of ``T`` as its degrees of
+freedom (``T`` is singular when the two share a prior).
 
-Track management
-----------------
-:class:`TrackLogic` holds one track's life: born *tentative* on a plot no track
-claimed; *confirmed* once it has ``M`` hits (birth included) within its first ``N``
-frames; deleted while tentative as soon as ``M`` can no longer be reached, and once
-confirmed after ``K`` consecutive missed frames. :class:`DuplicateWatch` removes the
-second track of one target: two tracks whose positions and velocities agree within
-the χ² gate of :func:`track_distance2` (``P₁₂`` unknown, so the test leans towards
-"same") for ``F`` consecutive frames are one target twice, and the one that came later
-(confirmed after, or still tentative) is deleted. Crossing aircraft do not merge: their
-velocities differ by far more than their tracks' uncertainty. :class:`TrackIds` issues the
-published ids ``T1, T2, …`` in order of confirmation, never reused, so an id names one
-track for the whole run (tentative tracks are internal and have no id on the wire).
+*Track management*: :class:`TrackLogic` (tentative → confirmed by M-of-N, deleted after
+K misses), :class:`DuplicateWatch` (the later of two tracks that agree for ``F`` frames
+is deleted), :class:`TrackIds` (published ids in order of confirmation, never reused).
 """
 
 from __future__ import annotations

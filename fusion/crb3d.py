@@ -1,48 +1,26 @@
 r"""Posterior Cramér–Rao bounds for the evaluation.
 
-**3D tracking (the patent's scenarios).** For ``x_{k+1} = F_k x_k + w_k``,
-``w_k ~ N(0, Q_k)`` and measurements ``z = h(x) + v``, ``v ~ N(0, R)``, the posterior
-CRB (Tichavský, Muravchik & Nehorai 1998) obeys, in information form::
+**3D tracking.** For ``x_{k+1} = F_k x_k + w_k``, ``w_k ~ N(0, Q_k)`` and ``z = h(x) + v``,
+``v ~ N(0, R)``, the posterior CRB (Tichavský, Muravchik & Nehorai 1998) is, in
+information form::
 
     J_{k+1} = (Q_k + F_k J_k⁻¹ F_kᵀ)⁻¹ + E[H_{k+1}ᵀ R⁻¹ H_{k+1}]
 
-with ``H = ∂h/∂x`` at the *true* state and the expectation over the true trajectory
-(an average over Monte Carlo truths when the truth is random). Any estimator's MSE
-matrix satisfies ``E[(x̂ − x)(x̂ − x)ᵀ] ⪰ J⁻¹``; the RMS position bound is
-``√tr((J⁻¹)_pos)``.
+with ``H = ∂h/∂x`` at the true state and the expectation over the true trajectories; any
+estimator's MSE matrix is ``⪰ J⁻¹``. :func:`posterior_crb` runs it in covariance form
+(``C⁻ = F C Fᵀ + Q``, then ``C = (C⁻⁻¹ + Ī)⁻¹`` by Woodbury on a square root of ``Ī``):
+the same recursion, without inverting the singular discrete ``Q`` and without losing the
+digits that 10⁴ m positions next to 10⁻² m/s² accelerations would cost. ``J₀ = P₀⁻¹``,
+the trackers' own initial covariance (docs/algorithms.md, "Posterior bound").
+:func:`expected_information` averages ``Σ_j w_j H_jᵀ R_j⁻¹ H_j`` over truth samples,
+``w_j`` a detection probability.
 
-:func:`posterior_crb` runs this recursion in its covariance form ``C = J⁻¹``
-(``C⁻ = F C Fᵀ + Q``, then ``C = (C⁻⁻¹ + Ī)⁻¹`` by the Woodbury identity on a square
-root of ``Ī``) — algebraically the same recursion, but it never inverts ``Q`` (which is
-singular for the discrete noise models) and keeps the digits that positions of 10⁴ m
-next to accelerations of 10⁻² m/s² would otherwise cost.
-
-*Initial information* **[decision]**: ``J₀ = P₀⁻¹`` with ``P₀`` the tracker's own
-initial covariance (:func:`fusion.init3d.initial_state` of the noise-free first scan)
-and ``information[0] = 0``. That covariance already holds the first scan's
-measurement information plus the tracker's velocity/acceleration priors, so the bound
-is the one of an estimator that knows exactly what the trackers know at start-up and
-uses every later measurement optimally. The true initial velocity of a scenario is
-deterministic, not drawn from that prior, so in the first few scans the bound on
-velocity may exceed an actual filter's error (the filter's error is one draw, the bound
-an average over the prior); position is dominated by the first scan and is unaffected.
-
-*Expected information.* :func:`expected_information` averages ``Σ_j w_j H_jᵀ R_j⁻¹ H_j``
-over truth samples; ``w_j`` is a detection probability (without clutter the expected
-information of a detect-or-miss sensor is ``P_D`` times the detected one).
-
-**Non-Gaussian noise (jamming outliers).** For a scalar measurement ``z = h + v`` with
-``v`` of density ``f`` the Fisher information about ``h`` is the location information
-``I_f = ∫ f'(v)²/f(v) dv``; it replaces ``1/σ²`` in every formula above (equivalently,
-use the *effective std* ``1/√I_f``). :func:`noise_fisher_information` computes it for
-the jammer's mixture ``(1 − p)·N(0, σ₁²) + p·outlier(σ₂)``:
-
-* Laplacian outliers (scale ``σ₂/√2``): a regular density, the bound holds.
-* Uniform outliers (``±√3σ₂``): the density jumps at the edges, which violates the
-  CRB's regularity conditions; the value returned is the integral over the smooth
-  parts and is reported as ``regular=False``.
-
-``I_f ≥ 1/Var(v)`` for every density, with equality only for the Gaussian.
+**Non-Gaussian noise.** For ``z = h + v`` with ``v`` of density ``f`` the information is
+the location Fisher information ``I_f = ∫ f'(v)²/f(v) dv``, in place of ``1/σ²``;
+:func:`noise_fisher_information` computes it for ``(1 − p)·N(0, σ₁²) + p·outlier(σ₂)``.
+``I_f ≥ 1/Var(v)``, with equality only for the Gaussian. Uniform outliers make ``f``
+jump, which violates the bound's regularity conditions: the value is the integral over
+the smooth parts, reported as ``regular=False``.
 """
 
 from __future__ import annotations

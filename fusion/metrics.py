@@ -1,44 +1,26 @@
 r"""Accuracy and consistency metrics.
 
-* :func:`rmse` — root-mean-square of the Euclidean error.
-* :func:`nees` / :func:`nis` — ``eᵀP⁻¹e`` / ``νᵀS⁻¹ν``; :func:`chi2_bounds` — the
-  two-sided acceptance interval for their average over N Monte Carlo runs:
-  ``N·ANEES ~ χ²(N·d)``, so ``[χ²⁻¹(α/2; Nd)/N, χ²⁻¹(1−α/2; Nd)/N]``.
-* :func:`error_ellipse` — semi-axes and orientation of a 2×2 covariance's
+* :func:`rmse`; :func:`nees` / :func:`nis` (``eᵀP⁻¹e`` / ``νᵀS⁻¹ν``); :func:`chi2_bounds`,
+  the two-sided interval of their average over N Monte Carlo runs
+  (``N·ANEES ~ χ²(N·d)``); :func:`anees_series`, per time step with that interval.
+* :func:`error_ellipse`: semi-axes and orientation of a 2 × 2 covariance's
   probability-``p`` ellipse.
-* CEP50 — three different things, named apart:
+* Three CEP statistics, named apart: :func:`cep50`, the radius ``r`` with
+  ``P(‖e‖ ≤ r) = 0.5`` for a Gaussian with covariance ``P``, computed exactly (the
+  ``0.59(σ₁+σ₂)`` rule of thumb, :func:`cep50_approx`, is −12.5 % off for a degenerate
+  ellipse); :func:`empirical_cep50`, the median miss distance of a set of fixes; and
+  :func:`median_point_distance`, the MEKF thesis's "CEP 50 %": the distance from truth to
+  the coordinate-wise median point, a bias measure far smaller than the CEP.
+* Set distances for many targets: :func:`ospa` (Schuhmacher, Vo & Vo 2008)::
 
-  - :func:`cep50` — the textbook CEP of a Gaussian with covariance ``P``: the radius
-    ``r`` with ``P(‖e‖ ≤ r) = 0.5``, computed *exactly* (numerical integration of the
-    2-D Gaussian over the disc plus a root find), not with the ``0.59(σ₁+σ₂)`` rule
-    of thumb (:func:`cep50_approx`: within ~2.5 % for axis ratios σ₂/σ₁ ≥ 0.3, but
-    −5 % at 0.1 and −12.5 % as the ellipse degenerates to a line).
-  - :func:`empirical_cep50` — the median miss distance of a set of fixes (the
-    empirical counterpart of :func:`cep50`).
-  - :func:`median_point_distance` — **the thesis's "CEP 50 %" statistic**: the
-    distance from truth to the *coordinate-wise median point* of the fixes. It is a
-    bias measure, not a radius containing half the fixes, and is usually far smaller
-    than the CEP.
+      d = ( (1/n)·( min_π Σᵢ d_c(xᵢ, y_π(i))ᵖ + cᵖ·(n − m) ) )^(1/p),   m ≤ n
 
-* Multi-target set distances (for scoring several targets at once):
+  and :func:`gospa` (Rahmathullah, García-Fernández & Svensson 2017, α = 2)::
 
-  - :func:`ospa` — Schuhmacher, Vo & Vo (2008), order ``p``, cut-off ``c``::
+      d = ( min_γ Σ_(i,j)∈γ d(xᵢ, y_j)ᵖ + (cᵖ/2)·(#missed + #false) )^(1/p)
 
-        d = ( (1/n)·( min_π Σᵢ d_c(xᵢ, y_π(i))ᵖ + cᵖ·(n − m) ) )^(1/p),   m ≤ n
-
-    (normalised by the larger cardinality; 0 for two empty sets). The assignment
-    minimises ``Σ d_cᵖ`` itself; one made on ``d`` (Stone Soup 1.9's ``OSPAMetric``)
-    agrees for p = 1 and can be larger otherwise.
-  - :func:`gospa` — Rahmathullah, García-Fernández & Svensson (2017) with α = 2::
-
-        d = ( min_γ Σ_(i,j)∈γ d(xᵢ, y_j)ᵖ + (cᵖ/2)·(#missed + #false) )^(1/p)
-
-    where an assignment γ pairs estimates with truths no further apart than ``c``
-    (pairing at ``d ≥ c`` costs no less than a miss plus a false track); returned with
-    its localisation / missed / false decomposition.
-
-* :func:`anees_series` — per-time-step average NEES over Monte Carlo runs with the
-  two-sided χ² interval for that number of runs.
+  with its localisation / missed / false decomposition. Both minimise ``Σ dᵖ`` itself
+  (an assignment made on ``d`` agrees only for p = 1).
 """
 
 from __future__ import annotations

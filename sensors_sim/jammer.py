@@ -1,44 +1,27 @@
 r"""Noise jammers: their state, and their effect on the sensors.
 
-Both are pure functions of the scenario and the time, so a sensor process computes how
-it is jammed from the scenario alone (not from ``jam/*`` messages): a distributed run
-and an in-process run contaminate identically.
+Both are pure functions of the scenario and the time, so a sensor computes how it is
+jammed from the scenario alone (not from ``jam/*`` messages) and a distributed run and
+an in-process run contaminate identically.
 
-Who is affected (document 003: barrage vs spot)
--------------------------------------------
-A jammer is on during its schedule intervals ``[t_on, t_off)``. While on, it affects a
-sensor within its reach (distance ≤ ``reach``) if
+A jammer is on during its schedule ``[t_on, t_off)``. While on it affects a sensor within
+``reach`` if it is a ``barrage`` jammer (wide band), or a ``spot`` jammer on the sensor's
+``band`` from ``search_delay`` after each switch-on (document 003). The
+jamming-to-signal ratio at a sensor observing a target at ``d_t``, the jammer at ``d_j``
+(both floored at 1 m), powers referred to ``d₀`` = 1 km::
 
-* ``barrage``: always (wide band: every sensor in reach);
-* ``spot``: the sensor works on the jammer's victim ``band`` and the jammer has found
-  it, i.e. ``t ≥ t_on + search_delay`` (the search restarts at every switch-on).
+    ρ_j = (P_j / P_s) · (d_t / d₀)^k / (d_j / d₀)²,     k = 2 passive, 4 radar
 
-Jamming law
------------
-The jamming-to-signal ratio at sensor s, observing a target at distance ``d_t``, with
-jammer j at distance ``d_j`` (both floored at 1 m), powers referred to 1 km (d₀)::
-
-    ρ_j = (P_j / P_s) · (d_t / d₀)^k / (d_j / d₀)²
-
-with ``k = 2`` for passive sensors (one-way: DF, angle sensors) and ``k = 4`` for radars
-(the echo travels both ways; the jammer's noise only one way). ``P_j`` is the jammer's
-``power_w`` and ``P_s`` the sensor's ``signal_power_w``; only their ratio matters.
-
-* Noise: the jamming power adds to the receiver noise, so the Gaussian error variance
-  grows as ``σ_J² = σ²·(1 + Σ_j ρ_j)`` (the stated σ is the unjammed noise floor).
-* Outliers: a measurement is replaced by an outlier with probability
-  ``p_j = 1 − exp(−ρ_j)``, which is ≈ ρ_j for weak jamming, 63 % at J/S = 0 dB and
-  → 1 as J/S grows.
-* A jammer may instead fix ``p_outlier`` (the IMM thesis: p, σ₂, Laplacian or
-  uniform); then it does not raise the Gaussian noise, whatever its power: the
-  measurement is the thesis's mixture ``(1 − p)·N(0, σ²) + p·outlier(σ₂)``.
-* Several jammers act independently: ``p = 1 − Π_j (1 − p_j)``; the outlier's law and
+* noise: ``σ_J² = σ²·(1 + Σ_j ρ_j)``; outliers with probability ``p_j = 1 − exp(−ρ_j)``
+  (≈ ρ_j when weak, 63 % at 0 dB);
+* a jammer with ``p_outlier`` fixes p instead and adds no Gaussian noise: the thesis's
+  ``(1 − p)·N(0, σ²) + p·outlier(σ₂)``;
+* several jammers act independently, ``p = 1 − Π_j (1 − p_j)``; the outlier's law and
   std are those of the jammer with the largest ``p_j`` (the first on a tie).
 
-An outlier replaces the angular components by truth + outlier noise of std
-``outlier_std`` (law ``laplacian`` or ``uniform``, :mod:`sensors_sim.noise`), and range
-components by truth + outlier noise of std ``outlier_std_range`` if the jammer gives
-one (else ranges keep their jammed Gaussian noise).
+An outlier replaces the angles by truth + noise of std ``outlier_std`` (``laplacian`` or
+``uniform``, :mod:`sensors_sim.noise`), and ranges by truth + noise of
+``outlier_std_range`` if the jammer gives one.
 """
 
 from __future__ import annotations

@@ -1,33 +1,18 @@
 """Markdown reports with PNG plots, from the evaluation summaries.
 
-Two uses:
-
 * ``zfusion eval ... --report DIR`` — :func:`write_eval_report`: one evaluation's table,
   RMSE against time per method (with the Cramér–Rao bound), NEES and NIS against their
   χ² bounds, and for emitter fixes a scatter of the final fixes with error ellipses.
 * ``python -m services.report NAME [--runs N] [--jobs J] [--out DIR]`` — the
-  reproduction reports of the source documents' tables (``docs/results/``):
-
-  ``patent-3d``, ``patent-3d-60``
-      the patent's Tables 1.1/1.2: every method and the single-sensor and 3D-radar
-      baselines, the patent's ``naive`` fusion rule and the consistent rules, NEES
-      beside RMSE, the posterior CRB beside both.
-  ``thesis-cep``
-      the MEKF thesis's CEP tables (moving observer, fixed stations C1…C6): EKF vs
-      MEKF#1…5, KF+TR vs MKF+TR, the batch ML fix (TORRIERI) and the bound.
-  ``jammed-df-sweep``
-      the IMM thesis's sweep: final mean-square position error against SNR for EKF,
-      leave-one-out, IMM (both transition forms), Laplacian and uniform outliers.
-  ``air-picture``, ``df-multi``
-      many targets (issue 11): every topology's track quality (GOSPA, held, breaks,
-      false tracks, ghosts) against the acceptance criteria, and GOSPA against time.
+  reproduction reports of ``docs/results/`` (``patent-3d``, ``patent-3d-60``,
+  ``thesis-cep``, ``jammed-df-sweep``, ``air-picture``, ``df-multi``, or ``all``;
+  ``docs/results/README.md`` says what each reproduces).
 
 Every number in a report's tables is read from the JSON written next to it
 (``NAME.json``: the command, the run count and every evaluation summary, each in the
 ``--json`` format of docs/design.md), and every summary comes from
-:func:`services.evaluation.evaluate` — the code ``zfusion eval`` runs. Verdict
-sentences are computed from the same numbers, so a regenerated report says what its
-data say.
+:func:`services.evaluation.evaluate`, the code ``zfusion eval`` runs. Verdict sentences
+are computed from the same numbers, so a regenerated report says what its data say.
 """
 
 from __future__ import annotations

@@ -4,36 +4,22 @@ Shared by ``zfusion run`` (one run, estimates received over Zenoh) and ``zfusion
 (many in-process Monte Carlo runs), so both report the same numbers the same way.
 
 Scoring is two steps: :func:`score_run` turns one run's estimates into per-estimate
-error records (so a Monte Carlo worker can return a few numbers per estimate instead of
-the estimates), and :func:`aggregate` turns the records of all runs into one method's
-summary. :func:`method_summary` does both.
+error records (so a Monte Carlo worker returns a few numbers per estimate instead of the
+estimates), and :func:`aggregate` turns the records of all runs into one method's
+summary; :func:`method_summary` does both. Per method, beside the contract's fields
+(``rmse_pos``/``rmse_vel``/``rmse_acc``: ``√mean‖e‖²`` over every scored estimate of
+every run; ``cep50``: the median horizontal miss of the final fixes; ``anees``: mean
+``eᵀP⁻¹e``; ``series``):
 
-Per method (the fields of docs/design.md first, then extras):
-
-``rmse_pos``/``rmse_vel``/``rmse_acc``
-    ``√mean‖e‖²`` over every scored estimate of every run (3D position for tracks, the
-    2D fix for emitters; ``null`` where the state has no such part).
-``cep50``
-    emitter fixes only: the *textbook* CEP50 radius, estimated as the median horizontal
-    miss distance of the final fixes (one per run).
-``anees``
-    mean NEES ``eᵀP⁻¹e`` over every estimate (full state); ``nees_dof`` is the state
-    dimension and ``anees_bounds`` the 95 % χ² interval of a *per-step* average over
-    ``runs`` runs (:func:`fusion.metrics.chi2_bounds`).
+``nees_dof``, ``anees_bounds``
+    the state dimension and the 95 % χ² interval of a per-step average over ``runs``.
 ``median_point_distance``
-    emitter fixes only: **the thesis's "CEP 50 %"** — distance from truth to the
+    emitter fixes only: the thesis's "CEP 50 %", the distance from truth to the
     coordinate-wise median of the final fixes (a bias measure, not a radius).
 ``anis_per_dof``
     ``ΣNIS / Σdof`` over the updates that report an NIS (1 for a consistent filter).
-``final``
-    RMSEs (and, for fixes, the errors and mean covariance) of the last estimate of
-    each run.
-``second_half``
-    RMSEs and ANEES over the estimates in the second half of the output times
-    (``t ≥ (t_first + t_last)/2``): the steady state, without the start-up transient.
-``series``
-    per output time: ``t``, ``rmse_pos`` (``rmse_vel``, ``rmse_acc``), ``anees``,
-    ``anis`` (mean NIS) with ``nis_dof`` (its mean dof), and ``n`` (estimates there).
+``final``, ``second_half``
+    the last estimate of each run; the estimates with ``t ≥ (t_first + t_last)/2``.
 """
 
 from __future__ import annotations

@@ -1,41 +1,25 @@
 r"""Bearing filters for a static emitter: EKFT, EKFS, SKF and the cross-fed MEKF.
 
-All three filters of the thesis (document 000) run the same Kalman step — predict with
-``Φ = I``, ``+Q``, then a scalar update through :func:`fusion.kalman.update` (Joseph
-form) — and differ *only* in how the innovation ``ν`` and the row ``H`` are formed.
-Write ``Δx = x̂_e − x_k``, ``Δy = ŷ_e − y_k``, ``r² = Δx² + Δy²``, ``u = Δy/Δx`` and
-``h = atan2(Δy, Δx)`` (the predicted bearing)::
+The three filters of the MEKF thesis (document 000) run the same Kalman step — predict
+with ``Φ = I``, ``+Q``, then a scalar Joseph-form update (:func:`fusion.kalman.update`)
+— and differ only in the row ``H``. With ``Δx = x̂_e − x_k``, ``Δy = ŷ_e − y_k``,
+``r² = Δx² + Δy²``, ``u = Δy/Δx`` and ``h = atan2(Δy, Δx)``::
 
     EKFT (linearises the bearing)   ν = wrap(β − h)    H = [−Δy, Δx] / r²
     EKFS (linearises the slope u)   ν = wrap(β − h)    H = [(−u/Δx)/x̂_e, (1/Δx)/ŷ_e]
     SKF  (pseudo-linear)            ν = wrap(β − h)    H = [0.5·h/x̂_e, 0.5·h/ŷ_e]
 
-EKFT is the proper EKF (the source documents' ``[−u/((1+u²)Δx), 1/((1+u²)Δx)]`` multiplied out,
-which removes its singularity at ``Δx = 0``). EKFS and SKF are implemented *as printed*
-in the thesis; they are not derived and are not invariant:
+EKFT is the proper EKF. EKFS and SKF are implemented as printed: not derived, and
+dependent on the frame origin (EKFS also on the length unit, so its row is evaluated in
+km, as in the thesis, and converted). Where EKFS or SKF is singular (``Δx``, ``x̂_e`` or
+``ŷ_e`` zero) the linearisation raises :class:`SingularLinearisation` and
+:class:`BearingEKF` uses the EKFT row for that update, counted in ``n_fallbacks``.
 
-* EKFS divides by the *absolute* state coordinates, and ``(1/Δx)/ŷ_e`` has units of
-  1/length², so it depends on the frame origin and on the length unit. The thesis
-  works in km with the origin at DF1; we evaluate its ``H`` in that unit
-  (``unit = 1000`` m) and convert the row to per-metre, so it behaves as printed.
-* SKF satisfies ``H·x̂ = h`` (that is what makes it "pseudo-linear"); it is unit
-  invariant but depends on the origin.
-* Unlike the printed code (``atan``, mod π) every ``h`` here is the full ``atan2``
-  bearing and every ``ν`` is wrapped to (−π, π].
-
-Singularities: EKFS needs ``Δx ≠ 0``, ``x̂_e ≠ 0``, ``ŷ_e ≠ 0``; SKF needs ``x̂_e ≠ 0``,
-``ŷ_e ≠ 0``. There the linearisation raises :class:`SingularLinearisation` (a
-ValueError). :class:`BearingEKF` then falls back, *for that one update*, to the EKFT
-row (the well-defined one), and counts it in ``n_fallbacks`` — documented, never silent.
-
-MEKF (Chui–Chen's parallel scheme as the thesis applies it): two filters A1, A2 start
-from the same state and both process every bearing; after each update A1's next prior
-is A2's output and A2's next prior is A1's output; the reported estimate is A1's
-output. **[decision]** covariances are swapped together with the states
-(``handoff="swap"``). ``handoff="printed"`` reproduces the printed listing, whose typo
-(``PK1PK1 = Pkk``) leaves A2's prior covariance at the initial ``P₀`` for ever.
-Consequence of the swap: a pair of identical filters (MEKF#3 = EKFT/EKFT, #4 =
-EKFS/EKFS) is *exactly* the single filter, since both halves see the same prior.
+:class:`MEKF`: two filters A1, A2 from the same state both process every bearing, each
+taking the other's output as its next prior; A1's output is reported. With
+``handoff="swap"`` covariances swap with the states, so MEKF#3 (EKFT/EKFT) and #4
+(EKFS/EKFS) equal the single filter; ``"printed"`` keeps the listing's A2 covariance at
+``P₀``. docs/algorithms.md ("EKFT, EKFS, SKF", "MEKF") has the decisions.
 """
 
 from __future__ import annotations

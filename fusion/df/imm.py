@@ -1,34 +1,24 @@
 r"""Interacting Multiple Model estimator (Bar-Shalom), as used against jamming (document 003).
 
-Two bearing EKFs (EKFT) with the same ``Φ = I`` and ``Q`` but different bearing noise —
-model 1 ``R₁ = σ₁²`` (clean), model 2 ``R₂ = σ₂²`` (outlier) — and a Markov transition
-matrix ``Π[i, j] = P(model j now | model i before)``. One cycle per bearing:
+Two bearing EKFs (EKFT) with the same ``Φ = I`` and ``Q``, model 1 with ``R₁ = σ₁²``
+(clean) and model 2 with ``R₂ = σ₂²`` (outlier), and a Markov transition matrix
+``Π[i, j] = P(model j now | model i before)``. One cycle per bearing:
 
 1. predicted mode probabilities  ``c̄ⱼ = Σᵢ Π[i,j] μᵢ``
 2. mixing  ``μᵢ|ⱼ = Π[i,j] μᵢ / c̄ⱼ``,  ``x₀ⱼ = Σᵢ μᵢ|ⱼ xᵢ``,
    ``P₀ⱼ = Σᵢ μᵢ|ⱼ (Pᵢ + (xᵢ − x₀ⱼ)(xᵢ − x₀ⱼ)ᵀ)``
-3. model-matched filtering from ``(x₀ⱼ, P₀ⱼ)``: innovation ``νⱼ``, ``Sⱼ``, likelihood
-   ``Λⱼ = N(νⱼ; 0, Sⱼ)``
-4. mode update with the *predicted* probabilities: ``μⱼ ∝ Λⱼ c̄ⱼ`` (the thesis's text
-   multiplies by the previous ``μⱼ``; its code, and Bar-Shalom, use ``c̄ⱼ``)
+3. model-matched updates from ``(x₀ⱼ, P₀ⱼ)``, likelihoods ``Λⱼ = N(νⱼ; 0, Sⱼ)``
+4. mode update with the *predicted* probabilities, ``μⱼ ∝ Λⱼ c̄ⱼ`` (as Bar-Shalom and
+   the thesis's code; its text multiplies by the previous ``μⱼ``)
 5. output ``x = Σ μⱼ xⱼ``, ``P = Σ μⱼ (Pⱼ + (xⱼ − x)(xⱼ − x)ᵀ)``.
 
-Step 4 is done in the log domain: ``log Λⱼ = −½(νᵀS⁻¹ν + log det 2πS)``
-(:func:`fusion.kalman.gaussian_loglikelihood`), and ``μⱼ = exp(ℓⱼ − max ℓ)/Σ`` with
-``ℓⱼ = log c̄ⱼ + log Λⱼ``. A wild outlier (say 1.5 rad against σ₂ = 0.01) makes ``Λⱼ``
-underflow to 0.0 under *every* model, and the linear-domain normalisation
-``Λⱼc̄ⱼ / Σᵢ Λᵢc̄ᵢ`` would be 0/0; in the log domain the largest term is 1 and the mode
-probabilities stay a proper distribution (a model whose weight is ``e^-745`` times
-smaller gets exactly 0, which the mixing step handles: ``c̄ > 0`` as long as ``Π`` has
-no zero entry, as in both forms below with 0 < p < 1).
-
-Initialisation (the ``ipu`` pair or the robust choice of :mod:`fusion.df.init`) is
-the streaming method's business (:mod:`fusion.df.methods`); the estimator here takes
-initial states, covariances and mode probabilities.
-
-Transition forms: ``"symmetric"`` ``[[1−p, p], [p, 1−p]]`` (the source documents': modes persist)
-and ``"iid"`` ``[[1−p, p], [1−p, p]]`` (each bearing is an outlier with probability p
-independently of the last; then ``c̄ = [1−p, p]`` always).
+Step 4 is done in the log domain, ``μⱼ = exp(ℓⱼ − max ℓ)/Σ`` with
+``ℓⱼ = log c̄ⱼ + log Λⱼ``: a wild outlier that underflows ``Λⱼ`` under every model would
+make the linear-domain normalisation 0/0. Transition forms: ``"symmetric"``
+``[[1−p, p], [p, 1−p]]`` (modes persist, as in the source documents) and ``"iid"``
+``[[1−p, p], [1−p, p]]`` (each bearing an outlier independently; then ``c̄ = [1−p, p]``).
+The estimator takes initial states, covariances and mode probabilities; choosing them
+(``ipu`` or :mod:`fusion.df.init`) is :mod:`fusion.df.methods`' business.
 """
 
 from __future__ import annotations
