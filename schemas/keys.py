@@ -60,6 +60,10 @@ class KeySpace:
     def fused(self) -> str:
         return self._key("fused")
 
+    def picture(self) -> str:
+        """The fuser's queryable: its current tracks, for late joiners (services.picture)."""
+        return self._key("picture")
+
     def truth(self, target: str) -> str:
         return self._key("truth", target)
 

@@ -31,6 +31,16 @@ def _speed(text: str) -> str:
     return text
 
 
+def _seconds(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not (value > 0 and math.isfinite(value)):
+        raise argparse.ArgumentTypeError(f"expected a positive number of seconds, not {text!r}")
+    return value
+
+
 def _override(text: str) -> str:
     try:
         split_override(text)
@@ -145,6 +155,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int)
     _fabric(p)
 
+    p = sub.add_parser("picture", help="print the fuser's current tracks as JSON (for late joiners)")
+    p.add_argument("--timeout", type=_seconds, default=2.0, metavar="S",
+                   help="seconds to wait for a fuser's answer (default %(default)s)")
+    _fabric(p)
+
     p = sub.add_parser("record", help="the recorder process: everything into a Rerun .rrd file")
     p.add_argument("--rrd", required=True)
     p.add_argument("--id", default="recorder")
@@ -212,6 +227,10 @@ def main(argv: list[str] | None = None) -> int:
         overrides = {"fusion_rule": args.fusion_rule} if args.fusion_rule else {}
         return tracker(args.sensor, args.scenario, method, overrides, keys, _zopts(args), args.fuser,
                        args.feedback_timeout, args.start_grace, seed=args.seed)
+    if args.command == "picture":
+        from .picture import main as picture
+
+        return picture(keys, _zopts(args), args.timeout)
     if args.command == "record":
         from .recorder import run as record
 

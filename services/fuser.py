@@ -48,6 +48,7 @@ from schemas import MEASUREMENT_KINDS, KeySpace, Message, SchemaError, decode, e
 from schemas.links import encode_downlink, horizon_message, uplink
 
 from .node import Inbox, Node, RejectLog, load
+from .picture import Picture
 
 
 class MeasurementIntake:
@@ -228,6 +229,14 @@ def max_held_for(scenario) -> int:
     return hold_cap(rate, scenario.duration + 1.0)
 
 
+def _delete_misses(scenario) -> int:
+    """Frames without a report after which a track has left the picture: the trackers' rule."""
+    from fusion.mtt import AssociationConfig
+
+    association, _ = AssociationConfig.split(scenario.tracker)
+    return (association or AssociationConfig).delete_misses
+
+
 def run(process_id: str, scenario_ref: str, method_name: str, overrides: dict, keys: KeySpace, zopts,
         timeout: float, start_grace: float, seed: int | None = None) -> int:
     scenario = load(scenario_ref, seed)
@@ -250,6 +259,8 @@ def run(process_id: str, scenario_ref: str, method_name: str, overrides: dict, k
                          max_held=max_held_for(scenario))
         node.subscribe(keys.all(intake.family), inbox)
         pub = node.publisher(keys.fused())
+        picture = Picture(process_id, _delete_misses(scenario))
+        node.keep(picture.serve(node.session, keys))
         down = {tid: node.publisher(keys.feedback(tid)) for tid in (intake.nodes if method_name in SPLITS else ())}
         node.announce()
         node.publish_status("ready")
@@ -268,7 +279,9 @@ def run(process_id: str, scenario_ref: str, method_name: str, overrides: dict, k
                 pass
             for e in core.step(time.monotonic()):
                 seq += 1
-                pub.put(encode_estimate(e, process_id, seq))
+                data = encode_estimate(e, process_id, seq)
+                pub.put(data)
+                picture.published(e, data)
                 t_now = e.t
             if down:
                 for d in method.take_downlinks():

@@ -55,6 +55,7 @@ from fusion.types import Estimate
 from schemas import KeySpace, SchemaError, decode, to_estimate, tracker_id
 
 from .node import Inbox, Node, ZenohOptions, load
+from .resources import ProcessUsage, own_usage
 from .evaluation import GOSPA_CUTOFF, many_targets, score_tracks_of
 from .summary import format_table, method_summary, summary, tracks_summary, truth_function
 
@@ -273,6 +274,7 @@ def run(args) -> int:
     estimates: list[Estimate] = []
     statuses: dict[str, dict] = {}
     heard_at: dict[str, float] = {}  # monotonic time of each process's latest status
+    usage: dict[str, ProcessUsage] = {}  # each process's CPU time and peak memory, from its statuses
     children = Children()
     interrupted = not_started = False
     started: list[float] = []  # wall-clock epoch of scenario time 0, once the sources start
@@ -312,6 +314,7 @@ def run(args) -> int:
                     elif msg.kind == "status":
                         statuses[msg.src] = msg.body
                         heard_at[msg.src] = time.monotonic()
+                        usage.setdefault(msg.src, ProcessUsage()).status(msg.seq, msg.body["counters"])
                         sup.heard(msg.src, msg.body["state"])
             except queue.Empty:
                 pass
@@ -409,6 +412,9 @@ def run(args) -> int:
     doc["recordings"] = sup.recordings or [rrd]
     doc["exit_codes"] = codes
     doc["outages"] = sup.outages
+    usage.pop(LAUNCHER_ID, None)  # its own status is not the whole of it: measured here, at the end
+    doc["processes"] = {**{n: u.report() for n, u in sorted(usage.items())},
+                        LAUNCHER_ID: {**own_usage(), "incarnations": 1}}
     print(format_table(doc))
     print(f"recording: {rrd}")
     if args.json:

@@ -23,6 +23,8 @@ import zenoh
 
 from schemas import KeySpace, SchemaError, encode
 
+from .resources import own_usage
+
 log = logging.getLogger("zfusion")
 
 LOOPBACK_LISTEN = "tcp/127.0.0.1:0"
@@ -240,6 +242,11 @@ class Node:
         self._declared.append(pub)
         return pub
 
+    def keep(self, declaration: Any) -> Any:
+        """Undeclare ``declaration`` (a queryable, ...) with the rest when the node closes."""
+        self._declared.append(declaration)
+        return declaration
+
     def subscribe(self, key: str, callback: Callable[[zenoh.Sample], None]) -> zenoh.Subscriber:
         sub = self.session.declare_subscriber(key, callback)
         self._declared.append(sub)
@@ -297,6 +304,7 @@ class Node:
                        sources: dict | None = None) -> None:
         counters = {**self.counters, **{f"rejected.{c}": n for c, n in self.reject.by_cause.items()}}
         counters["rejected"] = self.reject.total
+        counters.update(own_usage())  # cpu_s, max_rss_mb: for the run summary's processes
         if extra:
             counters.update(extra)
         events, self.events = self.events, []

@@ -48,9 +48,11 @@ from fusion.types import KIND_COMPONENTS, Estimate
 from schemas import MEASUREMENT_KINDS, KeySpace, Message, SchemaError, decode, to_estimate, to_measurement
 from schemas.links import downlink
 
+from . import picture
 from . import recorder_draw as draw
 from .evaluation import GOSPA_CUTOFF, many_targets
 from .node import Node, RejectLog
+from .picture import Reports
 
 log = logging.getLogger("zfusion")
 
@@ -169,33 +171,6 @@ class Recording(rr.RecordingStream):
     def disconnect(self) -> None:
         self.send_rows()
         super().disconnect()
-
-
-class Reports:
-    """Which tracks one stream reported in which of its frames (a frame: a distinct time
-    of its reports), to tell when a track has gone (module docstring)."""
-
-    def __init__(self) -> None:
-        self.t = -math.inf  # the current frame's time
-        self.frame = 0
-        self._last: dict[str, int] = {}  # track entity -> the frame it was last reported in
-
-    def report(self, path: str, t: float, misses: int) -> list[str]:
-        """Note a report of ``path`` at ``t``; returns the tracks that a new frame shows
-        to have missed ``misses`` frames (forgotten from now on)."""
-        gone = []
-        if t > self.t:
-            self.t = t
-            self.frame += 1
-            gone = [p for p, f in self._last.items() if self.frame - 1 - f >= misses]
-            for p in gone:
-                del self._last[p]
-        self._last[path] = max(self._last.get(path, 0), self.frame)
-        return gone
-
-    def forget(self, path: str) -> bool:
-        """Stop following ``path``; whether it was followed."""
-        return self._last.pop(path, None) is not None
 
 
 class Trail:
@@ -840,18 +815,23 @@ def run(process_id: str, keys: KeySpace, zopts, rrd_path: str, expect: list[str]
     dropped = [0]
     lock = threading.Lock()
 
-    def on_sample(s) -> None:  # Zenoh's thread: never blocks, never raises
+    def enqueue(item: tuple[str, bytes]) -> None:  # Zenoh's thread: never blocks, never raises
         try:
-            inbox.put_nowait((str(s.key_expr), s.payload.to_bytes()))
+            inbox.put_nowait(item)
         except queue.Full:
             with lock:
                 dropped[0] += 1
+
+    def on_sample(s) -> None:
+        enqueue((str(s.key_expr), s.payload.to_bytes()))
 
     with Node(process_id, "recorder", keys, zopts) as node:
         # The file is opened once SIGTERM/SIGINT are handled, so a stop at any time leaves a whole file.
         rec, _ = open_recording(rrd_path, app, spawn=spawn, df=df, many=sc is not None and many_targets(sc))
         recorder = Recorder(rec, keys, node.reject, sc)
         node.subscribe(keys.all(), on_sample)
+        # Started mid-session: begin with the fuser's current tracks (none answers at a run's start).
+        late_join = picture.Request(node.session, keys, lambda data: enqueue((keys.fused(), data)))
         node.announce()
         node.publish_status("ready")
         last_status = last_send = time.monotonic()
@@ -863,6 +843,9 @@ def run(process_id: str, keys: KeySpace, zopts, rrd_path: str, expect: list[str]
             else:
                 if recorder.offer(key, data) is not None:
                     node.count("recorded")
+                if key == keys.fused():
+                    late_join.cancel()  # the fuser's own stream: its picture is coming anyway
+            late_join.poll()
             if rec.queued >= SEND_ROWS_MAX or time.monotonic() - last_send >= SEND_PERIOD_S:
                 rec.send_rows()
                 last_send = time.monotonic()

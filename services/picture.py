@@ -1,0 +1,181 @@
+"""The current picture: the fuser's live tracks, for whoever joins mid-session.
+
+A process that starts late (a recorder, a display, ``zfusion picture``) has missed the
+tracks the fuser has been publishing on ``fused``. The fuser therefore keeps, per live
+track, the bytes of the last ``fused`` message it published about it, and answers a
+Zenoh query on ``picture`` (:meth:`schemas.KeySpace.picture`) with one reply per track
+— exactly those bytes, so a late joiner decodes them as it decodes ``fused`` — and a
+last reply, a ``watermark`` of the picture's time (the latest fused time): "this is
+the picture as of t", so that an empty picture is an answer too.
+
+A track is live until its stream has gone ``delete_misses`` frames without reporting
+it (a frame: a distinct time of the fuser's output; :class:`Reports`), the rule the
+trackers delete by: a confirmed track is reported every frame until deleted. Memory:
+one message per live track, plus one frame number per track followed.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import threading
+import time
+from typing import Callable
+
+import zenoh
+
+from fusion.mtt import AssociationConfig
+from schemas import KeySpace, SchemaError, decode, encode, to_estimate
+from fusion.types import Estimate
+
+
+class Reports:
+    """Which tracks one stream reported in which of its frames (a frame: a distinct time
+    of its reports), to tell when a track has gone."""
+
+    def __init__(self) -> None:
+        self.t = -math.inf  # the current frame's time
+        self.frame = 0
+        self._last: dict[str, int] = {}  # track -> the frame it was last reported in
+
+    def report(self, track: str, t: float, misses: int) -> list[str]:
+        """Note a report of ``track`` at ``t``; returns the tracks that a new frame shows
+        to have missed ``misses`` frames (forgotten from now on)."""
+        gone = []
+        if t > self.t:
+            self.t = t
+            self.frame += 1
+            gone = [p for p, f in self._last.items() if self.frame - 1 - f >= misses]
+            for p in gone:
+                del self._last[p]
+        self._last[track] = max(self._last.get(track, 0), self.frame)
+        return gone
+
+    def forget(self, track: str) -> bool:
+        """Stop following ``track``; whether it was followed."""
+        return self._last.pop(track, None) is not None
+
+
+class Picture:
+    """The fuser's live tracks (module docstring). :meth:`published` is called by the
+    fuser's loop, :meth:`replies` by Zenoh's query thread: a lock keeps them apart."""
+
+    def __init__(self, src: str, delete_misses: int = AssociationConfig.delete_misses):
+        self.src = src
+        self.delete_misses = delete_misses
+        self.t = -math.inf
+        self._reports = Reports()
+        self._last: dict[str, bytes] = {}  # track id -> its last fused message
+        self._lock = threading.Lock()
+
+    def published(self, e: Estimate, data: bytes) -> None:
+        """The fuser published ``data`` (the encoding of ``e``) on ``fused``."""
+        with self._lock:
+            for gone in self._reports.report(e.track, e.t, self.delete_misses):
+                self._last.pop(gone, None)
+            self._last[e.track] = data
+            self.t = max(self.t, e.t)
+
+    def replies(self) -> list[bytes]:
+        """What a query is answered with: every live track's message, then the watermark."""
+        with self._lock:
+            tracks = list(self._last.values())
+            t = self.t
+        return tracks + [encode("watermark", self.src, 0, t if math.isfinite(t) else 0.0, final=False)]
+
+    def serve(self, session: zenoh.Session, keys: KeySpace):
+        """Declare the queryable (the caller undeclares it, or closes the session)."""
+        key = keys.picture()
+
+        def on_query(query: zenoh.Query) -> None:
+            for data in self.replies():
+                query.reply(key, data)
+
+        return session.declare_queryable(key, on_query)
+
+
+def _track_or_none(data: bytes):
+    try:
+        return decode(data)
+    except SchemaError:
+        return None  # a bad reply is no part of the picture
+
+
+class Request:
+    """A late joiner's non-blocking request: asked again every ``every`` seconds (a new
+    peer learns of the fuser's queryable by gossip, which takes a moment) until a fuser
+    answers, the caller no longer needs it (:meth:`cancel`: it has seen ``fused`` itself)
+    or ``patience`` seconds have passed. Each track's message goes to ``on_track``, on
+    Zenoh's thread, as it comes."""
+
+    def __init__(self, session: zenoh.Session, keys: KeySpace, on_track: Callable[[bytes], None],
+                 patience: float = 5.0, every: float = 0.5, clock: Callable[[], float] = time.monotonic):
+        self.session, self.keys, self.on_track = session, keys, on_track
+        self.every, self.clock = every, clock
+        self.deadline = clock() + patience
+        self.answered = False
+        self._next = -math.inf
+
+    def cancel(self) -> None:
+        self.deadline = -math.inf
+
+    def poll(self) -> None:
+        """Ask if it is time to (call it from the process's loop)."""
+        now = self.clock()
+        if self.answered or now >= self.deadline or now < self._next:
+            return
+        self._next = now + self.every
+
+        def on_reply(reply: zenoh.Reply) -> None:
+            msg = _track_or_none(reply.ok.payload.to_bytes()) if reply.ok is not None else None
+            if msg is None or self.answered:
+                return
+            if msg.kind == "watermark":
+                self.answered = True
+            elif msg.kind == "track":
+                self.on_track(reply.ok.payload.to_bytes())
+
+        self.session.get(self.keys.picture(), on_reply, timeout=self.every,
+                         consolidation=zenoh.ConsolidationMode.NONE)
+
+
+def query(session: zenoh.Session, keys: KeySpace, timeout: float = 2.0) -> dict | None:
+    """The picture as a JSON-ready dict ``{"t", "fuser", "tracks": [...]}`` from the first
+    fuser that answers, or None if none does within ``timeout`` (asked again every
+    0.25 s meanwhile: see :class:`Request`)."""
+    deadline = time.monotonic() + timeout
+    while True:
+        left = deadline - time.monotonic()
+        if left <= 0:
+            return None
+        answers: dict[str, dict] = {}
+        for reply in session.get(keys.picture(), timeout=min(left, 0.25), consolidation=zenoh.ConsolidationMode.NONE):
+            msg = _track_or_none(reply.ok.payload.to_bytes()) if reply.ok is not None else None
+            if msg is None:
+                continue
+            doc = answers.setdefault(msg.src, {"t": None, "fuser": msg.src, "tracks": []})
+            if msg.kind == "watermark":
+                doc["t"] = msg.t
+            elif msg.kind == "track":
+                e = to_estimate(msg)
+                doc["tracks"].append({"id": e.track, "t": e.t, "x": e.x.tolist(), "P": e.P.tolist(),
+                                      "method": e.method, "node": e.node, "nis": e.nis, "nis_dof": e.nis_dof,
+                                      "seq": msg.seq})
+        complete = [d for d in answers.values() if d["t"] is not None]
+        if complete:
+            return complete[0]
+        time.sleep(min(0.05, max(0.0, deadline - time.monotonic())))
+
+
+def main(keys: KeySpace, zopts, timeout: float) -> int:
+    """``zfusion picture``: print the picture as one line of JSON (exit 1 if no fuser answers)."""
+    import sys
+
+    with zenoh.open(zopts.to_config()) as session:
+        doc = query(session, keys, timeout)
+    if doc is None:
+        print(f"zfusion picture: no fuser answered on {keys.picture()} within {timeout:g} s; check --connect "
+              f"(the fabric's endpoint) and --deployment", file=sys.stderr)
+        return 1
+    print(json.dumps(doc))
+    return 0

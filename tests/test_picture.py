@@ -1,0 +1,167 @@
+"""The current picture: a real fuser process answers ``zfusion picture`` with the last
+``fused`` message of each live track, and a recorder started mid-session draws those
+tracks from its first row."""
+
+from __future__ import annotations
+
+import json
+import math
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+import zenoh
+
+from schemas import KeySpace, decode, encode, encode_measurement
+from sensors_sim import load_scenario, sensor_events
+from services.launcher import free_port
+from services.node import ZenohOptions
+from services.picture import Picture, Reports
+
+from conftest import zfusion
+from test_recorder import read_rrd, verify
+
+pytestmark = pytest.mark.slow
+
+
+class Feed:
+    """The test's Zenoh peer: plays patent-3d's sensors by hand (watermarks never final,
+    so the fuser runs on) and follows ``fused``."""
+
+    def __init__(self, deployment: str):
+        self.keys = KeySpace(deployment)
+        self.endpoint = f"tcp/127.0.0.1:{free_port()}"
+        self.session = zenoh.open(ZenohOptions(listen=[self.endpoint]).to_config())
+        self.fused: dict[str, bytes] = {}  # track -> its last fused message
+        self.t = -1.0
+        self.ready: set[str] = set()
+        self._subs = [self.session.declare_subscriber(self.keys.fused(), self._on_fused),
+                      self.session.declare_subscriber(self.keys.all("status"), self._on_status)]
+        sc = load_scenario("patent-3d")
+        self.events = {s: [e for e in sensor_events(sc, s) if e.measurement is not None] for s in sc.sensors}
+        self.pubs = {s: self.session.declare_publisher(self.keys.meas(s), congestion_control=zenoh.CongestionControl.BLOCK,
+                                                       reliability=zenoh.Reliability.RELIABLE) for s in sc.sensors}
+        self.wm = 0
+
+    def _on_fused(self, sample) -> None:
+        data = sample.payload.to_bytes()
+        msg = decode(data)
+        self.fused[msg.body["track"]] = data
+        self.t = max(self.t, msg.t)
+
+    def _on_status(self, sample) -> None:
+        msg = decode(sample.payload.to_bytes())
+        if msg.body["state"] in ("ready", "running"):
+            self.ready.add(msg.src)
+
+    def wait(self, cond, what: str, timeout: float = 30.0) -> None:
+        deadline = time.monotonic() + timeout
+        while not cond():
+            assert time.monotonic() < deadline, what
+            time.sleep(0.05)
+
+    def play(self, t0: float, t1: float) -> None:
+        """Every scan in [t0, t1], then a watermark at t1 from each sensor."""
+        for s, evs in self.events.items():
+            for e in evs:
+                if t0 <= e.t <= t1:
+                    self.pubs[s].put(encode_measurement(e.measurement, s))
+            self.wm += 1
+            self.pubs[s].put(encode("watermark", s, self.wm, t1, final=False))
+        self.wait(lambda: self.t >= math.floor(t1), f"fused output up to {t1} (last {self.t})")
+
+    def close(self) -> None:
+        for d in [*self._subs, *self.pubs.values()]:
+            d.undeclare()
+        self.session.close()
+
+
+def _stop(p: subprocess.Popen) -> None:
+    if p.poll() is None:
+        p.send_signal(signal.SIGTERM)
+        p.wait(20)
+
+
+def test_picture_is_the_last_fused_message_and_a_late_recorder_starts_from_it(tmp_path, deployment):
+    feed = Feed(deployment)
+    fabric = ["--deployment", deployment, "--connect", feed.endpoint]
+    fuser = zfusion("fuser", "--scenario", "patent-3d", *fabric)
+    rec = None
+    try:
+        feed.wait(lambda: "fuser" in feed.ready, "the fuser came up")
+        empty = subprocess.run([sys.executable, "-m", "services.cli", "picture", *fabric],
+                               capture_output=True, text=True, timeout=30)
+        assert empty.returncode == 0, empty.stderr
+        assert json.loads(empty.stdout)["tracks"] == []  # nothing fused yet: an answer all the same
+        feed.play(0.0, 10.0)
+        time.sleep(0.5)  # nothing more is coming: the last fused message is the last
+        t0 = time.monotonic()
+        got = subprocess.run([sys.executable, "-m", "services.cli", "picture", *fabric],
+                             capture_output=True, text=True, timeout=30)
+        assert got.returncode == 0, got.stderr
+        doc = json.loads(got.stdout)
+        last = decode(feed.fused["T1"])
+        assert doc["t"] == last.t == 10.0
+        (track,) = doc["tracks"]
+        assert track["id"] == "T1" and track["method"] == "SS" and track["seq"] == last.seq
+        np.testing.assert_array_equal(track["x"], last.body["x"])
+        np.testing.assert_array_equal(track["P"], last.body["P"])
+        assert time.monotonic() - t0 < 2.0 + 3.0  # answered within its 2 s (plus the interpreter's start)
+
+        # A recorder started now: its first fused row is the picture's, before any new data.
+        path = tmp_path / "late.rrd"
+        rec = zfusion("record", "--rrd", str(path), *fabric, stderr=subprocess.DEVNULL)
+        feed.wait(lambda: "recorder" in feed.ready, "the recorder came up")
+        time.sleep(1.0)
+        feed.play(10.5, 15.0)
+        time.sleep(1.5)
+        _stop(rec)
+        assert rec.returncode == 0
+        verify(path)
+        rows = [r["t"] for r in read_rrd(path)["/world/tracks/centre/T1"]]
+        assert rows[0] == 10.0 and rows[1:] == [float(t) for t in range(11, 16)], rows
+    finally:
+        for p in (rec, fuser):
+            if p is not None:
+                _stop(p)
+        feed.close()
+    assert fuser.returncode == 0
+
+
+def test_no_fuser_is_one_line_and_exit_1(deployment):
+    port = free_port()
+    p = subprocess.run([sys.executable, "-m", "services.cli", "picture", "--deployment", deployment,
+                        "--connect", f"tcp/127.0.0.1:{port}", "--timeout", "0.5"], capture_output=True, text=True,
+                       timeout=30)
+    assert p.returncode == 1 and p.stdout == ""
+    assert p.stderr.count("\n") == 1 and p.stderr.startswith("zfusion picture: no fuser answered"), p.stderr
+
+
+def _est(t: float, track: str):
+    from fusion.types import Estimate
+
+    return Estimate(t, np.full(9, t), np.eye(9), "SS", "centre", track)
+
+
+def test_a_track_leaves_the_picture_after_delete_misses_frames():
+    pic = Picture("fuser", delete_misses=2)
+    for t in (1.0, 2.0):
+        pic.published(_est(t, "T1"), b"T1@%g" % t)
+        pic.published(_est(t, "T2"), b"T2@%g" % t)
+    for t in (3.0, 4.0):  # T2 is no longer reported
+        pic.published(_est(t, "T1"), b"T1@%g" % t)
+    assert pic.replies()[:-1] == [b"T1@4", b"T2@2"]  # missed frames 3 and 4, not yet seen as gone
+    pic.published(_est(5.0, "T1"), b"T1@5")
+    replies = pic.replies()
+    assert replies[:-1] == [b"T1@5"]
+    wm = decode(replies[-1])
+    assert wm.kind == "watermark" and wm.t == 5.0 and wm.src == "fuser"
+
+
+def test_reports_forget():
+    r = Reports()
+    r.report("a", 1.0, 3)
+    assert r.forget("a") and not r.forget("a")
