@@ -3,30 +3,20 @@ not show — track breaks, purity, false tracks.
 
 Input is a sequence of *steps*, one per output time: the true positions of the targets
 present and the reported positions of the tracks, each keyed by id. At every step the
-truths are assigned to the tracks as GOSPA assigns them (least ``Σ dᵖ`` with costs
-capped at ``cᵖ``; a pair at distance ``≥ c`` is no pair), so a track is "on" a target
-exactly when GOSPA counts it as localising that target. Over the run:
+truths are assigned to the tracks as GOSPA assigns them (least ``Σ dᵖ``, costs capped at
+``cᵖ``; a pair at distance ``≥ c`` is no pair), so a track is "on" a target exactly when
+GOSPA counts it as localising that target. Over the run:
 
-* **held**: truth-steps with an assigned track, over all truth-steps.
-* **breaks**: a target held by track ``A`` at one step and, at its next step, held by
-  no track or by another one. ``break_rate`` = breaks / steps at which a held target
-  had a next step (the chances to break). A target not yet held (before its track is
-  confirmed) cannot break.
-* **purity** of a track: the fraction of its steps spent on the target it is on most
-  often (steps on no target count against it); ``purity`` = Σ those dominant counts /
-  Σ track-steps.
-* **hold** of a target: from the first step it is held on, the fraction of its steps
-  at which it is held (``hold_fractions``: one per target of each run; a target never
-  held counts 0). Its minimum says whether *every* target was held once found.
-* **ghost persistence** (``longest_ghost``, one per run): the longest run of
-  consecutive steps any one track spent on no target.
-* **found at the end** (``found_at_end``, one per run): the fraction of the targets of
-  the last step that are held there.
-* **false tracks**: tracks that are on no target at any step of their life;
-  ``false_track_steps``: track-steps on no target (GOSPA's false count, summed).
+* **held**: truth-steps with an assigned track, over all truth-steps;
+* **breaks**: a held target held at its next step by no track or another one, over the
+  chances to break (a target not yet held cannot break);
+* **purity**: track-steps on each track's most frequent target, over all track-steps;
+* **hold** of a target: from the first step it is held, the fraction of steps it is;
+* **ghost persistence**: the longest run of steps one track spent on no target;
+* **found at the end**: the fraction of the last step's targets held there;
+* **false tracks**: tracks on no target at any step of their life.
 
-GOSPA and OSPA are :func:`fusion.metrics.gospa` / :func:`fusion.metrics.ospa` (checked
-against Stone Soup in ``tests/test_metrics.py``).
+GOSPA and OSPA are :func:`fusion.metrics.gospa` and :func:`fusion.metrics.ospa`.
 """
 
 from __future__ import annotations

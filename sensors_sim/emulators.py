@@ -7,30 +7,21 @@ on), in its configured order, it yields one :class:`SensorEvent`:
 
 1. draw the scan's variates (:class:`sensors_sim.noise.ScanDraws`: always the same
    pattern, so streams stay aligned whatever is detected or jammed);
-2. coverage: the true offset must lie in the azimuth sector, elevation limits and
-   instrumented range (and a jammer must be on to be seen);
+2. coverage: azimuth sector, elevation limits, instrumented range (a jammer must be on);
 3. detection: ``u_detect < P_D``;
-4. noise: ``z = h(x) + σ_J·n`` with ``σ_J = σ·√gain`` when jammed
-   (:mod:`sensors_sim.jammer`), else ``σ``; with probability ``p_outlier`` (when
-   jammed) the components are replaced by outliers;
+4. noise: ``z = h(x) + σ_J·n``, ``σ_J = σ·√gain`` when jammed (:mod:`sensors_sim.jammer`),
+   and with probability ``p_outlier`` the components replaced by outliers;
 5. azimuth wrapped to [0, 2π), elevation clipped to [−π/2, π/2].
 
-Clutter (``clutter_rate`` λ > 0 in the sensor's table): after the objects' draws, the
-scan draws ``n ~ Poisson(λ)`` false alarms, each uniform over the coverage *in
-measurement space* (azimuth over the sector, elevation between the limits, range over
-``[0, max_range]``: the classic constant clutter density λ/V), then a random order of
-all the scan's plots. Plots get their ``seq`` in that order, so neither a field nor
-the position in the stream tells a false alarm from a target (the truth is only in
-the :class:`SensorEvent`, which the scorer reads and the wire never carries). Every
-plot of a scan has the scan's time, so the ``(t, sensor, seq)`` order holds. With
-λ = 0 nothing extra is drawn and the stream is that of a clutter-free sensor, bit for
-bit.
+Clutter (``clutter_rate`` λ > 0): ``n ~ Poisson(λ)`` false alarms per scan, uniform over
+the coverage in measurement space (the constant clutter density λ/V), then a random
+order of all the scan's plots, which is the order of their ``seq``: nothing on the wire
+tells a false alarm from a target. With λ = 0 nothing extra is drawn.
 
 The published :class:`fusion.types.Measurement` carries the sensor's *stated* std (the
-trackers must not know about the jamming); the contamination shows only in
-``SensorEvent.jammed`` / ``.outlier``. ``seq`` counts published measurements from 0.
-Bearings on a jammer are never contaminated: the jammer's own signal is what is
-being measured.
+trackers must not know about the jamming); the truth of a plot (target, jammed,
+outlier) is only in its :class:`SensorEvent`. Bearings on a jammer are never
+contaminated: the jammer's own signal is what is being measured.
 """
 
 from __future__ import annotations
