@@ -170,6 +170,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--spawn", action="store_true",
                    help="also stream to a Rerun viewer (started, or reused on port 9876) if a display is available")
     _fabric(p)
+
+    from .ingest.process import add_parser as add_ingest
+
+    add_ingest(sub, _fabric)
     return ap
 
 
@@ -237,6 +241,10 @@ def main(argv: list[str] | None = None) -> int:
         Path(args.rrd).parent.mkdir(parents=True, exist_ok=True)
         return record(args.id, keys, _zopts(args), args.rrd, args.expect,
                       spawn=args.spawn, scenario=args.scenario, seed=args.seed)
+    if args.command == "ingest":
+        from .ingest.process import main as ingest
+
+        return ingest(args, keys, _zopts(args))
     raise AssertionError(args.command)
 
 

@@ -1,0 +1,149 @@
+"""The generic gateway's line format, sans I/O: bytes in, :class:`Reading` records out.
+
+One JSON object per line (``docs/ingest.md``; schema ``docs/ingest-line.schema.json``)::
+
+    {"t": 1764612000.25, "kind": "range_az", "az_deg": 41.5, "range_m": 12034.0,
+     "std": [1.0, 20.0], "lat_deg": 21.03, "lon_deg": 105.85, "alt_m": 12.0}
+
+``t`` is UTC POSIX seconds. The components are those of the measurement kind
+(``bearing``: ``az_deg``; ``azel``: ``az_deg, el_deg``; ``range_az``: ``az_deg,
+range_m``; ``az_el_range``: all three), azimuth clockwise from true north (−180 … 360,
+wrapped to [0, 360)), elevation above the horizontal. ``std`` (optional) lists the
+stated std per component in the same units (degrees, metres); it must agree with the
+site file's. The position (optional: a sensor the site file does not pin needs it) is
+geodetic (``lat_deg``, ``lon_deg``, optional ``alt_m``) or ENU ``site_m``. Any other
+field is an error, so a misspelt one is never silently ignored.
+
+:class:`LineSplitter` cuts a byte stream into lines with a bounded buffer;
+:func:`reading` turns one line into a reading or a :class:`Rejected` with a stable cause.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+
+from fusion.angles import wrap_2pi
+from fusion.types import KIND_COMPONENTS
+
+from .gateway import Reading, Rejected
+
+MAX_LINE = 64 * 1024  # bytes: a line is ~200
+_FIELD = {"az": "az_deg", "el": "el_deg", "range": "range_m"}
+_ALLOWED = {"t", "kind", "az_deg", "el_deg", "range_m", "std", "lat_deg", "lon_deg", "alt_m", "site_m"}
+_LIMITS = {"az_deg": (-180.0, 360.0), "el_deg": (-90.0, 90.0), "range_m": (0.0, math.inf),
+           "lat_deg": (-90.0, 90.0), "lon_deg": (-180.0, 360.0), "alt_m": (-1e4, 1e6)}
+
+
+class LineSplitter:
+    """Bytes of a stream -> complete lines. A line longer than ``max_line`` is dropped
+    (reported once as ``line-too-long``) up to its newline; the buffer never holds more
+    than ``max_line`` bytes."""
+
+    def __init__(self, max_line: int = MAX_LINE):
+        self.max_line = max_line
+        self._buf = bytearray()
+        self._skipping = False
+
+    def feed(self, data: bytes) -> list[bytes | Rejected]:
+        out: list[bytes | Rejected] = []
+        start = 0
+        while True:
+            nl = data.find(b"\n", start)
+            chunk = data[start:] if nl < 0 else data[start:nl]
+            if not self._skipping:
+                if len(self._buf) + len(chunk) > self.max_line:
+                    out.append(Rejected("line-too-long", f"a line of more than {self.max_line} bytes"))
+                    self._buf.clear()
+                    self._skipping = True
+                else:
+                    self._buf += chunk
+            if nl < 0:
+                return out
+            if not self._skipping and self._buf.strip():
+                out.append(bytes(self._buf))
+            self._buf.clear()
+            self._skipping = False
+            start = nl + 1
+
+
+class _Bad(ValueError):
+    def __init__(self, cause: str, detail: str):
+        super().__init__(detail)
+        self.cause = cause
+
+
+def _num(d: dict, key: str, required: bool = True) -> float | None:
+    if key not in d or d[key] is None:
+        if required:
+            raise _Bad("missing", f"'{key}' is required")
+        return None
+    x = d[key]
+    if isinstance(x, bool) or not isinstance(x, (int, float)):
+        raise _Bad("type", f"'{key}' must be a number, not {type(x).__name__}")
+    x = float(x)
+    if not math.isfinite(x):
+        raise _Bad("non-finite", f"'{key}' is {x!r}")
+    lo, hi = _LIMITS.get(key, (-math.inf, math.inf))
+    if not lo <= x <= hi or (key == "range_m" and x == 0.0):
+        raise _Bad("range", f"'{key}' = {x:g} outside {'(' if key == 'range_m' else '['}{lo:g}, {hi:g}]")
+    return x
+
+
+def _vector(d: dict, key: str, n: int) -> np.ndarray | None:
+    v = d.get(key)
+    if v is None:
+        return None
+    if not isinstance(v, list) or len(v) != n or any(isinstance(x, bool) or not isinstance(x, (int, float))
+                                                     for x in v):
+        raise _Bad("shape", f"'{key}' must be a list of {n} numbers")
+    a = np.array(v, dtype=float)
+    if not np.all(np.isfinite(a)):
+        raise _Bad("non-finite", f"'{key}' has NaN or inf")
+    return a
+
+
+def reading(line: bytes, sensor: str) -> Reading | Rejected:
+    """One line -> a :class:`Reading` of ``sensor`` (SI units, radians) or why not."""
+    try:
+        d = json.loads(line)
+    except (ValueError, UnicodeDecodeError) as e:
+        return Rejected("json", f"not a JSON object ({type(e).__name__})")
+    if not isinstance(d, dict):
+        return Rejected("json", f"a line must be a JSON object, not {type(d).__name__}")
+    try:
+        extra = set(d) - _ALLOWED
+        if extra:
+            raise _Bad("unknown-field", f"'{sorted(extra)[0]}' is not a field of a measurement line")
+        kind = d.get("kind")
+        if kind not in KIND_COMPONENTS:
+            raise _Bad("kind", f"'kind' {str(kind)[:20]!r} is not one of {', '.join(KIND_COMPONENTS)}")
+        comps = KIND_COMPONENTS[kind]
+        unused = {_FIELD[c] for c in _FIELD if c not in comps} & set(d)
+        if unused:
+            raise _Bad("unknown-field", f"'{sorted(unused)[0]}' is not a component of a {kind}")
+        t = _num(d, "t")
+        if t <= 0:
+            raise _Bad("time", f"'t' = {t:g} is not a UTC time (POSIX seconds)")
+        z = []
+        for c in comps:
+            x = _num(d, _FIELD[c])
+            z.append(wrap_2pi(math.radians(x)) if c == "az" else math.radians(x) if c == "el" else x)
+        std = _vector(d, "std", len(comps))
+        if std is not None:
+            if np.any(std <= 0):
+                raise _Bad("range", "'std' must be > 0")
+            std = np.array([math.radians(s) if c in ("az", "el") else s for s, c in zip(std, comps)])
+        site = _vector(d, "site_m", 3)
+        geo = None
+        if "lat_deg" in d or "lon_deg" in d:
+            if site is not None:
+                raise _Bad("position", "give 'site_m' or 'lat_deg'/'lon_deg', not both")
+            geo = (_num(d, "lat_deg"), _num(d, "lon_deg"), _num(d, "alt_m", required=False))
+        elif "alt_m" in d:
+            raise _Bad("position", "'alt_m' without 'lat_deg'/'lon_deg'")
+        return Reading(sensor=sensor, t=t, kind=kind, z=np.array(z), std=std, site=site, geodetic=geo)
+    except _Bad as e:
+        return Rejected(e.cause, str(e))

@@ -1,0 +1,518 @@
+"""The gateway processes: ``zfusion ingest krakensdr`` and ``zfusion ingest jsonl``.
+
+Thin: they move bytes between a device and Zenoh. Parsing and checking are sans-I/O
+(:mod:`.krakensdr`, :mod:`.jsonl`, :mod:`.gateway`). Lifetimes are explicit: the Zenoh
+session is the :class:`services.node.Node` context; the HTTP server, sockets and
+reader threads are closed before it. SIGINT/SIGTERM set the node's stop flag; every
+loop waits on it, so the process exits within one poll or 0.2 s.
+
+Inputs: ``krakensdr --url`` polls ``/DOA_value.html`` or ``/doa.xml`` every ``--poll-s``
+(an HTTP error or timeout doubles the wait up to :data:`MAX_BACKOFF_S`, counted as
+``http_errors`` and said once per cause in the status events; never a crash; no
+heartbeat watermark while it lasts, so the reading fetched after it is not late);
+``krakensdr --listen`` takes "Kraken Pro" JSON and "Full POST" form POSTs on any path;
+``jsonl --input`` reads lines from stdin, UDP datagrams or TCP connections. Every input
+lands in one bounded queue (:data:`QUEUE_SIZE` items; a POST that finds it full gets
+503 and is counted as ``dropped``), read by the main loop, which owns the gateway.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import os
+import queue
+import socket
+import sys
+import threading
+import time
+import urllib.error
+import urllib.parse
+import urllib.request
+from dataclasses import dataclass
+from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from typing import Callable
+
+from schemas import KeySpace
+
+from ..node import Node
+from .gateway import Gateway, Rejected, local_frame, sensor_sites
+from .jsonl import MAX_LINE, LineSplitter, reading
+from .krakensdr import MAX_BODY, Bearing, KrakenOptions, KrakenStation, Skipped
+
+log = logging.getLogger("zfusion")
+
+QUEUE_SIZE = 1024
+MAX_BACKOFF_S = 30.0
+PATHS = {"csv": "/DOA_value.html", "auto": "/DOA_value.html", "xml": "/doa.xml"}
+
+
+class UsageError(Exception):
+    """A user mistake: one line on stderr, exit 2."""
+
+
+@dataclass
+class Backoff:
+    """Wait between polls: ``base`` while the device answers, doubled after each failure
+    up to ``cap``."""
+
+    base: float
+    cap: float = MAX_BACKOFF_S
+    failures: int = 0
+
+    def delay(self) -> float:
+        return min(self.cap, self.base * 2.0 ** self.failures) if self.failures else self.base
+
+    def failed(self) -> float:
+        self.failures += 1
+        return self.delay()
+
+    def succeeded(self) -> None:
+        self.failures = 0
+
+
+# ------------------------------------------------------------------ shared plumbing
+
+
+class Outlet:
+    """Publishes what the gateway returns and reports status once a second."""
+
+    def __init__(self, node: Node, gateway: Gateway, extra: Callable[[], dict] | None = None):
+        self.node = node
+        self.gateway = gateway
+        self.extra = extra or dict
+        self.pubs = {gateway.keys.meas(s): node.publisher(gateway.keys.meas(s)) for s in gateway.sensors}
+        self.skipped: dict[str, int] = {}
+        self.t_last = 0.0
+        self._last_status = 0.0
+        self._said: set[str] = set()
+
+    def put(self, out: list[tuple[str, bytes]]) -> None:
+        for key, data in out:
+            self.pubs[key].put(data)
+
+    def offer(self, item, now: float) -> None:
+        """A parsed item: a reading (or bearing) to check and publish, or a refusal."""
+        if isinstance(item, Bearing):
+            item = item.reading()
+        if isinstance(item, Rejected):
+            self.node.reject(self.node.id, item.cause, item.detail)
+        elif isinstance(item, Skipped):
+            self.skipped[item.cause] = self.skipped.get(item.cause, 0) + 1
+        else:
+            self.put(self.gateway.offer(item, now))
+            self.t_last = max(self.t_last, item.t)
+
+    def say_once(self, cause: str, text: str) -> None:
+        if cause not in self._said:
+            self._said.add(cause)
+            self.node.event(text)
+
+    def tick(self, now: float, heartbeat: bool = True) -> None:
+        """Heartbeat watermarks (not while the device is unreachable: what it measures
+        meanwhile may still be fetched), and the status once a second."""
+        if heartbeat:
+            self.put(self.gateway.tick(now))
+        self.status()
+
+    def status(self, state: str = "running", force: bool = False) -> None:
+        if force or time.monotonic() - self._last_status >= 1.0:
+            self._last_status = time.monotonic()
+            self.node.counters.update(self.gateway.counters)
+            self.node.counters.update({f"skipped.{c}": n for c, n in self.skipped.items()})
+            self.node.counters.update(self.extra())
+            self.node.publish_status(state, self.t_last)
+
+
+def _site_sensors(args, ids: list[str]):
+    """The site's frame and these sensors (before any session is opened)."""
+    for flag in ("max_skew", "max_age", "watermark_lag", "poll_s", "timeout_s"):
+        v = getattr(args, flag, 1.0)
+        if not (v >= 0 if flag == "watermark_lag" else v > 0) or v == float("inf"):
+            raise UsageError(f"--{flag.replace('_', '-')} must be a positive number of seconds, not {v}")
+    site = load_site(args.site)
+    try:
+        return local_frame(site), sensor_sites(site, ids)
+    except ValueError as e:
+        raise UsageError(str(e)) from None
+
+
+def _gateway(node: Node, args, frame, sensors) -> Gateway:
+    return Gateway(sensors, frame, node.keys, node.reject, max_skew=args.max_skew, max_age=args.max_age,
+                   lag=args.watermark_lag)
+
+
+def load_site(path: str):
+    """The site file (any scenario file is a site too)."""
+    from sensors_sim import load_scenario
+    from sensors_sim.spec import ScenarioError
+
+    try:
+        return load_scenario(path)
+    except (ScenarioError, OSError, ValueError) as e:
+        raise UsageError(f"cannot read the site file: {e}") from None
+
+
+def _run(command: str, body: Callable[[], int]) -> int:
+    try:
+        return body()
+    except UsageError as e:
+        print(f"zfusion {command}: {e}", file=sys.stderr)
+        return 2
+
+
+# ------------------------------------------------------------------ krakensdr
+
+
+def kraken_options(args) -> KrakenOptions:
+    try:
+        heading = args.heading if args.heading in ("message", "none") else float(args.heading)
+    except ValueError:
+        raise UsageError(f"--heading {args.heading!r}: 'message', 'none' or a heading in degrees") from None
+    vfos = tuple(f * 1e6 for f in args.vfo or ())
+    return KrakenOptions(convention=args.doa, heading=heading, vfos=vfos, vfo_tol_hz=args.vfo_tol_khz * 1e3,
+                         min_conf=args.min_conf, station=args.station)
+
+
+def poll_url(url: str, fmt: str) -> str:
+    u = urllib.parse.urlsplit(url)
+    if u.scheme not in ("http", "https") or not u.netloc:
+        raise UsageError(f"--url {url!r}: expected http://HOST:PORT (the KrakenSDR's web server, port 8081)")
+    if u.path in ("", "/"):
+        if fmt not in PATHS:
+            raise UsageError(f"--format {fmt} is pushed, not polled: use --listen HOST:PORT")
+        return urllib.parse.urlunsplit((u.scheme, u.netloc, PATHS[fmt], u.query, ""))
+    return url
+
+
+def run_krakensdr(args, keys: KeySpace, zopts) -> int:
+    def body() -> int:
+        options = kraken_options(args)
+        url = poll_url(args.url, args.format) if args.url else None
+        listen = _host_port(args.listen, "--listen") if args.listen else None
+        frame, sensors = _site_sensors(args, options.channel_ids(args.id))
+        with Node(args.id, "ingest", keys, zopts) as node:
+            gateway = _gateway(node, args, frame, sensors)
+            station = KrakenStation(args.id, options)
+            if url:
+                return _poll(node, gateway, station, url, args)
+            return _listen(node, gateway, station, listen, args)
+
+    return _run("ingest krakensdr", body)
+
+
+def _poll(node: Node, gateway: Gateway, station: KrakenStation, url: str, args) -> int:
+    fmt = "auto" if args.format == "auto" else args.format
+    counts = {"polls": 0, "http_errors": 0}
+    outlet = Outlet(node, gateway, lambda: counts)
+    backoff = Backoff(args.poll_s)
+    node.announce()
+    outlet.status("ready", force=True)
+    failing = False
+    while not node.stop.is_set():
+        counts["polls"] += 1
+        try:
+            with urllib.request.urlopen(urllib.request.Request(url, headers={"User-Agent": "zfusion-ingest"}),
+                                        timeout=args.timeout_s) as resp:
+                data = resp.read(MAX_BODY + 1)
+                ctype = resp.headers.get("Content-Type")
+        except (urllib.error.URLError, OSError, ValueError) as e:
+            counts["http_errors"] += 1
+            cause = _http_cause(e)
+            delay = backoff.failed()
+            outlet.say_once(cause, f"{url}: {cause}; retrying with backoff (now {delay:g} s)")
+            failing = True
+        else:
+            if failing:
+                node.event(f"{url} answers again")
+                failing = False
+            backoff.succeeded()
+            now = time.time()
+            # The page is served as text/html whatever it holds: the content decides.
+            for item in station.receive(data, fmt, None if "html" in (ctype or "") else ctype):
+                outlet.offer(item, now)
+            delay = backoff.delay()
+        outlet.tick(time.time(), heartbeat=not failing)
+        node.stop.wait(delay)
+    outlet.status("stopped", force=True)
+    return 0
+
+
+def _http_cause(e: Exception) -> str:
+    if isinstance(e, urllib.error.HTTPError):
+        return f"HTTP {e.code}"
+    reason = getattr(e, "reason", e)
+    if isinstance(reason, (TimeoutError, socket.timeout)):
+        return "timeout"
+    return type(reason).__name__ if not isinstance(reason, str) else reason
+
+
+def _host_port(text: str, flag: str) -> tuple[str, int]:
+    host, sep, port = text.rpartition(":")
+    if not sep or not port.isdigit() or not 0 <= int(port) < 65536:
+        raise UsageError(f"{flag} {text!r}: expected HOST:PORT, e.g. 127.0.0.1:8042")
+    return host.strip("[]") or "0.0.0.0", int(port)
+
+
+class _PostHandler(BaseHTTPRequestHandler):
+    """POSTs into the inbox (bounded); GET answers that the gateway is up."""
+
+    inbox: queue.Queue
+    counts: dict
+    timeout = 5.0
+
+    def do_POST(self) -> None:  # noqa: N802 (http.server's name)
+        length = self.headers.get("Content-Length")
+        if length is None or not length.isdigit():
+            return self._reply(411, "Content-Length required")
+        if int(length) > MAX_BODY:
+            return self._reply(413, f"at most {MAX_BODY} bytes")
+        data = self.rfile.read(int(length))
+        try:
+            self.inbox.put_nowait((data, self.headers.get("Content-Type")))
+        except queue.Full:
+            self.counts["dropped"] += 1
+            return self._reply(503, "busy")
+        self._reply(200, "ok")
+
+    def do_GET(self) -> None:  # noqa: N802
+        self._reply(200, "zfusion ingest: POST KrakenSDR readings here")
+
+    def _reply(self, code: int, text: str) -> None:
+        body = (text + "\n").encode()
+        self.send_response(code)
+        self.send_header("Content-Type", "text/plain")
+        self.send_header("Content-Length", str(len(body)))
+        self.end_headers()
+        self.wfile.write(body)
+
+    def log_message(self, *args) -> None:  # the process's status says what matters
+        pass
+
+
+def _listen(node: Node, gateway: Gateway, station: KrakenStation, where: tuple[str, int], args) -> int:
+    inbox: queue.Queue = queue.Queue(QUEUE_SIZE)
+    counts = {"posts": 0, "dropped": 0}
+    handler = type("Handler", (_PostHandler,), {"inbox": inbox, "counts": counts})
+    try:
+        server = ThreadingHTTPServer(where, handler)
+    except OSError as e:
+        raise UsageError(f"cannot listen on {where[0]}:{where[1]} ({e.strerror or e}); choose a free port") from None
+    server.daemon_threads = True
+    thread = threading.Thread(target=server.serve_forever, kwargs={"poll_interval": 0.2}, daemon=True)
+    thread.start()
+    fmt = "auto" if args.format == "auto" else args.format
+    try:
+        outlet = Outlet(node, gateway, lambda: counts)
+        node.announce()
+        outlet.status("ready", force=True)
+        node.event(f"listening on http://{where[0]}:{server.server_address[1]}/")
+        while not node.stop.is_set():
+            try:
+                data, ctype = inbox.get(timeout=0.2)
+            except queue.Empty:
+                pass
+            else:
+                counts["posts"] += 1
+                now = time.time()
+                for item in station.receive(data, fmt, ctype):
+                    outlet.offer(item, now)
+            outlet.tick(time.time())
+        outlet.status("stopped", force=True)
+    finally:
+        server.shutdown()
+        server.server_close()
+        thread.join(timeout=2.0)
+    return 0
+
+
+# ------------------------------------------------------------------ jsonl
+
+
+def run_jsonl(args, keys: KeySpace, zopts) -> int:
+    def body() -> int:
+        source = _input(args.input)
+        frame, sensors = _site_sensors(args, [args.id])
+        with Node(args.id, "ingest", keys, zopts) as node:
+            gateway = _gateway(node, args, frame, sensors)
+            return _jsonl(node, gateway, source, args)
+
+    return _run("ingest jsonl", body)
+
+
+def _input(text: str) -> tuple[str, tuple[str, int] | None]:
+    if text == "-":
+        return "stdin", None
+    u = urllib.parse.urlsplit(text)
+    if u.scheme not in ("udp", "tcp") or not u.hostname or u.port is None:
+        raise UsageError(f"--input {text!r}: expected -, udp://HOST:PORT or tcp://HOST:PORT")
+    return u.scheme, (u.hostname, u.port)
+
+
+class _Reader:
+    """A thread that reads one input and puts its lines (or refusals) into ``inbox``;
+    ``None`` at the end of stdin. Closed by :meth:`close` (sockets) or the stop flag."""
+
+    def __init__(self, kind: str, where: tuple[str, int] | None, inbox: queue.Queue, stop: threading.Event):
+        self.kind, self.inbox, self.stop = kind, inbox, stop
+        self.sock: socket.socket | None = None
+        if kind in ("udp", "tcp"):
+            family = socket.AF_INET6 if ":" in where[0] else socket.AF_INET
+            self.sock = socket.socket(family, socket.SOCK_DGRAM if kind == "udp" else socket.SOCK_STREAM)
+            self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            try:
+                self.sock.bind(where)
+            except OSError as e:
+                self.sock.close()
+                raise UsageError(f"cannot bind {kind}://{where[0]}:{where[1]} ({e.strerror or e}); "
+                                 f"choose a free port") from None
+            self.sock.settimeout(0.2)
+            if kind == "tcp":
+                self.sock.listen(8)
+        self.thread = threading.Thread(target=getattr(self, f"_{kind}"), daemon=True)
+
+    def start(self) -> None:
+        self.thread.start()
+
+    def _emit(self, items) -> None:
+        for it in items:
+            while not self.stop.is_set():
+                try:
+                    self.inbox.put(it, timeout=0.2)  # back-pressure: the reader waits
+                    break
+                except queue.Full:
+                    continue
+
+    def _stdin(self) -> None:
+        split = LineSplitter()
+        fd = sys.stdin.fileno()
+        while not self.stop.is_set():
+            data = os.read(fd, MAX_LINE)
+            if not data:
+                self._emit(split.feed(b"\n"))
+                self._emit([None])
+                return
+            self._emit(split.feed(data))
+
+    def _udp(self) -> None:
+        while not self.stop.is_set():
+            try:
+                data = self.sock.recv(MAX_LINE)
+            except (TimeoutError, socket.timeout):
+                continue
+            except OSError:
+                return
+            self._emit(LineSplitter().feed(data + b"\n"))  # a datagram holds whole lines
+
+    def _tcp(self) -> None:
+        while not self.stop.is_set():
+            try:
+                conn, _ = self.sock.accept()
+            except (TimeoutError, socket.timeout):
+                continue
+            except OSError:
+                return
+            threading.Thread(target=self._tcp_conn, args=(conn,), daemon=True).start()
+
+    def _tcp_conn(self, conn: socket.socket) -> None:
+        split = LineSplitter()
+        conn.settimeout(0.2)
+        with conn:
+            while not self.stop.is_set():
+                try:
+                    data = conn.recv(MAX_LINE)
+                except (TimeoutError, socket.timeout):
+                    continue
+                except OSError:
+                    return
+                if not data:
+                    self._emit(split.feed(b"\n"))
+                    return
+                self._emit(split.feed(data))
+
+    def close(self) -> None:
+        if self.sock is not None:
+            self.sock.close()
+
+
+def _jsonl(node: Node, gateway: Gateway, source: tuple[str, tuple[str, int] | None], args) -> int:
+    inbox: queue.Queue = queue.Queue(QUEUE_SIZE)
+    reader = _Reader(source[0], source[1], inbox, node.stop)
+    counts = {"lines": 0}
+    outlet = Outlet(node, gateway, lambda: counts)
+    node.announce()
+    outlet.status("ready", force=True)
+    reader.start()
+    state = "stopped"
+    try:
+        while not node.stop.is_set():
+            try:
+                item = inbox.get(timeout=0.2)
+            except queue.Empty:
+                item = ()
+            if item is None:  # end of stdin: promise what was sent, and finish
+                outlet.put(gateway.flush())
+                state = "done"
+                break
+            if item != ():
+                if isinstance(item, bytes):
+                    counts["lines"] += 1
+                    item = reading(item, args.id)
+                outlet.offer(item, time.time())
+            outlet.tick(time.time())
+        outlet.status(state, force=True)
+    finally:
+        reader.close()
+    return 0
+
+
+# ------------------------------------------------------------------ command line
+
+
+def add_parser(sub, fabric: Callable[[argparse.ArgumentParser], None]) -> None:
+    """``zfusion ingest krakensdr|jsonl``; ``fabric`` adds the usual Zenoh options."""
+    p = sub.add_parser("ingest", help="a gateway for real sensors: KrakenSDR, or JSON lines")
+    gw = p.add_subparsers(dest="gateway", required=True, metavar="GATEWAY")
+
+    def common(q: argparse.ArgumentParser) -> None:
+        q.add_argument("--id", required=True, help="the sensor id (a [sensors.<id>] of the site file)")
+        q.add_argument("--site", required=True, metavar="FILE", help="the site file (or any scenario file)")
+        q.add_argument("--max-skew", type=float, default=5.0,
+                       help="seconds a time stamp may be ahead of this clock (default %(default)s)")
+        q.add_argument("--max-age", type=float, default=60.0,
+                       help="seconds a time stamp may be behind this clock (default %(default)s)")
+        q.add_argument("--watermark-lag", type=float, default=2.0,
+                       help="heartbeat watermarks promise everything older than now minus this (default "
+                            "%(default)s s); a reading that arrives later is dropped as late; 0: no heartbeats "
+                            "(a replay of old data)")
+        fabric(q)
+
+    k = gw.add_parser("krakensdr", help="a KrakenSDR DF station (Kraken App CSV, doa.xml, Kraken Pro POSTs)")
+    src = k.add_mutually_exclusive_group(required=True)
+    src.add_argument("--url", help="poll the station's web server, e.g. http://HOST:8081")
+    src.add_argument("--listen", metavar="HOST:PORT", help="take the station's POSTs, e.g. 127.0.0.1:8042")
+    k.add_argument("--format", choices=("auto", "csv", "xml", "json"), default="auto",
+                   help="auto: told by the content (default); csv: /DOA_value.html; xml: /doa.xml; json: POSTs")
+    k.add_argument("--poll-s", type=float, default=1.0, help="seconds between polls (default %(default)s)")
+    k.add_argument("--timeout-s", type=float, default=2.0, help="HTTP timeout (default %(default)s s)")
+    k.add_argument("--doa", choices=("auto", "cw", "ccw"), default="auto",
+                   help="how the DoA is counted from the array: auto (CSV cw as 360-θ, XML/JSON ccw θ; default)")
+    k.add_argument("--heading", default="message",
+                   help="message: add the message's heading (default); none: the DoA is from true north; "
+                        "or a fixed heading in degrees")
+    k.add_argument("--vfo", type=float, action="append", metavar="MHZ",
+                   help="a VFO channel to publish (repeatable: channel k as <id>-<k>); default: VFO 0")
+    k.add_argument("--vfo-tol-khz", type=float, default=12.5, help="channel match tolerance (default %(default)s)")
+    k.add_argument("--min-conf", type=float, default=0.0, help="skip readings of lower confidence (default 0)")
+    k.add_argument("--station", help="only readings of this station id (default: any)")
+    common(k)
+
+    j = gw.add_parser("jsonl", help="one JSON measurement per line (docs/ingest.md)")
+    j.add_argument("--input", default="-", help="-, udp://HOST:PORT or tcp://HOST:PORT (default: stdin)")
+    common(j)
+
+
+def main(args, keys: KeySpace, zopts) -> int:
+    if args.gateway == "krakensdr":
+        return run_krakensdr(args, keys, zopts)
+    return run_jsonl(args, keys, zopts)

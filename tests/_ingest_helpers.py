@@ -1,0 +1,147 @@
+"""Helpers of the gateway process tests: a KrakenSDR-like web server, a Zenoh capture,
+and KrakenSDR documents for a given time and bearing."""
+
+from __future__ import annotations
+
+import json
+import math
+import threading
+import time
+from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+
+import zenoh
+
+from schemas import KeySpace, decode
+from services.launcher import free_port
+from services.node import ZenohOptions
+
+
+class DocServer:
+    """``http.server`` on loopback serving ``docs[path]``; ``fail`` > 0 answers that many
+    requests with HTTP 500 (a station whose web server is restarting)."""
+
+    def __init__(self):
+        self.docs: dict[str, bytes] = {}
+        self.fail = 0
+        self.requests = 0
+        outer = self
+
+        class Handler(BaseHTTPRequestHandler):
+            def do_GET(self):  # noqa: N802
+                outer.requests += 1
+                body = outer.docs.get(self.path)
+                if outer.fail > 0:
+                    outer.fail -= 1
+                    code, body = 500, b"busy"
+                else:
+                    code = 200 if body is not None else 404
+                    body = body if body is not None else b"not found"
+                self.send_response(code)
+                self.send_header("Content-Type", "text/html")  # what the KrakenSDR's server says
+                self.send_header("Content-Length", str(len(body)))
+                self.end_headers()
+                self.wfile.write(body)
+
+            def log_message(self, *a):
+                pass
+
+        self.server = ThreadingHTTPServer(("127.0.0.1", 0), Handler)
+        self.url = f"http://127.0.0.1:{self.server.server_address[1]}"
+        self.thread = threading.Thread(target=self.server.serve_forever, kwargs={"poll_interval": 0.1}, daemon=True)
+
+    def __enter__(self):
+        self.thread.start()
+        return self
+
+    def __exit__(self, *exc):
+        self.server.shutdown()
+        self.server.server_close()
+
+
+class Capture:
+    """A Zenoh peer listening on a free loopback port; collects every sample of the
+    deployment as ``(key, decoded message)``."""
+
+    def __init__(self, deployment: str):
+        self.keys = KeySpace(deployment)
+        self.endpoint = f"tcp/127.0.0.1:{free_port()}"
+        self.samples: list = []
+        self._lock = threading.Lock()
+
+    def __enter__(self):
+        self.session = zenoh.open(ZenohOptions(listen=[self.endpoint]).to_config())
+        self.sub = self.session.declare_subscriber(self.keys.all(), self._on)
+        return self
+
+    def _on(self, sample) -> None:
+        with self._lock:
+            self.samples.append((str(sample.key_expr), decode(sample.payload.to_bytes())))
+
+    def __exit__(self, *exc):
+        self.sub.undeclare()
+        self.session.close()
+
+    def of(self, kind: str, src: str | None = None) -> list:
+        with self._lock:
+            return [m for _, m in self.samples if m.kind == kind and (src is None or m.src == src)]
+
+    def wait(self, predicate, timeout: float = 30.0) -> bool:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            if predicate():
+                return True
+            time.sleep(0.05)
+        return False
+
+    def status(self, src: str) -> dict:
+        st = self.of("status", src)
+        return st[-1].body if st else {}
+
+
+def kraken_csv(t: float, bearings_deg: list[float], heading: float = 90.0, lat: float = 21.0285,
+               lon: float = 105.8542, freqs: list[float] | None = None) -> bytes:
+    """A Kraken App document: one line per VFO with compass bearing ``b`` from a station
+    whose array points at ``heading`` (field 2 = 360 − θ = b − heading)."""
+    freqs = freqs or [433.92e6 + 1e6 * k for k in range(len(bearings_deg))]
+    spectrum = ", ".join(["0.00"] * 360)
+    out = ""
+    for b, f in zip(bearings_deg, freqs):
+        out += (f"{round(t * 1000)}, {(b - heading) % 360}, 3.0, -40.0, {int(f)}, UCA, 100, KRK, {lat}, {lon}, "
+                f"{heading}, {heading}, GPS, R, R, R, R, {spectrum} \n")
+    return out.encode()
+
+
+def kraken_xml(t: float, bearing_deg: float, heading: float = 90.0, lat: float = 21.0285,
+               lon: float = 105.8542) -> bytes:
+    theta = (heading - bearing_deg) % 360  # counter-clockwise from the array reference
+    return (f"<DATA><STATION_ID>KRK</STATION_ID><TIME>{round(t * 1000)}</TIME><FREQUENCY>433.92</FREQUENCY>"
+            f"<LOCATION><LATITUDE>{lat}</LATITUDE><LONGITUDE>{lon}</LONGITUDE><HEADING>{heading}</HEADING>"
+            f"</LOCATION><DOA>{theta}</DOA><PWR>60.0</PWR><CONF>300</CONF></DATA>").encode()
+
+
+def kraken_json(t: float, bearing_deg: float, heading: float = 90.0, lat: float = 21.0285,
+                lon: float = 105.8542) -> bytes:
+    theta = (heading - bearing_deg) % 360
+    return json.dumps({"station_id": "KRK", "tStamp": round(t * 1000), "latitude": str(lat), "longitude": str(lon),
+                       "gpsBearing": str(heading), "radioBearing": f"{theta}", "conf": "3.00", "power": "-40.0",
+                       "freq": 433920000, "antType": "UCA", "latency": 100}).encode()
+
+
+def site_toml(sensors: dict[str, dict], emitter_m=(5000.0, 8000.0), origin=(21.0285, 105.8542, 0.0),
+              sigma_deg: float = 1.0) -> str:
+    """A site file (in the scenario format, which every site reader accepts) with DF
+    stations ``{id: {"pos_m": [...]}}`` (or ``{}``: the site is in the messages)."""
+    lines = ['description = "ingest test site"', "seed = 1", "duration_s = 3600.0", "",
+             "[origin]", f"lat_deg = {origin[0]}", f"lon_deg = {origin[1]}", f"alt_m = {origin[2]}", "",
+             "[defaults]", 'topology = "centralised"', 'method = "EKF"', "",
+             "[tracker]", f"sigma = {math.radians(sigma_deg)!r}", "",
+             "[targets.E1]", f"pos_m = [{emitter_m[0]}, {emitter_m[1]}]", 'segments = [{ type = "static" }]', ""]
+    for sid, spec in sensors.items():
+        kind = "df" if "pos_m" in spec else "airborne_df"
+        lines += [f"[sensors.{sid}]", f'kind = "{kind}"', "period_s = 1.0", f"std_az_deg = {sigma_deg}"]
+        if "pos_m" in spec:
+            lines.append(f"pos_m = {list(spec['pos_m'])}")
+        else:  # a mobile station: its site is in the messages
+            lines += ["path_m = [[90000.0, 90000.0, 0.0], [91000.0, 90000.0, 0.0]]", "path_t_s = [0.0, 3600.0]"]
+        lines.append("")
+    return "\n".join(lines)
