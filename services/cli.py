@@ -94,6 +94,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", help="write the summary JSON here")
     p.add_argument("--spawn", action="store_true",
                    help="also stream the recording live to a Rerun viewer (if a display is available)")
+    p.add_argument("--rotate-s", type=_seconds, metavar="N",
+                   help="recording in files <stem>.<k>.rrd of N seconds of session time each, each complete")
     p.add_argument("--restart", action=argparse.BooleanOptionalAction, default=True,
                    help="restart the fuser, local trackers and recorder if they are killed (default: on)")
     _fabric(p, per_process=False)  # every child shares these
@@ -169,6 +171,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int)
     p.add_argument("--spawn", action="store_true",
                    help="also stream to a Rerun viewer (started, or reused on port 9876) if a display is available")
+    p.add_argument("--rotate-s", type=_seconds, metavar="N",
+                   help="write <stem>.<k>.rrd, one file per N seconds of session time, each complete")
     _fabric(p)
 
     from .ingest.process import add_parser as add_ingest
@@ -240,7 +244,7 @@ def main(argv: list[str] | None = None) -> int:
 
         Path(args.rrd).parent.mkdir(parents=True, exist_ok=True)
         return record(args.id, keys, _zopts(args), args.rrd, args.expect,
-                      spawn=args.spawn, scenario=args.scenario, seed=args.seed)
+                      spawn=args.spawn, scenario=args.scenario, seed=args.seed, rotate_s=args.rotate_s)
     if args.command == "ingest":
         from .ingest.process import main as ingest
 

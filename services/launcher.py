@@ -56,6 +56,7 @@ from schemas import KeySpace, SchemaError, decode, to_estimate, tracker_id
 
 from .node import Inbox, Node, ZenohOptions, load
 from .resources import ProcessUsage, own_usage
+from .rotation import rotated_files
 from .evaluation import GOSPA_CUTOFF, many_targets, score_tracks_of
 from .summary import format_table, method_summary, summary, tracks_summary, truth_function
 
@@ -326,6 +327,7 @@ def run(args) -> int:
             trackers = {s: tracker_id(s) for s in scenario.sensors} if topology != "centralised" else {}
             children.start(RECORDER_ID, ["record", "--rrd", rrd, "--id", RECORDER_ID, "--scenario", args.scenario,
                                          *seed, *(["--spawn"] if getattr(args, "spawn", False) else []),
+                                         *(["--rotate-s", str(args.rotate_s)] if getattr(args, "rotate_s", None) else []),
                                          "--expect", ",".join([FUSER_ID, *trackers.values(), *sources]), *common])
             node.wait_for([FUSER_ID, RECORDER_ID], timeout=60.0,
                           gone=lambda: children.exited([FUSER_ID, RECORDER_ID]))
@@ -410,13 +412,15 @@ def run(args) -> int:
         doc["gospa_cutoff"] = GOSPA_CUTOFF
     doc["recording"] = rrd
     doc["recordings"] = sup.recordings or [rrd]
+    if getattr(args, "rotate_s", None):  # each recorder's files, in order
+        doc["recordings"] = [str(f) for r in doc["recordings"] for f in rotated_files(r)]
     doc["exit_codes"] = codes
     doc["outages"] = sup.outages
     usage.pop(LAUNCHER_ID, None)  # its own status is not the whole of it: measured here, at the end
     doc["processes"] = {**{n: u.report() for n, u in sorted(usage.items())},
                         LAUNCHER_ID: {**own_usage(), "incarnations": 1}}
     print(format_table(doc))
-    print(f"recording: {rrd}")
+    print(f"recording: {', '.join(doc['recordings']) if getattr(args, 'rotate_s', None) else rrd}")
     if args.json:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
         Path(args.json).write_text(json.dumps(doc, indent=1))

@@ -26,6 +26,7 @@ are thinned.
 
 from __future__ import annotations
 
+import functools
 import logging
 import math
 import os
@@ -53,6 +54,7 @@ from . import recorder_draw as draw
 from .evaluation import GOSPA_CUTOFF, many_targets
 from .node import Node, RejectLog
 from .picture import Reports
+from .rotation import Rotation
 
 log = logging.getLogger("zfusion")
 
@@ -127,13 +129,42 @@ class Recording(rr.RecordingStream):
     :meth:`send_rows` sends each entity's queued rows, in order, with one
     ``send_columns`` per run of rows made of the same archetypes and components (each
     row stays one row, as ``log`` would make it). ``flush`` and ``disconnect`` send
-    first, so whatever is flushed is complete.
+    first, so whatever is flushed is complete. Static entities and the recording's name
+    are remembered (one per entity: a few), so that :meth:`hand_over` can start the next
+    file of a rotation (:mod:`services.rotation`) with them.
     """
 
-    def __init__(self, app: str):
-        super().__init__(app)
+    def __init__(self, app: str, recording_id: str | None = None):
+        super().__init__(app, recording_id=recording_id)
         self._rows: dict[str, list[tuple[float, tuple[Part, ...]]]] = {}
         self.queued = 0
+        self._statics: list[tuple[Any, tuple[Any, ...]]] = []
+        self._name: str | None = None
+
+    def log(self, entity_path: Any, *entities: Any, static: bool = False, **kwargs: Any) -> None:
+        if static:
+            self._statics.append((entity_path, entities))
+        super().log(entity_path, *entities, static=static, **kwargs)
+
+    def send_recording_name(self, name: str) -> None:
+        self._name = name
+        super().send_recording_name(name)
+
+    def hand_over(self, new: "Recording", at: float) -> None:
+        """Rotation: the rows queued from time ``at`` on go to ``new``, with every static
+        entity and the name; the rest are sent here, and this file is closed."""
+        for path, rows in self._rows.items():
+            later = [r for r in rows if r[0] >= at]
+            if later:
+                rows[:] = [r for r in rows if r[0] < at]
+                new._rows[path] = later
+                new.queued += len(later)
+        if self._name is not None:
+            new.send_recording_name(self._name)
+        for entity_path, entities in self._statics:
+            new.log(entity_path, *entities, static=True)
+        self.flush()
+        self.disconnect()
 
     def row(self, path: str, t: float, parts: tuple[Part, ...]) -> None:
         self._rows.setdefault(path, []).append((t, parts))
@@ -241,6 +272,9 @@ class Recorder:
         self.keys = keys
         self.reject = reject if reject is not None else RejectLog("recorder")
         self.now = 0.0  # latest time of validity seen in data: the time of undated status
+        self.started = False  # whether any data has been seen (then ``now`` is on the session's time base)
+        self.fused_t = -math.inf  # latest time of the fused output
+        self.scenario_run = scenario is not None
         self.finished: set[str] = set()  # processes that reported done/stopped
         self.uplinked = 0  # measurements local trackers sent up on local/* (drawn as the node's)
         self.horizon = math.inf
@@ -389,8 +423,26 @@ class Recorder:
             self.rec.log(path, *[archetype(**components) for archetype, components in parts], static=True)
 
     def _advance(self, t: float) -> None:
+        self.started = True
         if t > self.now:
             self.now = t
+
+    @property
+    def clock(self) -> float:
+        """The recording's time: the fused output's (sources may run far ahead of it at
+        ``--speed max``); without one yet, the latest time seen, unless a scenario's run,
+        which has a fuser, is being recorded (-inf: not started)."""
+        if math.isfinite(self.fused_t):
+            return self.fused_t
+        return -math.inf if self.scenario_run else self.now
+
+    def reopen(self, rec: Recording, t: float) -> None:
+        """Rotation: go on in ``rec``, whose window starts at ``t``; the sites are drawn
+        again there, so the file shows them on its own."""
+        self.rec = rec
+        for sensor, pos in list(self._sites.items()):
+            del self._sites[sensor]
+            self._site(sensor, pos, t, "")
 
     @staticmethod
     def _trail(store: dict[str, Trail], key: str) -> Trail:
@@ -579,6 +631,8 @@ class Recorder:
         e = to_estimate(msg)
         self._advance(e.t)
         fused = e.node == FUSED_NODE
+        if fused and family == "fused":
+            self.fused_t = max(self.fused_t, e.t)
         if family == "local" and ident:
             self._node_of[ident] = e.node  # drops on feedback/<ident> name this node's tracks
         track = _p("world", "tracks", e.node, e.track)
@@ -766,11 +820,12 @@ def has_display() -> bool:
 
 
 def open_recording(rrd_path: str, app: str = "zfusion", spawn: bool = False, df: bool = False,
-                   port: int = VIEWER_PORT, many: bool = False) -> tuple[Recording, bool]:
+                   port: int = VIEWER_PORT, many: bool = False,
+                   recording_id: str | None = None) -> tuple[Recording, bool]:
     """A recording stream writing to ``rrd_path`` and, with ``spawn`` and a display, to a
     Rerun viewer it starts (or one already listening on ``port``). Returns the stream and
     whether a viewer is attached."""
-    rec = Recording(app)
+    rec = Recording(app, recording_id)
     bp = blueprint(df, many)
     sinks: list[Any] = [rr.FileSink(rrd_path)]
     live = False
@@ -802,7 +857,8 @@ def _flush(rec: Recording, timeout: float) -> None:
 
 
 def run(process_id: str, keys: KeySpace, zopts, rrd_path: str, expect: list[str], app: str = "zfusion", *,
-        spawn: bool = False, scenario: str | None = None, seed: int | None = None) -> int:
+        spawn: bool = False, scenario: str | None = None, seed: int | None = None,
+        rotate_s: float | None = None) -> int:
     sc = None
     if scenario is not None:
         from .node import load
@@ -827,7 +883,9 @@ def run(process_id: str, keys: KeySpace, zopts, rrd_path: str, expect: list[str]
 
     with Node(process_id, "recorder", keys, zopts) as node:
         # The file is opened once SIGTERM/SIGINT are handled, so a stop at any time leaves a whole file.
-        rec, _ = open_recording(rrd_path, app, spawn=spawn, df=df, many=sc is not None and many_targets(sc))
+        rotation = Rotation(rrd_path, rotate_s) if rotate_s else None
+        opener = functools.partial(open_recording, app=app, spawn=spawn, df=df, many=sc is not None and many_targets(sc))
+        rec, _ = opener(str(rotation.first()) if rotation else rrd_path)
         recorder = Recorder(rec, keys, node.reject, sc)
         node.subscribe(keys.all(), on_sample)
         # Started mid-session: begin with the fuser's current tracks (none answers at a run's start).
@@ -845,6 +903,12 @@ def run(process_id: str, keys: KeySpace, zopts, rrd_path: str, expect: list[str]
                     node.count("recorded")
                 if key == keys.fused():
                     late_join.cancel()  # the fuser's own stream: its picture is coming anyway
+                at = rotation.due(recorder.clock) if rotation and recorder.started else None
+                if at is not None:
+                    new, _ = opener(str(rotation.next()), recording_id=rec.get_recording_id())
+                    rec.hand_over(new, at)
+                    rec = new
+                    recorder.reopen(rec, at)
             late_join.poll()
             if rec.queued >= SEND_ROWS_MAX or time.monotonic() - last_send >= SEND_PERIOD_S:
                 rec.send_rows()
