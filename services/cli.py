@@ -98,6 +98,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="recording in files <stem>.<k>.rrd of N seconds of session time each, each complete")
     p.add_argument("--restart", action=argparse.BooleanOptionalAction, default=True,
                    help="restart the fuser, local trackers and recorder if they are killed (default: on)")
+    p.add_argument("--geojson", metavar="PATH", help="also export the fused picture to this GeoJSON file")
+    p.add_argument("--cot", metavar="URL", help="also send it as Cursor-on-Target to udp://HOST:PORT or tcp://HOST:PORT")
     _fabric(p, per_process=False)  # every child shares these
 
     p = sub.add_parser("eval", help="Monte Carlo evaluation in-process, with the services' own estimators")
@@ -178,6 +180,30 @@ def build_parser() -> argparse.ArgumentParser:
     from .ingest.process import add_parser as add_ingest
 
     add_ingest(sub, _fabric)
+
+    p = sub.add_parser("export", help="the fused picture out: a GeoJSON file, Cursor-on-Target for TAK")
+    exporters = p.add_subparsers(dest="exporter", required=True, metavar="FORMAT")
+    for name, what in (("geojson", "rewrite an RFC 7946 GeoJSON file after every update"),
+                       ("cot", "send Cursor-on-Target events for every update and the sensors")):
+        q = exporters.add_parser(name, help=what)
+        if name == "geojson":
+            q.add_argument("--file", required=True, metavar="PATH", help="the GeoJSON file (replaced atomically)")
+        else:
+            from .export.cot import STALE_S, TYPE_EMITTER, TYPE_TRACK
+
+            q.add_argument("--to", required=True, metavar="URL", help="udp://HOST:PORT or tcp://HOST:PORT")
+            q.add_argument("--stale-s", type=float, default=STALE_S,
+                           help="seconds an event stays valid (default: %(default)s)")
+            q.add_argument("--type-emitter", default=TYPE_EMITTER, help="CoT type of an emitter fix (default: %(default)s)")
+            q.add_argument("--type-track", default=TYPE_TRACK, help="CoT type of a 3D track (default: %(default)s)")
+            q.add_argument("--type-sensor", help="CoT type of every sensor (default: by kind, a-f-G-E-S, "
+                                                 "a-f-G-E-S-R for radars, a-f-A airborne)")
+        where = q.add_mutually_exclusive_group(required=True)
+        where.add_argument("--site", metavar="FILE", help="the site (or scenario) file: origin and sensors")
+        where.add_argument("--scenario", help="a built-in scenario name or file")
+        q.add_argument("--id", default=f"export-{name}", help="process id (default: %(default)s)")
+        q.add_argument("--live", action="store_true", help="times are UTC (a live session), not scenario seconds")
+        _fabric(q)
     return ap
 
 
@@ -239,6 +265,8 @@ def main(argv: list[str] | None = None) -> int:
         from .picture import main as picture
 
         return picture(keys, _zopts(args), args.timeout)
+    if args.command == "export":
+        return _export(args, keys)
     if args.command == "record":
         from .recorder import run as record
 
@@ -250,6 +278,38 @@ def main(argv: list[str] | None = None) -> int:
 
         return ingest(args, keys, _zopts(args))
     raise AssertionError(args.command)
+
+
+def _export(args, keys: KeySpace) -> int:
+    from sensors_sim.spec import ScenarioError
+
+    from .export import cot, process
+    from .node import load
+
+    command = f"zfusion export {args.exporter}"
+    try:
+        site = load(args.site or args.scenario)
+    except ScenarioError as e:
+        print(f"{command}: {e}; give a site or scenario file", file=sys.stderr)
+        return 2
+    if args.exporter == "geojson":
+        path = Path(args.file)
+        if not path.parent.is_dir():
+            print(f"{command}: --file {args.file}: no such directory {path.parent}, create it first", file=sys.stderr)
+            return 2
+        return process.run(args.id, keys, _zopts(args), site, lambda: process.GeoJSONSink(path, site, args.live))
+    try:
+        cot.parse_url(args.to)
+    except ValueError as e:
+        print(f"{command}: --to {e}", file=sys.stderr)
+        return 2
+    if not (args.stale_s > 0 and math.isfinite(args.stale_s)):
+        print(f"{command}: --stale-s {args.stale_s:g}: must be a positive number of seconds", file=sys.stderr)
+        return 2
+    types = cot.Types(track=args.type_track, emitter=args.type_emitter, sensor=args.type_sensor)
+    return process.run(args.id, keys, _zopts(args), site,
+                       lambda: process.CoTSink(cot.sender_for(args.to), site, args.deployment, types, args.stale_s,
+                                               args.live))
 
 
 def _eval(args) -> int:

@@ -69,6 +69,7 @@ TOPOLOGIES = ("centralised", "distributed", "feedback", "two-stage")
 RESTART_DELAY = 0.5  # s: lets the fabric see the dead process's token go before the new one appears
 MAX_RESTARTS = 3  # per process: a process killed again and again is not coming back
 END_GRACE = 10.0  # s after the last source ends, when no fuser is left to say it is done
+EXPORTERS = {"geojson": ("export-geojson", "--file"), "cot": ("export-cot", "--to")}  # run flag -> child id, its option
 
 
 def free_port() -> int:
@@ -241,6 +242,29 @@ def default_rrd(scenario: str, topology: str) -> str:
     return str(Path("runs") / f"{scenario}-{topology}-{stamp}.rrd")
 
 
+def exporter_argv(args) -> dict[str, list[str]]:
+    """The ``zfusion export`` children of ``--geojson``/``--cot`` (a bad value: one line, exit 2)."""
+    from .export.cot import parse_url
+
+    out = {}
+    for flag, (name, option) in EXPORTERS.items():
+        value = getattr(args, flag, None)
+        if value is None:
+            continue
+        if flag == "cot":
+            try:
+                parse_url(value)
+            except ValueError as e:
+                print(f"zfusion run: --cot {e}", file=sys.stderr)
+                raise SystemExit(2) from None
+        else:
+            value = str(Path(value).resolve())
+            Path(value).parent.mkdir(parents=True, exist_ok=True)
+        out[name] = ["export", flag, option, value, "--scenario", args.scenario, "--id", name,
+                     *(["--live"] if getattr(args, "live", False) else [])]
+    return out
+
+
 def run(args) -> int:
     scenario = load(args.scenario, args.seed)
     topology, method = resolve_topology(scenario, args.topology, args.method)
@@ -256,6 +280,7 @@ def run(args) -> int:
     if not speed > 0:
         raise SystemExit("zfusion run: --speed must be > 0 or 'max'")
     rrd = args.rrd or default_rrd(scenario.name, topology)
+    exporters = exporter_argv(args)
     Path(rrd).parent.mkdir(parents=True, exist_ok=True)
 
     keys = KeySpace(args.deployment)
@@ -329,14 +354,16 @@ def run(args) -> int:
                                          *seed, *(["--spawn"] if getattr(args, "spawn", False) else []),
                                          *(["--rotate-s", str(args.rotate_s)] if getattr(args, "rotate_s", None) else []),
                                          "--expect", ",".join([FUSER_ID, *trackers.values(), *sources]), *common])
-            node.wait_for([FUSER_ID, RECORDER_ID], timeout=60.0,
-                          gone=lambda: children.exited([FUSER_ID, RECORDER_ID]))
+            for name, argv in exporters.items():  # listeners like the recorder, up before the sources
+                children.start(name, [*argv, *common])
+            node.wait_for([FUSER_ID, RECORDER_ID, *exporters], timeout=60.0,
+                          gone=lambda: children.exited([FUSER_ID, RECORDER_ID, *exporters]))
             for sensor, tid in trackers.items():
                 children.start(tid, ["tracker", "--scenario", args.scenario, "--sensor", sensor, "--method", method,
                                      "--fuser", FUSER_ID, "--feedback-timeout", str(timeout), *seed, *(
                                          ["--fusion-rule", args.fusion_rule] if args.fusion_rule else []), *common])
             node.wait_for(trackers.values(), timeout=60.0, gone=lambda: children.exited(trackers.values()))
-            sup.restartable = {FUSER_ID, RECORDER_ID, *trackers.values()}
+            sup.restartable = {FUSER_ID, RECORDER_ID, *trackers.values(), *exporters}
             start_at = time.time() + (0.0 if math.isinf(speed) else 0.5)
             started.append(start_at)
             for sid in sources:

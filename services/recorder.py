@@ -4,8 +4,10 @@ Timeline ``sim_time`` (scenario seconds). Entities live under ``world/`` (sites,
 measurements as points or rays, truth, tracks per node with their 3σ ellipsoids or
 ellipses, predictions, uplinks, feedback, jammers), ``metrics/`` (position error, NEES
 and NIS against their χ² bounds, a many-target picture's GOSPA, missed and false
-tracks) and ``status/`` (events and counters); docs/design.md ("Recording") lists them
-and docs/viewing.md says what each shows. A blueprint lays out the panels.
+tracks) and ``status/`` (events and counters); ``map/`` holds sites, bearings, truth
+and tracks in lat/lon for the map view (:mod:`services.recorder_geo`). docs/design.md
+("Recording") lists them and docs/viewing.md says what each shows. A blueprint lays out
+the panels.
 
 Many targets: each track is an entity keyed by (node, id) and is cleared (``rr.Clear``,
 recursively) once its stream has reported ``delete_misses`` frames without it, or at
@@ -51,6 +53,7 @@ from schemas.links import downlink
 
 from . import picture
 from . import recorder_draw as draw
+from . import recorder_geo
 from .evaluation import GOSPA_CUTOFF, many_targets
 from .node import Node, RejectLog
 from .picture import Reports
@@ -77,9 +80,9 @@ HORIZON_SLACK_S = 1.0  # as the fuser: data beyond the scenario's end + this is 
 FUSED_NODE = "centre"
 
 
-def blueprint(df: bool = False, many: bool = False) -> rrb.Blueprint:
-    """Scene | error and consistency plots (many targets: the picture's GOSPA, targets
-    missed and false tracks, NIS) | event log, jamming and counters."""
+def blueprint(df: bool = False, many: bool = False, geo: bool = False) -> rrb.Blueprint:
+    """Scene (with ``geo``: beside the map) | error and consistency plots (many targets:
+    the picture's GOSPA, targets missed and false tracks, NIS) | event log, jamming and counters."""
     scene = rrb.Spatial3DView(origin="world", name="Map (ENU; DF on the plane z = 0)" if df else "Scene (ENU)")
     if many:
         plots = rrb.Vertical(
@@ -99,8 +102,9 @@ def blueprint(df: bool = False, many: bool = False) -> rrb.Blueprint:
         rrb.TimeSeriesView(origin="status", name="Process counters"),
         row_shares=[2, 1, 1],
     )
+    columns = [scene, recorder_geo.view(), plots, side] if geo else [scene, plots, side]
     return rrb.Blueprint(
-        rrb.Horizontal(scene, plots, side, column_shares=[3, 2, 2]),
+        rrb.Horizontal(*columns, column_shares=[3, 3, 2, 2] if geo else [3, 2, 2]),
         rrb.BlueprintPanel(state="collapsed"),
         rrb.SelectionPanel(state="collapsed"),
         rrb.TimePanel(state="collapsed", timeline=TIMELINE),
@@ -303,6 +307,7 @@ class Recorder:
         self._states: dict[str, str] = {}
         self._jam: dict[str, tuple] = {}
         self._jam_victims: dict[str, set[str]] = {}
+        self.geo: recorder_geo.MapLayer | None = None  # the map, where the session has a geodetic origin
         rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
         if scenario is not None:
             self._from_scenario(scenario)
@@ -471,6 +476,7 @@ class Recorder:
             self.delete_misses = association.delete_misses
         self.df_sensors = {sid for sid, s in sc.sensors.items() if s.kind in DF_KINDS}
         self.many = many_targets(sc)
+        self.geo = recorder_geo.MapLayer.at(sc.origin, self._log)
         # The scenario's scale, from where its sensors and jammers are during the run (not its targets).
         times = np.linspace(0.0, float(sc.duration), 9)
         pts = [site.position(float(t)) for site in [s.site for s in sc.sensors.values()]
@@ -499,6 +505,8 @@ class Recorder:
         if len(path) > 1:
             parts.append(part(rr.LineStrips3D, strips=[path], colors=[draw.dim(c)], radii=_ui(1.5)))
         self._log(_p("world", "sites", sensor), t, *parts)
+        if self.geo is not None:
+            self.geo.site(_p("world", "sites", sensor), t, pos, path, c)
         return pos
 
     def _ray_length(self, site: np.ndarray, u: np.ndarray, planar: bool) -> float:
@@ -559,6 +567,8 @@ class Recorder:
             colors = [c] * len(rays) + [draw.dim(c)] * len(arcs)
             parts.append(part(rr.LineStrips3D, strips=strips, colors=colors, radii=_ui(1.0)))
         self._log(path, m.t, *parts)
+        if self.geo is not None and m.kind == "bearing":
+            self.geo.bearings(path, m.t, rays, c)
 
     def _on_watermark(self, family: str, ident: str | None, msg: Message) -> None:
         self._advance(msg.t)
@@ -593,6 +603,8 @@ class Recorder:
         if grew:  # else the path drawn last still shows
             parts.append(part(rr.LineStrips3D, strips=[path], colors=[draw.TRUTH_COLOR], radii=_ui(1.0)))
         self._log(_p("world", "truth", tgt), msg.t, *parts)
+        if self.geo is not None:
+            self.geo.truth(_p("world", "truth", tgt), msg.t, pos, path, grew, draw.TRUTH_COLOR)
 
     def _draw_estimate(self, path: str, e: Estimate, color: tuple[int, int, int], label: str) -> np.ndarray | None:
         """Point + 3σ ellipsoid / ellipse + path so far; a smoothed bearing as a ray with its
@@ -625,6 +637,8 @@ class Recorder:
             ring = draw.ellipse(pos, e.P[:2, :2])
             parts.append(part(rr.LineStrips3D, strips=[ring, trail], colors=[color, draw.dim(color)], radii=line))
         self._log(path, e.t, *parts)
+        if self.geo is not None:
+            self.geo.estimate(path, e.t, e, color, trail, grew)
         return pos
 
     def _on_estimate(self, family: str, ident: str | None, msg: Message) -> None:
@@ -693,6 +707,8 @@ class Recorder:
     def _clear(self, track: str, t: float) -> None:
         """The track is gone: from ``t`` on it is not drawn (nor its prediction), and its paths are forgotten."""
         self._log(track, t, part(rr.Clear, is_recursive=[True]))
+        if self.geo is not None:
+            self.geo.clear(track, t)
         for path in [p for p in self._track_paths if p == track or p.startswith(track + "/")]:
             del self._track_paths[path]
 
@@ -820,13 +836,13 @@ def has_display() -> bool:
 
 
 def open_recording(rrd_path: str, app: str = "zfusion", spawn: bool = False, df: bool = False,
-                   port: int = VIEWER_PORT, many: bool = False,
+                   port: int = VIEWER_PORT, many: bool = False, geo: bool = False,
                    recording_id: str | None = None) -> tuple[Recording, bool]:
     """A recording stream writing to ``rrd_path`` and, with ``spawn`` and a display, to a
     Rerun viewer it starts (or one already listening on ``port``). Returns the stream and
     whether a viewer is attached."""
     rec = Recording(app, recording_id)
-    bp = blueprint(df, many)
+    bp = blueprint(df, many, geo)
     sinks: list[Any] = [rr.FileSink(rrd_path)]
     live = False
     if spawn and not has_display():
@@ -884,7 +900,8 @@ def run(process_id: str, keys: KeySpace, zopts, rrd_path: str, expect: list[str]
     with Node(process_id, "recorder", keys, zopts) as node:
         # The file is opened once SIGTERM/SIGINT are handled, so a stop at any time leaves a whole file.
         rotation = Rotation(rrd_path, rotate_s) if rotate_s else None
-        opener = functools.partial(open_recording, app=app, spawn=spawn, df=df, many=sc is not None and many_targets(sc))
+        opener = functools.partial(open_recording, app=app, spawn=spawn, df=df, many=sc is not None and many_targets(sc),
+                                   geo=sc is not None)
         rec, _ = opener(str(rotation.first()) if rotation else rrd_path)
         recorder = Recorder(rec, keys, node.reject, sc)
         node.subscribe(keys.all(), on_sample)

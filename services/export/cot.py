@@ -1,0 +1,239 @@
+"""The fused picture as Cursor-on-Target events, for TAK (ATAK, WinTAK, TAK Server).
+
+One CoT 2.0 event per fused update and per sensor (pure: :func:`track_event`,
+:func:`sensor_event` return the XML bytes), sent by :class:`UdpSender` or
+:class:`TcpSender` (the transport)::
+
+    <event version="2.0" uid=… type=… time=… start=… stale=… how=…>
+      <point lat=… lon=… hae=… ce=… le=…/>
+      <detail><contact callsign=…/><track course=… speed=…/><remarks>…</remarks>
+              <zfusion kind=… method=… node=… t=… position_std=…/></detail>
+    </event>
+
+Types (the CoT type tree is MIL-STD-2525's: ``a`` atom, affiliation ``u`` unknown /
+``f`` friend, battle dimension ``A`` air / ``G`` ground, then function): a 3D track is
+``a-u-A`` (an air track of unknown affiliation: what a radar picture holds until it is
+identified); an emitter fix ``a-u-G-E`` (ground equipment, unknown: a transmitter
+located by DF; the tree has no "emitter" leaf, and ``G-E-S`` is a sensor, which it is
+not); a sensor ``a-f-G-E-S`` (friendly ground sensor), ``a-f-G-E-S-R`` for a radar,
+``a-f-A`` for an airborne DF. Each is an option of ``zfusion export cot``.
+
+Times are UTC: ``time`` is when the event is made; ``start`` the estimate's time of
+validity in a live session, else (scenario seconds have no date) also now, with the
+scenario time in ``<zfusion t=…>``; ``stale`` is ``start + stale_s``. ``how`` is
+``m-f`` (machine, fused) for estimates and ``h-e`` (entered: from the site file) for
+sensors. ``ce`` and ``le`` are 1σ (metres, :func:`services.geo.ce_le`); an unknown
+one is CoT's 9999999.
+
+TCP: events go out on one connection, each whole; a failed send closes it and the
+sender reconnects with exponential backoff (``BACKOFF_MIN_S`` doubling to
+``BACKOFF_MAX_S``), re-sending on reconnection the latest event of every uid (at most
+``MAX_PENDING``) so a TAK server that comes back gets the picture, not just what
+changes next. UDP (one datagram per event) needs no connection.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import socket
+import time
+import xml.etree.ElementTree as ET
+from collections import OrderedDict
+from dataclasses import dataclass
+from urllib.parse import urlsplit
+
+import numpy as np
+
+from fusion.geodetic import LocalFrame
+from fusion.types import Estimate
+
+from .. import geo
+from .picture import utc_iso
+
+log = logging.getLogger("zfusion")
+
+UNKNOWN = 9999999.0  # CoT's "not known" for hae, ce, le
+TYPE_TRACK = "a-u-A"
+TYPE_EMITTER = "a-u-G-E"
+TYPE_SENSOR = "a-f-G-E-S"
+SENSOR_TYPES = {"radar2d": "a-f-G-E-S-R", "radar3d": "a-f-G-E-S-R", "airborne_df": "a-f-A"}
+STALE_S = 60.0
+BACKOFF_MIN_S = 0.5
+BACKOFF_MAX_S = 30.0
+MAX_PENDING = 4096
+
+
+@dataclass(frozen=True)
+class Types:
+    """The CoT type of each kind of object (module docstring)."""
+
+    track: str = TYPE_TRACK
+    emitter: str = TYPE_EMITTER
+    sensor: str | None = None  # None: by sensor kind (SENSOR_TYPES, else TYPE_SENSOR)
+
+    def of_sensor(self, kind: str) -> str:
+        return self.sensor or SENSOR_TYPES.get(kind, TYPE_SENSOR)
+
+
+def _event(uid: str, type_: str, how: str, now: float, start: float, stale_s: float, lla: np.ndarray,
+           ce: float, le: float | None) -> tuple[ET.Element, ET.Element]:
+    ev = ET.Element("event", version="2.0", uid=uid, type=type_, time=utc_iso(now), start=utc_iso(start),
+                    stale=utc_iso(start + stale_s), how=how)
+    lat, lon, hae = (float(v) for v in lla)
+    ET.SubElement(ev, "point", lat=f"{lat:.7f}", lon=f"{lon:.7f}", hae=f"{hae:.1f}", ce=f"{ce:.1f}",
+                  le=f"{UNKNOWN if le is None else le:.1f}")
+    return ev, ET.SubElement(ev, "detail")
+
+
+def track_event(e: Estimate, frame: LocalFrame, uid: str, types: Types, now: float, stale_s: float,
+                live: bool) -> bytes:
+    """The event of one fused track or fix, ``now`` being the UTC POSIX time."""
+    fix = e.x.size == 2
+    ce, le = geo.ce_le(e.x, e.P)
+    lla = geo.lat_lon_alt(frame, geo.enu3(e.x))
+    ev, detail = _event(uid, types.emitter if fix else types.track, "m-f", now, e.t if live else now, stale_s,
+                        lla, ce, le)
+    ET.SubElement(detail, "contact", callsign=e.track)
+    v = geo.velocity(e.x)
+    if v is not None:  # course: degrees clockwise from true north; speed: m/s over ground
+        ET.SubElement(detail, "track", course=f"{math.degrees(math.atan2(v[0], v[1])) % 360.0:.1f}",
+                      speed=f"{math.hypot(v[0], v[1]):.1f}")
+    what = "emitter fix" if fix else "track"
+    ET.SubElement(detail, "remarks").text = f"zfusion {e.method} {what} {e.track}, 1-sigma {ce:.0f} m"
+    ET.SubElement(detail, "zfusion", kind="fix" if fix else "track", method=e.method, node=e.node, t=repr(float(e.t)),
+                  position_std=f"{geo.position_std(e.x, e.P):.1f}")
+    return ET.tostring(ev, encoding="utf-8", xml_declaration=False)
+
+
+def sensor_event(sensor: str, kind: str, enu: np.ndarray, frame: LocalFrame, uid: str, types: Types, now: float,
+                 stale_s: float) -> bytes:
+    ev, detail = _event(uid, types.of_sensor(kind), "h-e", now, now, stale_s, geo.lat_lon_alt(frame, enu), 0.0, 0.0)
+    ET.SubElement(detail, "contact", callsign=sensor)
+    ET.SubElement(detail, "remarks").text = f"zfusion sensor {sensor} ({kind})"
+    return ET.tostring(ev, encoding="utf-8", xml_declaration=False)
+
+
+def parse_url(url: str) -> tuple[str, str, int]:
+    """``udp://HOST:PORT`` or ``tcp://HOST:PORT`` -> (scheme, host, port); ValueError otherwise."""
+    u = urlsplit(url)
+    try:
+        port = u.port
+    except ValueError:
+        port = None
+    if u.scheme not in ("udp", "tcp") or not u.hostname or port is None or u.path not in ("", "/"):
+        raise ValueError(f"{url!r}: expected udp://HOST:PORT or tcp://HOST:PORT")
+    return u.scheme, u.hostname, port
+
+
+class UdpSender:
+    """One datagram per event."""
+
+    def __init__(self, host: str, port: int):
+        self.address = (host, port)
+        self._sock = socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET, socket.SOCK_DGRAM)
+        self.failed = 0
+
+    def send(self, uid: str, data: bytes) -> bool:
+        try:
+            self._sock.sendto(data, self.address)
+            return True
+        except OSError as e:  # no route, buffer full: counted, the next update follows
+            self.failed += 1
+            log.debug("cot: udp send to %s: %s", self.address, e)
+            return False
+
+    def poll(self) -> None:
+        pass
+
+    def close(self) -> None:
+        self._sock.close()
+
+
+class TcpSender:
+    """Events on one TCP connection, reconnected with backoff (module docstring).
+
+    ``clock`` is monotonic seconds (a test may pass its own)."""
+
+    def __init__(self, host: str, port: int, clock=time.monotonic, timeout: float = 2.0):
+        self.address = (host, port)
+        self._clock = clock
+        self._timeout = timeout
+        self._sock: socket.socket | None = None
+        self._latest: OrderedDict[str, bytes] = OrderedDict()  # uid -> its latest event
+        self._backoff = BACKOFF_MIN_S
+        self._next_try = 0.0
+        self.failed = 0
+        self.connects = 0
+
+    @property
+    def connected(self) -> bool:
+        return self._sock is not None
+
+    def _connect(self) -> bool:
+        if self._sock is not None:
+            return True
+        if self._clock() < self._next_try:
+            return False
+        try:
+            self._sock = socket.create_connection(self.address, timeout=self._timeout)
+        except OSError as e:
+            log.debug("cot: tcp connect to %s: %s (next try in %.1f s)", self.address, e, self._backoff)
+            self._back_off()
+            return False
+        self._backoff = BACKOFF_MIN_S
+        self.connects += 1
+        if self.connects > 1:
+            log.info("cot: reconnected to %s:%d", *self.address)
+        return self._flush()
+
+    def _back_off(self) -> None:
+        """A failure: the next try waits the current backoff, which then doubles."""
+        self._next_try = self._clock() + self._backoff
+        self._backoff = min(2 * self._backoff, BACKOFF_MAX_S)
+
+    def _flush(self) -> bool:
+        """Send the latest event of every uid (after a (re)connection)."""
+        for data in list(self._latest.values()):
+            if not self._write(data):
+                return False
+        return True
+
+    def _write(self, data: bytes) -> bool:
+        try:
+            self._sock.sendall(data)
+            return True
+        except OSError as e:
+            self.failed += 1
+            log.warning("cot: tcp send to %s:%d failed (%s); reconnecting", *self.address, e)
+            self._sock.close()
+            self._sock = None
+            self._back_off()
+            return False
+
+    def send(self, uid: str, data: bytes) -> bool:
+        self._latest[uid] = data
+        self._latest.move_to_end(uid)
+        while len(self._latest) > MAX_PENDING:
+            self._latest.popitem(last=False)
+        if self._sock is None:
+            return self._connect()  # which sends everything, this event too
+        return self._write(data)
+
+    def poll(self) -> None:
+        """Retry a lost connection when its backoff has passed."""
+        if self._sock is None:
+            self._connect()
+
+    def forget(self, uid: str) -> None:
+        self._latest.pop(uid, None)
+
+    def close(self) -> None:
+        if self._sock is not None:
+            self._sock.close()
+            self._sock = None
+
+
+def sender_for(url: str):
+    scheme, host, port = parse_url(url)
+    return UdpSender(host, port) if scheme == "udp" else TcpSender(host, port)

@@ -1,0 +1,86 @@
+"""The fused picture as an RFC 7946 GeoJSON FeatureCollection (pure: no I/O but :func:`write_atomic`).
+
+Features, all in WGS-84 ``[lon °, lat °, alt m]`` (RFC 7946 §3.1.1), converted from the
+session's ENU frame with pymap3d (:mod:`services.geo`):
+
+* one ``Point`` per fused track or emitter fix; properties ``id`` (the track id),
+  ``kind`` (``track``: a 3D track; ``fix``: an emitter fix on the map plane), ``method``,
+  ``time`` (ISO 8601 UTC in a live session, scenario seconds otherwise) and
+  ``position_std_m`` (√ trace of the position covariance); a 3D track also
+  ``velocity_enu_mps``;
+* one ``Polygon`` per emitter fix: its 95 % confidence ellipse (``kind`` ``ellipse``,
+  ``id`` the fix's), a closed ring, counter-clockwise (RFC 7946 §3.1.6);
+* one ``Point`` per sensor (``kind`` ``sensor``, ``sensor_kind``: ``df``, ``radar2d``, ...).
+
+:func:`write_atomic` replaces the file in one step (a temporary file beside it, then
+``os.replace``), so a reader never sees half a document.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+from typing import Iterable
+
+import numpy as np
+
+from fusion.geodetic import LocalFrame
+from fusion.types import Estimate
+
+from .. import geo
+from .picture import session_time
+
+DEGREES = 7  # decimals of a degree kept: about 1 cm
+METRES = 2
+
+
+def _position(g: np.ndarray) -> list[float]:
+    lat, lon, alt = (float(v) for v in g)
+    return [round(lon, DEGREES), round(lat, DEGREES), round(alt, METRES)]
+
+
+def is_fix(e: Estimate) -> bool:
+    """An emitter fix: a position on the map plane (``[e n]``)."""
+    return e.x.size == 2
+
+
+def estimate_features(e: Estimate, frame: LocalFrame, live: bool) -> list[dict]:
+    """The Point of a track or fix, and a fix's 95 % ellipse."""
+    common = {"id": e.track, "method": e.method, "time": session_time(e.t, live)}
+    props = {**common, "kind": "fix" if is_fix(e) else "track", "position_std_m": round(geo.position_std(e.x, e.P), 3)}
+    v = geo.velocity(e.x)
+    if v is not None:
+        props["velocity_enu_mps"] = [round(float(c), 3) for c in v]
+    pos = geo.enu3(e.x)
+    out = [{"type": "Feature", "geometry": {"type": "Point", "coordinates": _position(geo.lat_lon_alt(frame, pos))},
+            "properties": props}]
+    if is_fix(e):
+        ring = geo.ring(frame, pos, geo.horizontal_cov(e.P))
+        coords = [[round(float(lon), DEGREES), round(float(lat), DEGREES)] for lat, lon, _ in ring]
+        coords[-1] = coords[0]  # closed exactly, after rounding too
+        out.append({"type": "Feature", "geometry": {"type": "Polygon", "coordinates": [coords]},
+                    "properties": {**common, "kind": "ellipse", "confidence": geo.CONFIDENCE}})
+    return out
+
+
+def sensor_feature(sensor: str, kind: str, enu: np.ndarray, frame: LocalFrame) -> dict:
+    return {"type": "Feature", "geometry": {"type": "Point", "coordinates": _position(geo.lat_lon_alt(frame, enu))},
+            "properties": {"id": sensor, "kind": "sensor", "sensor_kind": kind}}
+
+
+def feature_collection(estimates: Iterable[Estimate], sensors: dict[str, tuple[str, np.ndarray]],
+                       frame: LocalFrame, live: bool) -> dict:
+    """The whole picture: sensors first, then every track or fix (with its ellipse)."""
+    features = [sensor_feature(sid, kind, enu, frame) for sid, (kind, enu) in sensors.items()]
+    for e in estimates:
+        features.extend(estimate_features(e, frame, live))
+    return {"type": "FeatureCollection", "features": features}
+
+
+def write_atomic(path: Path, doc: dict) -> None:
+    """Replace ``path`` with ``doc`` as JSON in one step (temporary file, then ``os.replace``)."""
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    with open(tmp, "w", encoding="utf-8") as f:
+        json.dump(doc, f, separators=(",", ":"))
+    os.replace(tmp, path)

@@ -1,0 +1,108 @@
+"""The current fused picture, as the exporters keep it: sans-I/O, bytes off ``fused`` in.
+
+:meth:`Picture.offer` takes a sample (key and bytes), validates it with the project's
+schemas and returns the estimate it brings, or ``None`` once the sample is counted and
+dropped (:class:`~services.node.RejectLog`, rate-limited): a sample on another key, one
+that fails to decode, a kind other than ``track``, a time before the session's start or
+beyond its end (scenario runs: duration + 1 s), a repeat (same source, seq and bytes),
+or an update older than the track's latest. A dropped sample leaves the picture as if
+it never arrived.
+
+A track is gone once the fused stream has had ``delete_misses`` frames (distinct times)
+without it, as in the recording (:class:`services.recorder.Reports`); a fuser restarted
+with other tracks therefore replaces the old ones within a few frames. Memory: the live
+tracks (at most ``MAX_TRACKS``, oldest update dropped first) and ``SEQ_WINDOW`` recent
+sequence numbers.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import OrderedDict
+
+from fusion.mtt import AssociationConfig
+from fusion.types import Estimate
+from schemas import KeySpace, SchemaError, decode, to_estimate
+
+from ..node import RejectLog
+from ..recorder import HORIZON_SLACK_S, SEQ_WINDOW, Reports
+
+MAX_TRACKS = 4096
+
+
+class Picture:
+    """The latest fused estimate of every live track.
+
+    Args:
+        keys: the deployment's key space (samples must come on its ``fused`` key).
+        reject: where dropped samples are counted.
+        duration: a scenario's duration (s), beyond which data is "future"; None (live) for none.
+        delete_misses: frames without a track before it is gone.
+    """
+
+    def __init__(self, keys: KeySpace, reject: RejectLog, duration: float | None = None,
+                 delete_misses: int = AssociationConfig.delete_misses):
+        self.keys = keys
+        self.reject = reject
+        self.horizon = math.inf if duration is None else float(duration) + HORIZON_SLACK_S
+        self.delete_misses = delete_misses
+        self.tracks: OrderedDict[str, Estimate] = OrderedDict()  # by track id, oldest update first
+        self._reports = Reports()
+        self._seen: OrderedDict[tuple[str, int], int] = OrderedDict()  # (src, seq) -> hash of the bytes
+
+    def offer(self, key: str, data: bytes) -> Estimate | None:
+        if key != self.keys.fused():
+            self.reject(key.rsplit("/", 1)[-1], "key", f"{key!r} is not {self.keys.fused()!r}")
+            return None
+        try:
+            msg = decode(data)
+        except SchemaError as e:
+            self.reject("fused", e.cause, str(e))
+            return None
+        if msg.kind != "track":
+            self.reject(msg.src, "kind", f"{msg.kind!r} is not expected on fused")
+            return None
+        if msg.t > self.horizon:
+            self.reject(msg.src, "future", f"t = {msg.t:g} s is beyond the session's end ({self.horizon:g} s)")
+            return None
+        if self.horizon < math.inf and msg.t < 0.0:
+            self.reject(msg.src, "past", f"t = {msg.t:g} s is before the scenario's start")
+            return None
+        digest = hash(data)
+        if self._seen.get((msg.src, msg.seq)) == digest:
+            self.reject(msg.src, "duplicate", f"track seq {msg.seq} from {msg.src} already seen")
+            return None
+        self._seen[(msg.src, msg.seq)] = digest
+        while len(self._seen) > SEQ_WINDOW:
+            self._seen.popitem(last=False)
+        e = to_estimate(msg)
+        last = self.tracks.get(e.track)
+        if last is not None and e.t < last.t:
+            self.reject(msg.src, "out-of-order", f"{e.track} at t = {e.t:g} s is older than its {last.t:g} s")
+            return None
+        for gone in self._reports.report(e.track, e.t, self.delete_misses):
+            self.tracks.pop(gone, None)
+        self.tracks[e.track] = e
+        self.tracks.move_to_end(e.track)
+        while len(self.tracks) > MAX_TRACKS:
+            old, _ = self.tracks.popitem(last=False)
+            self._reports.forget(old)
+        return e
+
+
+def utc_iso(t: float) -> str:
+    """POSIX seconds as ISO 8601 UTC with milliseconds, e.g. ``2026-12-01T20:14:33.491Z``."""
+    import datetime as dt
+
+    return dt.datetime.fromtimestamp(t, dt.timezone.utc).isoformat(timespec="milliseconds").replace("+00:00", "Z")
+
+
+def session_time(t: float, live: bool) -> float | str:
+    """A time of validity as an export states it: ISO 8601 UTC in a live session (``t`` is
+    POSIX seconds there), scenario seconds otherwise."""
+    return utc_iso(t) if live else float(t)
+
+
+def sensor_sites(scenario) -> dict[str, tuple[str, "np.ndarray"]]:
+    """Sensor id -> (kind, ENU position) of a site or scenario (a moving site: where it starts)."""
+    return {sid: (s.kind, s.site.position(float(s.start))) for sid, s in scenario.sensors.items()}

@@ -1,0 +1,160 @@
+"""The exporter process: ``fused`` in, a sink (the GeoJSON file, CoT to TAK) out.
+
+It joins Zenoh like the recorder and is, like it, only a listener: its subscription is
+served by Zenoh's threads into a bounded queue (``BACKLOG_MAX``; overflow is counted as
+``dropped``, never pushed back to the fuser). The loop feeds each sample to the
+:class:`~services.export.picture.Picture`, hands every accepted update to the sink and
+lets the sink do its periodic work (write the file, re-send sensors, reconnect). A fuser
+that restarts is just more samples on ``fused``. On SIGINT/SIGTERM the loop drains what
+is queued, the sink writes or sends a last time and the session closes; exit 0.
+"""
+
+from __future__ import annotations
+
+import logging
+import queue
+import threading
+import time
+from pathlib import Path
+
+from fusion.mtt import AssociationConfig
+from schemas import KeySpace
+
+from ..node import Node, ZenohOptions
+from . import cot, geojson
+from .picture import Picture, sensor_sites
+
+log = logging.getLogger("zfusion")
+
+BACKLOG_MAX = 10_000  # samples queued from Zenoh's threads: seconds of fused output
+WRITE_PERIOD_S = 0.1  # the GeoJSON file is rewritten at most this often (and after the last update)
+
+
+class GeoJSONSink:
+    """Rewrites ``path`` with the whole picture after updates (at most every ``WRITE_PERIOD_S``)."""
+
+    def __init__(self, path: Path, site, live: bool):
+        from services.geo import frame_of
+
+        self.path = path
+        self.frame = frame_of(site.origin)
+        self.sensors = sensor_sites(site)
+        self.live = live
+        self.writes = 0
+        self._dirty = True  # the sensors are worth a file before any track
+        self._last = -float("inf")
+
+    def update(self, picture: Picture, e) -> None:
+        self._dirty = True
+
+    def tick(self, picture: Picture, final: bool = False) -> None:
+        if self._dirty and (final or time.monotonic() - self._last >= WRITE_PERIOD_S):
+            geojson.write_atomic(self.path, geojson.feature_collection(picture.tracks.values(), self.sensors,
+                                                                       self.frame, self.live))
+            self._dirty = False
+            self._last = time.monotonic()
+            self.writes += 1
+
+    def counters(self) -> dict[str, float]:
+        return {"written": self.writes}
+
+    def close(self) -> None:
+        pass
+
+
+class CoTSink:
+    """Sends an event per update, and the sensors at start and every ``stale_s / 2``."""
+
+    def __init__(self, sender, site, deployment: str, types: cot.Types, stale_s: float, live: bool):
+        from services.geo import frame_of
+
+        self.sender = sender
+        self.frame = frame_of(site.origin)
+        self.sensors = sensor_sites(site)
+        self.deployment = deployment
+        self.types = types
+        self.stale_s = stale_s
+        self.live = live
+        self.sent = 0
+        self._sensors_at = -float("inf")
+
+    def uid(self, what: str) -> str:
+        return f"zfusion.{self.deployment}.{what}"
+
+    def update(self, picture: Picture, e) -> None:
+        data = cot.track_event(e, self.frame, self.uid(e.track), self.types, time.time(), self.stale_s, self.live)
+        self.sent += self.sender.send(self.uid(e.track), data)
+
+    def tick(self, picture: Picture, final: bool = False) -> None:
+        self.sender.poll()
+        if time.monotonic() - self._sensors_at >= self.stale_s / 2:
+            self._sensors_at = time.monotonic()
+            for sid, (kind, enu) in self.sensors.items():
+                uid = self.uid(f"sensor.{sid}")
+                data = cot.sensor_event(sid, kind, enu, self.frame, uid, self.types, time.time(), self.stale_s)
+                self.sent += self.sender.send(uid, data)
+
+    def counters(self) -> dict[str, float]:
+        return {"sent": self.sent, "send_failed": self.sender.failed}
+
+    def close(self) -> None:
+        self.sender.close()
+
+
+def run(process_id: str, keys: KeySpace, zopts: ZenohOptions, site, make_sink) -> int:
+    """Run until SIGINT/SIGTERM. ``site`` is the loaded site or scenario; ``make_sink()``
+    builds the sink once the process has its session (so a bad sink is an error at start)."""
+    duration = getattr(site, "duration", None)
+    association, _ = AssociationConfig.split(getattr(site, "tracker", {}) or {})
+    inbox: queue.Queue[tuple[str, bytes]] = queue.Queue(maxsize=BACKLOG_MAX)
+    dropped = [0]
+    lock = threading.Lock()
+
+    def on_sample(s) -> None:  # Zenoh's thread: never blocks, never raises
+        try:
+            inbox.put_nowait((str(s.key_expr), s.payload.to_bytes()))
+        except queue.Full:
+            with lock:
+                dropped[0] += 1
+
+    with Node(process_id, "exporter", keys, zopts) as node:
+        picture = Picture(keys, node.reject, duration,
+                          association.delete_misses if association is not None else AssociationConfig.delete_misses)
+        sink = make_sink()
+        try:
+            node.subscribe(keys.fused(), on_sample)
+            node.announce()
+            node.publish_status("ready")
+            last_status = time.monotonic()
+            t = 0.0
+
+            def handle(key: str, data: bytes) -> None:
+                nonlocal t
+                e = picture.offer(key, data)
+                if e is not None:
+                    t = max(t, e.t)
+                    node.count("updates")
+                    sink.update(picture, e)
+
+            while not node.stop.is_set():
+                try:
+                    handle(*inbox.get(timeout=0.1))
+                    while True:  # the rest of the burst, then one tick
+                        handle(*inbox.get_nowait())
+                except queue.Empty:
+                    pass
+                sink.tick(picture)
+                if time.monotonic() - last_status >= 1.0:
+                    node.publish_status("running", t, extra={**sink.counters(), "dropped": dropped[0],
+                                                             "backlog": inbox.qsize()})
+                    last_status = time.monotonic()
+            while True:  # stopping: what is queued is still the picture
+                try:
+                    handle(*inbox.get_nowait())
+                except queue.Empty:
+                    break
+            sink.tick(picture, final=True)
+            node.publish_status("stopped", t, extra={**sink.counters(), "dropped": dropped[0]})
+        finally:
+            sink.close()
+    return 0

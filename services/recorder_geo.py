@@ -1,0 +1,114 @@
+"""The recording's map: what the 3D scene shows, in latitude and longitude.
+
+Every recording of a session with a geodetic origin gets a ``map/`` tree beside
+``world/``, shown by the blueprint's map view (OpenStreetMap background). Each entity
+mirrors a ``world/`` entity (``world/<rest>`` -> ``map/<rest>``), is drawn from the
+same ENU positions the recorder draws in 3D (converted with pymap3d, :mod:`services.geo`)
+and in the same colours::
+
+    map/sites/<sensor>             GeoPoints (+ GeoLineStrings: an airborne site's path)
+    map/meas/<sensor>              DF bearings of the current scan, GeoLineStrings
+    map/tracks/<node>/<sensor>/uplink  smoothed bearings a local tracker sent up
+    map/truth/<target>             GeoPoints; its path in map/truth/<target>/path
+    map/tracks/<node>/<track>      GeoPoints + the 95 % ring of its horizontal position
+                                   (emitter fixes and 3D tracks alike); the ground track
+                                   in map/tracks/<node>/<track>/path
+
+A path is logged only with the row that adds a point to it (as in 3D), so the bytes
+sent do not grow with the update rate; the ring is one row per update. A cleared 3D
+track clears its map entity too (recursively: its path goes with it).
+
+Rows go through the recorder's own queue (``log(path, t, *parts)``, a part being an
+archetype and its component lists), so they are sent as columns with the rest.
+"""
+
+from __future__ import annotations
+
+from typing import Callable
+
+import numpy as np
+import rerun as rr
+import rerun.blueprint as rrb
+
+from fusion.geodetic import LocalFrame
+from fusion.types import Estimate
+
+from . import geo
+
+MAP_ROOT = "map"
+POINT_UI = -5.0  # radii in UI points (negative: rerun's convention)
+SITE_UI = -7.0
+LINE_UI = -1.0
+
+Log = Callable[..., None]
+
+
+def view(name: str = "Map (WGS-84, 95 % rings)") -> rrb.MapView:
+    """The blueprint's map panel."""
+    return rrb.MapView(origin=MAP_ROOT, name=name, background=rrb.MapProvider.OpenStreetMap)
+
+
+def map_path(world_path: str) -> str:
+    """``/world/<rest>`` -> ``/map/<rest>``."""
+    head, _, rest = world_path.lstrip("/").partition("/")
+    assert head == "world", world_path
+    return f"/{MAP_ROOT}/{rest}"
+
+
+def _lat_lon(g: np.ndarray) -> np.ndarray:
+    return np.ascontiguousarray(g[..., :2])
+
+
+class MapLayer:
+    """Draws on the map what the recorder draws in 3D; ``frame`` is the session's ENU
+    frame, ``log`` the recorder's row queue."""
+
+    def __init__(self, frame: LocalFrame, log: Log):
+        self.frame = frame
+        self._log = log
+
+    @classmethod
+    def at(cls, origin: tuple[float, float, float], log: Log) -> "MapLayer":
+        """The layer of a session whose ENU origin is ``(lat °, lon °, alt m)``."""
+        return cls(geo.frame_of(origin), log)
+
+    def _points(self, pos: np.ndarray, color) -> tuple:
+        return rr.GeoPoints, {"positions": [_lat_lon(geo.lat_lon_alt(self.frame, pos))], "colors": [color],
+                              "radii": [POINT_UI]}
+
+    def site(self, world_path: str, t: float, pos: np.ndarray, trail: np.ndarray, color) -> None:
+        parts = [(rr.GeoPoints, {"positions": [_lat_lon(geo.lat_lon_alt(self.frame, pos))], "colors": [color],
+                                 "radii": [SITE_UI]})]
+        if len(trail) > 1:
+            parts.append((rr.GeoLineStrings, {"line_strings": [_lat_lon(geo.lat_lon_alt(self.frame, trail))],
+                                              "colors": [color], "radii": [LINE_UI]}))
+        self._log(map_path(world_path), t, *parts)
+
+    def bearings(self, world_path: str, t: float, rays: list[np.ndarray], color) -> None:
+        """The DF bearings of a scan, each an ENU segment from its site."""
+        strips = [_lat_lon(geo.line(self.frame, r[0], r[1])) for r in rays]
+        self._log(map_path(world_path), t, (rr.GeoLineStrings, {"line_strings": strips, "colors": [color],
+                                                                "radii": [LINE_UI]}))
+
+    def truth(self, world_path: str, t: float, pos: np.ndarray, trail: np.ndarray, grew: bool, color) -> None:
+        self._log(map_path(world_path), t, self._points(pos, color))
+        if grew:
+            self._path(world_path, t, trail, color)
+
+    def estimate(self, world_path: str, t: float, e: Estimate, color, trail: np.ndarray, grew: bool) -> None:
+        """A fix or 3D track: its position, the 95 % ring of its horizontal position, its ground track."""
+        pos = geo.enu3(e.x)
+        ring = geo.ring(self.frame, pos, geo.horizontal_cov(e.P))
+        self._log(map_path(world_path), t, self._points(pos, color),
+                  (rr.GeoLineStrings, {"line_strings": [_lat_lon(ring)], "colors": [color], "radii": [LINE_UI]}))
+        if grew:
+            self._path(world_path, t, trail, color)
+
+    def _path(self, world_path: str, t: float, trail: np.ndarray, color) -> None:
+        if len(trail) > 1:
+            self._log(map_path(world_path) + "/path", t,
+                      (rr.GeoLineStrings, {"line_strings": [_lat_lon(geo.lat_lon_alt(self.frame, trail))],
+                                           "colors": [color], "radii": [LINE_UI]}))
+
+    def clear(self, world_path: str, t: float) -> None:
+        self._log(map_path(world_path), t, (rr.Clear, {"is_recursive": [True]}))
