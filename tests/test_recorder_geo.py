@@ -146,7 +146,8 @@ def test_recordings_of_real_runs_hold_geographic_points_and_line_strings(tmp_pat
         assert all(_rows_at(rows[f"/map/meas/{sid}"], "GeoLineStrings:line_strings") for sid in sc.sensors)
     # The fused positions on the map are the 3D scene's, converted: compare the last row of one track.
     path = sorted(tracks)[0]
-    world = _rows_at(rows[path.replace("/map/", "/world/", 1)], "Points3D:positions")[-1]
-    drawn = [r for r in _rows_at(rows[path], "GeoPoints:positions") if r["t"] == world["t"]][-1]
+    drawn = _rows_at(rows[path], "GeoPoints:positions")[-1]
+    world = [r for r in _rows_at(rows[path.replace("/map/", "/world/", 1)], "Points3D:positions")
+             if r["t"] == drawn["t"]][-1]
     lat, lon, _ = pymap3d.enu2geodetic(*world["Points3D:positions"][0], *sc.origin, ell=WGS84, deg=True)
     np.testing.assert_allclose(drawn["GeoPoints:positions"], [[lat, lon]], atol=1e-9)

@@ -225,9 +225,6 @@ class TcpSender:
         if self._sock is None:
             self._connect()
 
-    def forget(self, uid: str) -> None:
-        self._latest.pop(uid, None)
-
     def close(self) -> None:
         if self._sock is not None:
             self._sock.close()

@@ -20,6 +20,7 @@ from pathlib import Path
 from fusion.mtt import AssociationConfig
 from schemas import KeySpace
 
+from ..geo import frame_of
 from ..node import Node, ZenohOptions
 from . import cot, geojson
 from .picture import Picture, sensor_sites
@@ -30,16 +31,34 @@ BACKLOG_MAX = 10_000  # samples queued from Zenoh's threads: seconds of fused ou
 WRITE_PERIOD_S = 0.1  # the GeoJSON file is rewritten at most this often (and after the last update)
 
 
-class GeoJSONSink:
-    """Rewrites ``path`` with the whole picture after updates (at most every ``WRITE_PERIOD_S``)."""
+class Sink:
+    """Where the picture goes. ``site`` (a loaded site or scenario) gives the frame and
+    the sensors; ``live``: times are UTC, not scenario seconds."""
 
-    def __init__(self, path: Path, site, live: bool):
-        from services.geo import frame_of
-
-        self.path = path
+    def __init__(self, site, live: bool):
         self.frame = frame_of(site.origin)
         self.sensors = sensor_sites(site)
         self.live = live
+
+    def update(self, picture: Picture, e) -> None:
+        """An accepted update ``e``, already in ``picture``."""
+
+    def tick(self, picture: Picture, final: bool = False) -> None:
+        """Periodic work (``final``: the process is stopping)."""
+
+    def counters(self) -> dict[str, float]:
+        return {}
+
+    def close(self) -> None:
+        pass
+
+
+class GeoJSONSink(Sink):
+    """Rewrites ``path`` with the whole picture after updates (at most every ``WRITE_PERIOD_S``)."""
+
+    def __init__(self, path: Path, site, live: bool):
+        super().__init__(site, live)
+        self.path = path
         self.writes = 0
         self._dirty = True  # the sensors are worth a file before any track
         self._last = -float("inf")
@@ -58,23 +77,16 @@ class GeoJSONSink:
     def counters(self) -> dict[str, float]:
         return {"written": self.writes}
 
-    def close(self) -> None:
-        pass
 
-
-class CoTSink:
+class CoTSink(Sink):
     """Sends an event per update, and the sensors at start and every ``stale_s / 2``."""
 
     def __init__(self, sender, site, deployment: str, types: cot.Types, stale_s: float, live: bool):
-        from services.geo import frame_of
-
+        super().__init__(site, live)
         self.sender = sender
-        self.frame = frame_of(site.origin)
-        self.sensors = sensor_sites(site)
         self.deployment = deployment
         self.types = types
         self.stale_s = stale_s
-        self.live = live
         self.sent = 0
         self._sensors_at = -float("inf")
 
