@@ -27,7 +27,7 @@ from schemas import KeySpace, encode_estimate
 from sensors_sim import load_scenario
 from services import geo
 from services.export import cot, geojson
-from services.export.picture import Picture, sensor_sites
+from services.export.tracks import TrackTable, sensor_sites
 from services.node import RejectLog, ZenohOptions
 from services.summary import truth_function
 
@@ -76,7 +76,7 @@ def _same_position(coords, lon, lat, alt) -> None:
 
 def test_picture_drops_bad_input_counts_it_and_is_unchanged():
     reject = RejectLog("x")
-    pic = Picture(KEYS, reject, duration=100.0)
+    pic = TrackTable(KEYS, reject, duration=100.0)
     good = _est(1.0, [10.0, 20.0], seq=1)
     assert pic.offer(KEYS.fused(), good) is not None
     before = {k: (e.t, e.x.tolist()) for k, e in pic.tracks.items()}
@@ -99,7 +99,7 @@ def test_picture_drops_bad_input_counts_it_and_is_unchanged():
 
 
 def test_picture_forgets_a_track_the_fused_stream_stopped_reporting():
-    pic = Picture(KEYS, RejectLog("x"), delete_misses=3)
+    pic = TrackTable(KEYS, RejectLog("x"), delete_misses=3)
     for k in range(1, 9):
         pic.offer(KEYS.fused(), _est(k, [k, 0.0], track="E1", seq=2 * k))
         if k <= 2:
@@ -387,3 +387,37 @@ def test_run_with_cot_over_udp_delivers_tracks_within_100_m_of_truth(tmp_path, d
         pt = ev.find("point")
         misses.append(_horizontal_m((float(pt.get("lon")), float(pt.get("lat"))), (lat, lon)))
     assert max(misses) < 100.0, sorted(misses)[-5:]
+
+
+def test_an_exporter_started_mid_session_begins_with_the_fusers_picture(tmp_path, deployment):
+    """No update on ``fused`` at all: the file gets the track a 'fuser' answers the picture query with."""
+    from schemas import encode
+
+    ep = f"tcp/127.0.0.1:{_free_port()}"
+    keys = KeySpace(deployment)
+    path = tmp_path / "g.json"
+    hub = zenoh.open(ZenohOptions(listen=[ep]).to_config())
+
+    def on_query(q) -> None:
+        q.reply(keys.picture(), _est(7.0, [15_000.0, 15_000.0], track="E3", seq=41))
+        q.reply(keys.picture(), encode("watermark", "fuser", 0, 7.0, final=False))
+
+    queryable = hub.declare_queryable(keys.picture(), on_query)
+    proc = zfusion("export", "geojson", "--file", str(path), "--scenario", "thesis-fixed-c1", "--deployment",
+                   deployment, "--connect", ep, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 30
+        ids: set = set()
+        while "E3" not in ids and time.monotonic() < deadline:
+            time.sleep(0.1)
+            if path.exists():
+                ids = {f["properties"]["id"] for f in json.loads(path.read_text())["features"]}
+        assert "E3" in ids
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=30)
+        assert proc.returncode == 0, err[-2000:]
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        queryable.undeclare()
+        hub.close()

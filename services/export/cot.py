@@ -49,7 +49,7 @@ from fusion.geodetic import LocalFrame
 from fusion.types import Estimate
 
 from .. import geo
-from .picture import utc_iso
+from .tracks import utc_iso
 
 log = logging.getLogger("zfusion")
 

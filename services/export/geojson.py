@@ -29,7 +29,7 @@ from fusion.geodetic import LocalFrame
 from fusion.types import Estimate
 
 from .. import geo
-from .picture import session_time
+from .tracks import session_time
 
 DEGREES = 7  # decimals of a degree kept: about 1 cm
 METRES = 2

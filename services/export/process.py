@@ -3,10 +3,12 @@
 It joins Zenoh like the recorder and is, like it, only a listener: its subscription is
 served by Zenoh's threads into a bounded queue (``BACKLOG_MAX``; overflow is counted as
 ``dropped``, never pushed back to the fuser). The loop feeds each sample to the
-:class:`~services.export.picture.Picture`, hands every accepted update to the sink and
+:class:`~services.export.tracks.TrackTable`, hands every accepted update to the sink and
 lets the sink do its periodic work (write the file, re-send sensors, reconnect). A fuser
-that restarts is just more samples on ``fused``. On SIGINT/SIGTERM the loop drains what
-is queued, the sink writes or sends a last time and the session closes; exit 0.
+that restarts is just more samples on ``fused``; an exporter that starts (or restarts)
+mid-session begins with the fuser's current picture (:class:`services.picture.Request`).
+On SIGINT/SIGTERM the loop drains what is queued, the sink writes or sends a last time
+and the session closes; exit 0.
 """
 
 from __future__ import annotations
@@ -22,8 +24,9 @@ from schemas import KeySpace
 
 from ..geo import frame_of
 from ..node import Node, ZenohOptions
+from ..picture import Request
 from . import cot, geojson
-from .picture import Picture, sensor_sites
+from .tracks import TrackTable, sensor_sites
 
 log = logging.getLogger("zfusion")
 
@@ -40,10 +43,10 @@ class Sink:
         self.sensors = sensor_sites(site)
         self.live = live
 
-    def update(self, picture: Picture, e) -> None:
-        """An accepted update ``e``, already in ``picture``."""
+    def update(self, table: TrackTable, e) -> None:
+        """An accepted update ``e``, already in ``table``."""
 
-    def tick(self, picture: Picture, final: bool = False) -> None:
+    def tick(self, table: TrackTable, final: bool = False) -> None:
         """Periodic work (``final``: the process is stopping)."""
 
     def counters(self) -> dict[str, float]:
@@ -63,12 +66,12 @@ class GeoJSONSink(Sink):
         self._dirty = True  # the sensors are worth a file before any track
         self._last = -float("inf")
 
-    def update(self, picture: Picture, e) -> None:
+    def update(self, table: TrackTable, e) -> None:
         self._dirty = True
 
-    def tick(self, picture: Picture, final: bool = False) -> None:
+    def tick(self, table: TrackTable, final: bool = False) -> None:
         if self._dirty and (final or time.monotonic() - self._last >= WRITE_PERIOD_S):
-            geojson.write_atomic(self.path, geojson.feature_collection(picture.tracks.values(), self.sensors,
+            geojson.write_atomic(self.path, geojson.feature_collection(table.tracks.values(), self.sensors,
                                                                        self.frame, self.live))
             self._dirty = False
             self._last = time.monotonic()
@@ -93,11 +96,11 @@ class CoTSink(Sink):
     def uid(self, what: str) -> str:
         return f"zfusion.{self.deployment}.{what}"
 
-    def update(self, picture: Picture, e) -> None:
+    def update(self, table: TrackTable, e) -> None:
         data = cot.track_event(e, self.frame, self.uid(e.track), self.types, time.time(), self.stale_s, self.live)
         self.sent += self.sender.send(self.uid(e.track), data)
 
-    def tick(self, picture: Picture, final: bool = False) -> None:
+    def tick(self, table: TrackTable, final: bool = False) -> None:
         self.sender.poll()
         if time.monotonic() - self._sensors_at >= self.stale_s / 2:
             self._sensors_at = time.monotonic()
@@ -122,19 +125,20 @@ def run(process_id: str, keys: KeySpace, zopts: ZenohOptions, site, make_sink) -
     dropped = [0]
     lock = threading.Lock()
 
-    def on_sample(s) -> None:  # Zenoh's thread: never blocks, never raises
+    def enqueue(item: tuple[str, bytes]) -> None:  # Zenoh's thread: never blocks, never raises
         try:
-            inbox.put_nowait((str(s.key_expr), s.payload.to_bytes()))
+            inbox.put_nowait(item)
         except queue.Full:
             with lock:
                 dropped[0] += 1
 
     with Node(process_id, "exporter", keys, zopts) as node:
-        picture = Picture(keys, node.reject, duration,
+        table = TrackTable(keys, node.reject, duration,
                           association.delete_misses if association is not None else AssociationConfig.delete_misses)
         sink = make_sink()
         try:
-            node.subscribe(keys.fused(), on_sample)
+            node.subscribe(keys.fused(), lambda s: enqueue((str(s.key_expr), s.payload.to_bytes())))
+            late_join = Request(node.session, keys, lambda data: enqueue((keys.fused(), data)))
             node.announce()
             node.publish_status("ready")
             last_status = time.monotonic()
@@ -142,11 +146,13 @@ def run(process_id: str, keys: KeySpace, zopts: ZenohOptions, site, make_sink) -
 
             def handle(key: str, data: bytes) -> None:
                 nonlocal t
-                e = picture.offer(key, data)
+                if key == keys.fused():
+                    late_join.cancel()  # the fuser's own stream: its picture is coming anyway
+                e = table.offer(key, data)
                 if e is not None:
                     t = max(t, e.t)
                     node.count("updates")
-                    sink.update(picture, e)
+                    sink.update(table, e)
 
             while not node.stop.is_set():
                 try:
@@ -155,17 +161,18 @@ def run(process_id: str, keys: KeySpace, zopts: ZenohOptions, site, make_sink) -
                         handle(*inbox.get_nowait())
                 except queue.Empty:
                     pass
-                sink.tick(picture)
+                late_join.poll()
+                sink.tick(table)
                 if time.monotonic() - last_status >= 1.0:
                     node.publish_status("running", t, extra={**sink.counters(), "dropped": dropped[0],
                                                              "backlog": inbox.qsize()})
                     last_status = time.monotonic()
-            while True:  # stopping: what is queued is still the picture
+            while True:  # stopping: what is queued is still part of the picture
                 try:
                     handle(*inbox.get_nowait())
                 except queue.Empty:
                     break
-            sink.tick(picture, final=True)
+            sink.tick(table, final=True)
             node.publish_status("stopped", t, extra={**sink.counters(), "dropped": dropped[0]})
         finally:
             sink.close()

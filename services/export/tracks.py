@@ -1,15 +1,15 @@
-"""The current fused picture, as the exporters keep it: sans-I/O, bytes off ``fused`` in.
+"""The fused tracks as an exporter keeps them: sans-I/O, bytes off ``fused`` in.
 
-:meth:`Picture.offer` takes a sample (key and bytes), validates it with the project's
+:meth:`TrackTable.offer` takes a sample (key and bytes), validates it with the project's
 schemas and returns the estimate it brings, or ``None`` once the sample is counted and
 dropped (:class:`~services.node.RejectLog`, rate-limited): a sample on another key, one
 that fails to decode, a kind other than ``track``, a time before the session's start or
 beyond its end (scenario runs: duration + 1 s), a repeat (same source, seq and bytes),
-or an update older than the track's latest. A dropped sample leaves the picture as if
+or an update older than the track's latest. A dropped sample leaves the table as if
 it never arrived.
 
 A track is gone once the fused stream has had ``delete_misses`` frames (distinct times)
-without it, as in the recording (:class:`services.recorder.Reports`); a fuser restarted
+without it, the rule of the fuser's own picture (:class:`services.picture.Reports`); a fuser restarted
 with other tracks therefore replaces the old ones within a few frames. Memory: the live
 tracks (at most ``MAX_TRACKS``, oldest update dropped first) and ``SEQ_WINDOW`` recent
 sequence numbers.
@@ -25,12 +25,13 @@ from fusion.types import Estimate
 from schemas import KeySpace, SchemaError, decode, to_estimate
 
 from ..node import RejectLog
-from ..recorder import HORIZON_SLACK_S, SEQ_WINDOW, Reports
+from ..picture import Reports
+from ..recorder import HORIZON_SLACK_S, SEQ_WINDOW
 
 MAX_TRACKS = 4096
 
 
-class Picture:
+class TrackTable:
     """The latest fused estimate of every live track.
 
     Args:
