@@ -125,6 +125,40 @@ class Inbox:
         return self._queue.qsize()
 
 
+class ListenerInbox:
+    """The hand-over from Zenoh's callbacks to a listener's loop (recorder, exporters):
+    ``(key, bytes)``, at most ``maxsize`` queued. Unlike :class:`Inbox` it never waits:
+    when full, a sample is dropped and counted in :attr:`dropped`, so a listener that
+    falls behind never slows a publisher."""
+
+    def __init__(self, maxsize: int):
+        self._queue: queue.Queue[tuple[str, bytes]] = queue.Queue(maxsize)
+        self._lock = threading.Lock()
+        self.dropped = 0
+
+    def put(self, item: tuple[str, bytes]) -> None:  # Zenoh's thread: never blocks, never raises
+        try:
+            self._queue.put_nowait(item)
+        except queue.Full:
+            with self._lock:
+                self.dropped += 1
+
+    def __call__(self, sample: zenoh.Sample) -> None:
+        self.put((str(sample.key_expr), sample.payload.to_bytes()))
+
+    def get(self, timeout: float) -> tuple[str, bytes]:
+        return self._queue.get(timeout=timeout)
+
+    def get_nowait(self) -> tuple[str, bytes]:
+        return self._queue.get_nowait()
+
+    def empty(self) -> bool:
+        return self._queue.empty()
+
+    def qsize(self) -> int:
+        return self._queue.qsize()
+
+
 class RejectLog:
     """Counts rejected messages by (source, cause); logs the first of each pair, then
     at most one summary line per ``interval`` seconds, so garbage cannot flood logs.

@@ -34,7 +34,6 @@ import math
 import os
 import queue
 import sys
-import threading
 import time
 from collections import OrderedDict, deque
 from functools import lru_cache
@@ -55,7 +54,7 @@ from . import picture
 from . import recorder_draw as draw
 from . import recorder_geo
 from .evaluation import GOSPA_CUTOFF, many_targets
-from .node import Node, RejectLog
+from .node import ListenerInbox, Node, RejectLog
 from .picture import Reports
 from .rotation import Rotation
 
@@ -883,19 +882,7 @@ def run(process_id: str, keys: KeySpace, zopts, rrd_path: str, expect: list[str]
     from sensors_sim.spec import DF_KINDS
 
     df = sc is not None and bool(sc.sensors) and all(s.kind in DF_KINDS for s in sc.sensors.values())
-    inbox: queue.Queue[tuple[str, bytes]] = queue.Queue(maxsize=BACKLOG_MAX)
-    dropped = [0]
-    lock = threading.Lock()
-
-    def enqueue(item: tuple[str, bytes]) -> None:  # Zenoh's thread: never blocks, never raises
-        try:
-            inbox.put_nowait(item)
-        except queue.Full:
-            with lock:
-                dropped[0] += 1
-
-    def on_sample(s) -> None:
-        enqueue((str(s.key_expr), s.payload.to_bytes()))
+    inbox = ListenerInbox(BACKLOG_MAX)
 
     with Node(process_id, "recorder", keys, zopts) as node:
         # The file is opened once SIGTERM/SIGINT are handled, so a stop at any time leaves a whole file.
@@ -904,9 +891,9 @@ def run(process_id: str, keys: KeySpace, zopts, rrd_path: str, expect: list[str]
                                    geo=sc is not None)
         rec, _ = opener(str(rotation.first()) if rotation else rrd_path)
         recorder = Recorder(rec, keys, node.reject, sc)
-        node.subscribe(keys.all(), on_sample)
+        node.subscribe(keys.all(), inbox)
         # Started mid-session: begin with the fuser's current tracks (none answers at a run's start).
-        late_join = picture.Request(node.session, keys, lambda data: enqueue((keys.fused(), data)))
+        late_join = picture.Request(node.session, keys, lambda data: inbox.put((keys.fused(), data)))
         node.announce()
         node.publish_status("ready")
         last_status = last_send = time.monotonic()
@@ -933,13 +920,13 @@ def run(process_id: str, keys: KeySpace, zopts, rrd_path: str, expect: list[str]
             if expect and set(expect) <= recorder.finished and inbox.empty():
                 break
             if time.monotonic() - last_status >= 1.0:
-                node.counters.update(dropped=dropped[0], uplinked=recorder.uplinked, backlog=inbox.qsize())
+                node.counters.update(dropped=inbox.dropped, uplinked=recorder.uplinked, backlog=inbox.qsize())
                 node.publish_status("running", recorder.now)
                 _flush(rec, 0.0)  # keep the file current: a killed recorder loses little
                 last_status = time.monotonic()
         recorder.finish()
         _flush(rec, 10.0)
-        node.counters.update(dropped=dropped[0], uplinked=recorder.uplinked, backlog=inbox.qsize())
+        node.counters.update(dropped=inbox.dropped, uplinked=recorder.uplinked, backlog=inbox.qsize())
         node.publish_status("done" if not node.stop.is_set() else "stopped", recorder.now)
     _flush(rec, 10.0)
     rec.disconnect()  # writes the file's footer; gives an unreachable viewer at most a few seconds

@@ -12,7 +12,6 @@ import pymap3d
 import pytest
 from scipy.stats import chi2
 
-from fusion.types import Estimate
 from sensors_sim import load_scenario
 from services import geo
 from services.recorder import Recorder, open_recording

@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import logging
 import queue
-import threading
 import time
 from pathlib import Path
 
@@ -23,7 +22,7 @@ from fusion.mtt import AssociationConfig
 from schemas import KeySpace
 
 from ..geo import frame_of
-from ..node import Node, ZenohOptions
+from ..node import ListenerInbox, Node, ZenohOptions
 from ..picture import Request
 from . import cot, geojson
 from .tracks import TrackTable, sensor_sites
@@ -121,24 +120,15 @@ def run(process_id: str, keys: KeySpace, zopts: ZenohOptions, site, make_sink) -
     builds the sink once the process has its session (so a bad sink is an error at start)."""
     duration = getattr(site, "duration", None)
     association, _ = AssociationConfig.split(getattr(site, "tracker", {}) or {})
-    inbox: queue.Queue[tuple[str, bytes]] = queue.Queue(maxsize=BACKLOG_MAX)
-    dropped = [0]
-    lock = threading.Lock()
-
-    def enqueue(item: tuple[str, bytes]) -> None:  # Zenoh's thread: never blocks, never raises
-        try:
-            inbox.put_nowait(item)
-        except queue.Full:
-            with lock:
-                dropped[0] += 1
+    inbox = ListenerInbox(BACKLOG_MAX)
 
     with Node(process_id, "exporter", keys, zopts) as node:
         table = TrackTable(keys, node.reject, duration,
                           association.delete_misses if association is not None else AssociationConfig.delete_misses)
         sink = make_sink()
         try:
-            node.subscribe(keys.fused(), lambda s: enqueue((str(s.key_expr), s.payload.to_bytes())))
-            late_join = Request(node.session, keys, lambda data: enqueue((keys.fused(), data)))
+            node.subscribe(keys.fused(), inbox)
+            late_join = Request(node.session, keys, lambda data: inbox.put((keys.fused(), data)))
             node.announce()
             node.publish_status("ready")
             last_status = time.monotonic()
@@ -164,7 +154,7 @@ def run(process_id: str, keys: KeySpace, zopts: ZenohOptions, site, make_sink) -
                 late_join.poll()
                 sink.tick(table)
                 if time.monotonic() - last_status >= 1.0:
-                    node.publish_status("running", t, extra={**sink.counters(), "dropped": dropped[0],
+                    node.publish_status("running", t, extra={**sink.counters(), "dropped": inbox.dropped,
                                                              "backlog": inbox.qsize()})
                     last_status = time.monotonic()
             while True:  # stopping: what is queued is still part of the picture
@@ -173,7 +163,7 @@ def run(process_id: str, keys: KeySpace, zopts: ZenohOptions, site, make_sink) -
                 except queue.Empty:
                     break
             sink.tick(table, final=True)
-            node.publish_status("stopped", t, extra={**sink.counters(), "dropped": dropped[0]})
+            node.publish_status("stopped", t, extra={**sink.counters(), "dropped": inbox.dropped})
         finally:
             sink.close()
     return 0

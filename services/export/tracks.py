@@ -20,6 +20,8 @@ from __future__ import annotations
 import math
 from collections import OrderedDict
 
+import numpy as np
+
 from fusion.mtt import AssociationConfig
 from fusion.types import Estimate
 from schemas import KeySpace, SchemaError, decode, to_estimate
@@ -104,6 +106,6 @@ def session_time(t: float, live: bool) -> float | str:
     return utc_iso(t) if live else float(t)
 
 
-def sensor_sites(scenario) -> dict[str, tuple[str, "np.ndarray"]]:
+def sensor_sites(scenario) -> dict[str, tuple[str, np.ndarray]]:
     """Sensor id -> (kind, ENU position) of a site or scenario (a moving site: where it starts)."""
     return {sid: (s.kind, s.site.position(float(s.start))) for sid, s in scenario.sensors.items()}
