@@ -297,7 +297,8 @@ def _export(args, keys: KeySpace) -> int:
         if not path.parent.is_dir():
             print(f"{command}: --file {args.file}: no such directory {path.parent}, create it first", file=sys.stderr)
             return 2
-        return process.run(args.id, keys, _zopts(args), site, lambda: process.GeoJSONSink(path, site, args.live))
+        return process.run(args.id, keys, _zopts(args), site, lambda: process.GeoJSONSink(path, site, args.live),
+                           live=args.live)
     try:
         cot.parse_url(args.to)
     except ValueError as e:
@@ -309,7 +310,7 @@ def _export(args, keys: KeySpace) -> int:
     types = cot.Types(track=args.type_track, emitter=args.type_emitter, sensor=args.type_sensor)
     return process.run(args.id, keys, _zopts(args), site,
                        lambda: process.CoTSink(cot.sender_for(args.to), site, args.deployment, types, args.stale_s,
-                                               args.live))
+                                               args.live), live=args.live)
 
 
 def _eval(args) -> int:

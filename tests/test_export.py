@@ -98,6 +98,16 @@ def test_picture_drops_bad_input_counts_it_and_is_unchanged():
     assert {k: (e.t, e.x.tolist()) for k, e in pic.tracks.items()} == before
 
 
+def test_live_table_refuses_updates_ahead_of_the_clock_and_has_no_end():
+    reject = RejectLog("x")
+    now = 1_796_000_000.0
+    table = TrackTable(KEYS, reject, duration=None, clock=lambda: now, max_skew=5.0)
+    assert table.offer(KEYS.fused(), _est(now - 3600.0, [1.0, 2.0], seq=1)) is not None  # an hour old: fine
+    assert table.offer(KEYS.fused(), _est(now + 4.0, [1.0, 2.0], seq=2)) is not None
+    assert table.offer(KEYS.fused(), _est(now + 6.0, [1.0, 2.0], seq=3)) is None
+    assert reject.by_cause == {"future": 1}
+
+
 def test_picture_forgets_a_track_the_fused_stream_stopped_reporting():
     pic = TrackTable(KEYS, RejectLog("x"), delete_misses=3)
     for k in range(1, 9):

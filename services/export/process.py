@@ -115,16 +115,18 @@ class CoTSink(Sink):
         self.sender.close()
 
 
-def run(process_id: str, keys: KeySpace, zopts: ZenohOptions, site, make_sink) -> int:
+def run(process_id: str, keys: KeySpace, zopts: ZenohOptions, site, make_sink, live: bool = False) -> int:
     """Run until SIGINT/SIGTERM. ``site`` is the loaded site or scenario; ``make_sink()``
-    builds the sink once the process has its session (so a bad sink is an error at start)."""
-    duration = getattr(site, "duration", None)
+    builds the sink once the process has its session (so a bad sink is an error at start);
+    ``live``: a session on UTC time (no end; data may lead the clock by ``MAX_SKEW_S``)."""
+    duration = None if live else getattr(site, "duration", None)
     association, _ = AssociationConfig.split(getattr(site, "tracker", {}) or {})
     inbox = ListenerInbox(BACKLOG_MAX)
 
     with Node(process_id, "exporter", keys, zopts) as node:
         table = TrackTable(keys, node.reject, duration,
-                          association.delete_misses if association is not None else AssociationConfig.delete_misses)
+                           association.delete_misses if association is not None else AssociationConfig.delete_misses,
+                           clock=time.time if live else None)
         sink = make_sink()
         try:
             node.subscribe(keys.fused(), inbox)

@@ -4,7 +4,8 @@
 schemas and returns the estimate it brings, or ``None`` once the sample is counted and
 dropped (:class:`~services.node.RejectLog`, rate-limited): a sample on another key, one
 that fails to decode, a kind other than ``track``, a time before the session's start or
-beyond its end (scenario runs: duration + 1 s), a repeat (same source, seq and bytes),
+beyond its end (scenario runs: duration + 1 s; live sessions, on UTC: more than
+``max_skew`` s ahead of the clock), a repeat (same source, seq and bytes),
 or an update older than the track's latest. A dropped sample leaves the table as if
 it never arrived.
 
@@ -19,6 +20,7 @@ from __future__ import annotations
 
 import math
 from collections import OrderedDict
+from typing import Callable
 
 import numpy as np
 
@@ -31,6 +33,7 @@ from ..picture import Reports
 from ..recorder import HORIZON_SLACK_S, SEQ_WINDOW
 
 MAX_TRACKS = 4096
+MAX_SKEW_S = 5.0  # live: how far ahead of this host's clock a time of validity may be
 
 
 class TrackTable:
@@ -39,15 +42,19 @@ class TrackTable:
     Args:
         keys: the deployment's key space (samples must come on its ``fused`` key).
         reject: where dropped samples are counted.
-        duration: a scenario's duration (s), beyond which data is "future"; None (live) for none.
+        duration: a scenario's duration (s), beyond which data is "future"; None for none.
         delete_misses: frames without a track before it is gone.
+        clock: a live session's clock (UTC POSIX seconds), which data may lead by at most
+            ``max_skew`` s; None in a scenario run.
     """
 
     def __init__(self, keys: KeySpace, reject: RejectLog, duration: float | None = None,
-                 delete_misses: int = AssociationConfig.delete_misses):
+                 delete_misses: int = AssociationConfig.delete_misses, clock: Callable[[], float] | None = None,
+                 max_skew: float = MAX_SKEW_S):
         self.keys = keys
         self.reject = reject
         self.horizon = math.inf if duration is None else float(duration) + HORIZON_SLACK_S
+        self.clock, self.max_skew = clock, max_skew
         self.delete_misses = delete_misses
         self.tracks: OrderedDict[str, Estimate] = OrderedDict()  # by track id, oldest update first
         self._reports = Reports()
@@ -67,6 +74,9 @@ class TrackTable:
             return None
         if msg.t > self.horizon:
             self.reject(msg.src, "future", f"t = {msg.t:g} s is beyond the session's end ({self.horizon:g} s)")
+            return None
+        if self.clock is not None and msg.t > self.clock() + self.max_skew:
+            self.reject(msg.src, "future", f"t = {msg.t:.3f} is more than {self.max_skew:g} s ahead of the clock")
             return None
         if self.horizon < math.inf and msg.t < 0.0:
             self.reject(msg.src, "past", f"t = {msg.t:g} s is before the scenario's start")
