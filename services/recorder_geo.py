@@ -15,7 +15,7 @@ and in the same colours::
                                    in map/tracks/<node>/<track>/path
 
 A truth or track is drawn on the map only with the rows that add a point to its 3D path
-(at most every ``TRAIL_STEP_S`` of scenario time, the recorder's "Paths"), so the map's
+(at most every ``TRAIL_STEP_S`` of scenario time; docs/notes.md, "Recorder paths"), so the map's
 cost does not grow with the update rate: a 3D track fused at 1,000 updates/s is drawn
 twice a second, a DF fix at 1 Hz every time. A cleared 3D track clears its map entity
 too (recursively: its path goes with it).
