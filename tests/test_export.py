@@ -332,10 +332,11 @@ def test_geojson_process_rides_through_a_fuser_restart_and_stops_cleanly(tmp_pat
 def test_run_with_geojson_puts_the_fix_within_300_m_of_the_emitter(tmp_path, deployment):
     path = tmp_path / "g.json"
     p = zfusion("run", "--scenario", "thesis-fixed-c1", "--speed", "max", "--geojson", str(path),
-                "--rrd", str(tmp_path / "r.rrd"), "--deployment", deployment,
+                "--rrd", str(tmp_path / "r.rrd"), "--json", str(tmp_path / "s.json"), "--deployment", deployment,
                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     out, err = p.communicate(timeout=600)
     assert p.returncode == 0, err[-3000:]
+    assert json.loads((tmp_path / "s.json").read_text())["exit_codes"]["export-geojson"] == 0  # stopped cleanly
     doc = json.loads(path.read_text())
     _valid_rfc7946(doc)
     sc = load_scenario("thesis-fixed-c1")
