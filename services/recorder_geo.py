@@ -8,7 +8,7 @@ and in the same colours::
 
     map/sites/<sensor>             GeoPoints (+ GeoLineStrings: an airborne site's path)
     map/meas/<sensor>              DF bearings of the current scan, GeoLineStrings
-    map/tracks/<node>/<sensor>/uplink  smoothed bearings a local tracker sent up
+    map/tracks/<sensor>/uplink     the bearings a DF station's tracker sent up (KF+TR)
     map/truth/<target>             GeoPoints; its path in map/truth/<target>/path
     map/tracks/<node>/<track>      GeoPoints + the 95 % ring of its horizontal position
                                    (emitter fixes and 3D tracks alike); the ground track
