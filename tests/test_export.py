@@ -432,3 +432,27 @@ def test_an_exporter_started_mid_session_begins_with_the_fusers_picture(tmp_path
             proc.kill()
         queryable.undeclare()
         hub.close()
+
+
+def test_cot_process_reconnects_to_a_tcp_server_that_dropped_it(deployment):
+    """The real process: a TAK-like server takes the sensors' events, drops the connection,
+    and is dialled again (sensors are re-sent every --stale-s / 2)."""
+    srv = _listen()
+    port = srv.getsockname()[1]
+    srv.settimeout(30)
+    proc = zfusion("export", "cot", "--to", f"tcp://127.0.0.1:{port}", "--stale-s", "1", "--scenario", "patent-3d",
+                   "--deployment", deployment, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        sensors = set(load_scenario("patent-3d").sensors)
+        for _ in range(2):  # the first connection, then the one after the drop
+            conn, _ = srv.accept()
+            got = {e.find("detail/contact").get("callsign") for e in _read_events(conn, len(sensors))}
+            assert got == sensors
+            conn.close()
+        proc.send_signal(signal.SIGTERM)
+        out, err = proc.communicate(timeout=30)
+        assert proc.returncode == 0, err[-2000:]
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        srv.close()
