@@ -30,6 +30,7 @@ from .tracks import TrackTable, sensor_sites
 log = logging.getLogger("zfusion")
 
 BACKLOG_MAX = 10_000  # samples queued from Zenoh's threads: seconds of fused output
+BURST_MAX = 1_000  # samples handled between two ticks, so a sustained stream still gets its file written
 WRITE_PERIOD_S = 0.1  # the GeoJSON file is rewritten at most this often (and after the last update)
 
 
@@ -138,8 +139,7 @@ def run(process_id: str, keys: KeySpace, zopts: ZenohOptions, site, make_sink, l
 
             def handle(key: str, data: bytes) -> None:
                 nonlocal t
-                if key == keys.fused():
-                    late_join.cancel()  # the fuser's own stream: its picture is coming anyway
+                late_join.cancel()  # the fuser's stream (or its picture's first reply): no need to ask again
                 e = table.offer(key, data)
                 if e is not None:
                     t = max(t, e.t)
@@ -149,7 +149,7 @@ def run(process_id: str, keys: KeySpace, zopts: ZenohOptions, site, make_sink, l
             while not node.stop.is_set():
                 try:
                     handle(*inbox.get(timeout=0.1))
-                    while True:  # the rest of the burst, then one tick
+                    for _ in range(BURST_MAX):  # the rest of a burst, then one tick
                         handle(*inbox.get_nowait())
                 except queue.Empty:
                     pass
