@@ -51,7 +51,7 @@ def ss_vectorised(scenario, streams: list[list], clock: dict | None = None) -> l
     once. Needs every run to have the same scan structure (sensors, times): true for
     patent-3d (detection probability 1); anything else is refused."""
     from fusion import batch
-    from fusion.config import method_config
+    from fusion.methods import method_config
     from fusion.init3d import initial_state
     from fusion.patent import ScanGrouper, TrackerConfig, pieces_stacked
 

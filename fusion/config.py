@@ -1,5 +1,6 @@
 """Reading a ``[tracker]`` table into a configuration dataclass, shared by every family
-of methods (:class:`fusion.patent.TrackerConfig`, :class:`fusion.df.methods.DFConfig`)."""
+of methods (:class:`fusion.patent.TrackerConfig`, :class:`fusion.df.methods.DFConfig`);
+the per-method tables are resolved by :func:`fusion.methods.method_config`."""
 
 from __future__ import annotations
 
@@ -37,38 +38,3 @@ def config_values(cls: type, config: Mapping[str, Any] | None, what: str,
             raise ValueError(f"{what} {key!r} must be a finite number, got {value!r}")
         values[key] = value
     return values
-
-
-def method_config(table: Mapping[str, Any] | None, method: str | None,
-                  overrides: Mapping[str, Any] | None = None) -> dict[str, Any]:
-    """The flat configuration one method runs with, from a scenario's ``[tracker]`` table.
-
-    The table holds keys common to every method and, optionally, a sub-table
-    ``methods`` of per-method tables whose keys replace the common ones for the methods
-    it names: ``[tracker.methods.HNV]``, or ``[tracker.methods."LCDD,HNDD,SS"]`` for
-    several at once. The consistent priors of a centralised filter are not those of a
-    local tracker that cannot observe altitude (docs/consistency.md §8).
-    ``overrides`` (the command line's ``--fusion-rule``, a sweep's parameter) replace both.
-    ``method=None`` gives the common keys alone.
-
-    A per-method table naming an unknown method, or a method named twice, is an error, so
-    a typo cannot silently leave a method on the common values.
-    """
-    table = dict(table or {})
-    per_method = table.pop("methods", {})
-    if not isinstance(per_method, Mapping):
-        raise ValueError(f"tracker config 'methods' must be a table of per-method tables, got {per_method!r}")
-    from .methods import method_names  # late: the registry imports the method modules, which import this one
-
-    known = method_names()
-    by_method: dict[str, Mapping[str, Any]] = {}
-    for key, sub in per_method.items():
-        if not isinstance(sub, Mapping):
-            raise ValueError(f"tracker config 'methods.{key}' must be a table, got {sub!r}")
-        for name in (n.strip() for n in key.split(",")):
-            if name not in known:
-                raise ValueError(f"tracker config 'methods' names unknown method {name!r} (known: {', '.join(known)})")
-            if name in by_method:
-                raise ValueError(f"tracker config 'methods' gives method {name!r} two tables")
-            by_method[name] = sub
-    return {**table, **(by_method.get(method, {}) if method else {}), **(overrides or {})}

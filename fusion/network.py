@@ -137,10 +137,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .association import TrackIds
+from .angles import wrap_pi
+from .association import CONFIRMED, DELETED, TrackIds, TrackLogic, gate_threshold, gnn, mahalanobis2, track_distance2
+from .df.methods import DFConfig, SmootherTorrieriMethod, make_station_smoother
+from .df.models import bearing_of
+from .df.multi import MultiEmitterMethod
 from .init3d import initial_state
-from .mtt import scores_hit
+from .mtt import AssociationConfig, FrameGrouper, Initiator, scores_hit
 from .patent import KINDS_3D, LocalTracker, ScanGrouper, TrackerConfig
+from .sensors3d import SphericalModel
 from .track_fusion import TrackFuser
 from .types import Estimate, Measurement
 
@@ -322,8 +327,6 @@ class StationNode(LocalNode):
     kinds = frozenset({"bearing"})
 
     def __init__(self, sensor: str, config: dict | None, cross_fed: bool):
-        from .df.methods import DFConfig, make_station_smoother
-
         c = DFConfig.from_dict(config)
         super().__init__(sensor, c.pair_tol)
         self.smoother = make_station_smoother(c, cross_fed)
@@ -486,10 +489,6 @@ class StationCentre(Centre):
     associated into emitters as raw ones are (:class:`fusion.df.multi.MultiEmitterMethod`)."""
 
     def __init__(self, name: str, config: dict | None):
-        from .df.methods import SmootherTorrieriMethod
-        from .df.multi import MultiEmitterMethod
-        from .mtt import AssociationConfig
-
         super().__init__()
         self.name = name
         association, rest = AssociationConfig.split(config)
@@ -517,8 +516,6 @@ class FramedNode(LocalNode):
     not a measurement, is the unit :meth:`_process` takes."""
 
     def __init__(self, node: str, pair_tol: float):
-        from .mtt import FrameGrouper
-
         super().__init__(node, pair_tol)
         self._frames = FrameGrouper(pair_tol)
 
@@ -595,9 +592,6 @@ class MultiTrackNode(FramedNode):
         return "centre" if frame[0].t - self.horizon > self.pair_tol else None
 
     def _process(self, frame: list[Measurement], alone: bool) -> list[Uplink]:
-        from .association import gate_threshold, gnn, mahalanobis2
-        from .sensors3d import SphericalModel
-
         t = frame[0].t
         ids = list(self.tracks)
         model = SphericalModel.from_measurement(frame[0], self.motion.n_x)
@@ -649,8 +643,6 @@ class MultiStationNode(FramedNode):
     kinds = frozenset({"bearing"})
 
     def __init__(self, sensor: str, config: dict | None, cross_fed: bool, association):
-        from .df.methods import DFConfig
-
         c = DFConfig.from_dict(config)
         super().__init__(sensor, c.pair_tol)
         self.config, self.cross_fed, self.association = c, cross_fed, association
@@ -658,11 +650,6 @@ class MultiStationNode(FramedNode):
         self.misses: list[int] = []
 
     def _process(self, frame: list[Measurement], alone: bool) -> list[Uplink]:
-        from .angles import wrap_pi
-        from .association import gate_threshold, gnn
-        from .df.methods import make_station_smoother
-        from .df.models import bearing_of
-
         betas = np.array([bearing_of(m)[1] for m in frame])
         sigmas = np.array([self.config.sigma_of(m) for m in frame])
         taken: dict[int, int] = {}  # bearing -> track
@@ -704,8 +691,6 @@ class MultiTrackCentre(GroupedCentre):
     fused track; initiation from the initialisation requests; M-of-N management."""
 
     def __init__(self, name: str, config: TrackerConfig, mode: str, association):
-        from .mtt import FrameGrouper, Initiator
-
         super().__init__()
         self.name = name
         self.config = config
@@ -726,8 +711,6 @@ class MultiTrackCentre(GroupedCentre):
 
     # -- one frame -------------------------------------------------------------------------
     def _group(self, frame: list[Uplink]) -> list[Estimate]:
-        from .association import CONFIRMED, DELETED, TrackLogic
-
         t = frame[0].t
         predicted = {f.key: f.fuser.predicted(t) for f in self.tracks}
         reports: dict[str, list[Uplink]] = {f.key: [] for f in self.tracks}
@@ -800,8 +783,6 @@ class MultiTrackCentre(GroupedCentre):
         (``d²/G ≤ 1``). A mapped track leaving its gate is dropped and the node is sent
         the fused track again; a local id the centre does not know (its fused track was
         deleted, or the node started it alone) is dropped."""
-        from .association import gate_threshold, track_distance2
-
         out = []
         for u in ups:
             lid = u.estimate.track
@@ -849,9 +830,6 @@ class MultiTrackCentre(GroupedCentre):
         handshake, and is not used again). A track the node is a member of takes part:
         a plot its local track did not take says that track may be lost, and the new
         one replaces it. Returns the plots left for initiation and the tracks joined."""
-        from .association import gate_threshold, gnn, mahalanobis2
-        from .sensors3d import SphericalModel
-
         free = self.tracks
         if not free:
             return plots, []
@@ -883,16 +861,19 @@ def _by_node(ups) -> dict[str, list[Uplink]]:
 # The split of a method into nodes and a centre ---------------------------------------
 @dataclass(frozen=True)
 class Split:
-    """How a distributed method is split: its topology, a node factory and a centre."""
+    """How a distributed method is split into a node per sensor and a centre; its
+    topology is the method's registry record's (:mod:`fusion.methods`)."""
 
-    topology: str
+    name: str
     node: object  # (sensor, config) -> LocalNode
     centre: object  # (config) -> Centre
 
 
-def _track_split(name: str, mode: str, topology: str) -> Split:
-    """HNV / PHHNV / DDHNV: one target, or many with ``association`` in the table."""
-    from .mtt import AssociationConfig
+def track_split(name: str, mode: str) -> Split:
+    """HNV / PHHNV / DDHNV (``mode`` of :class:`TrackNode`): one target, or many with
+    ``association`` in the table."""
+    if mode not in MODES:
+        raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
 
     def node(sensor, config):
         association, rest = AssociationConfig.split(config)
@@ -906,36 +887,20 @@ def _track_split(name: str, mode: str, topology: str) -> Split:
             return TrackCentre(name, TrackerConfig.from_dict(rest), mode)
         return MultiTrackCentre(name, TrackerConfig.from_dict(rest), mode, association)
 
-    return Split(topology, node, centre)
+    return Split(name, node, centre)
 
 
-def _station_split(name: str) -> Split:
-    """KF+TR / MKF+TR: one emitter, or many with ``association`` in the table."""
-    from .mtt import AssociationConfig
+def station_split(name: str, cross_fed: bool) -> Split:
+    """KF+TR (``cross_fed=False``) / MKF+TR: one emitter, or many with ``association``
+    in the table."""
 
     def node(sensor, config):
         association, rest = AssociationConfig.split(config)
         if association is None:
-            return StationNode(sensor, rest, name == "MKF+TR")
-        return MultiStationNode(sensor, rest, name == "MKF+TR", association)
+            return StationNode(sensor, rest, cross_fed)
+        return MultiStationNode(sensor, rest, cross_fed, association)
 
-    return Split("distributed", node, lambda c: StationCentre(name, c))
-
-
-SPLITS: dict[str, Split] = {
-    "HNV": _track_split("HNV", "track", "distributed"),
-    "PHHNV": _track_split("PHHNV", "feedback", "feedback"),
-    "DDHNV": _track_split("DDHNV", "predict", "two-stage"),
-    "KF+TR": _station_split("KF+TR"),
-    "MKF+TR": _station_split("MKF+TR"),
-}
-
-
-def split(name: str) -> Split:
-    try:
-        return SPLITS[name]
-    except KeyError:
-        raise ValueError(f"{name} is not a distributed method (distributed methods: {', '.join(SPLITS)})") from None
+    return Split(name, node, lambda c: StationCentre(name, c))
 
 
 # In-process composition -----------------------------------------------------------------
@@ -947,9 +912,9 @@ class NetworkMethod:
     sensor) as it goes up, and the centre's estimates (``node = "centre"``).
     """
 
-    def __init__(self, name: str, config: dict | None):
-        self.name = name
-        self._split = split(name)
+    def __init__(self, split: Split, config: dict | None):
+        self.name = split.name
+        self._split = split
         self._config = dict(config or {})
         self.centre = self._split.centre(self._config)
         self.nodes: dict[str, LocalNode] = {}

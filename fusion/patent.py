@@ -6,7 +6,7 @@ sensor's role is decided by its measurement kind, never by its id. All methods s
 one motion model (:mod:`fusion.motion`), one measurement geometry
 (:mod:`fusion.sensors3d`), one EKF step, and one initialiser (:mod:`fusion.init3d`).
 
-Methods (each a streaming :class:`Method`, built by a factory in :data:`PATENT_METHODS`):
+Methods (each a streaming :class:`Method`, registered in :mod:`fusion.methods`):
 
 =========  ================================================================================
 LCDD       one EKF at the centre; per scan ``z = [az_i, el_i, range_r]`` (the angle
@@ -51,7 +51,7 @@ id; DDHNV's local reports are predictions) before the centre estimate. ``nis`` i
 sum of the scan's update NIS values, ``nis_dof`` the sum of their dimensions.
 
 Configuration (the scenario's ``[tracker]`` table, resolved for one method by
-:func:`fusion.config.method_config`: common keys, then the method's
+:func:`fusion.methods.method_config`: common keys, then the method's
 ``[tracker.methods.<M>]`` table over them; unknown keys are an error; keys a method
 does not use are accepted and ignored so one table serves every method):
 
@@ -84,13 +84,12 @@ those same nodes and centre wired back to back (:class:`fusion.network.NetworkMe
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import partial
 from typing import Callable, Protocol, Sequence
 
 import numpy as np
 
 from .angles import wrap_2pi, wrap_pi
-from .config import config_values, method_config
+from .config import config_values
 from .init3d import InitPriors, initial_state
 from .motion import make_motion, NOISE_FORMS
 from .sensors3d import SphericalModel, TrackEKF
@@ -177,19 +176,6 @@ class TrackerConfig:
             acc_std=self.init_acc_std,
             acc_std_up=self.init_acc_std_up,
         )
-
-
-TRACK_FUSION_METHODS = ("HNV", "PHHNV", "DDHNV")
-
-
-def track_fusion_rule(table: dict | None, methods: Sequence[str]) -> str | None:
-    """The track-fusion rule the named methods run with, for reports: ``None`` if none of
-    them fuses tracks, ``"HNV: bar-shalom-campo, PHHNV: info"`` if per-method tables differ."""
-    rules = {m: method_config(table, m).get("fusion_rule", TrackerConfig.fusion_rule)
-             for m in methods if m in TRACK_FUSION_METHODS}
-    if len(set(rules.values())) > 1:
-        return ", ".join(f"{m}: {r}" for m, r in rules.items())
-    return next(iter(rules.values()), None)
 
 
 # Scans -------------------------------------------------------------------------------
@@ -458,33 +444,6 @@ class LocalTracker:
 
 
 # Factories ---------------------------------------------------------------------------
-def _centralised(name, pieces, kinds, config: dict | None) -> CentralisedMethod:
+def centralised(name: str, pieces, kinds, config: dict | None) -> CentralisedMethod:
+    """A centralised method (LCDD, HNDD, SS, a baseline) from a resolved ``[tracker]`` table."""
     return CentralisedMethod(name, TrackerConfig.from_dict(config), pieces, kinds)
-
-
-def _distributed(name, config: dict | None):
-    from .network import NetworkMethod  # the nodes and centre of the distributed processes
-
-    return NetworkMethod(name, config)
-
-
-PATENT_METHODS: dict[str, Callable[[dict], Method]] = {
-    "LCDD": partial(_centralised, "LCDD", pieces_lcdd, KINDS_3D),
-    "HNDD": partial(_centralised, "HNDD", pieces_hndd, KINDS_3D),
-    "SS": partial(_centralised, "SS", pieces_stacked, KINDS_3D),
-    "HNV": partial(_distributed, "HNV"),
-    "PHHNV": partial(_distributed, "PHHNV"),
-    "DDHNV": partial(_distributed, "DDHNV"),
-    "RADAR2D": partial(_centralised, "RADAR2D", pieces_stacked, {"range_az"}),
-    "ANGLE": partial(_centralised, "ANGLE", pieces_stacked, {"azel"}),
-    "RADAR3D": partial(_centralised, "RADAR3D", pieces_stacked, {"az_el_range"}),
-}
-
-
-def make(name: str, config: dict | None = None) -> Method:
-    """Build a patent method by name with the scenario's ``[tracker]`` table."""
-    try:
-        factory = PATENT_METHODS[name]
-    except KeyError:
-        raise ValueError(f"unknown patent method {name!r} (known: {', '.join(PATENT_METHODS)})") from None
-    return factory(config)

@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from fusion.topology import TOPOLOGIES
 from fusion.types import KIND_COMPONENTS
 
 if TYPE_CHECKING:
@@ -30,7 +31,6 @@ SENSOR_KINDS: dict[str, str] = {
 ACTIVE_KINDS = frozenset({"radar2d", "radar3d"})
 # Sensors that may report bearings on a jammer (it is an emitter).
 DF_KINDS = frozenset({"df", "airborne_df"})
-TOPOLOGIES = ("centralised", "distributed", "feedback", "two-stage")
 JAM_MODES = ("barrage", "spot")
 TRUTH_PROCESS = "truth"
 

@@ -10,7 +10,8 @@ import shutil
 import sys
 from pathlib import Path
 
-from fusion.patent import TRACK_FUSION_METHODS, track_fusion_rule
+from fusion.methods import SPLIT_METHODS, TOPOLOGIES, TRACK_FUSION_METHODS, track_fusion_rule
+from fusion.track_fusion import FUSION_RULES
 from schemas import KeySpace
 from schemas.keys import DEFAULT_DEPLOYMENT
 
@@ -85,9 +86,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("run", help="run a scenario end to end as separate processes over Zenoh")
     p.add_argument("--scenario", required=True, help="built-in scenario name or path to a .toml file")
-    p.add_argument("--topology", choices=("centralised", "distributed", "feedback", "two-stage"))
+    p.add_argument("--topology", choices=TOPOLOGIES)
     p.add_argument("--method", help="estimation method (default: the scenario's)")
-    p.add_argument("--fusion-rule", choices=("naive", "bar-shalom-campo", "ci", "info"))
+    p.add_argument("--fusion-rule", choices=FUSION_RULES)
     p.add_argument("--speed", type=_speed, default="1", help="scenario seconds per wall second, or 'max' (default 1)")
     p.add_argument("--seed", type=int, help="replace the scenario's seed")
     p.add_argument("--rrd", help="recording path (default runs/<scenario>-<topology>-<time>.rrd)")
@@ -107,7 +108,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--runs", type=int, required=True)
     p.add_argument("--methods", nargs="+",
                    help="methods to evaluate (default: every method the scenario's sensors can feed)")
-    p.add_argument("--fusion-rule", choices=("naive", "bar-shalom-campo", "ci", "info"))
+    p.add_argument("--fusion-rule", choices=FUSION_RULES)
     p.add_argument("--seed", type=int)
     p.add_argument("--json", help="write the summary JSON here")
     p.add_argument("--report", metavar="DIR", help="write a Markdown report with PNG plots into DIR")
@@ -140,7 +141,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("fuser", help="the command-centre fuser process")
     p.add_argument("--scenario", required=True)
     p.add_argument("--method", help="estimation method (default: the scenario's)")
-    p.add_argument("--fusion-rule", choices=("naive", "bar-shalom-campo", "ci", "info"))
+    p.add_argument("--fusion-rule", choices=FUSION_RULES)
     p.add_argument("--id", default="fuser")
     p.add_argument("--source-timeout", type=float, default=5.0, help="seconds of silence before a source is dead")
     p.add_argument("--start-grace", type=float, default=30.0, help="seconds a never-heard source gets at start")
@@ -151,7 +152,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--scenario", required=True)
     p.add_argument("--sensor", required=True, help="the sensor this tracker runs beside")
     p.add_argument("--method", help="distributed method: HNV, PHHNV, DDHNV, KF+TR, MKF+TR (default: the scenario's)")
-    p.add_argument("--fusion-rule", choices=("naive", "bar-shalom-campo", "ci", "info"))
+    p.add_argument("--fusion-rule", choices=FUSION_RULES)
     p.add_argument("--fuser", default="fuser", help="process id of the fuser whose feedback to take")
     p.add_argument("--feedback-timeout", type=float, default=5.0,
                    help="seconds without an answer from the fuser before running alone")
@@ -249,15 +250,13 @@ def main(argv: list[str] | None = None) -> int:
         return fuser(args.id, args.scenario, method, overrides, keys, _zopts(args), args.source_timeout,
                      args.start_grace, seed=args.seed)
     if args.command == "tracker":
-        from fusion.network import SPLITS
-
         from .node import load
         from .tracker import run as tracker
 
         method = args.method or load(args.scenario).defaults.get("method")
-        if method not in SPLITS:
+        if method not in SPLIT_METHODS:
             raise SystemExit(f"zfusion tracker: {method!r} has no local trackers (distributed methods: "
-                             f"{', '.join(SPLITS)})")
+                             f"{', '.join(SPLIT_METHODS)})")
         overrides = {"fusion_rule": args.fusion_rule} if args.fusion_rule else {}
         return tracker(args.sensor, args.scenario, method, overrides, keys, _zopts(args), args.fuser,
                        args.feedback_timeout, args.start_grace, seed=args.seed)

@@ -35,18 +35,10 @@ from typing import Callable, Iterable, Sequence
 
 import numpy as np
 
-from fusion.config import method_config
-from fusion.methods import make_method, method_names
+from fusion.methods import METHODS, make_method, method_config
 from fusion.types import Estimate, Measurement
 
 from .summary import aggregate, score_run, summary, tracks_summary, truth_function
-
-#: methods whose input is bearings (emitter fixes), in the order the reports use
-DF_ORDER = ("EKF", "MEKF1", "MEKF2", "MEKF3", "MEKF4", "MEKF5", "IMM", "TORRIERI", "KF+TR", "MKF+TR")
-#: the patent's methods and baselines, in its table order
-PATENT_ORDER = ("RADAR2D", "ANGLE", "RADAR3D", "LCDD", "HNDD", "SS", "HNV", "PHHNV", "DDHNV")
-_BASELINE_KIND = {"RADAR2D": "range_az", "ANGLE": "azel", "RADAR3D": "az_el_range"}
-
 
 def merged_measurements(scenario, run: int = 0, sensors: Iterable[str] | None = None) -> list[Measurement]:
     from sensors_sim import sensor_events
@@ -87,25 +79,9 @@ def default_methods(scenario) -> list[str]:
     they are co-located). Bearings-only scenarios: every DF method.
     """
     kinds = measurement_kinds(scenario)
-    known = set(method_names())
-    out: list[str] = []
-    if "bearing" in kinds:
-        moving = any(not s.site.fixed for s in scenario.sensors.values() if s.measurement_kind == "bearing")
-        # per-station bearing smoothers need fixed stations
-        out += [m for m in DF_ORDER if m in known and not (moving and m in ("KF+TR", "MKF+TR"))]
-    if kinds & {"range_az", "azel", "az_el_range"}:
-        pair = {"range_az", "azel"} <= kinds
-        for m in PATENT_ORDER:
-            if m not in known:
-                continue
-            if m in _BASELINE_KIND and _BASELINE_KIND[m] not in kinds:
-                continue
-            if m in ("LCDD", "HNDD") and not pair:
-                continue
-            if m == "HNDD" and not _colocated_pair(scenario):
-                continue
-            out.append(m)
-    return out
+    fixed = all(s.site.fixed for s in scenario.sensors.values() if s.measurement_kind == "bearing")
+    colocated = _colocated_pair(scenario)
+    return [m for m, s in METHODS.items() if s.runs_on(kinds, fixed_stations=fixed, colocated=colocated)]
 
 
 def _colocated_pair(scenario) -> bool:

@@ -40,9 +40,8 @@ import queue
 import time
 from typing import Any, Mapping
 
-from fusion.config import method_config
-from fusion.methods import make_method
-from fusion.network import SPLITS, TrackCentre, split
+from fusion.methods import METHODS, make_method, method_config, split
+from fusion.network import TrackCentre
 from fusion.types import Estimate
 from schemas import MEASUREMENT_KINDS, KeySpace, Message, SchemaError, decode, encode_estimate, to_measurement, tracker_id
 from schemas.links import encode_downlink, horizon_message, uplink
@@ -241,7 +240,8 @@ def run(process_id: str, scenario_ref: str, method_name: str, overrides: dict, k
         timeout: float, start_grace: float, seed: int | None = None) -> int:
     scenario = load(scenario_ref, seed)
     config = method_config(scenario.tracker, method_name, overrides)
-    if method_name in SPLITS:  # distributed, feedback, two-stage: the centre over the local trackers
+    distributed = METHODS[method_name].split is not None
+    if distributed:  # distributed, feedback, two-stage: the centre over the local trackers
         method = split(method_name).centre(config)
         nodes = {tracker_id(s): s for s in scenario.sensors}
         intake: Any = UplinkIntake(nodes)
@@ -261,7 +261,7 @@ def run(process_id: str, scenario_ref: str, method_name: str, overrides: dict, k
         pub = node.publisher(keys.fused())
         picture = Picture(process_id, _delete_misses(scenario))
         node.keep(picture.serve(node.session, keys))
-        down = {tid: node.publisher(keys.feedback(tid)) for tid in (intake.nodes if method_name in SPLITS else ())}
+        down = {tid: node.publisher(keys.feedback(tid)) for tid in (intake.nodes if distributed else ())}
         node.announce()
         node.publish_status("ready")
         seq = down_seq = 0

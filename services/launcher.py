@@ -50,7 +50,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Iterable
 
-from fusion.patent import TRACK_FUSION_METHODS, track_fusion_rule
+from fusion.methods import METHODS, TRACK_FUSION_METHODS, topology_default, track_fusion_rule
 from fusion.types import Estimate
 from schemas import KeySpace, SchemaError, decode, to_estimate, tracker_id
 
@@ -65,7 +65,6 @@ log = logging.getLogger("zfusion")
 FUSER_ID = "fuser"
 RECORDER_ID = "recorder"
 LAUNCHER_ID = "launcher"
-TOPOLOGIES = ("centralised", "distributed", "feedback", "two-stage")
 RESTART_DELAY = 0.5  # s: lets the fabric see the dead process's token go before the new one appears
 MAX_RESTARTS = 3  # per process: a process killed again and again is not coming back
 END_GRACE = 10.0  # s after the last source ends, when no fuser is left to say it is done
@@ -208,13 +207,7 @@ class Supervisor:
 
 
 def topology_of(method: str) -> str:
-    from fusion.network import SPLITS
-
-    return SPLITS[method].topology if method in SPLITS else "centralised"
-
-
-# The method a topology runs when none is named: 3D scenarios / DF (bearing) scenarios.
-DEFAULT_METHODS = {"distributed": ("HNV", "KF+TR"), "feedback": ("PHHNV", None), "two-stage": ("DDHNV", None)}
+    return METHODS[method].topology if method in METHODS else "centralised"  # an unknown one fails at make_method
 
 
 def resolve_topology(scenario, topology: str | None, method: str | None) -> tuple[str, str]:
@@ -224,7 +217,7 @@ def resolve_topology(scenario, topology: str | None, method: str | None) -> tupl
         if topology == "centralised":
             raise SystemExit(f"zfusion run: scenario {scenario.name} names no centralised method; give --method")
         df = all(scenario.kind_of(s) in ("df", "airborne_df") for s in scenario.sensors)
-        method = DEFAULT_METHODS[topology][1 if df else 0]
+        method = topology_default(topology, "df" if df else "3d")
         if method is None:
             raise SystemExit(f"zfusion run: no DF method runs in the {topology!r} topology (docs/design.md, Topologies)")
     method = method or default
@@ -268,8 +261,7 @@ def exporter_argv(args) -> dict[str, list[str]]:
 def run(args) -> int:
     scenario = load(args.scenario, args.seed)
     topology, method = resolve_topology(scenario, args.topology, args.method)
-    from fusion.config import method_config
-    from fusion.methods import make_method
+    from fusion.methods import make_method, method_config
 
     if args.fusion_rule and method not in TRACK_FUSION_METHODS:
         raise SystemExit(f"zfusion run: --fusion-rule applies to the track-fusion methods "

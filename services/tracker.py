@@ -25,8 +25,7 @@ import queue
 import time
 
 import zenoh
-from fusion.config import method_config
-from fusion.network import split
+from fusion.methods import method_config, split
 from schemas import KeySpace, SchemaError, decode, encode, tracker_id
 from schemas.links import downlink, encode_uplink
 

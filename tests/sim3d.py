@@ -182,7 +182,7 @@ class LinearAnalogue:
     def of_scenario(cls, name: str, config: dict | None = None) -> "LinearAnalogue":
         """The analogue of SS (every sensor's measurement stacked) on a built-in
         one-target scenario, with the scenario's ``[tracker]`` table updated by ``config``."""
-        from fusion.config import method_config
+        from fusion.methods import method_config
         from fusion.init3d import initial_state
         from fusion.patent import TrackerConfig
         from fusion.sensors3d import SphericalModel

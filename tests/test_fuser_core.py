@@ -8,8 +8,7 @@ import dataclasses
 import msgpack
 import numpy as np
 
-from fusion.config import method_config
-from fusion.methods import make_method
+from fusion.methods import make_method, method_config
 from schemas import KeySpace, encode, encode_measurement
 from sensors_sim import load_scenario, sensor_events
 from services.evaluation import run_method

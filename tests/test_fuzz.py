@@ -39,8 +39,7 @@ import zenoh
 from hypothesis import HealthCheck, Phase, given, seed, settings
 from hypothesis import strategies as st
 
-from fusion.config import method_config
-from fusion.methods import make_method
+from fusion.methods import make_method, method_config
 from schemas import KINDS, KeySpace, SchemaError, decode
 from schemas.messages import MAX_BYTES, TWO_PI
 from sensors_sim import load_scenario

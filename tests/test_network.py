@@ -7,7 +7,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from fusion.network import Downlink, NetworkMethod, TrackCentre, TrackNode
+from fusion.methods import make_method
+from fusion.network import Downlink, TrackCentre, TrackNode
 from fusion.patent import TrackerConfig
 from schemas import decode
 from schemas.links import downlink, encode_downlink, encode_uplink, uplink
@@ -87,7 +88,7 @@ def test_lost_downlink_runs_alone(stream):
 @pytest.mark.parametrize("name", ["HNV", "PHHNV", "DDHNV"])
 def test_uplinks_and_downlinks_survive_the_wire(stream, name):
     """Everything the centre reads off a local report, and a downlink, round-trips exactly."""
-    method = NetworkMethod(name, {"fusion_rule": "bar-shalom-campo"})
+    method = make_method(name, {"fusion_rule": "bar-shalom-campo"})
     sent = []
     for node in ("angle", "radar2d"):
         method._node(node)

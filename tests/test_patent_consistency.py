@@ -72,9 +72,10 @@ from scipy.stats import chi2
 sys.path.insert(0, str(Path(__file__).parent))
 from sim3d import LinearAnalogue, centre_track, run_method, scenario_runs  # noqa: E402
 
-from fusion.config import method_config  # noqa: E402
+from fusion.methods import method_config  # noqa: E402
 from fusion.motion import make_motion  # noqa: E402
-from fusion.patent import TrackerConfig, make  # noqa: E402
+from fusion.methods import make_method as make  # noqa: E402
+from fusion.patent import TrackerConfig  # noqa: E402
 from sensors_sim import load_scenario  # noqa: E402
 
 N_RUNS = 200

@@ -16,11 +16,12 @@ from scipy.stats import chi2
 sys.path.insert(0, str(Path(__file__).parent))
 from sim3d import ANGLE, RADAR2D, RADAR3D, SensorSpec, centre_track, nees, run_method, simulate  # noqa: E402
 
-from fusion.config import method_config  # noqa: E402
-from fusion.patent import PATENT_METHODS, LocalTracker, TrackerConfig, make, pieces_hndd, pieces_lcdd  # noqa: E402
+from fusion.methods import method_config  # noqa: E402
+from fusion.methods import METHODS, make_method as make  # noqa: E402
+from fusion.patent import LocalTracker, TrackerConfig, pieces_hndd, pieces_lcdd  # noqa: E402
 from fusion.types import Measurement  # noqa: E402
 
-ALL = list(PATENT_METHODS)
+ALL = [name for name, spec in METHODS.items() if spec.family == "3d"]
 FIRST = 5  # "after the first five scans"
 
 
@@ -56,7 +57,7 @@ def test_config_defaults_and_errors():
         make("SS", {"q": "0.1"})
     with pytest.raises(ValueError, match="init_range_std"):
         make("SS", {"init_range_std": 0.0})
-    with pytest.raises(ValueError, match="unknown patent method"):
+    with pytest.raises(ValueError, match="unknown method"):
         make("KALMAN", {})
     assert make("SS", {"motion": "cv"}).n_x == 6
 

@@ -9,7 +9,7 @@ from importlib import resources
 import numpy as np
 import pytest
 
-from fusion.config import method_config
+from fusion.methods import method_config
 from sensors_sim import (
     jam_state,
     list_scenarios,

@@ -13,7 +13,8 @@ import pytest
 from fusion.association import track_distance2
 from fusion.motion import make_motion
 from fusion.mtt_metrics import score_tracks
-from fusion.network import Downlink, MultiTrackCentre, NetworkMethod
+from fusion.methods import make_method
+from fusion.network import Downlink, MultiTrackCentre
 from fusion.patent import LocalTracker
 from fusion.track_fusion import TrackFuser
 from fusion.types import Estimate, Measurement
@@ -75,7 +76,7 @@ def test_a_dropped_local_track_is_replaced_and_the_fused_id_survives(crossing):
     one fused track. The centre, finding the radar's next plot of that target among the
     initialisation requests, sends the radar an init for that fused track; the new
     local track (a new local id) is mapped to it, and the published id never changes."""
-    method = NetworkMethod("HNV", dict(crossing.tracker))
+    method = make_method("HNV", dict(crossing.tracker))
     out, t_prev, dropped = [], None, None
     for m in merged_measurements(crossing, 0):
         if t_prev is not None and m.t > t_prev:
@@ -112,7 +113,7 @@ def test_the_drop_downlink_travels():
 def _run(sc, method, hook):
     """``method`` in process on run 0 of ``sc``; ``hook(network, t)`` after each instant
     is settled (every node and the centre complete up to ``t``)."""
-    network = NetworkMethod(method, dict(sc.tracker))
+    network = make_method(method, dict(sc.tracker))
     out, t_prev = [], None
     for m in merged_measurements(sc, 0):
         if t_prev is not None and m.t > t_prev:
@@ -250,7 +251,7 @@ def test_a_restarted_node_s_local_ids_are_new(crossing):
         if "old" not in seen and t >= 20.0:
             seen["old"] = set(network.nodes["radar"].tracks), t
             seen["ids"] = {f.id for f in network.centre.tracks if f.id is not None}
-            network.nodes["radar"] = NetworkMethod("HNV", dict(crossing.tracker))._node("radar")
+            network.nodes["radar"] = make_method("HNV", dict(crossing.tracker))._node("radar")
 
     network, out = _run(crossing, "HNV", hook)
     old, t0 = seen["old"]
