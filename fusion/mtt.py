@@ -235,7 +235,7 @@ class MultiTargetMethod:
 
     def _process_frame(self, frame: list[Measurement]) -> list[Estimate]:
         t = frame[0].t
-        predicted = [tr.method.ekf.predicted(t) for tr in self.tracks]
+        predicted = [tr.method.filter.predicted(t) for tr in self.tracks]
         taken: dict[int, list[Measurement]] = {}  # track index -> its plots
         left: list[Measurement] = []
         for plots in _by_sensor(frame):
@@ -258,11 +258,9 @@ class MultiTargetMethod:
         evidence = min(2, len({m.sensor for m in frame}))  # sensors a hit needs (scores_hit)
         for i, tr in enumerate(self.tracks):
             if i in taken:
-                tr.last = tr.method._process_scan(sorted(taken[i], key=lambda m: m.order_key))[-1]
+                tr.last = tr.method.process_scan(sorted(taken[i], key=lambda m: m.order_key))[-1]
             else:
-                tr.method.ekf.predict(t)
-                ekf = tr.method.ekf
-                tr.last = Estimate(ekf.t, ekf.x, ekf.P, tr.method.name, "centre")
+                tr.last = tr.method.coast(t)
             sensors = {m.sensor: m.kind for m in taken.get(i, ())}
             tr.logic.record(scores_hit(list(sensors.values()), tr.logic.status == CONFIRMED, evidence))
             self._check_spread(tr)
@@ -287,7 +285,7 @@ class MultiTargetMethod:
 
     def _check_spread(self, tr: _Track) -> None:
         if math.isfinite(self.config.max_pos_std) and tr.logic.status != DELETED:
-            if math.sqrt(float(np.trace(tr.method.ekf.P[:3, :3]))) > self.config.max_pos_std:
+            if math.sqrt(float(np.trace(tr.method.filter.P[:3, :3]))) > self.config.max_pos_std:
                 tr.logic.status = DELETED
 
     def _start(self, first: list[Measurement], more: list[Measurement] = ()) -> _Track:
@@ -295,9 +293,9 @@ class MultiTargetMethod:
         initialisation from a first scan), updated at once with ``more`` (same frame)."""
         method = self._make_track()
         method.track = None  # no id until confirmed
-        last = method._process_scan(first)[-1]
+        last = method.process_scan(first)[-1]
         if more:
-            last = method._process_scan(list(more))[-1]
+            last = method.process_scan(list(more))[-1]
         self._births += 1
         tr = _Track(method, TrackLogic(self.rule), self._births, last)
         self.tracks.append(tr)  # confirmed at birth if M = 1: given its id with the others

@@ -283,19 +283,21 @@ class TrackNode(LocalNode):
         super().__init__(sensor, config.pair_tol)
         self.config = config
         self.mode = mode
-        self.tracker = LocalTracker(sensor, config.motion_model(), method, track)
+        motion = config.motion_model()
+        self.tracker = LocalTracker(sensor, motion, method, track, config.new_filter(motion))
         self._requested = False
 
     def centre_restarted(self) -> bool:
         super().centre_restarted()
-        self.tracker = LocalTracker(self.node, self.tracker.motion, self.tracker.method, self.tracker.track)
+        old = self.tracker
+        self.tracker = LocalTracker(self.node, old.motion, old.method, old.track, old.new_filter)
         self._requested = False
         return True
 
     def receive(self, d: Downlink) -> None:
         e = d.estimate
         if d.init or self.mode != "track":
-            if self.tracker.initialised and e.t < self.tracker.ekf.t:
+            if self.tracker.initialised and e.t < self.tracker.t:
                 return  # older than where this node already is (it ran alone meanwhile)
             self.tracker.initialise(e.x, e.P, e.t)
             self._requested = False
@@ -403,6 +405,7 @@ class TrackCentre(GroupedCentre):
         self.feedback = mode != "track"
         self.track = track
         self.motion = config.motion_model()
+        self._new_filter = config.new_filter(self.motion)
         self.fuser = TrackFuser(config.fusion_rule, self.motion, config.ci_criterion, name, track)
         self.nodes: set[str] = set()
         self._grouper = ScanGrouper(config.pair_tol)
@@ -437,25 +440,25 @@ class TrackCentre(GroupedCentre):
         self._send(node, e, init=True)
 
     def _fuse(self, t: float, reports: list[Uplink]) -> Estimate:
-        centre, per_node = fuse_reports(self.fuser, self.mode, t, reports, self.track)
+        centre, per_node = fuse_reports(self.fuser, self.mode, t, reports, self.track, self._new_filter)
         if self.feedback:
             for node in sorted(self.nodes):
                 self._send(node, _feedback(centre, per_node.get(node), self.track), False)
         return centre
 
 
-def fuse_reports(fuser: TrackFuser, mode: str, t: float, reports: list[Uplink], track: str):
+def fuse_reports(fuser: TrackFuser, mode: str, t: float, reports: list[Uplink], track: str, new_filter):
     """One fusion at the centre of the local reports of one track (all at ``t``):
     ``(centre estimate, DDHNV's updates per node)``. ``predict`` mode: stage 1 fuses the
-    local predictions, the centre updates that with each node's measurement, stage 2
-    fuses those updates (module docstring)."""
+    local predictions, the centre updates that with each node's measurement (a filter
+    from ``new_filter``), stage 2 fuses those updates (module docstring)."""
     local = [_at(u.estimate, t) for u in reports]
     per_node: dict[str, Estimate] = {}
     if mode == "predict":
         stage1 = fuser.fuse(t, local)
         updates = []
         for u in reports:  # the centre's updates of the fused prediction
-            c = LocalTracker(u.measurement.sensor, fuser.motion, fuser.method, track)
+            c = LocalTracker(u.measurement.sensor, fuser.motion, fuser.method, track, new_filter)
             c.accept_prior(stage1.x, stage1.P, t)
             per_node[u.node] = c.update(u.measurement, t)
             updates.append(per_node[u.node])
@@ -557,6 +560,7 @@ class MultiTrackNode(FramedNode):
         self.method = method
         self.association = association
         self.motion = config.motion_model()
+        self._new_filter = config.new_filter(self.motion)
         self.tracks: dict[str, LocalTracker] = {}  # local id -> tracker, in creation order
         self.misses: dict[str, int] = {}
         # The centre names the local tracks it starts (the init's ``track``); a track the
@@ -583,7 +587,7 @@ class MultiTrackNode(FramedNode):
             self._start(e.track, e.x, e.P, e.t)
         elif self.mode != "track" and e.track in self.tracks:
             tr = self.tracks[e.track]
-            if e.t >= tr.ekf.t:  # not older than where the track already is
+            if e.t >= tr.t:  # not older than where the track already is
                 tr.accept_prior(e.x, e.P, e.t)
 
     def _blocked(self, frame):
@@ -598,7 +602,7 @@ class MultiTrackNode(FramedNode):
         pairs = []
         if ids:
             Z = np.array([m.z for m in frame])
-            d2 = np.array([mahalanobis2(model, *self.tracks[i].ekf.predicted(t), Z) for i in ids])
+            d2 = np.array([mahalanobis2(model, *self.tracks[i].predicted(t), Z) for i in ids])
             pairs = gnn(d2, gate_threshold(model.n_z, self.association.gate_prob))
         out: list[Uplink] = []
         taken = {}
@@ -610,12 +614,12 @@ class MultiTrackNode(FramedNode):
         hit = set(taken.values())
         for lid in ids:
             self.misses[lid] = 0 if lid in hit else self.misses[lid] + 1
-            ekf = self.tracks[lid].ekf
+            tr = self.tracks[lid]
             if self.misses[lid] >= self.association.delete_misses or \
-                    math.sqrt(float(np.trace(ekf.P[:3, :3]))) > self._max_pos_std:
+                    math.sqrt(float(np.trace(tr.P[:3, :3]))) > self._max_pos_std:
                 del self.tracks[lid], self.misses[lid]
                 # Tell the centre, which would otherwise keep it as its fused track's member.
-                out.append(self._uplink(t, Estimate(t, ekf.x, ekf.P, self.method, self.node, lid), drop=True))
+                out.append(self._uplink(t, Estimate(t, tr.x, tr.P, self.method, self.node, lid), drop=True))
         for c, m in enumerate(frame):
             if c in taken:
                 continue
@@ -626,7 +630,7 @@ class MultiTrackNode(FramedNode):
         return out
 
     def _start(self, lid: str, x: np.ndarray, P: np.ndarray, t: float) -> None:
-        self.tracks[lid] = LocalTracker(self.node, self.motion, self.method, lid)
+        self.tracks[lid] = LocalTracker(self.node, self.motion, self.method, lid, self._new_filter)
         self.tracks[lid].initialise(x, P, t)
         self.misses[lid] = 0
 
@@ -699,6 +703,7 @@ class MultiTrackCentre(GroupedCentre):
         self.association = association
         self.rule = association.rule()
         self.motion = config.motion_model()
+        self._new_filter = config.new_filter(self.motion)
         self.tracks: list[_Fused] = []  # confirmed in id order, then tentative in birth order
         self._initiator = Initiator(self.motion.n_x, config.priors(), association.gate_prob)
         self._grouper = FrameGrouper(config.pair_tol)
@@ -733,7 +738,7 @@ class MultiTrackCentre(GroupedCentre):
         evidence = min(2, len({u.node for u in frame}))
         for f in self.tracks:
             if reports[f.key]:
-                f.last, per_node = fuse_reports(f.fuser, self.mode, t, reports[f.key], f.key)
+                f.last, per_node = fuse_reports(f.fuser, self.mode, t, reports[f.key], f.key, self._new_filter)
                 if self.feedback:
                     for node, lid in sorted(f.members.items()):
                         self._send(node, _feedback(f.last, per_node.get(node), lid), False)

@@ -74,6 +74,7 @@ init_acc_std     10.0                       m/s² per horizontal axis, around ze
 init_acc_std_up  10.0                       m/s² vertical, around zero (CA)
 ekf_iterations   1                          > 1: iterated EKF updates in the centralised
                                             methods (:func:`fusion.sensors3d.iterated_ekf_update`)
+filter           ``"ekf"``                  the track filter, by name (:data:`fusion.filters.FILTERS`)
 ===============  =========================  =============================================
 
 HNV, PHHNV and DDHNV are split into local nodes and a centre in :mod:`fusion.network`,
@@ -92,7 +93,8 @@ from .angles import wrap_2pi, wrap_pi
 from .config import config_values
 from .init3d import InitPriors, initial_state
 from .motion import make_motion, NOISE_FORMS
-from .sensors3d import SphericalModel, TrackEKF
+from .filters import FILTERS, Filter, NewFilter, filter_factory
+from .sensors3d import SphericalModel
 from .track_fusion import CI_CRITERIA, FUSION_RULES
 from .types import KIND_COMPONENTS, Estimate, Measurement
 
@@ -130,6 +132,7 @@ class TrackerConfig:
     init_acc_std: float = InitPriors.acc_std
     init_acc_std_up: float = InitPriors.acc_std_up
     ekf_iterations: int = 1
+    filter: str = "ekf"
 
     @classmethod
     def from_dict(cls, config: dict | None) -> "TrackerConfig":
@@ -148,6 +151,8 @@ class TrackerConfig:
             raise ValueError(f"tracker config 'process_noise' must be one of {NOISE_FORMS}, got {self.process_noise!r}")
         if self.fusion_rule not in FUSION_RULES:
             raise ValueError(f"tracker config 'fusion_rule' must be one of {FUSION_RULES}, got {self.fusion_rule!r}")
+        if self.filter not in FILTERS:
+            raise ValueError(f"tracker config 'filter' must be one of {tuple(FILTERS)}, got {self.filter!r}")
         if self.ci_criterion not in CI_CRITERIA:
             raise ValueError(f"tracker config 'ci_criterion' must be one of {CI_CRITERIA}, got {self.ci_criterion!r}")
         if self.q < 0.0:
@@ -164,6 +169,10 @@ class TrackerConfig:
 
     def motion_model(self):
         return make_motion(self.motion, self.q, self.process_noise)
+
+    def new_filter(self, motion, centralised: bool = False) -> NewFilter:
+        """The track filter's factory; ``ekf_iterations`` applies to the centralised methods."""
+        return filter_factory(self.filter, motion, self.ekf_iterations if centralised else 1)
 
     def priors(self) -> InitPriors:
         return InitPriors(
@@ -247,7 +256,7 @@ def uses(name: str, kinds: frozenset, m: Measurement) -> bool:
 class ScanMethod:
     """Base of the patent methods: streaming interface on top of :class:`ScanGrouper`.
 
-    Subclasses implement ``_process_scan(scan) -> list[Estimate]``.
+    Subclasses implement :meth:`process_scan`.
     """
 
     kinds: frozenset = KINDS_3D  # kinds used; other 3D kinds are ignored
@@ -278,10 +287,11 @@ class ScanMethod:
     def _run(self, scans: list[list[Measurement]]) -> list[Estimate]:
         out: list[Estimate] = []
         for scan in scans:
-            out += self._process_scan(scan)
+            out += self.process_scan(scan)
         return out
 
-    def _process_scan(self, scan: list[Measurement]) -> list[Estimate]:
+    def process_scan(self, scan: list[Measurement]) -> list[Estimate]:
+        """The estimates of one closed scan."""
         raise NotImplementedError
 
 
@@ -350,35 +360,45 @@ def pieces_hndd(scan: Sequence[Measurement], n_x: int) -> list[Piece]:
 
 
 class CentralisedMethod(ScanMethod):
-    """One EKF at the centre; ``pieces(scan, n_x)`` turns a scan into updates applied in turn.
+    """One track filter at the centre; ``pieces(scan, n_x)`` turns a scan into updates
+    applied in turn.
 
     LCDD, HNDD, SS and the single-sensor baselines are this class with different
-    ``pieces`` and ``kinds``.
+    ``pieces`` and ``kinds``. :attr:`filter` (a :class:`fusion.filters.Filter`, None
+    before the first scan) is the track's state; :meth:`process_scan` and :meth:`coast`
+    are what a many-target manager drives per track (:class:`fusion.mtt.MultiTargetMethod`).
     """
 
     def __init__(self, name, config, pieces: Callable[[Sequence[Measurement], int], list[Piece]], kinds=KINDS_3D):
         super().__init__(name, config)
         self.kinds = frozenset(kinds)
         self._pieces = pieces
-        self.ekf: TrackEKF | None = None
+        self._new_filter = config.new_filter(self.motion, centralised=True)
+        self.filter: Filter | None = None
 
-    def _process_scan(self, scan):
+    def process_scan(self, scan):
         t = scan[0].t
-        if self.ekf is None:
+        if self.filter is None:
             x, P = initial_state(scan, self.n_x, self.priors)
-            self.ekf = TrackEKF(self.motion, x, P, t, self.config.ekf_iterations)
+            self.filter = self._new_filter(x, P, t)
             return [Estimate(t, x, P, self.name, "centre", self.track)]
-        self.ekf.predict(t)
+        self.filter.predict(t)
         nis, dof = 0.0, 0
         for model, z in self._pieces(scan, self.n_x):
-            nis += self.ekf.update(model, z).nis
+            nis += self.filter.update(model, z).nis
             dof += model.n_z
-        return [Estimate(t, self.ekf.x, self.ekf.P, self.name, "centre", self.track, nis, dof)]
+        return [Estimate(t, self.filter.x, self.filter.P, self.name, "centre", self.track, nis, dof)]
+
+    def coast(self, t: float) -> Estimate:
+        """Predict to ``t`` without a measurement (a missed frame); the estimate has no track id."""
+        f = self.filter
+        f.predict(t)
+        return Estimate(f.t, f.x, f.P, self.name, "centre")
 
 
 # Distributed methods: local trackers + centre fuser ------------------------------------
 class LocalTracker:
-    """The per-sensor EKF of HNV/PHHNV/DDHNV, as a local-tracker process would run it.
+    """The per-sensor track filter of HNV/PHHNV/DDHNV, as a local-tracker process runs it.
 
     * :meth:`initialise` / :meth:`accept_prior`: (re)start from an estimate sent by the
       centre (the shared initial state, or the fused estimate fed back);
@@ -389,23 +409,41 @@ class LocalTracker:
     ``extra`` fields every fusion rule needs (:mod:`fusion.track_fusion`): ``prior_x``,
     ``prior_P`` (the prediction the update started from), ``KH`` (``K·H``, zero for a
     prediction), ``feedback_t`` (time of the centre estimate it was restarted from since
-    its previous report, else ``None``) and ``prediction`` (bool).
+    its previous report, else ``None``) and ``prediction`` (bool). ``new_filter`` builds
+    the filter (:data:`fusion.filters.NewFilter`; default the EKF).
     """
 
-    def __init__(self, sensor: str, motion, method: str = "HNV", track: str = "T1"):
+    def __init__(self, sensor: str, motion, method: str = "HNV", track: str = "T1",
+                 new_filter: NewFilter | None = None):
         self.sensor = sensor
         self.motion = motion
         self.method = method
         self.track = track
-        self.ekf: TrackEKF | None = None
+        self.new_filter = new_filter or filter_factory("ekf", motion)
+        self.filter: Filter | None = None
         self._feedback_t: float | None = None
 
     @property
     def initialised(self) -> bool:
-        return self.ekf is not None
+        return self.filter is not None
+
+    @property
+    def t(self) -> float:
+        return self.filter.t
+
+    @property
+    def x(self) -> np.ndarray:
+        return self.filter.x
+
+    @property
+    def P(self) -> np.ndarray:
+        return self.filter.P
+
+    def predicted(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        return self.filter.predicted(t)
 
     def initialise(self, x: np.ndarray, P: np.ndarray, t: float) -> None:
-        self.ekf = TrackEKF(self.motion, x, P, t)
+        self.filter = self.new_filter(x, P, t)
         self._feedback_t = float(t)
 
     accept_prior = initialise  # feedback: the centre's estimate becomes the next prior
@@ -419,28 +457,28 @@ class LocalTracker:
             "prediction": nis is None,
         }
         self._feedback_t = None
-        e = self.ekf
-        return Estimate(e.t, e.x, e.P, self.method, self.sensor, self.track, nis, dof, extra)
+        f = self.filter
+        return Estimate(f.t, f.x, f.P, self.method, self.sensor, self.track, nis, dof, extra)
 
     def _require(self):
-        if self.ekf is None:
+        if self.filter is None:
             raise ValueError(f"local tracker {self.sensor!r} has no prior yet (initialise it from the centre)")
 
     def predict(self, t: float) -> Estimate:
         self._require()
-        self.ekf.predict(t)
-        return self._report(self.ekf.x, self.ekf.P, np.zeros((self.ekf.x.size,) * 2))
+        self.filter.predict(t)
+        return self._report(self.filter.x, self.filter.P, np.zeros((self.filter.x.size,) * 2))
 
     def update(self, m: Measurement, t: float | None = None) -> Estimate:
         """Update with this sensor's measurement at time ``t`` (default ``m.t``; the scan time in-process)."""
         self._require()
         if m.sensor != self.sensor:
             raise ValueError(f"local tracker {self.sensor!r} got a measurement of sensor {m.sensor!r}")
-        self.ekf.predict(m.t if t is None else t)
-        prior_x, prior_P = self.ekf.x, self.ekf.P
-        model, z = _model(m, self.ekf.x.size)
-        res = self.ekf.update(model, z)
-        return self._report(prior_x, prior_P, res.K @ self.ekf.H, res.nis, model.n_z)
+        self.filter.predict(m.t if t is None else t)
+        prior_x, prior_P = self.filter.x, self.filter.P
+        model, z = _model(m, self.filter.x.size)
+        res = self.filter.update(model, z)
+        return self._report(prior_x, prior_P, self.filter.KH, res.nis, model.n_z)
 
 
 # Factories ---------------------------------------------------------------------------

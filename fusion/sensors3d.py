@@ -382,5 +382,10 @@ class TrackEKF:
             res, self.H = iterated_ekf_update(model, self.x, self.P, z, self.iterations)
         else:
             res, self.H = _ekf_update(model, self.x, self.P, z)
-        self.x, self.P = res.x, res.P
+        self.x, self.P, self._K = res.x, res.P, res.K
         return res
+
+    @property
+    def KH(self) -> np.ndarray:
+        """``K·H`` of the last update (what a local track reports to the fusion rules)."""
+        return self._K @ self.H

@@ -147,7 +147,7 @@ def _lose(node, lid: str) -> None:
     every plot's gate) and reach ``delete_misses`` at its next frame: the node deletes
     it by its own rule."""
     tr = node.tracks[lid]
-    tr.ekf.x = tr.ekf.x + np.r_[20000.0, 20000.0, np.zeros(len(tr.ekf.x) - 2)]
+    tr.filter.x = tr.filter.x + np.r_[20000.0, 20000.0, np.zeros(len(tr.filter.x) - 2)]
     node.misses[lid] = node.association.delete_misses - 1
 
 
@@ -227,7 +227,7 @@ def test_a_local_track_that_dies_before_its_first_report_is_replaced(crossing):
             f = seen["lost"][0]
             new = set(radar.tracks) - seen["before"]
             if new:
-                seen["killed"] = min(new, key=lambda lid: np.linalg.norm(radar.tracks[lid].ekf.x[:3] - f.last.x[:3]))
+                seen["killed"] = min(new, key=lambda lid: np.linalg.norm(radar.tracks[lid].x[:3] - f.last.x[:3]))
                 _lose(radar, seen["killed"])
         seen["before"] = set(radar.tracks)
 
@@ -341,7 +341,7 @@ def test_hnv_local_tracks_rejoin_past_their_limit(crossing):
             for node in network.nodes.values():
                 for lid, tr in node.tracks.items():
                     if (node.node, lid) in known:
-                        seen.append(math.sqrt(float(np.trace(tr.ekf.P[:3, :3]))))
+                        seen.append(math.sqrt(float(np.trace(tr.P[:3, :3]))))
                     known.add((node.node, lid))
         sc = dataclasses.replace(crossing, tracker={**crossing.tracker, **config})
         _, out = _run(sc, "HNV", hook)

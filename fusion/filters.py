@@ -1,0 +1,63 @@
+r"""The filter of one 3D track, as every 3D method, local tracker and many-target
+manager uses it, and the registry of filters by name (``[tracker]`` key ``filter``).
+
+A filter holds a Gaussian ``(x, P)`` at time ``t`` and offers
+
+* :meth:`Filter.predicted` ``(t) -> (x⁻, P⁻)``, the prediction without changing it (gates);
+* :meth:`Filter.predict` ``(t)``, moving it there with the motion model;
+* :meth:`Filter.update` ``(model, z)``, the update with a :class:`fusion.sensors3d.SphericalModel`
+  measurement at the current time, returning the step's ``UpdateResult`` (ν, S, NIS, K);
+* :attr:`Filter.KH`, ``K·H`` of the last update: what the track-fusion rules need of a
+  local update (:mod:`fusion.track_fusion`). For a filter that does not linearise,
+  ``H`` is the statistical linearisation ``Pₓᵤᵀ P⁻⁻¹``, so ``P⁺ = (I − K·H) P⁻``
+  holds for every filter.
+
+A new filter is one module with a class of this shape and one line in :data:`FILTERS`.
+"""
+
+from __future__ import annotations
+
+from functools import partial
+from typing import Callable, Protocol
+
+import numpy as np
+
+from .kalman import UpdateResult
+from .sensors3d import SphericalModel, TrackEKF
+
+
+class Filter(Protocol):
+    """The Gaussian filter of one 3D track (module docstring)."""
+
+    x: np.ndarray
+    P: np.ndarray
+    t: float
+
+    def predicted(self, t: float) -> tuple[np.ndarray, np.ndarray]: ...
+    def predict(self, t: float) -> None: ...
+    def update(self, model: SphericalModel, z: np.ndarray) -> UpdateResult: ...
+
+    @property
+    def KH(self) -> np.ndarray: ...
+
+
+#: ``(x, P, t) -> Filter``: a new track's filter from its initial state
+NewFilter = Callable[[np.ndarray, np.ndarray, float], Filter]
+
+
+def _ekf(motion, iterations: int = 1) -> NewFilter:
+    return partial(TrackEKF, motion, iterations=iterations)
+
+
+#: name -> ``factory(motion, iterations)`` giving a :data:`NewFilter`; ``iterations``
+#: is the centralised methods' ``ekf_iterations`` (1 for a local tracker)
+FILTERS: dict[str, Callable[..., NewFilter]] = {
+    "ekf": _ekf,
+}
+
+
+def filter_factory(name: str, motion, iterations: int = 1) -> NewFilter:
+    try:
+        return FILTERS[name](motion, iterations)
+    except KeyError:
+        raise ValueError(f"unknown filter {name!r} (known: {', '.join(FILTERS)})") from None
