@@ -24,6 +24,7 @@ import numpy as np
 
 from .kalman import UpdateResult
 from .sensors3d import SphericalModel, TrackEKF
+from .ukf import TrackUKF
 
 
 class Filter(Protocol):
@@ -49,10 +50,15 @@ def _ekf(motion, iterations: int = 1) -> NewFilter:
     return partial(TrackEKF, motion, iterations=iterations)
 
 
+def _ukf(motion, iterations: int = 1) -> NewFilter:  # (iterations: the EKF's)
+    return partial(TrackUKF, motion)
+
+
 #: name -> ``factory(motion, iterations)`` giving a :data:`NewFilter`; ``iterations``
 #: is the centralised methods' ``ekf_iterations`` (1 for a local tracker)
 FILTERS: dict[str, Callable[..., NewFilter]] = {
     "ekf": _ekf,
+    "ukf": _ukf,
 }
 
 
