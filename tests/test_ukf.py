@@ -118,14 +118,23 @@ def test_kh_is_the_statistical_linearisation():
     np.testing.assert_allclose((np.eye(9) - ukf.KH) @ prior, ukf.P, rtol=1e-9, atol=1e-9 * np.abs(prior).max())
 
 
-def test_the_filter_key_chooses_the_ukf():
-    table = {"filter": "ukf"}
-    ss = make_method("SS", table)
-    assert ss.config.filter == "ukf"
-    hnv = make_method("HNV", table)
+@pytest.mark.parametrize("name", ["SS", "HNV", "DDHNV"])
+def test_the_filter_key_chooses_every_track_filter(name):
+    """``filter = "ukf"`` reaches the centralised filter, the local trackers and the
+    tracks of the many-target managers; an unknown filter is refused."""
+    sim = scenario_runs("patent-3d", 1)
+    for table in ({"filter": "ukf"}, {"filter": "ukf", "association": "gnn"}):
+        method = make_method(name, dict(table))
+        run_method(method, sim.measurements[0][:40])
+        if hasattr(method, "nodes"):  # split: its local trackers
+            trackers = [tr for node in method.nodes.values()
+                        for tr in (node.tracks.values() if hasattr(node, "tracks") else [node.tracker])]
+            filters = [tr.filter for tr in trackers]
+        else:
+            filters = [tr.method.filter for tr in method.tracks] if hasattr(method, "tracks") else [method.filter]
+        assert filters and all(isinstance(f, TrackUKF) for f in filters)
     with pytest.raises(ValueError, match="'filter' must be one of"):
-        make_method("SS", {"filter": "pf"})
-    assert hnv.name == "HNV"
+        make_method(name, {"filter": "pf"})
 
 
 # Consistency on patent-3d ------------------------------------------------------------------
