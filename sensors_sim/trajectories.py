@@ -1,33 +1,25 @@
 r"""Ground truth: targets moving along motion segments, plus optional white-noise jerk.
 
 A target starts from ``x0 = [p, v, a]`` (ENU, 9 states) and flies its segments one
-after another, each starting from the state the previous one ended in:
+after another, each from the state the previous one ended in; the last runs on past
+its duration:
 
-* ``Static``: ``p(τ) = p₀``, ``v = a = 0`` (emitters).
-* ``ConstantVelocity``: ``p(τ) = p₀ + v τ``, ``a = 0`` (``vel`` replaces ``v`` at the start).
-* ``ConstantAcceleration``: ``p(τ) = p₀ + v₀ τ + a τ²/2``, ``v(τ) = v₀ + a τ``
-  (``acc`` replaces ``a`` at the start).
-* ``CoordinatedTurn``: constant speed and turn rate ω in the horizontal plane
-  (ω > 0 turns right, i.e. the compass heading grows), constant climb rate; with
-  Ω = −ω the counter-clockwise rate, ``v_h(τ) = Rot(Ωτ) v_h₀``,
-  ``p_h(τ) = p_h₀ + [sin Ωτ, −(1 − cos Ωτ); 1 − cos Ωτ, sin Ωτ] v_h₀ / Ω``,
-  ``a_h = Ω·[−v_y, v_x]``.
-* ``Waypoints``: straight legs at constant speed through the given points (``a = 0``).
+* ``Static``: ``p(τ) = p₀``, ``v = a = 0`` (emitters);
+* ``ConstantVelocity``: ``p(τ) = p₀ + v τ``, ``a = 0``;
+* ``ConstantAcceleration``: ``p(τ) = p₀ + v₀ τ + a τ²/2``, ``v(τ) = v₀ + a τ``;
+* ``CoordinatedTurn``: constant speed, turn rate ω (> 0 turns right) and climb rate;
+  with Ω = −ω, ``v_h(τ) = Rot(Ωτ) v_h₀``,
+  ``p_h(τ) = p_h₀ + [sin Ωτ, −(1 − cos Ωτ); 1 − cos Ωτ, sin Ωτ] v_h₀ / Ω``;
+* ``Waypoints``: straight legs at constant speed through the given points.
 
-The last segment runs on past its duration (to the end of the scenario and beyond).
-
-Process noise. If the target's ``jerk_psd`` q > 0, the truth is
-``x(t) = x_nom(t) + e(t)`` with ``e`` the white-noise-jerk process of
-:mod:`sensors_sim.noise` started at ``e(0) = 0`` and drawn on the grid
-``t_k = k·truth_dt``. On a constant-acceleration segment this *is* the CA model with
-white jerk; ``q·Q₁(dt)`` is its exact discretisation, so any sensor sampling on the
-grid sees exactly that law at its own period. Between grid nodes the deviation is
-carried forward without new noise (``e(t) = F(t − t_k) e_k``); the loader requires
-every sensor's scans to fall on the grid, so nothing is measured there.
-
-The noise comes from ``process_rng(seed, "truth", run)``; targets draw from it in file
-order (a target without noise draws nothing). The truth is thus a deterministic
-function of (scenario, run): every process computes the same truth on its own.
+Process noise: with ``jerk_psd`` q > 0 the truth is ``x(t) = x_nom(t) + e(t)``, ``e`` the
+white-noise-jerk process of :mod:`sensors_sim.noise` from ``e(0) = 0`` on the grid
+``t_k = k·truth_dt``; ``q·Q₁(dt)`` is its exact discretisation, so a sensor sampling on
+the grid sees exactly the CA model with white jerk at its own period (the loader
+requires every scan to fall on the grid; between nodes ``e(t) = F(t − t_k) e_k``). The
+noise comes from ``process_rng(seed, "truth", run)``, targets drawing in file order, so
+the truth is a deterministic function of (scenario, run) that every process computes
+alike.
 """
 
 from __future__ import annotations
