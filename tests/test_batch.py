@@ -192,7 +192,10 @@ def test_shapes_are_checked():
 
 
 def test_large_stacks_go_through_in_passes(monkeypatch):
-    """ekf_step's passes of CHUNK tracks give exactly what one pass gives."""
+    """ekf_step's passes of CHUNK tracks give what one pass gives, to rounding.
+
+    Not bit for bit: numpy's SIMD loops may sum in another order for a slice that
+    starts at another alignment (numpy 2.4: relative differences up to 1e-14)."""
     rng = np.random.default_rng(11)
     N = 50
     motion = make_motion("ca", 0.05)
@@ -206,4 +209,4 @@ def test_large_stacks_go_through_in_passes(monkeypatch):
     monkeypatch.setattr(batch, "CHUNK", 7)
     passes = batch.ekf_step(motion, model, x, P, dt, z, sites, R)
     for a, b in zip(whole, passes):
-        assert np.array_equal(a, b)
+        np.testing.assert_allclose(a, b, rtol=1e-12, atol=0.0)
