@@ -37,6 +37,7 @@ from .trajectories import (
     ConstantAcceleration,
     ConstantVelocity,
     CoordinatedTurn,
+    Orbit,
     Static,
     Waypoints,
 )
@@ -216,7 +217,7 @@ def _target(r: Reader, origin) -> TargetSpec:
     return TargetSpec(r.path[-1], np.concatenate([p0, v0, a0]), segments, jerk_psd)
 
 
-_SEGMENT_TYPES = ("static", "cv", "ca", "turn", "waypoints")
+_SEGMENT_TYPES = ("static", "cv", "ca", "turn", "waypoints", "orbit")
 
 
 def _segment(r: Reader, origin, last: bool):
@@ -224,6 +225,13 @@ def _segment(r: Reader, origin, last: bool):
     if kind == "waypoints":
         points, _ = r.unit_vector("points", LENGTH, (2, 3), min_rows=1)
         seg = Waypoints(points, r.number("speed_mps", gt=0))
+    elif kind == "orbit":
+        a, b = r.vector("axes_m", (2,))
+        if not a >= b > 0:
+            raise r.error("semi-axes [along, across] must satisfy along >= across > 0", "axes_m")
+        seg = Orbit(float(a), float(b), r.quantity("lap", TIME, gt=0), r.quantity("heading", ANGLE),
+                    r.string("turn", "left", choices=("left", "right")) == "left",
+                    r.quantity("duration", TIME, default=None, gt=0))
     else:
         duration = r.quantity("duration", TIME, default=None, gt=0)
         if duration is None and not last:

@@ -10,7 +10,11 @@ its duration:
 * ``CoordinatedTurn``: constant speed, turn rate ω (> 0 turns right) and climb rate;
   with Ω = −ω, ``v_h(τ) = Rot(Ωτ) v_h₀``,
   ``p_h(τ) = p_h₀ + [sin Ωτ, −(1 − cos Ωτ); 1 − cos Ωτ, sin Ωτ] v_h₀ / Ω``;
-* ``Waypoints``: straight legs at constant speed through the given points.
+* ``Waypoints``: straight legs at constant speed through the given points;
+* ``Orbit``: an endless elliptical racetrack at constant altitude, entered mid-way
+  along a long side: e₁ the compass heading of the long axis, n the unit vector to the
+  centre c = p₀ + b·n, Ω = 2π/T (T the lap), ``p = c + a sin Ωτ e₁ − b cos Ωτ n``,
+  ``v = Ω(a cos Ωτ e₁ + b sin Ωτ n)``, ``a = −Ω²(p − c)``: closed form, C^∞, periodic.
 
 Process noise: with ``jerk_psd`` q > 0 the truth is ``x(t) = x_nom(t) + e(t)``, ``e`` the
 white-noise-jerk process of :mod:`sensors_sim.noise` from ``e(0) = 0`` on the grid
@@ -145,7 +149,34 @@ class Waypoints:
         return Piece(float(t_leg[-1]), state)
 
 
-Segment = Static | ConstantVelocity | ConstantAcceleration | CoordinatedTurn | Waypoints
+@dataclass(frozen=True)
+class Orbit:
+    """An endless elliptical racetrack (module docstring): semi-axes ``a`` along the
+    heading ``heading`` (compass, rad) and ``b`` across it, ``lap`` seconds a lap,
+    turning ``left`` (counter-clockwise seen from above) or right."""
+
+    a: float
+    b: float
+    lap: float
+    heading: float
+    left: bool = True
+    duration: float | None = None
+
+    def plan(self, x: np.ndarray) -> Piece:
+        e1 = np.array([math.sin(self.heading), math.cos(self.heading), 0.0])
+        n = np.array([-e1[1], e1[0], 0.0]) if self.left else np.array([e1[1], -e1[0], 0.0])
+        om = 2.0 * math.pi / self.lap
+        c = x[:3] + self.b * n
+
+        def state(tau: float) -> np.ndarray:
+            s, co = math.sin(om * tau), math.cos(om * tau)
+            d = self.a * s * e1 - self.b * co * n  # p − c
+            return _state(c + d, om * (self.a * co * e1 + self.b * s * n), -om * om * d)
+
+        return Piece(self.duration, state)
+
+
+Segment = Static | ConstantVelocity | ConstantAcceleration | CoordinatedTurn | Waypoints | Orbit
 
 
 # --- trajectories -----------------------------------------------------------------------

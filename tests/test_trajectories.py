@@ -225,3 +225,67 @@ def test_unknown_target_is_a_clear_error(tmp_path):
     sc = scenario_file(tmp_path, CA_TARGET, duration=10.0)
     with pytest.raises(KeyError, match="no target 'T9'"):
         truth_trajectory(sc, "T9")
+
+
+# --- endless trajectories -----------------------------------------------------------------
+
+
+def test_orbit_is_smooth_periodic_and_its_own_derivative():
+    """Velocity and acceleration are the derivatives of position (central differences,
+    independent of the closed forms), the ellipse's semi-axes and lap are as given,
+    and the state at t and t + k·lap is the same for any k: defined for every t."""
+    from sensors_sim.trajectories import Orbit
+
+    seg = Orbit(10_000.0, 5_000.0, 600.0, math.radians(90.0), left=True)
+    traj = Trajectory(make_target([0.0, 5000.0, 2000.0, 0, 0, 0, 0, 0, 0], seg))
+    h = 1e-3
+    for t in np.linspace(h, 1800.0, 97):
+        x, xp, xm = traj.state(t), traj.state(t + h), traj.state(t - h)
+        np.testing.assert_allclose((xp[:3] - xm[:3]) / (2 * h), x[3:6], atol=1e-4)
+        np.testing.assert_allclose((xp[3:6] - xm[3:6]) / (2 * h), x[6:9], atol=1e-6)
+        np.testing.assert_allclose(traj.state(t + 600.0 * 12), x, atol=1e-6)  # 12 laps later
+        np.testing.assert_allclose(traj.state(t + 3600.0 * 24 * 3), x, atol=1e-4)  # three days later
+        assert x[2] == 2000.0 and x[5] == 0.0
+    centre = np.array([0.0, 10_000.0])
+    pts = traj.states(np.linspace(0.0, 600.0, 2401))[:, :2] - centre
+    np.testing.assert_allclose((pts[:, 0] / 10_000.0) ** 2 + (pts[:, 1] / 5_000.0) ** 2, 1.0, atol=1e-12)
+    assert pts[:, 0].max() == pytest.approx(10_000.0) and pts[:, 1].max() == pytest.approx(5_000.0)
+    # starts at the middle of the southern side heading east, counter-clockwise
+    np.testing.assert_allclose(traj.state(0.0)[:6], [0, 5000, 2000, 2 * math.pi / 600 * 10_000, 0, 0], atol=1e-9)
+    assert traj.state(150.0)[0] == pytest.approx(10_000.0)
+
+
+def test_orbit_turning_right_mirrors_left():
+    from sensors_sim.trajectories import Orbit
+
+    x0 = [0.0, 0.0, 1000.0, 0, 0, 0, 0, 0, 0]
+    left = Trajectory(make_target(x0, Orbit(4000.0, 1000.0, 300.0, 0.0, left=True)))  # long axis north
+    right = Trajectory(make_target(x0, Orbit(4000.0, 1000.0, 300.0, 0.0, left=False)))
+    for t in (10.0, 75.0, 200.0):
+        a, b = left.state(t), right.state(t)
+        np.testing.assert_allclose([-a[0], a[1], -a[3], a[4], -a[6], a[7]], [b[0], b[1], b[3], b[4], b[6], b[7]],
+                                   atol=1e-9)
+    assert left.state(75.0)[0] < 0 < right.state(75.0)[0]  # the centre is west (left) of a northbound start
+
+
+def test_patent_3d_orbit_scenario():
+    sc = load_scenario("patent-3d-orbit")
+    assert sc.duration == 600.0 and set(sc.sensors) == {"radar2d", "angle"}
+    assert set(sc.sensors) == set(load_scenario("patent-3d").sensors)
+    traj = truth_trajectory(sc, "T1")
+    ranges = [np.linalg.norm(traj.position(t)) for t in np.linspace(0, 600, 601)]
+    assert 4_000 < min(ranges) and max(ranges) < 20_000  # always in the sensors' view
+    np.testing.assert_allclose(traj.state(7200.0), traj.state(0.0), atol=1e-6)  # 12 laps: back at the start
+
+
+def test_orbit_axes_are_checked(tmp_path):
+    from sensors_sim import ScenarioError
+
+    from sensors_sim.loader import _builtin_dir
+
+    src = ((_builtin_dir() / "patent-3d-orbit.toml").read_text()
+           .replace("axes_m = [10000.0, 5000.0]", "axes_m = [1000.0, 5000.0]"))
+    path = tmp_path / "bad.toml"
+    path.write_text(src)
+    with pytest.raises(ScenarioError, match="axes_m"):
+        load_scenario(str(path))
