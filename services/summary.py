@@ -20,6 +20,9 @@ every run; ``cep50``: the median horizontal miss of the final fixes; ``anees``: 
     ``ΣNIS / Σdof`` over the updates that report an NIS (1 for a consistent filter).
 ``final``, ``second_half``
     the last estimate of each run; the estimates with ``t ≥ (t_first + t_last)/2``.
+
+``series`` has at most ``SERIES_MAX`` points: a longer run's output times are binned
+(:func:`_series`; the bin size is then given as ``series.bin``).
 """
 
 from __future__ import annotations
@@ -96,6 +99,30 @@ def _mean(values) -> float | None:
     return float(np.mean(vals)) if vals else None
 
 
+SERIES_MAX = 3600  # points of a summary series; a longer run's are binned (see _series)
+
+
+def _series(per_t: dict[float, list[dict]], ts: list[float]) -> dict:
+    """Per output time: RMSEs, ANEES, mean NIS and dof, estimates. Beyond ``SERIES_MAX``
+    times (a run of hours), consecutive times are binned ``k = ⌈len/SERIES_MAX⌉`` at a
+    time, each bin stamped with its last time and scored over all its estimates, so the
+    summary of a long run stays bounded; the overall figures are computed from every
+    estimate regardless."""
+    k = max(1, math.ceil(len(ts) / SERIES_MAX))
+    bins = [(ts[min(i + k, len(ts)) - 1], [e for t in ts[i:i + k] for e in per_t[t]]) for i in range(0, len(ts), k)]
+    return {
+        "t": [t for t, _ in bins],
+        "rmse_pos": [_rms([e["pos2"] for e in b]) for _, b in bins],
+        "rmse_vel": [_rms([e["vel2"] for e in b]) for _, b in bins],
+        "rmse_acc": [_rms([e["acc2"] for e in b]) for _, b in bins],
+        "anees": [_mean([e["nees"] for e in b]) for _, b in bins],
+        "anis": [_mean([e["nis"] for e in b if e["nis"] is not None]) for _, b in bins],
+        "nis_dof": [_mean([e["nis_dof"] for e in b if e["nis_dof"]]) for _, b in bins],
+        "n": [len(b) for _, b in bins],
+        **({"bin": k} if k > 1 else {}),
+    }
+
+
 def aggregate(runs: Sequence[Sequence[dict]]) -> dict:
     """One method's summary from the :func:`score_run` records of every run."""
     per_t: dict[float, list[dict]] = defaultdict(list)
@@ -119,16 +146,7 @@ def aggregate(runs: Sequence[Sequence[dict]]) -> dict:
         "cep50": float(np.median([math.hypot(*f["eh"]) for f in finals])) if is_fix and finals else None,
         "anees": _mean([e["nees"] for e in all_err]),
         "n_updates": len(all_err),
-        "series": {
-            "t": ts,
-            "rmse_pos": [_rms([e["pos2"] for e in per_t[t]]) for t in ts],
-            "rmse_vel": [_rms([e["vel2"] for e in per_t[t]]) for t in ts],
-            "rmse_acc": [_rms([e["acc2"] for e in per_t[t]]) for t in ts],
-            "anees": [_mean([e["nees"] for e in per_t[t]]) for t in ts],
-            "anis": [_mean([e["nis"] for e in per_t[t] if e["nis"] is not None]) for t in ts],
-            "nis_dof": [_mean([e["nis_dof"] for e in per_t[t] if e["nis_dof"]]) for t in ts],
-            "n": [len(per_t[t]) for t in ts],
-        },
+        "series": _series(per_t, ts),
         "nees_dof": dof,
         "anees_bounds": list(chi2_bounds(dof, len(runs))) if dof else None,
         "anis_per_dof": float(sum(n for n, _ in nis_pairs) / sum(d for _, d in nis_pairs)) if nis_pairs else None,

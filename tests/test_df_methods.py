@@ -42,7 +42,7 @@ def run(method, ms, watermarks=None, finish=True):
 def test_registry_has_the_seeds_names_and_config_defaults():
     assert set(DF_METHODS) == {"EKF", "MEKF1", "MEKF2", "MEKF3", "MEKF4", "MEKF5", "IMM", "TORRIERI", "KF+TR", "MKF+TR"}
     c = DFConfig()
-    assert (c.q22, c.sigma, c.imm_sigma2, c.imm_transition, c.torrieri_iterations) == (625.0, 0.0175, 0.25, "symmetric", 0)
+    assert (c.q22, c.sigma, c.imm_sigma2, c.imm_transition, c.torrieri_iterations) == (0.0, 0.0175, 0.25, "symmetric", 0)
     for name in ALL:
         assert make(name, {}).name == name
 

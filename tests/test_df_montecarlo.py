@@ -23,7 +23,7 @@ import pytest
 
 from fusion.df import make
 from fusion.df.crb import crb_rmse, crb_rmse_series
-from fusion.df.models import bearing, bearing_measurements
+from fusion.df.models import THESIS_Q22, bearing, bearing_measurements
 from fusion.df.noise import contaminated, gaussian
 from fusion.metrics import chi2_bounds, nees, rmse
 
@@ -36,12 +36,13 @@ def final_estimates(name, config, sites, noise):
     """Run ``name`` on every run's stream; return the final estimates' x and P."""
     sensors = [f"DF{i + 1}" for i in range(len(sites))]
     beta = bearing(EMITTER, sites)
+    epochs = noise.shape[1]
     xs, Ps = [], []
     for r in range(noise.shape[0]):
-        ms = bearing_measurements(1.0 + np.arange(EPOCHS), sensors, sites, beta + noise[r], SIGMA)
+        ms = bearing_measurements(1.0 + np.arange(epochs), sensors, sites, beta + noise[r], SIGMA)
         m = make(name, config)
         out = [e for b in ms for e in m.process(b)] + m.finish()
-        assert len(out) == EPOCHS
+        assert len(out) == epochs
         xs.append(out[-1].x)
         Ps.append(out[-1].P)
     return np.array(xs), np.array(Ps)
@@ -72,8 +73,23 @@ def test_ekf_static_model_reaches_the_crb_on_thesis_fixed_c1(c1):
     assert lo <= np.mean(nees(x - EMITTER, P)) <= hi
 
 
+@pytest.mark.parametrize("name", ["EKF", "IMM", "MEKF3"])
+def test_default_model_keeps_converging_on_a_stationary_emitter(c1, name):
+    """No q22 given (a site, or a scenario that does not set it): after 400 epochs the
+    final fix is within 1.5x the CRB of all 800 bearings. The theses' random-walk q22,
+    which their scenarios set, stalls where the bound has gone on shrinking."""
+    sites, _ = c1
+    noise = gaussian(np.random.default_rng(4), SIGMA, (20, 400, 2))
+    bound = crb_rmse(EMITTER, np.repeat(sites, 400, axis=0), SIGMA)  # 22 m
+    x, _ = final_estimates(name, {}, sites, noise)
+    assert rmse(x - EMITTER) <= 1.5 * bound, (name, rmse(x - EMITTER), bound)
+    if name == "EKF":
+        stalled, _ = final_estimates(name, {"q22": THESIS_Q22}, sites, noise)
+        assert rmse(stalled - EMITTER) > 3 * bound, rmse(stalled - EMITTER)
+
+
 JAM_SITES = np.array([[0.0, 0.0], [10e3, 0.0], [20e3, 0.0]])
-JAM = {"sigma": SIGMA, "imm_sigma2": 0.25, "imm_p": 0.3}   # the jammed-df [tracker] table
+JAM = {"q22": THESIS_Q22, "sigma": SIGMA, "imm_sigma2": 0.25, "imm_p": 0.3}   # the jammed-df [tracker] table
 #: the filters compared: label -> (method, extra config)
 JAM_FILTERS = {
     "EKF-ipu": ("EKF", {"init": "ipu"}),

@@ -83,3 +83,25 @@ def test_summary_processes_match_psutil(tmp_path, deployment):
         assert 0.97 * ps["rss"] - 0.5 <= procs[name]["max_rss_mb"] <= ps["rss"] * 1.5 + 5, (name, procs[name], ps)
         # CPU: the process's last status (about a second before it exits) against psutil's last sample.
         assert ps["cpu"] - 1.5 <= procs[name]["cpu_s"] <= ps["cpu"] + 0.5, (name, procs[name], ps)
+
+
+def test_a_long_runs_series_is_binned():
+    """Beyond SERIES_MAX output times the series is binned; each bin is the RMSE (and
+    mean NEES) of its estimates, computed here from the records by hand."""
+    import math
+
+    import numpy as np
+
+    from services.summary import SERIES_MAX, aggregate
+
+    rng = np.random.default_rng(3)
+    n = 2 * SERIES_MAX + 1
+    recs = [{"t": float(i), "n": 9, "pos2": float(rng.uniform(1, 100)), "vel2": 1.0, "acc2": 1.0,
+             "nees": float(rng.uniform(1, 20)), "nis": None, "nis_dof": None, "eh": (0.0, 0.0)} for i in range(n)]
+    s = aggregate([recs])["series"]
+    assert s["bin"] == 3 and len(s["t"]) == math.ceil(n / 3) <= SERIES_MAX
+    assert s["t"][:2] == [2.0, 5.0] and s["t"][-1] == float(n - 1) and s["n"][-1] == n % 3
+    assert s["rmse_pos"][1] == pytest.approx(math.sqrt(sum(r["pos2"] for r in recs[3:6]) / 3))
+    assert s["anees"][0] == pytest.approx(sum(r["nees"] for r in recs[:3]) / 3)
+    short = aggregate([recs[:SERIES_MAX]])["series"]
+    assert "bin" not in short and short["t"] == [r["t"] for r in recs[:SERIES_MAX]]

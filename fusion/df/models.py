@@ -50,7 +50,7 @@ def bearing_jacobian(p, site):
     return np.stack([-d[..., 1], d[..., 0]], axis=-1) / r2[..., None]
 
 
-def emitter_Q(q22: float = THESIS_Q22, q11: float = 0.0) -> np.ndarray:
+def emitter_Q(q22: float, q11: float = 0.0) -> np.ndarray:
     """Process noise ``diag(q11, q22)`` in m², added before every bearing update."""
     if q11 < 0.0 or q22 < 0.0:
         raise ValueError(f"emitter_Q: q11={q11} and q22={q22} must be >= 0")
