@@ -66,8 +66,7 @@ class DFConfig:
                                        static-emitter model, which keeps converging (to the CRB)
                                        however long it runs. The theses' random walk, 625 m²
                                        (``THESIS_Q22``, 0.025² km²), is for reproducing them (their
-                                       scenarios set it): it stalls, at ~96 m after 400 epochs of
-                                       thesis-fixed-c1 where the CRB is 22 m
+                                       scenarios set it): it stalls (docs/algorithms.md)
     q11                    0.0         process noise on x (m²); the theses have 0
     sigma                  0.0175      bearing std assumed by the filters (rad), or
                                        ``"sensor"`` to use each measurement's stated std
