@@ -24,6 +24,7 @@ is deleted), :class:`TrackIds` (published ids in order of confirmation, never re
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from functools import lru_cache
 
@@ -167,11 +168,13 @@ class DuplicateWatch:
 class ManagementRule:
     """M-of-N confirmation and K-miss deletion: a track is confirmed once it has
     ``confirm_m`` hits (birth included) within its first ``confirm_n`` frames, and a
-    confirmed track is deleted after ``delete_misses`` consecutive missed frames."""
+    confirmed track is deleted after ``delete_misses`` consecutive missed frames; any
+    track is deleted once its position σ (√trace P_pos) exceeds ``max_pos_std``."""
 
     confirm_m: int = 3
     confirm_n: int = 4
     delete_misses: int = 3
+    max_pos_std: float = math.inf
 
     def __post_init__(self):
         if not 1 <= self.confirm_m <= self.confirm_n:
@@ -200,14 +203,17 @@ class TrackLogic:
     def __post_init__(self):
         self._settle()
 
-    def record(self, hit: bool) -> str:
-        """One more frame; returns the new status."""
+    def record(self, hit: bool, P_pos: np.ndarray | None = None) -> str:
+        """One more frame, with the track's position covariance ``P_pos`` after it (for
+        ``max_pos_std``); returns the new status."""
         if self.status == DELETED:
             raise ValueError("a deleted track records no more frames")
         self.frames += 1
         self.hits += int(hit)
         self.misses = 0 if hit else self.misses + 1
         self._settle()
+        if P_pos is not None and self.status != DELETED and math.sqrt(float(np.trace(P_pos))) > self.rule.max_pos_std:
+            self.status = DELETED
         return self.status
 
     def _settle(self) -> None:

@@ -157,7 +157,7 @@ class AssociationConfig:
         return self.max_pos_std if self.local_max_pos_std is None else self.local_max_pos_std
 
     def rule(self) -> ManagementRule:
-        return ManagementRule(self.confirm_m, self.confirm_n, self.delete_misses)
+        return ManagementRule(self.confirm_m, self.confirm_n, self.delete_misses, self.max_pos_std)
 
     def duplicate_watch(self) -> DuplicateWatch:
         return DuplicateWatch(self.merge_frames, self.gate_prob)
@@ -262,8 +262,8 @@ class MultiTargetMethod:
             else:
                 tr.last = tr.method.coast(t)
             sensors = {m.sensor: m.kind for m in taken.get(i, ())}
-            tr.logic.record(scores_hit(list(sensors.values()), tr.logic.status == CONFIRMED, evidence))
-            self._check_spread(tr)
+            tr.logic.record(scores_hit(list(sensors.values()), tr.logic.status == CONFIRMED, evidence),
+                            tr.method.filter.P[:3, :3])
         live = {tr.birth: tr for tr in self.tracks if tr.logic.status != DELETED}  # in priority order
         for birth in self._duplicates.duplicates([(b, tr.last.x, tr.last.P) for b, tr in live.items()]):
             live[birth].logic.status = DELETED
@@ -282,11 +282,6 @@ class MultiTargetMethod:
     @staticmethod
     def _id_key(tr: _Track) -> int:
         return int(tr.method.track[1:])
-
-    def _check_spread(self, tr: _Track) -> None:
-        if math.isfinite(self.config.max_pos_std) and tr.logic.status != DELETED:
-            if math.sqrt(float(np.trace(tr.method.filter.P[:3, :3]))) > self.config.max_pos_std:
-                tr.logic.status = DELETED
 
     def _start(self, first: list[Measurement], more: list[Measurement] = ()) -> _Track:
         """A tentative track from the plots ``first`` (the wrapped method's own

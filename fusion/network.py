@@ -745,9 +745,7 @@ class MultiTrackCentre(GroupedCentre):
             else:
                 x, P = predicted[f.key]
                 f.last = Estimate(t, x, P, self.name, "centre", f.key)
-            f.logic.record(self._hit(seen[f.key], f.logic.status == CONFIRMED, evidence))
-            if math.sqrt(float(np.trace(f.fuser.P[:3, :3]))) > self.association.max_pos_std:
-                f.logic.status = DELETED
+            f.logic.record(self._hit(seen[f.key], f.logic.status == CONFIRMED, evidence), f.fuser.P[:3, :3])
         live = {f.key: f for f in self.tracks if f.logic.status != DELETED}  # in priority order
         for key in self._duplicates.duplicates([(k, f.last.x, f.last.P) for k, f in live.items()]):
             live[key].logic.status = DELETED

@@ -1,7 +1,9 @@
-"""``max_pos_std`` deletion in the many-target trackers: a track that coasts is deleted
-at the first frame where its predicted position σ (√trace P_pos) exceeds the limit —
-the frame the motion model's covariance growth from its last update says, computed
-here independently — and lives on without the limit.
+"""``max_pos_std`` deletion (:class:`fusion.association.TrackLogic`) in the many-target
+trackers: a centralised track that coasts is deleted at the first frame where its
+predicted position σ (√trace P_pos) exceeds the limit — the frame the motion model's
+covariance growth from its last update says, computed here independently — and lives
+on without the limit; the network centre, the DF emitter tracker and an HNV node's
+local tracks (``local_max_pos_std``) apply it too.
 
 Two aircraft seen by a co-located 2D radar and angle sensor; the second falls silent
 at ``T_SILENT`` while the first keeps the frames coming."""
@@ -13,10 +15,13 @@ import math
 import numpy as np
 import pytest
 
-from fusion.methods import make_method
+from fusion.association import CONFIRMED, DELETED, ManagementRule, TrackLogic
+from fusion.methods import make_method, method_config
 from fusion.motion import make_motion
 from fusion.sensors3d import SphericalModel
 from fusion.types import Measurement
+from sensors_sim import load_scenario
+from services.evaluation import merged_measurements
 
 PERIOD, DURATION, T_SILENT = 1.0, 40.0, 15.0
 SITE = np.array([0.0, 0.0, 10.0])
@@ -113,3 +118,33 @@ def test_hnv_local_tracks_are_dropped_past_local_max_pos_std():
     dropped = drops(table)
     assert dropped and all(math.sqrt(np.trace(u.estimate.P[:3, :3])) > 1000.0 for u in dropped)
     assert not drops(dict(TABLE))
+
+
+def test_track_logic_deletes_past_max_pos_std():
+    rule = ManagementRule(1, 1, delete_misses=100, max_pos_std=100.0)
+    inside, outside = np.diag([50.0**2, 50.0**2, 70.0**2]), np.diag([60.0**2, 60.0**2, 60.0**2])  # σ 100, 103.9
+    assert TrackLogic(rule).record(True, inside) == CONFIRMED
+    assert TrackLogic(rule).record(True, outside) == DELETED
+    assert TrackLogic(ManagementRule(1, 1)).record(True, outside * 1e6) == CONFIRMED  # no limit by default
+
+
+def test_the_network_centre_deletes_past_max_pos_std():
+    """The HNV centre's fused tracks, whose σ at birth exceeds a limit set below it
+    (the nodes' own limit lifted), never get to be reported; without it they are."""
+    stream = _stream()
+    hnv = {**TABLE, "local_max_pos_std": 1e9}
+    assert _centre_tracks(_run(make_method("HNV", dict(hnv)), stream))
+    assert not _centre_tracks(_run(make_method("HNV", {**hnv, "max_pos_std": 1.0}), stream))
+
+
+def test_the_emitter_tracker_deletes_past_max_pos_std():
+    """As the centre's, for the DF tracker's emitters (df-multi, its first 120 s)."""
+    scenario = load_scenario("df-multi")
+    bearings = [m for m in merged_measurements(scenario, 0) if m.t < 120.0]
+    table = {**method_config(scenario.tracker, "EKF")}
+    assert _centre_tracks(_run(make_method("EKF", dict(table)), bearings))
+    assert not _centre_tracks(_run(make_method("EKF", {**table, "max_pos_std": 1.0}), bearings))
+
+
+def _centre_tracks(estimates) -> set[str]:
+    return {e.track for e in estimates if e.node == "centre" and e.track is not None}

@@ -33,7 +33,6 @@ from __future__ import annotations
 import dataclasses
 import functools
 import itertools
-import math
 from collections import deque
 from typing import Callable, Sequence
 
@@ -357,9 +356,7 @@ class MultiEmitterMethod:
             if est is not None:
                 tr.last = est
         tr.taken.append(mine)
-        tr.logic.record(len(set(mine[3])) >= enough)
-        if tr.logic.status != DELETED and math.sqrt(float(np.trace(tr.last.P))) > self.config.max_pos_std:
-            tr.logic.status = DELETED
+        tr.logic.record(len(set(mine[3])) >= enough, tr.last.P)
 
     def _resolve_swaps(self, tracks: list[_Emitter]) -> None:
         """Exchange some stations' bearings between two confirmed tracks when that fits
