@@ -97,7 +97,7 @@ from .angles import wrap_pi
 from .association import CONFIRMED, DELETED, DuplicateWatch, ManagementRule, TrackIds, TrackLogic, gate_threshold, gnn, mahalanobis2
 from .config import config_values
 from .init3d import initial_state, spherical_to_position
-from .patent import CentralisedMethod, ScanGrouper, uses
+from .patent import CentralisedMethod, GroupedMethod, ScanGrouper
 from .sensors3d import SphericalModel
 from .types import KIND_COMPONENTS, Estimate, Measurement
 
@@ -181,7 +181,7 @@ class _Track:
         self.last = last  # its estimate of the latest frame (updated, or predicted when missed)
 
 
-class MultiTargetMethod:
+class MultiTargetMethod(GroupedMethod):
     """Association and track management around a centralised patent method.
 
     Args:
@@ -211,29 +211,11 @@ class MultiTargetMethod:
     def __repr__(self) -> str:
         return f"MultiTargetMethod({self.name!r})"
 
-    # Streaming interface -------------------------------------------------------------
-    def process(self, m: Measurement) -> list[Estimate]:
-        if not uses(self.name, self.kinds, m):
-            return []
-        return self._run(self._grouper.push(m))
-
-    def advance(self, t: float) -> list[Estimate]:
-        return self._run(self._grouper.advance(t))
-
-    def finish(self) -> list[Estimate]:
-        return self._run(self._grouper.finish())
-
-    def _run(self, frames: list[list[Measurement]]) -> list[Estimate]:
-        out: list[Estimate] = []
-        for frame in frames:
-            out += self._process_frame(frame)
-        return out
-
     # One frame -----------------------------------------------------------------------
     def _gate(self, dof: int) -> float:
         return gate_threshold(dof, self.config.gate_prob)
 
-    def _process_frame(self, frame: list[Measurement]) -> list[Estimate]:
+    def _group(self, frame: list[Measurement]) -> list[Estimate]:
         t = frame[0].t
         predicted = [tr.method.filter.predicted(t) for tr in self.tracks]
         taken: dict[int, list[Measurement]] = {}  # track index -> its plots

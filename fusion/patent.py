@@ -253,13 +253,40 @@ def uses(name: str, kinds: frozenset, m: Measurement) -> bool:
     return m.kind in kinds
 
 
-class ScanMethod:
-    """Base of the patent methods: streaming interface on top of :class:`ScanGrouper`.
+class GroupedMethod:
+    """The streaming shell of a 3D method that works on groups of measurements (a
+    one-target method's scans, a many-target method's frames): the measurements it
+    uses go to its grouper, and every group the grouper closes to :meth:`_group`.
+    Subclasses set ``name``, ``kinds`` and ``_grouper``."""
 
-    Subclasses implement :meth:`process_scan`.
-    """
-
+    name: str
     kinds: frozenset = KINDS_3D  # kinds used; other 3D kinds are ignored
+
+    def process(self, m: Measurement) -> list[Estimate]:
+        if not uses(self.name, self.kinds, m):
+            return []
+        return self._run(self._grouper.push(m))
+
+    def advance(self, t: float) -> list[Estimate]:
+        return self._run(self._grouper.advance(t))
+
+    def finish(self) -> list[Estimate]:
+        return self._run(self._grouper.finish())
+
+    def _run(self, groups: list[list[Measurement]]) -> list[Estimate]:
+        out: list[Estimate] = []
+        for group in groups:
+            out += self._group(group)
+        return out
+
+    def _group(self, group: list[Measurement]) -> list[Estimate]:
+        raise NotImplementedError
+
+
+class ScanMethod(GroupedMethod):
+    """Base of the patent methods: a :class:`GroupedMethod` on :class:`ScanGrouper`
+    scans. Subclasses implement :meth:`process_scan`.
+    """
 
     def __init__(self, name: str, config: TrackerConfig, track: str = "T1"):
         self.name = name
@@ -273,22 +300,8 @@ class ScanMethod:
     def __repr__(self) -> str:
         return f"{type(self).__name__}({self.name!r})"
 
-    def process(self, m: Measurement) -> list[Estimate]:
-        if not uses(self.name, self.kinds, m):
-            return []
-        return self._run(self._grouper.push(m))
-
-    def advance(self, t: float) -> list[Estimate]:
-        return self._run(self._grouper.advance(t))
-
-    def finish(self) -> list[Estimate]:
-        return self._run(self._grouper.finish())
-
-    def _run(self, scans: list[list[Measurement]]) -> list[Estimate]:
-        out: list[Estimate] = []
-        for scan in scans:
-            out += self.process_scan(scan)
-        return out
+    def _group(self, scan: list[Measurement]) -> list[Estimate]:
+        return self.process_scan(scan)
 
     def process_scan(self, scan: list[Measurement]) -> list[Estimate]:
         """The estimates of one closed scan."""

@@ -11,17 +11,22 @@ at ``T_SILENT`` while the first keeps the frames coming."""
 from __future__ import annotations
 
 import math
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
 
-from fusion.association import CONFIRMED, DELETED, ManagementRule, TrackLogic
-from fusion.methods import make_method, method_config
-from fusion.motion import make_motion
-from fusion.sensors3d import SphericalModel
-from fusion.types import Measurement
-from sensors_sim import load_scenario
-from services.evaluation import merged_measurements
+sys.path.insert(0, str(Path(__file__).parent))
+from sim3d import run_method  # noqa: E402
+
+from fusion.association import CONFIRMED, DELETED, ManagementRule, TrackLogic  # noqa: E402
+from fusion.methods import make_method, method_config  # noqa: E402
+from fusion.motion import make_motion  # noqa: E402
+from fusion.sensors3d import SphericalModel  # noqa: E402
+from fusion.types import Measurement  # noqa: E402
+from sensors_sim import load_scenario  # noqa: E402
+from services.evaluation import merged_measurements  # noqa: E402
 
 PERIOD, DURATION, T_SILENT = 1.0, 40.0, 15.0
 SITE = np.array([0.0, 0.0, 10.0])
@@ -49,16 +54,6 @@ def _stream() -> list[Measurement]:
     return sorted(out, key=lambda m: m.order_key)
 
 
-def _run(method, stream):
-    out, t_prev = [], None
-    for m in stream:
-        if t_prev is not None and m.t > t_prev:
-            out += method.advance(t_prev)
-        out += method.process(m)
-        t_prev = m.t
-    return out + method.finish()
-
-
 def _silent_track(estimates):
     """The reported estimates of the track on the aircraft that falls silent."""
     by_track: dict[str, list] = {}
@@ -83,12 +78,12 @@ def _expected_last(last_update, limit: float) -> float:
 @pytest.mark.parametrize("name", ["SS", "LCDD"])
 def test_centralised_tracks_are_deleted_past_max_pos_std(name):
     stream = _stream()
-    free = _silent_track(_run(make_method(name, dict(TABLE)), stream))
+    free = _silent_track(run_method(make_method(name, dict(TABLE)), stream))
     last_update = [e for e in free if e.t < T_SILENT][-1]
     sigma = math.sqrt(np.trace(last_update.P[:3, :3]))
     limit = 4.0 * sigma
     assert free[-1].t == DURATION - PERIOD  # without a limit it coasts to the end
-    held = _silent_track(_run(make_method(name, {**TABLE, "max_pos_std": limit}), stream))
+    held = _silent_track(run_method(make_method(name, {**TABLE, "max_pos_std": limit}), stream))
     assert [e.t for e in held] == [e.t for e in free if e.t <= _expected_last(last_update, limit)]
     assert held[-1].t < DURATION - 5 * PERIOD
 
@@ -111,7 +106,7 @@ def test_hnv_local_tracks_are_dropped_past_local_max_pos_std():
                 return out
 
             node.step = spy
-        _run(method, stream)
+        run_method(method, stream)
         return ups
 
     table = {**TABLE, "local_max_pos_std": 1000.0}
@@ -133,8 +128,8 @@ def test_the_network_centre_deletes_past_max_pos_std():
     (the nodes' own limit lifted), never get to be reported; without it they are."""
     stream = _stream()
     hnv = {**TABLE, "local_max_pos_std": 1e9}
-    assert _centre_tracks(_run(make_method("HNV", dict(hnv)), stream))
-    assert not _centre_tracks(_run(make_method("HNV", {**hnv, "max_pos_std": 1.0}), stream))
+    assert _centre_tracks(run_method(make_method("HNV", dict(hnv)), stream))
+    assert not _centre_tracks(run_method(make_method("HNV", {**hnv, "max_pos_std": 1.0}), stream))
 
 
 def test_the_emitter_tracker_deletes_past_max_pos_std():
@@ -142,8 +137,8 @@ def test_the_emitter_tracker_deletes_past_max_pos_std():
     scenario = load_scenario("df-multi")
     bearings = [m for m in merged_measurements(scenario, 0) if m.t < 120.0]
     table = {**method_config(scenario.tracker, "EKF")}
-    assert _centre_tracks(_run(make_method("EKF", dict(table)), bearings))
-    assert not _centre_tracks(_run(make_method("EKF", {**table, "max_pos_std": 1.0}), bearings))
+    assert _centre_tracks(run_method(make_method("EKF", dict(table)), bearings))
+    assert not _centre_tracks(run_method(make_method("EKF", {**table, "max_pos_std": 1.0}), bearings))
 
 
 def _centre_tracks(estimates) -> set[str]:
