@@ -166,6 +166,8 @@ def _no_extra(d: dict, allowed: set[str]) -> None:
 # ---------------------------------------------------------------- payload schemas
 
 ENVELOPE = {"v", "kind", "src", "seq", "t"}
+# Per-source counts a live status may give besides ``rejected`` (non-negative ints).
+SOURCE_COUNTS = frozenset({"oosm", "stale", "recovered", "missed"})
 _STD = {"az": "std_az", "el": "std_el", "range": "std_range"}
 _LIMITS = {"az": (0.0, TWO_PI, False, True), "el": (-math.pi / 2, math.pi / 2, False, False),
            "range": (0.0, math.inf, True, False)}
@@ -260,8 +262,15 @@ def _check_status(d: dict) -> dict:
                     x is None or (isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x))
                     for x in p) for p in iv):
             raise SchemaError("type", "sources", f"{k}.dead_intervals must be a list of [start, end|null]")
-        if not isinstance(v.get("rejected", 0), int) or set(v) - {"dead_intervals", "rejected"}:
-            raise SchemaError("type", "sources", f"{k}: expected dead_intervals and rejected only")
+        counts = set(v) & SOURCE_COUNTS
+        if not all(type(v[c]) is int and v[c] >= 0 for c in counts | ({"rejected"} & set(v))) \
+                or set(v) - {"dead_intervals", "rejected", "lag_s", "clock"} - SOURCE_COUNTS:
+            raise SchemaError("type", "sources", f"{k}: expected dead_intervals, rejected, lag_s, clock and counts "
+                                                 f"({', '.join(sorted(SOURCE_COUNTS))})")
+        lag = v.get("lag_s")
+        if not (lag is None or (type(lag) in (int, float) and math.isfinite(lag))) or \
+                v.get("clock", "ok") not in ("ok", "ahead", "behind"):
+            raise SchemaError("type", "sources", f"{k}: lag_s must be a finite number or null, clock ok|ahead|behind")
     body = {
         "state": _str(d, "state", choices=("starting", "ready", "running", "done", "stopped")),
         "role": _str(d, "role"),

@@ -1,4 +1,4 @@
-"""Scenarios, ground truth, sensor and jammer emulators, as a pure-Python library.
+"""Site and scenario files, ground truth, sensor and jammer emulators, as a pure-Python library.
 
 No Zenoh, no clocks, no I/O beyond reading scenario files: the services in
 ``services/`` pace and publish what these functions compute, and the Monte Carlo
@@ -8,7 +8,7 @@ harness calls them directly. Everything is a deterministic function of
 
 from .emulators import SensorEvent, scan_times, sensor_events
 from .jammer import JamEffect, JamState, jam_effect, jam_events, jam_state
-from .loader import list_scenarios, load_scenario
+from .loader import list_scenarios, load_scenario, load_site
 from .noise import process_rng
 from .spec import (
     SENSOR_KINDS,
@@ -17,6 +17,7 @@ from .spec import (
     ScenarioError,
     SensorSpec,
     Site,
+    SiteSpec,
     TargetSpec,
 )
 from .trajectories import Trajectory, TruthSample, truth_events, truth_trajectory
@@ -31,6 +32,7 @@ __all__ = [
     "SensorEvent",
     "SensorSpec",
     "Site",
+    "SiteSpec",
     "TargetSpec",
     "Trajectory",
     "TruthSample",
@@ -39,6 +41,7 @@ __all__ = [
     "jam_state",
     "list_scenarios",
     "load_scenario",
+    "load_site",
     "process_rng",
     "scan_times",
     "sensor_events",

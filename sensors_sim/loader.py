@@ -1,4 +1,9 @@
-"""Scenario files: find, parse, validate, convert to SI (the format is in README.md).
+"""Site and scenario files: find, parse, validate, convert to SI (the format is in README.md).
+
+A site file holds ``[origin]``, ``[defaults]``, ``[tracker]`` and ``[sensors.<id>]``; a
+scenario file adds ``seed``, ``duration_s``, ``[targets]`` and ``[jammers]``, and its
+sensors' ``targets`` and ``latency_s``. :func:`load_site` takes either (a file with any
+scenario key is read as a scenario); :func:`load_scenario` takes only scenarios.
 
 Every problem raises :class:`ScenarioError` naming the file, the line and the field,
 e.g. ``patent-3d.toml:14: sensors.radar2d.std_range_m: must be > 0 (got -20)``.
@@ -31,6 +36,7 @@ from .spec import (
     ScenarioError,
     SensorSpec,
     Site,
+    SiteSpec,
     TargetSpec,
 )
 from .trajectories import (
@@ -45,6 +51,8 @@ from .trajectories import (
 _ID = re.compile(r"^[A-Za-z0-9_-]+$")  # ids become Zenoh key chunks: no '/', '*', ...
 _MIN_SEPARATION = 1.0  # m: a sensor closer than this to a target or jammer is "at" it
 _GRID_TOL = 1e-9
+_SCENARIO_KEYS = ("seed", "duration_s", "truth_dt_s", "targets", "jammers")  # what makes a file a scenario
+MOBILE = "messages"  # ``site = "messages"``: a mobile station's position comes with each measurement
 
 
 # --- finding files ----------------------------------------------------------------------
@@ -69,6 +77,21 @@ def list_scenarios() -> list[tuple[str, str]]:
 
 def load_scenario(name_or_path: str | os.PathLike) -> Scenario:
     """Load a built-in scenario by name (``patent-3d``) or a TOML file by path."""
+    root, name, display = _parse(name_or_path)
+    return _scenario(root, name, display)
+
+
+def load_site(name_or_path: str | os.PathLike) -> SiteSpec:
+    """Load a site file, or a scenario (built-in name or path) as the site it contains:
+    a file with any of the scenario-only keys (seed, duration_s, targets, ...) is
+    loaded, and validated, as a whole scenario."""
+    root, name, display = _parse(name_or_path)
+    if any(root.has(k) for k in _SCENARIO_KEYS):
+        return _scenario(root, name, display)
+    return _site_file(root, name, display)
+
+
+def _parse(name_or_path) -> tuple[Reader, str, str]:
     text, name, display = _read(name_or_path)
     source = TomlSource(text, display)
     try:
@@ -76,7 +99,7 @@ def load_scenario(name_or_path: str | os.PathLike) -> Scenario:
     except tomllib.TOMLDecodeError as e:
         m = re.search(r"line (\d+)", str(e))
         raise ScenarioError(f"{display}:{m.group(1) if m else 1}: invalid TOML: {e}") from None
-    return _scenario(Reader(data, (), source), name, display)
+    return Reader(data, (), source), name, display
 
 
 def _read(name_or_path) -> tuple[str, str, str]:
@@ -99,11 +122,10 @@ def _read(name_or_path) -> tuple[str, str, str]:
 # --- the file, table by table -----------------------------------------------------------
 
 
-def _scenario(root: Reader, name: str, display: str) -> Scenario:
-    description = root.string("description")
-    seed = root.integer("seed", ge=0)
-    duration = root.quantity("duration", TIME, gt=0)
-    truth_dt = root.quantity("truth_dt", TIME, default=None, gt=0)
+def _header(root: Reader, scenario: bool) -> dict:
+    """``description``, ``[origin]``, ``[defaults]`` and ``[tracker]``: what a site and a
+    scenario share besides their sensors (:class:`SiteSpec` keyword arguments)."""
+    description = root.string("description") if scenario else root.string("description", "")
     origin_r = root.table("origin")
     origin = (
         origin_r.number("lat_deg", ge=-90, le=90),
@@ -120,7 +142,23 @@ def _scenario(root: Reader, name: str, display: str) -> Scenario:
     tracker = root.raw("tracker", {})
     if not isinstance(tracker, dict):
         raise root.error("must be a table", "tracker")
+    return {"description": description, "origin": origin, "tracker": tracker, "defaults": defaults}
 
+
+def _site_file(root: Reader, name: str, display: str) -> SiteSpec:
+    header = _header(root, scenario=False)
+    sensors = {sid: _sensor(r, header["origin"], None)[0] for sid, r in root.tables("sensors")}
+    root.finish()
+    _check_ids(root.source, {}, sensors, {})
+    return SiteSpec(name=name, **header, sensors=sensors, source=display)
+
+
+def _scenario(root: Reader, name: str, display: str) -> Scenario:
+    seed = root.integer("seed", ge=0)
+    duration = root.quantity("duration", TIME, gt=0)
+    truth_dt = root.quantity("truth_dt", TIME, default=None, gt=0)
+    header = _header(root, scenario=True)
+    origin = header["origin"]
     targets = {tid: _target(r, origin) for tid, r in root.tables("targets")}
     jammers = {jid: _jammer(r, origin) for jid, r in root.tables("jammers", required=False)}
     sensors, sensor_pos_keys = {}, {}
@@ -147,8 +185,7 @@ def _scenario(root: Reader, name: str, display: str) -> Scenario:
                     raise src.error(("sensors", sid, key), f"scans must fall on the truth grid: must be a "
                                     f"multiple of truth_dt_s = {truth_dt:g}")
     return Scenario(
-        name=name, description=description, seed=seed, duration=duration, origin=origin,
-        targets=targets, sensors=sensors, jammers=jammers, tracker=tracker, defaults=defaults,
+        name=name, **header, sensors=sensors, seed=seed, duration=duration, targets=targets, jammers=jammers,
         truth_dt=truth_dt if noisy else None, source=display,
     )
 
@@ -254,9 +291,22 @@ def _segment(r: Reader, origin, last: bool):
 _STD_KEYS = {"az": ("std_az", ANGLE), "el": ("std_el", ANGLE), "range": ("std_range", LENGTH)}
 
 
-def _sensor(r: Reader, origin, targets: dict) -> tuple[SensorSpec, str]:
+def _sensor(r: Reader, origin, targets: dict | None) -> tuple[SensorSpec, str]:
+    """One ``[sensors.<id>]`` table; ``targets`` is None in a site file, whose sensors
+    may be mobile (``site = "messages"``) and have no ``targets`` nor ``latency_s``."""
     kind = r.string("kind", choices=tuple(SENSOR_KINDS))
-    site, pos_key = _site(r, origin, require_path=(kind == "airborne_df"))
+    if targets is None and r.raw("site", None) is not None:
+        if r.data["site"] != MOBILE:
+            raise r.error(f"must be {MOBILE!r} (a mobile station: its position comes with each measurement); "
+                          "give a fixed position as pos_m, pos_km or lat_deg/lon_deg/alt_m", "site")
+        if any(r.has(k) for k in ("pos_m", "pos_km", "lat_deg", "lon_deg", "alt_m", "path_m", "path_km")):
+            raise r.error(f"a mobile station (site = {MOBILE!r}) has no fixed position: remove it", "site")
+        site, pos_key = None, "site"
+    else:
+        if targets is not None and r.has("site"):
+            raise r.error("a scenario's sensors need a position or a path (the emulator measures from it); "
+                          f"site = {MOBILE!r} is for site files", "site")
+        site, pos_key = _site(r, origin, require_path=(kind == "airborne_df" and targets is not None))
     period = r.quantity("period", TIME, gt=0)
     start = r.quantity("start", TIME, default=0.0, ge=0)
     std = np.array([r.quantity(*_STD_KEYS[c], gt=0) for c in KIND_COMPONENTS[SENSOR_KINDS[kind]]])
@@ -281,7 +331,8 @@ def _sensor(r: Reader, origin, targets: dict) -> tuple[SensorSpec, str]:
     if clutter_rate > 0 and "range" in KIND_COMPONENTS[SENSOR_KINDS[kind]] and math.isinf(max_range):
         # false alarms are spread uniformly over the coverage: its range must be finite
         raise r.error("clutter needs a finite coverage: give max_range_m or max_range_km", "clutter_rate")
-    refs = r.raw("targets", None)
+    latency = r.quantity("latency", TIME, default=0.0, ge=0) if targets is not None else 0.0
+    refs = r.raw("targets", None) if targets is not None else None
     if refs is not None and (not isinstance(refs, list) or not refs or not all(isinstance(x, str) for x in refs)
                              or len(set(refs)) != len(refs)):
         raise r.error("must be a non-empty list of distinct ids", "targets")
@@ -289,7 +340,8 @@ def _sensor(r: Reader, origin, targets: dict) -> tuple[SensorSpec, str]:
     spec = SensorSpec(
         id=r.path[-1], kind=kind, site=site, period=period, start=start, std=std, p_detect=p_detect,
         fov_az=fov_az, fov_el=fov_el, max_range=max_range, band=band, signal_power=signal_power,
-        targets=tuple(refs) if refs is not None else tuple(targets), clutter_rate=clutter_rate,
+        targets=tuple(refs) if refs is not None else tuple(targets or ()), clutter_rate=clutter_rate,
+        latency=latency,
     )
     return spec, pos_key
 

@@ -1,9 +1,13 @@
-"""The loaded scenario: immutable records in SI units (metres, seconds, radians).
+"""Loaded site and scenario files: immutable records in SI units (metres, seconds, radians).
 
-:func:`sensors_sim.loader.load_scenario` builds these from a TOML file; everything else
-in ``sensors_sim`` (truth, sensors, jammers) is a pure function of them. Positions are
-local ENU metres around ``Scenario.origin``; azimuths are compass (clockwise from
-north) in [0, 2π).
+A :class:`SiteSpec` is what a deployment knows without truth: its origin, its sensors
+(kind, where they are, stated std, nominal period), the ``[tracker]`` table and the
+``[defaults]``. A :class:`Scenario` is a site plus targets, jammers, a seed and a
+duration, so a scenario is accepted wherever a site is asked for.
+:func:`sensors_sim.loader.load_site` and :func:`~sensors_sim.loader.load_scenario`
+build these from TOML files; everything else in ``sensors_sim`` (truth, sensors,
+jammers) is a pure function of them. Positions are local ENU metres around
+``origin``; azimuths are compass (clockwise from north) in [0, 2π).
 """
 
 from __future__ import annotations
@@ -79,8 +83,10 @@ class SensorSpec:
 
     Attributes:
         kind: one of :data:`SENSOR_KINDS`.
-        site: its position (fixed, or a flight path for an airborne DF).
-        period, start: scans at ``start + k·period`` up to the scenario's duration.
+        site: its position (fixed, or a flight path for an airborne DF); None in a site
+            file for a mobile station whose position comes with each measurement.
+        period, start: scans at ``start + k·period`` up to the scenario's duration (in
+            a site file: the nominal period, which sizes the consumers' buffers).
         std: stated noise standard deviations, in the order of
             ``KIND_COMPONENTS[measurement_kind]`` (rad, m).
         p_detect: probability of detecting a target in coverage, per scan.
@@ -94,11 +100,13 @@ class SensorSpec:
         clutter_rate: mean number of false alarms per scan (Poisson), spread uniformly
             over the sensor's coverage in measurement space (see
             :mod:`sensors_sim.emulators`); 0: none.
+        latency: the emulated link delay (s): each measurement is published this long
+            after its time of validity; 0: at once.
     """
 
     id: str
     kind: str
-    site: Site
+    site: Site | None
     period: float
     start: float
     std: np.ndarray
@@ -110,6 +118,7 @@ class SensorSpec:
     signal_power: float = 1.0
     targets: tuple[str, ...] = ()
     clutter_rate: float = 0.0
+    latency: float = 0.0
 
     @property
     def measurement_kind(self) -> str:
@@ -157,53 +166,65 @@ class JammerSpec:
     period: float
 
 
-@dataclass(frozen=True, eq=False)
-class Scenario:
-    """A loaded scenario. ``eq=False``: compared and hashed by identity (the truth cache
-    keys on it); two loads of one file are two scenarios.
+@dataclass(frozen=True, eq=False, kw_only=True)
+class SiteSpec:
+    """A loaded site: what a deployment knows without truth. ``eq=False``: compared by
+    identity, like :class:`Scenario`.
 
     Attributes:
         name: built-in name or file stem.
-        description: one line, for ``zfusion scenarios``.
-        seed: scenario seed (``--seed`` replaces it: ``dataclasses.replace``).
-        duration: last scenario time (s); scans run up to and including it.
+        description: one line (may be empty in a site file).
         origin: (lat °, lon °, alt m), WGS-84, of the local ENU frame.
-        targets, sensors, jammers: id -> spec, in file order.
+        sensors: id -> spec, in file order (a site file's have no ``targets``).
         tracker: the ``[tracker]`` table, untouched (the estimation methods validate it).
-        defaults: ``{"topology": ..., "method": ...}``, what ``zfusion run`` uses when
-            the command line does not say.
-        truth_dt: step of the truth's process-noise grid (s), or None if no target has
-            process noise.
+        defaults: ``{"topology": ..., "method": ...}``, what the processes use when the
+            command line does not say.
         source: the file it came from (for messages).
     """
 
     name: str
     description: str
-    seed: int
-    duration: float
     origin: tuple[float, float, float]
-    targets: dict[str, TargetSpec]
     sensors: dict[str, SensorSpec]
-    jammers: dict[str, JammerSpec]
     tracker: dict
     defaults: dict
-    truth_dt: float | None = None
     source: str = ""
-
-    def process_ids(self) -> list[str]:
-        """Ids of every source process: sensors, jammers, then ``truth``."""
-        return [*self.sensors, *self.jammers, TRUTH_PROCESS]
-
-    def kind_of(self, sensor_id: str) -> str:
-        """The sensor kind (``df``, ``airborne_df``, ``radar2d``, ``angle``, ``radar3d``)."""
-        return self.sensor(sensor_id).kind
 
     def sensor(self, sensor_id: str) -> SensorSpec:
         try:
             return self.sensors[sensor_id]
         except KeyError:
-            raise KeyError(f"scenario {self.name!r} has no sensor {sensor_id!r}; "
+            raise KeyError(f"{self.name!r} has no sensor {sensor_id!r}; "
                            f"sensors: {', '.join(self.sensors)}") from None
+
+    def kind_of(self, sensor_id: str) -> str:
+        """The sensor kind (``df``, ``airborne_df``, ``radar2d``, ``angle``, ``radar3d``)."""
+        return self.sensor(sensor_id).kind
+
+
+@dataclass(frozen=True, eq=False, kw_only=True)
+class Scenario(SiteSpec):
+    """A loaded scenario: a site plus what only a simulation knows. ``eq=False``:
+    compared and hashed by identity (the truth cache keys on it); two loads of one file
+    are two scenarios.
+
+    Attributes (beyond :class:`SiteSpec`'s):
+        seed: scenario seed (``--seed`` replaces it: ``dataclasses.replace``).
+        duration: last scenario time (s); scans run up to and including it.
+        targets, jammers: id -> spec, in file order.
+        truth_dt: step of the truth's process-noise grid (s), or None if no target has
+            process noise.
+    """
+
+    seed: int
+    duration: float
+    targets: dict[str, TargetSpec]
+    jammers: dict[str, JammerSpec]
+    truth_dt: float | None = None
+
+    def process_ids(self) -> list[str]:
+        """Ids of every source process: sensors, jammers, then ``truth``."""
+        return [*self.sensors, *self.jammers, TRUTH_PROCESS]
 
     def jammer(self, jammer_id: str) -> JammerSpec:
         try:

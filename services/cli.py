@@ -75,6 +75,81 @@ def _fabric(p: argparse.ArgumentParser, per_process: bool = True) -> None:
     p.add_argument("-v", "--verbose", action="store_true", help="log at debug level")
 
 
+def _site_or_scenario(p: argparse.ArgumentParser, required: bool = True) -> None:
+    """``--scenario`` (a scenario run, as today) or ``--site`` (a live session: UTC time,
+    open-ended, until SIGINT/SIGTERM), and the live session's clock check."""
+    g = p.add_mutually_exclusive_group(required=required)
+    g.add_argument("--scenario", help="built-in scenario name or path to a .toml file (a scenario run)")
+    g.add_argument("--site", help="site file, or a scenario taken as its site: a live session on UTC time, "
+                                  "until SIGINT/SIGTERM (docs/live.md)")
+    p.add_argument("--max-skew", type=_seconds, default=5.0, metavar="S",
+                   help="live: refuse stamps more than S seconds ahead of this host's clock (default %(default)s)")
+
+
+def _non_negative(text: str) -> float:
+    """``--max-delay``: 0 (release at once) or more seconds."""
+    try:
+        return 0.0 if float(text) == 0.0 else _seconds(text)
+    except (ValueError, argparse.ArgumentTypeError):
+        raise argparse.ArgumentTypeError(f"expected a non-negative number of seconds, not {text!r}") from None
+
+
+def _live(args):
+    """The live options of a process started with ``--site`` (None for ``--scenario``)."""
+    from .live import LiveOptions
+
+    if getattr(args, "site", None) is None:
+        return None
+    return LiveOptions(max_skew=args.max_skew, max_delay=getattr(args, "max_delay", 1.0),
+                       oosm_window=getattr(args, "oosm_window", 10.0))
+
+
+def _defaults(args) -> dict:
+    """The ``[defaults]`` of ``--scenario`` or ``--site``; a bad file is one line, exit 2."""
+    from sensors_sim import ScenarioError
+
+    from .node import load, load_site
+
+    try:
+        return (load(args.scenario) if args.site is None else load_site(args.site)).defaults
+    except ScenarioError as e:
+        print(f"zfusion {args.command}: {e}", file=sys.stderr)
+        raise SystemExit(2) from None
+
+
+def _setting(text: str) -> tuple[str, object]:
+    """``KEY=VALUE`` of ``--set``: a ``[tracker]`` key and its value, parsed as TOML (a
+    bare word that is not TOML is taken as a string: ``motion=cv``)."""
+    import tomllib
+
+    key, sep, value = text.partition("=")
+    key = key.strip()
+    if not sep or not key or not value.strip():
+        raise argparse.ArgumentTypeError(f"expected KEY=VALUE (a [tracker] key and a TOML value), not {text!r}")
+    try:
+        return key, tomllib.loads(f"v = {value}")["v"]
+    except tomllib.TOMLDecodeError:
+        if value.strip().replace("-", "").replace("_", "").isalnum():
+            return key, value.strip()
+        raise argparse.ArgumentTypeError(f"--set {key}: {value!r} is not a TOML value") from None
+
+
+def _tracker_options(p: argparse.ArgumentParser, duration: bool = True) -> None:
+    """``--set KEY=VALUE`` (repeatable) and, for scenario runs, ``--duration-s``."""
+    p.add_argument("--set", dest="settings", action="append", type=_setting, default=[], metavar="KEY=VALUE",
+                   help="override a [tracker] key for every method (value in TOML, e.g. q=0.05 or motion='cv'); "
+                        "repeatable")
+    if duration:
+        p.add_argument("--duration-s", type=_seconds, metavar="N", help="override the scenario's duration (s)")
+
+
+def _overrides(args) -> dict:
+    """The command line's overrides of ``[tracker]``: ``--fusion-rule``, then ``--set``."""
+    out = {"fusion_rule": args.fusion_rule} if getattr(args, "fusion_rule", None) else {}
+    out.update(dict(getattr(args, "settings", None) or []))
+    return out
+
+
 def _zopts(args) -> ZenohOptions:
     return ZenohOptions(connect=args.connect or [], config_file=args.zenoh_config,
                         mode=getattr(args, "zenoh_mode", None), overrides=getattr(args, "zenoh_set", None) or [])
@@ -101,6 +176,14 @@ def build_parser() -> argparse.ArgumentParser:
                    help="restart the fuser, local trackers and recorder if they are killed (default: on)")
     p.add_argument("--geojson", metavar="PATH", help="also export the fused picture to this GeoJSON file")
     p.add_argument("--cot", metavar="URL", help="also send it as Cursor-on-Target to udp://HOST:PORT or tcp://HOST:PORT")
+    _tracker_options(p)
+    g = p.add_argument_group("live emulation (docs/live.md)")
+    g.add_argument("--live", action="store_true",
+                   help="run the scenario's processes as a live session on UTC time (scenario time 0 = start), "
+                        "until Ctrl-C, --for, or the sources' end")
+    g.add_argument("--for", dest="for_s", type=_seconds, metavar="SECONDS", help="live: stop after this long")
+    g.add_argument("--max-delay", type=_non_negative, default=1.0, metavar="S",
+                   help="live: the fuser waits at most S seconds for a lagging source (default %(default)s)")
     _fabric(p, per_process=False)  # every child shares these
 
     p = sub.add_parser("eval", help="Monte Carlo evaluation in-process, with the services' own estimators")
@@ -113,6 +196,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", help="write the summary JSON here")
     p.add_argument("--report", metavar="DIR", help="write a Markdown report with PNG plots into DIR")
     p.add_argument("--jobs", type=int, default=1, help="worker processes for the Monte Carlo runs (default 1)")
+    _tracker_options(p)
     p.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
                    help="progress line on stderr (default: when stderr is a terminal)")
     p.add_argument("-v", "--verbose", action="store_true")
@@ -135,21 +219,30 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--start-at", type=float, help="wall-clock epoch of scenario time 0 (default: when ready)")
     p.add_argument("--wait-for", type=_ids, default=[], help="comma-separated processes to wait for")
     p.add_argument("--seed", type=int)
+    p.add_argument("--live", action="store_true",
+                   help="live emulation: stamps on the UTC time base (scenario time 0 = --start-at), speed 1")
+    p.add_argument("--duration-s", type=_seconds, metavar="N", help="override the scenario's duration (s)")
     p.add_argument("--run", type=int, default=0, help=argparse.SUPPRESS)
     _fabric(p)
 
     p = sub.add_parser("fuser", help="the command-centre fuser process")
-    p.add_argument("--scenario", required=True)
+    _site_or_scenario(p)
+    p.add_argument("--max-delay", type=_non_negative, default=1.0, metavar="S",
+                   help="live: wait at most S seconds of wall time for a lagging source (default %(default)s)")
+    p.add_argument("--oosm-window", type=_seconds, default=10.0, metavar="S",
+                   help="live: measurements up to S seconds older than the released time are re-filtered "
+                        "(out of sequence); older ones are refused as stale (default %(default)s)")
     p.add_argument("--method", help="estimation method (default: the scenario's)")
     p.add_argument("--fusion-rule", choices=FUSION_RULES)
     p.add_argument("--id", default="fuser")
     p.add_argument("--source-timeout", type=float, default=5.0, help="seconds of silence before a source is dead")
     p.add_argument("--start-grace", type=float, default=30.0, help="seconds a never-heard source gets at start")
     p.add_argument("--seed", type=int)
+    _tracker_options(p)
     _fabric(p)
 
     p = sub.add_parser("tracker", help="a local tracker process (distributed, feedback, two-stage topologies)")
-    p.add_argument("--scenario", required=True)
+    _site_or_scenario(p)
     p.add_argument("--sensor", required=True, help="the sensor this tracker runs beside")
     p.add_argument("--method", help="distributed method: HNV, PHHNV, DDHNV, KF+TR, MKF+TR (default: the scenario's)")
     p.add_argument("--fusion-rule", choices=FUSION_RULES)
@@ -158,6 +251,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="seconds without an answer from the fuser before running alone")
     p.add_argument("--start-grace", type=float, default=30.0, help=argparse.SUPPRESS)
     p.add_argument("--seed", type=int)
+    _tracker_options(p)
     _fabric(p)
 
     p = sub.add_parser("picture", help="print the fuser's current tracks as JSON (for late joiners)")
@@ -170,12 +264,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--id", default="recorder")
     p.add_argument("--expect", type=_ids, default=[],
                    help="stop once these processes have reported done (default: run until signalled)")
-    p.add_argument("--scenario", help="scenario name or file: sites drawn from t=0, data after its end rejected")
+    _site_or_scenario(p, required=False)
     p.add_argument("--seed", type=int)
     p.add_argument("--spawn", action="store_true",
                    help="also stream to a Rerun viewer (started, or reused on port 9876) if a display is available")
     p.add_argument("--rotate-s", type=_seconds, metavar="N",
                    help="write <stem>.<k>.rrd, one file per N seconds of session time, each complete")
+    p.add_argument("--duration-s", type=_seconds, metavar="N", help="override the scenario's duration (s)")
     _fabric(p)
 
     from .ingest.process import add_parser as add_ingest
@@ -240,26 +335,23 @@ def main(argv: list[str] | None = None) -> int:
 
         speed = math.inf if args.speed == "max" else float(args.speed)
         return source(args.id, args.scenario, keys, _zopts(args), speed, args.start_at, args.wait_for,
-                      run_index=args.run, seed=args.seed)
+                      run_index=args.run, seed=args.seed, live=args.live, duration=args.duration_s)
     if args.command == "fuser":
         from .fuser import run as fuser
-        from .node import load
 
-        method = args.method or load(args.scenario).defaults.get("method")
-        overrides = {"fusion_rule": args.fusion_rule} if args.fusion_rule else {}
-        return fuser(args.id, args.scenario, method, overrides, keys, _zopts(args), args.source_timeout,
-                     args.start_grace, seed=args.seed)
+        method = args.method or _defaults(args).get("method")
+        return fuser(args.id, args.site or args.scenario, method, _overrides(args), keys, _zopts(args),
+                     args.source_timeout, args.start_grace, seed=args.seed, live=_live(args), duration=args.duration_s)
     if args.command == "tracker":
-        from .node import load
         from .tracker import run as tracker
 
-        method = args.method or load(args.scenario).defaults.get("method")
+        method = args.method or _defaults(args).get("method")
         if method not in SPLIT_METHODS:
             raise SystemExit(f"zfusion tracker: {method!r} has no local trackers (distributed methods: "
                              f"{', '.join(SPLIT_METHODS)})")
-        overrides = {"fusion_rule": args.fusion_rule} if args.fusion_rule else {}
-        return tracker(args.sensor, args.scenario, method, overrides, keys, _zopts(args), args.fuser,
-                       args.feedback_timeout, args.start_grace, seed=args.seed)
+        return tracker(args.sensor, args.site or args.scenario, method, _overrides(args), keys, _zopts(args),
+                       args.fuser, args.feedback_timeout, args.start_grace, seed=args.seed, live=_live(args),
+                       duration=args.duration_s)
     if args.command == "picture":
         from .picture import main as picture
 
@@ -271,7 +363,8 @@ def main(argv: list[str] | None = None) -> int:
 
         Path(args.rrd).parent.mkdir(parents=True, exist_ok=True)
         return record(args.id, keys, _zopts(args), args.rrd, args.expect,
-                      spawn=args.spawn, scenario=args.scenario, seed=args.seed, rotate_s=args.rotate_s)
+                      spawn=args.spawn, scenario=args.site or args.scenario, seed=args.seed, rotate_s=args.rotate_s,
+                      live=_live(args), duration=args.duration_s)
     if args.command == "ingest":
         from .ingest.process import main as ingest
 
@@ -312,6 +405,34 @@ def _export(args, keys: KeySpace) -> int:
                                                args.live), live=args.live)
 
 
+def _scenario_of(args):
+    """``--scenario`` with ``--seed`` and ``--duration-s`` applied; a bad file is one line, exit 2."""
+    from sensors_sim import ScenarioError
+
+    from .node import load
+
+    try:
+        return load(args.scenario, args.seed, getattr(args, "duration_s", None))
+    except ScenarioError as e:
+        print(f"zfusion {args.command}: {e}", file=sys.stderr)
+        raise SystemExit(2) from None
+
+
+def _check_overrides(scenario, methods: list[str], overrides: dict, command: str) -> None:
+    """Every method must accept the ``[tracker]`` overrides (an unknown key, a bad value):
+    else one line on stderr and exit 2."""
+    if not overrides:
+        return
+    from fusion.methods import make_method, method_config
+
+    for m in methods:
+        try:
+            make_method(m, method_config(scenario.tracker, m, overrides))
+        except ValueError as e:
+            print(f"zfusion {command}: {e}", file=sys.stderr)
+            raise SystemExit(2) from None
+
+
 def _eval(args) -> int:
     from .evaluation import default_methods, evaluate, variants_for
     from .node import load
@@ -321,14 +442,15 @@ def _eval(args) -> int:
         raise SystemExit("zfusion eval: --runs must be >= 1")
     if args.jobs < 1:
         raise SystemExit("zfusion eval: --jobs must be >= 1")
-    scenario = load(args.scenario, args.seed)
+    scenario = _scenario_of(args)
     methods = args.methods or default_methods(scenario)
     if not methods:
         raise SystemExit(f"zfusion eval: no method can use the sensors of scenario {scenario.name}")
     if args.fusion_rule and not set(methods) & set(TRACK_FUSION_METHODS):
         raise SystemExit(f"zfusion eval: --fusion-rule applies to the track-fusion methods "
                          f"({', '.join(TRACK_FUSION_METHODS)}); none of {', '.join(methods)} fuses tracks")
-    overrides = {"fusion_rule": args.fusion_rule} if args.fusion_rule else {}
+    overrides = _overrides(args)
+    _check_overrides(scenario, methods, overrides, "eval")
     show = sys.stderr.isatty() if args.progress is None else args.progress
     rule = args.fusion_rule or track_fusion_rule(scenario.tracker, methods)
 
@@ -356,6 +478,8 @@ def _eval(args) -> int:
         command += f" --methods {' '.join(args.methods)}" if args.methods else ""
         command += f" --fusion-rule {args.fusion_rule}" if args.fusion_rule else ""
         command += f" --seed {args.seed}" if args.seed is not None else ""
+        command += f" --duration-s {args.duration_s:g}" if args.duration_s else ""
+        command += "".join(f" --set {k}={v!r}" for k, v in args.settings)
         path = write_eval_report(doc, Path(args.report), command=command)
         print(f"report: {path}")
     return 0

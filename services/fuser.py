@@ -46,7 +46,10 @@ from fusion.types import Estimate
 from schemas import MEASUREMENT_KINDS, KeySpace, Message, SchemaError, decode, encode_estimate, to_measurement, tracker_id
 from schemas.links import encode_downlink, horizon_message, uplink
 
-from .node import Inbox, Node, RejectLog, load
+from fusion.oosm import Refiltering
+
+from .live import ClockGuard, LiveOptions
+from .node import Inbox, Node, RejectLog, load, load_site
 from .picture import Picture
 
 
@@ -130,6 +133,8 @@ class JoinGate:
         return []
 
     def __getattr__(self, name: str) -> Any:
+        if name.startswith("__"):  # copy/pickle protocol lookups, before ``centre`` exists
+            raise AttributeError(name)
         return getattr(self.centre, name)
 
 
@@ -144,26 +149,49 @@ class FuserCore:
         timeout, start_grace, horizon: see :class:`~services.ordering.WatermarkMerger`.
         intake: what the input is (:class:`MeasurementIntake` by default).
         max_held: the merger's per-source cap (:func:`max_held_for` a scenario).
+        live: a live session (:class:`~services.live.LiveOptions`): no horizon, stamps
+            checked against ``utc`` (:meth:`offer`), a bounded wait for lagging sources,
+            and late data re-filtered (:class:`fusion.oosm.Refiltering`) when
+            ``refilter`` is true; without it the merger waits for every live source
+            (a centre that sends feedback cannot take it back).
+        periods: live: each source's nominal period, how far ahead of its data its
+            watermarks may look (:meth:`services.live.ClockGuard.check`).
     """
 
     def __init__(self, method: Any, sources: list[str], keys: KeySpace, reject: RejectLog,
                  timeout: float, start_grace: float = 30.0, horizon: float = math.inf, now: float = 0.0,
-                 intake: Any = None, max_held: int | None = None):
+                 intake: Any = None, max_held: int | None = None, live: LiveOptions | None = None,
+                 refilter: bool = True, periods: Mapping[str, float] | None = None):
         from .ordering import DEFAULT_MAX_HELD, WatermarkMerger
 
-        self.method = method
         self.keys = keys
         self.reject = reject
         self.intake = intake or MeasurementIntake()
-        self.merger = WatermarkMerger(sources, timeout, start_grace, horizon, now,
-                                      max_held=max_held or DEFAULT_MAX_HELD)
+        self.live = live
+        self.refilter = Refiltering(method, live.oosm_window, shared=(reject,)) if live and refilter else None
+        self._method = method
+        bounded = self.refilter is not None
+        self.merger = WatermarkMerger(sources, timeout, start_grace, horizon if not live else math.inf, now,
+                                      earliest=0.0 if not live else -math.inf,
+                                      max_held=max_held or DEFAULT_MAX_HELD,
+                                      max_delay=live.max_delay if bounded else math.inf,
+                                      oosm_window=live.oosm_window if bounded else 0.0)
+        self.clock = ClockGuard(live.max_skew) if live else None
+        self.periods = dict(periods or {})
+        self.republished = 0  # estimates re-published after a re-filtering
         self.events: list[str] = []
         self.received = 0
         self.processed = 0
         self.finished = False
 
-    def offer(self, key: str, data: bytes, now: float) -> None:
-        """One sample off the wire. Bad input is counted and dropped; never raises."""
+    @property
+    def method(self) -> Any:
+        """The estimator now (a re-filtering replaces it with a restored copy)."""
+        return self.refilter.method if self.refilter is not None else self._method
+
+    def offer(self, key: str, data: bytes, now: float, utc: float | None = None) -> None:
+        """One sample off the wire (``now``: monotonic clock; ``utc``: this host's UTC
+        clock, live). Bad input is counted and dropped; never raises."""
         self.received += 1
         try:
             family, key_id = self.keys.family_and_id(key)
@@ -179,6 +207,12 @@ class FuserCore:
         if family != self.intake.family or msg.src != key_id:
             self.reject(hint, "spoofed-src", f"message says src={msg.src!r} but came on {key}")
             return
+        if self.clock is not None and utc is not None and msg.src in self.merger.sources:
+            rej = self.clock.check(msg.src, msg.t, utc, self.events,
+                                   self.periods.get(msg.src, 0.0) if msg.kind == "watermark" else None)
+            if rej is not None:
+                self.reject(rej.src, rej.cause, rej.detail)
+                return
         if msg.kind == "watermark":
             rej = self.merger.watermark(msg.src, msg.t, msg.body["final"], now, self.events)
         else:
@@ -199,10 +233,20 @@ class FuserCore:
             return []
         self.merger.check_timeouts(now, self.events)
         before = self.merger.released_until
-        items, wm = self.merger.release()
+        items, wm = self.merger.release(now)
         if before == -math.inf and items:  # t > 0 for a fuser restarted mid-stream
             self.events.append(f"input starts at t = {items[0].t:g} s")
         out: list[Estimate] = []
+        if self.refilter is not None:
+            late = self.merger.take_oosm()  # all at or before the previous release: re-filter first
+            if late:
+                fixed = self.refilter.insert(late)
+                self.republished += len(fixed)
+                out.extend(fixed)
+                self.processed += len(late)
+            out.extend(self.refilter.step(items, wm))
+            self.processed += len(items)
+            return out
         for m in items:
             out.extend(self.method.process(m))
             self.processed += 1
@@ -214,18 +258,27 @@ class FuserCore:
         return out
 
     def sources_report(self) -> dict:
-        return {s: {"dead_intervals": st.dead_intervals, "rejected": self.reject.rejected_by_source().get(s, 0)}
-                for s, st in self.merger.sources.items()}
+        """Per source: dead intervals and rejections; live also ``oosm``, ``stale`` and its
+        clock (:meth:`services.live.ClockGuard.report`)."""
+        rejected = self.reject.rejected_by_source()
+        out = {}
+        for s, st in self.merger.sources.items():
+            out[s] = {"dead_intervals": st.dead_intervals, "rejected": rejected.get(s, 0)}
+            if self.live is not None:
+                out[s].update(oosm=st.oosm, stale=st.stale, **self.clock.report(s))
+        return out
 
 
-def max_held_for(scenario) -> int:
-    """The merger's per-source cap for a scenario: 10× what its busiest sensor sends over
-    the whole run (targets plus mean clutter per scan), since at ``--speed max`` a source
-    may legitimately run that far ahead of a late one (:func:`services.ordering.hold_cap`)."""
+def max_held_for(scenario, window: float | None = None) -> int:
+    """The merger's per-source cap: 10× what the busiest sensor sends in ``window``
+    seconds (targets plus mean clutter per scan; a site's sensors count one target).
+    Default window: a scenario's whole run, since at ``--speed max`` a source may
+    legitimately run that far ahead of a late one; live, the source timeout, after
+    which a laggard is declared dead (:func:`services.ordering.hold_cap`)."""
     from .ordering import hold_cap
 
-    rate = max((len(s.targets) + s.clutter_rate) / s.period for s in scenario.sensors.values())
-    return hold_cap(rate, scenario.duration + 1.0)
+    rate = max((max(len(s.targets), 1) + s.clutter_rate) / s.period for s in scenario.sensors.values())
+    return hold_cap(rate, (scenario.duration if window is None else window) + 1.0)
 
 
 def _delete_misses(scenario) -> int:
@@ -237,8 +290,11 @@ def _delete_misses(scenario) -> int:
 
 
 def run(process_id: str, scenario_ref: str, method_name: str, overrides: dict, keys: KeySpace, zopts,
-        timeout: float, start_grace: float, seed: int | None = None) -> int:
-    scenario = load(scenario_ref, seed)
+        timeout: float, start_grace: float, seed: int | None = None, live: LiveOptions | None = None,
+        duration: float | None = None) -> int:
+    """The fuser of a scenario run (``scenario_ref``), or of a live session (``live``
+    given: ``scenario_ref`` is a site or scenario file, time is UTC, it runs until stopped)."""
+    scenario = load(scenario_ref, seed, duration) if live is None else load_site(scenario_ref)
     config = method_config(scenario.tracker, method_name, overrides)
     distributed = METHODS[method_name].split is not None
     if distributed:  # distributed, feedback, two-stage: the centre over the local trackers
@@ -250,13 +306,18 @@ def run(process_id: str, scenario_ref: str, method_name: str, overrides: dict, k
         method = make_method(method_name, config)
         intake = MeasurementIntake(scenario.sensors)
         sources = list(scenario.sensors)
+    periods = {src: scenario.sensor(intake.nodes[src] if isinstance(intake, UplinkIntake) else src).period
+               for src in sources}
     with Node(process_id, "fuser", keys, zopts) as node:
         inbox = Inbox(node.stop)
         if isinstance(method, TrackCentre):
             method = JoinGate(method, node.reject)
+        feedback = method_name in SPLITS and SPLITS[method_name].topology in ("feedback", "two-stage")
         core = FuserCore(method, sources, keys, node.reject, timeout, start_grace,
-                         horizon=scenario.duration + 1.0, now=time.monotonic(), intake=intake,
-                         max_held=max_held_for(scenario))
+                         horizon=scenario.duration + 1.0 if live is None else math.inf, now=time.monotonic(),
+                         intake=intake, max_held=max_held_for(scenario, None if live is None else timeout),
+                         live=live, refilter=not feedback, periods=periods)
+        utc = time.time if live is not None else lambda: None
         node.subscribe(keys.all(intake.family), inbox)
         pub = node.publisher(keys.fused())
         picture = Picture(process_id, _delete_misses(scenario))
@@ -271,10 +332,10 @@ def run(process_id: str, scenario_ref: str, method_name: str, overrides: dict, k
         while not node.stop.is_set():
             try:
                 key, data = inbox.get(timeout=0.05)
-                core.offer(key, data, time.monotonic())
+                core.offer(key, data, time.monotonic(), utc())
                 while True:  # drain what is queued before stepping: fewer, larger releases
                     key, data = inbox.get_nowait()
-                    core.offer(key, data, time.monotonic())
+                    core.offer(key, data, time.monotonic(), utc())
             except queue.Empty:
                 pass
             for e in core.step(time.monotonic()):
@@ -284,6 +345,7 @@ def run(process_id: str, scenario_ref: str, method_name: str, overrides: dict, k
                 picture.published(e, data)
                 t_now = e.t
             if down:
+                method = core.method
                 for d in method.take_downlinks():
                     down_seq += 1
                     down[tracker_id(d.node)].put(encode_downlink(d, process_id, down_seq))
@@ -299,6 +361,9 @@ def run(process_id: str, scenario_ref: str, method_name: str, overrides: dict, k
             node.counters.update(received=core.received, processed=core.processed, published=seq,
                                  late=core.merger.late, held=core.merger.held(),
                                  inbox=inbox.qsize(), inbox_waits=inbox.waits)
+            if core.refilter is not None:
+                node.counters.update(oosm=sum(st.oosm for st in core.merger.sources.values()),
+                                     republished=core.republished, checkpoints=len(core.refilter))
             if core.finished:
                 break
             if time.monotonic() - last_status >= 1.0:

@@ -31,11 +31,21 @@ back up, the exit code) and ``exit_codes`` the first non-zero code of any incarn
 Children are started with ``PR_SET_PDEATHSIG`` so that even a launcher killed with
 SIGKILL leaves none behind; on SIGINT/SIGTERM the launcher stops them in order (SIGTERM,
 then SIGKILL after a grace period) and exits.
+
+``--live`` (:func:`services.live.live_argv` and docs/live.md): the same processes as a
+live session on UTC time. The fuser, trackers and recorder are started with ``--site``
+(the scenario taken as its site: no end), the sources with ``--live`` and the common
+start time as scenario time 0 (``epoch_utc`` in the summary), at speed 1. The run
+ends at ``--for``, on Ctrl-C, or when every source has played its duration; then the
+sources are stopped, the fuser gets ``--max-delay`` + 1 s to release what they sent,
+the fuser and trackers are stopped, the recorder ends once it has their last status,
+and the summary is written as for a scenario run, with UTC times.
 """
 
 from __future__ import annotations
 
 import ctypes
+import dataclasses
 import datetime as _dt
 import json
 import logging
@@ -58,7 +68,7 @@ from .node import Inbox, Node, ZenohOptions, load
 from .resources import ProcessUsage, own_usage
 from .rotation import rotated_files
 from .evaluation import GOSPA_CUTOFF, many_targets, score_tracks_of
-from .summary import format_table, method_summary, summary, tracks_summary, truth_function
+from .summary import format_table, method_summary, on_time_base, scenario_times, summary, tracks_summary, truth_function
 
 log = logging.getLogger("zfusion")
 
@@ -106,6 +116,20 @@ class Children:
             return self.procs[name].wait(timeout)
         except subprocess.TimeoutExpired:
             return None
+
+    def terminate(self, names: Iterable[str], drain, grace: float = 10.0) -> None:
+        """SIGTERM to ``names``, calling ``drain`` while they stop (their last status); a
+        child still there after ``grace`` seconds is killed."""
+        live = [self.procs[n] for n in names if n in self.procs and self.procs[n].poll() is None]
+        for p in live:
+            p.send_signal(signal.SIGTERM)
+        deadline = time.monotonic() + grace
+        while any(p.poll() is None for p in live) and time.monotonic() < deadline:
+            drain(0.1)
+        for p in live:
+            if p.poll() is None:
+                p.kill()
+                p.wait()
 
     def stop_all(self, grace: float = 5.0) -> None:
         live = [p for p in self.procs.values() if p.poll() is None]
@@ -206,6 +230,31 @@ class Supervisor:
         return {n: next((c for c in cs if c != 0), cs[-1]) for n, cs in self.codes.items()}
 
 
+def _live_until_done(node: Node, children: Children, sup: "Supervisor", drain, sources: list[str],
+                     trackers: list[str], deadline: float, max_delay: float) -> None:
+    """A live run (module docstring): until ``deadline`` (UTC), Ctrl-C, or every source
+    has ended; then the orderly stop, draining statuses all along."""
+    while not node.stop.is_set() and time.time() < deadline:
+        drain(0.1)
+        sup.poll()
+        code = children.procs[FUSER_ID].poll()
+        if code is not None and code >= 0:
+            break  # the fuser ended on its own (a failure; a kill is the supervisor's to restart)
+        if all(children.procs[s].poll() is not None for s in sources):
+            break
+    node.stop.clear()  # Ctrl-C ends a live run like --for; a second one ends the stop sequence
+    sup.restart = False
+    children.terminate(sources, drain)
+    until = time.monotonic() + max_delay + 1.0  # the fuser releases what the sources sent
+    while time.monotonic() < until and not node.stop.is_set():
+        drain(0.1)
+    children.terminate([*trackers, FUSER_ID], drain)
+    deadline_rec = time.monotonic() + 30.0  # the recorder ends once it has everyone's last status
+    while children.procs[RECORDER_ID].poll() is None and time.monotonic() < deadline_rec and not node.stop.is_set():
+        drain(0.1)
+    drain(0.2)
+
+
 def topology_of(method: str) -> str:
     return METHODS[method].topology if method in METHODS else "centralised"  # an unknown one fails at make_method
 
@@ -259,15 +308,27 @@ def exporter_argv(args) -> dict[str, list[str]]:
 
 
 def run(args) -> int:
-    scenario = load(args.scenario, args.seed)
+    from .cli import _check_overrides, _overrides, _scenario_of
+
+    live = getattr(args, "live", False)
+    if live and args.speed != "1":
+        print("zfusion run: --live runs in real time: remove --speed", file=sys.stderr)
+        return 2
+    if not live and getattr(args, "for_s", None) is not None:
+        print("zfusion run: --for is for live runs: add --live, or use --duration-s", file=sys.stderr)
+        return 2
+    scenario = _scenario_of(args)
+    if live and args.duration_s is None and args.for_s is not None and args.for_s > scenario.duration:
+        scenario = dataclasses.replace(scenario, duration=args.for_s)  # the sources play until --for
     topology, method = resolve_topology(scenario, args.topology, args.method)
     from fusion.methods import make_method, method_config
 
     if args.fusion_rule and method not in TRACK_FUSION_METHODS:
         raise SystemExit(f"zfusion run: --fusion-rule applies to the track-fusion methods "
                          f"({', '.join(TRACK_FUSION_METHODS)}), not to {method}")
-    overrides = {"fusion_rule": args.fusion_rule} if args.fusion_rule else {}
-    make_method(method, method_config(scenario.tracker, method, overrides))  # fail here, with a clear error, not in a child
+    overrides = _overrides(args)
+    _check_overrides(scenario, [method], overrides, "run")  # fail here, with a clear error, not in a child
+    tracker_args = [a for k, v in getattr(args, "settings", []) for a in ("--set", f"{k}={json.dumps(v)}")]
     speed = math.inf if args.speed == "max" else float(args.speed)
     if not speed > 0:
         raise SystemExit("zfusion run: --speed must be > 0 or 'max'")
@@ -285,6 +346,9 @@ def run(args) -> int:
         theirs = ZenohOptions(connect=[hub])
     common = ["--deployment", args.deployment, *theirs.to_args()] + (["-v"] if args.verbose else [])
     seed = ["--seed", str(scenario.seed)]
+    # what the fuser, trackers and recorder are given: the scenario (with its overrides), or live its site
+    given = (["--site", args.scenario] if live else
+             ["--scenario", args.scenario, *seed, *(["--duration-s", repr(scenario.duration)] if args.duration_s else [])])
     sources = list(scenario.process_ids())
     max_period = max([getattr(s, "period", 1.0) for s in scenario.sensors.values()] + [1.0])
     timeout = 5.0 if math.isinf(speed) else max(3.0, 3.0 * max_period / speed)
@@ -338,12 +402,13 @@ def run(args) -> int:
                 pass
 
         try:
-            children.start(FUSER_ID, ["fuser", "--scenario", args.scenario, "--method", method, "--id", FUSER_ID,
-                                      "--source-timeout", str(timeout), *seed, *(
+            children.start(FUSER_ID, ["fuser", *given, "--method", method, "--id", FUSER_ID,
+                                      "--source-timeout", str(timeout), *tracker_args, *(
+                                          ["--max-delay", repr(args.max_delay)] if live else []), *(
                                           ["--fusion-rule", args.fusion_rule] if args.fusion_rule else []), *common])
             trackers = {s: tracker_id(s) for s in scenario.sensors} if topology != "centralised" else {}
-            children.start(RECORDER_ID, ["record", "--rrd", rrd, "--id", RECORDER_ID, "--scenario", args.scenario,
-                                         *seed, *(["--spawn"] if getattr(args, "spawn", False) else []),
+            children.start(RECORDER_ID, ["record", "--rrd", rrd, "--id", RECORDER_ID, *given,
+                                         *(["--spawn"] if getattr(args, "spawn", False) else []),
                                          *(["--rotate-s", str(args.rotate_s)] if getattr(args, "rotate_s", None) else []),
                                          "--expect", ",".join([FUSER_ID, *trackers.values(), *sources]), *common])
             for name, argv in exporters.items():  # listeners like the recorder, up before the sources
@@ -351,8 +416,8 @@ def run(args) -> int:
             node.wait_for([FUSER_ID, RECORDER_ID, *exporters], timeout=60.0,
                           gone=lambda: children.exited([FUSER_ID, RECORDER_ID, *exporters]))
             for sensor, tid in trackers.items():
-                children.start(tid, ["tracker", "--scenario", args.scenario, "--sensor", sensor, "--method", method,
-                                     "--fuser", FUSER_ID, "--feedback-timeout", str(timeout), *seed, *(
+                children.start(tid, ["tracker", *given, "--sensor", sensor, "--method", method,
+                                     "--fuser", FUSER_ID, "--feedback-timeout", str(timeout), *tracker_args, *(
                                          ["--fusion-rule", args.fusion_rule] if args.fusion_rule else []), *common])
             node.wait_for(trackers.values(), timeout=60.0, gone=lambda: children.exited(trackers.values()))
             sup.restartable = {FUSER_ID, RECORDER_ID, *trackers.values(), *exporters}
@@ -364,10 +429,15 @@ def run(args) -> int:
                 first = trackers.get(sid, FUSER_ID)
                 consumers = [first, RECORDER_ID] if sid in scenario.sensors else [RECORDER_ID]
                 children.start(sid, ["sensor", "--scenario", args.scenario, "--id", sid, "--speed", str(args.speed),
-                                     "--start-at", repr(start_at), *seed,
+                                     "--start-at", repr(start_at), *seed, *(
+                                         ["--duration-s", repr(scenario.duration)] if live or args.duration_s else []),
+                                     *(["--live"] if live else []),
                                      "--wait-for", ",".join([*consumers, LAUNCHER_ID]), *common])
             last_source_end: float | None = None
-            while not node.stop.is_set():
+            if live:
+                _live_until_done(node, children, sup, drain, sources, [*trackers.values()],
+                                 start_at + (args.for_s if args.for_s else math.inf), args.max_delay)
+            while not node.stop.is_set() and not live:
                 drain(0.1)
                 sup.poll()
                 code = children.procs[FUSER_ID].returncode
@@ -383,7 +453,7 @@ def run(args) -> int:
                     if last_source_end is not None and time.monotonic() - last_source_end > END_GRACE:
                         break
             interrupted = node.stop.is_set()
-            if not interrupted:
+            if not interrupted and not live:
                 for sid in [*sources, *trackers.values()]:
                     children.wait(sid, 10.0)
                 never_back = [n for n, outs in sup.outages.items() if outs[-1]["t_up"] is None]
@@ -423,10 +493,15 @@ def run(args) -> int:
     for sid in sources:  # processes the fuser does not consume (truth, jammers) are reported too
         src_report.setdefault(sid, {"dead_intervals": [], "rejected": 0})
     truth = truth_function(scenario)
+    epoch = started[0] if live else 0.0
+    if live:  # the latest estimate per (node, track, t): a re-filtering re-publishes corrected ones
+        estimates = scenario_times(estimates, epoch)
     scored = (tracks_summary([score_tracks_of(scenario, estimates)]) if many_targets(scenario)
               else method_summary([estimates], truth))
     doc = summary(scenario, topology, args.fusion_rule or track_fusion_rule(scenario.tracker, [method]), scenario.seed, 1,
-                  {method: scored}, sources=src_report)
+                  {method: on_time_base(scored, epoch) if live else scored}, sources=src_report)
+    if live:
+        doc["epoch_utc"] = epoch
     if many_targets(scenario):
         doc["gospa_cutoff"] = GOSPA_CUTOFF
     doc["recording"] = rrd

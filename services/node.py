@@ -361,12 +361,24 @@ def decode_or_count(node: Node, data: bytes, src_hint: str, decode: Callable[[by
         return None
 
 
-def load(scenario_ref: str, seed: int | None = None):
-    """Load a scenario, with ``--seed`` (if given) replacing the file's seed. Every process
-    of a run gets the same value from the launcher, so they all draw consistently."""
+def load_site(site_ref: str):
+    """Load a site file, or a scenario as its site (``--site``: a live session)."""
+    from sensors_sim import load_site as load_site_file
+
+    return load_site_file(site_ref)
+
+
+def load(scenario_ref: str, seed: int | None = None, duration: float | None = None):
+    """Load a scenario, with ``--seed`` and ``--duration-s`` (if given) replacing the
+    file's. Every process of a run gets the same values from the launcher, so they all
+    draw consistently."""
     import dataclasses
 
     from sensors_sim import load_scenario
 
     scenario = load_scenario(scenario_ref)
-    return scenario if seed is None else dataclasses.replace(scenario, seed=int(seed))
+    if seed is not None:
+        scenario = dataclasses.replace(scenario, seed=int(seed))
+    if duration is not None:
+        scenario = dataclasses.replace(scenario, duration=float(duration))
+    return scenario

@@ -25,7 +25,21 @@ if it had never arrived:
     a measurement whose ``seq`` is already held: a replay or a network duplicate of
     data not yet released.
 ``late``
-    fresh data from a source that was skipped as dead, for a time already released.
+    fresh data from a source that was skipped as dead, for a time already released
+    (scenario runs; a live merger takes it as an out-of-sequence measurement).
+``stale``
+    live only: data for a time already released and older than the out-of-sequence
+    window (``oosm_window``): too old to re-filter.
+
+Live sessions (``max_delay`` finite): the merger waits at most ``max_delay`` seconds of
+wall time for a lagging source. Each time the leading watermark (the highest of the
+live sources') rises, the merger notes the wall time; ``max_delay`` later, the release
+front is at least that watermark, whatever the laggards have said. With ``oosm_window``
+> 0 a measurement that then arrives for a released time ``t > released − window`` is
+not rejected: it is held apart as an *out-of-sequence* measurement (counted ``oosm``
+per source), which :meth:`WatermarkMerger.take_oosm` hands to the estimator to
+re-filter (:mod:`fusion.oosm`). A source's duplicates of such data are recognised by
+``seq`` until its own watermark passes them.
 
 Duplicates are recognised by ``seq`` among the measurements still held, not by a
 high-water mark of ``seq``: a forged message with a huge ``seq`` must not make every later
@@ -59,12 +73,14 @@ from __future__ import annotations
 import heapq
 import math
 from bisect import bisect_right, insort
+from collections import deque
 from dataclasses import dataclass, field
 from typing import Any
 
 # Held measurements per source when the caller gives no cap: 10× the largest built-in
 # scenario's whole output per source (61 measurements), so no run at any speed sheds.
 DEFAULT_MAX_HELD = 1024
+LEAD_MAX = 4096  # rises of the leading watermark remembered for the bounded wait
 
 
 def hold_cap(rate_hz: float, window_s: float, factor: float = 10.0) -> int:
@@ -90,6 +106,9 @@ class SourceState:
     dead_intervals: list[list[float | None]] = field(default_factory=list)
     held: list[tuple[float, int, Any]] = field(default_factory=list)  # (t, seq, item), sorted
     held_seqs: set[int] = field(default_factory=set)
+    oosm: int = 0  # out-of-sequence measurements taken (live)
+    stale: int = 0  # measurements too old to re-filter (live)
+    oosm_seqs: dict[int, float] = field(default_factory=dict)  # seq -> t of OOSMs after its watermark
 
 
 @dataclass(frozen=True)
@@ -113,11 +132,15 @@ class WatermarkMerger:
             (scenario time starts at 0).
         max_held: measurements held per source before the latest is shed (see the
             module docstring and :func:`hold_cap`).
+        max_delay: live: longest wall-clock wait (s) for a lagging source's watermark;
+            ``inf`` (scenario runs): wait for every live source.
+        oosm_window: live: how far back (in ``t``) a measurement for an already
+            released time is still taken as out-of-sequence; 0: rejected as ``late``.
     """
 
     def __init__(self, sources: list[str], timeout: float, start_grace: float = 30.0,
                  horizon: float = math.inf, now: float = 0.0, earliest: float = 0.0,
-                 max_held: int = DEFAULT_MAX_HELD):
+                 max_held: int = DEFAULT_MAX_HELD, max_delay: float = math.inf, oosm_window: float = 0.0):
         if not sources:
             raise ValueError("WatermarkMerger needs at least one source")
         if max_held < 1:
@@ -132,6 +155,13 @@ class WatermarkMerger:
         self.released_until = -math.inf  # the merged watermark already passed downstream
         self.late = 0
         self.shed = 0
+        self.max_delay = max_delay
+        self.oosm_window = oosm_window
+        # (wall time, leading watermark) as the lead rose, for the bounded wait; at most one
+        # entry per rise within max_delay seconds (watermarks rise at the sources' scan rate)
+        self._lead: deque[tuple[float, float]] = deque(maxlen=LEAD_MAX)
+        self._forced = -math.inf  # the front the bounded wait has reached
+        self._oosm: list[tuple[float, str, int, Any]] = []  # (t, src, seq, item) not yet taken
 
     # -- input ------------------------------------------------------------------------------
 
@@ -160,12 +190,22 @@ class WatermarkMerger:
             return Rejection(src, "past", f"t = {t:g} s is before the scenario's start ({self.earliest:g} s)")
         if t <= st.watermark:
             return Rejection(src, "out-of-order", f"t = {t:g} s is not after its own watermark {st.watermark:g} s")
-        if seq in st.held_seqs:
+        if seq in st.held_seqs or seq in st.oosm_seqs:
             return Rejection(src, "duplicate", f"seq {seq} is already held")
         self._heard(src, st, now, events)
         if t <= self.released_until:
-            self.late += 1
-            return Rejection(src, "late", f"t = {t:g} s arrived after the merged stream passed {self.released_until:g} s")
+            if self.oosm_window <= 0:
+                self.late += 1
+                return Rejection(src, "late", f"t = {t:g} s arrived after the merged stream passed "
+                                 f"{self.released_until:g} s")
+            if t <= self.released_until - self.oosm_window:
+                st.stale += 1
+                return Rejection(src, "stale", f"t = {t:g} s is more than {self.oosm_window:g} s before the "
+                                 f"released time {self.released_until:g} s (the re-filtering window)")
+            st.oosm += 1
+            st.oosm_seqs[seq] = t
+            self._oosm.append((t, src, seq, item))
+            return None
         if len(st.held) < self.max_held:
             self._hold(st, t, seq, item)
             return None
@@ -193,7 +233,11 @@ class WatermarkMerger:
             return Rejection(src, "out-of-order", f"watermark {t:g} s goes back from {st.watermark:g} s")
         st.watermark = t
         st.final = st.final or final
+        if st.oosm_seqs:  # its watermark now rejects repeats of these by time
+            st.oosm_seqs = {q: tq for q, tq in st.oosm_seqs.items() if tq > t}
         self._heard(src, st, now, events)
+        if math.isfinite(self.max_delay) and not st.final and (not self._lead or t > self._lead[-1][1]):
+            self._lead.append((now, t))
         return None
 
     # -- liveness ---------------------------------------------------------------------------
@@ -232,12 +276,28 @@ class WatermarkMerger:
     def all_final(self) -> bool:
         return all(st.final for st in self.sources.values())
 
-    def release(self) -> tuple[list[Any], float]:
-        """Pop every held item the merged watermark has passed, in (t, src, seq) order.
+    def front(self, now: float | None = None) -> float:
+        """What may be released at wall time ``now``: the merged watermark, or (live) the
+        leading watermark of ``max_delay`` seconds ago if that is later."""
+        wm = self.merged_watermark
+        if now is None or not math.isfinite(self.max_delay):
+            return wm
+        while self._lead and self._lead[0][0] <= now - self.max_delay:
+            self._forced = max(self._forced, self._lead.popleft()[1])
+        return wm if wm == math.inf else max(wm, self._forced)
+
+    def take_oosm(self) -> list[Any]:
+        """The out-of-sequence measurements taken since the last call, in (t, src, seq) order."""
+        out, self._oosm = sorted(self._oosm, key=lambda r: r[:3]), []
+        return [r[3] for r in out]
+
+    def release(self, now: float | None = None) -> tuple[list[Any], float]:
+        """Pop every held item the release front (:meth:`front`) has passed, in
+        (t, src, seq) order.
 
         Returns the items and the watermark to hand to the estimator's ``advance``.
         """
-        wm = self.merged_watermark
+        wm = self.front(now)
         ready = []
         for src, st in self.sources.items():
             n = bisect_right(st.held, wm, key=lambda h: h[0])

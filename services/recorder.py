@@ -1,6 +1,8 @@
 """The recorder process: everything on the deployment's keys into one Rerun recording.
 
-Timeline ``sim_time`` (scenario seconds). Entities live under ``world/`` (sites,
+Timeline ``sim_time`` (scenario seconds); in a live session (``--site``) timeline
+``utc``, a timestamp timeline (``t`` is UTC there), and stamps more than ``--max-skew``
+ahead of this host's clock are refused. Entities live under ``world/`` (sites,
 measurements as points or rays, truth, tracks per node with their 3σ ellipsoids or
 ellipses, predictions, uplinks, feedback, jammers), ``metrics/`` (position error, NEES
 and NIS against their χ² bounds, a many-target picture's GOSPA, missed and false
@@ -61,6 +63,7 @@ from .rotation import Rotation
 log = logging.getLogger("zfusion")
 
 TIMELINE = "sim_time"
+LIVE_TIMELINE = "utc"  # live sessions: t is UTC POSIX seconds, a timestamp timeline
 DEFAULT_RAY_M = 20_000.0
 TRUTH_CACHE = 4096  # truth samples kept per target, to score estimates against
 PENDING_MAX = 4096  # estimates waiting for the truth sample of their time
@@ -79,7 +82,7 @@ HORIZON_SLACK_S = 1.0  # as the fuser: data beyond the scenario's end + this is 
 FUSED_NODE = "centre"
 
 
-def blueprint(df: bool = False, many: bool = False, geo: bool = False) -> rrb.Blueprint:
+def blueprint(df: bool = False, many: bool = False, geo: bool = False, timeline: str = TIMELINE) -> rrb.Blueprint:
     """Scene (with ``geo``: beside the map) | error and consistency plots (many targets:
     the picture's GOSPA, targets missed and false tracks, NIS) | event log, jamming and counters."""
     scene = rrb.Spatial3DView(origin="world", name="Map (ENU; DF on the plane z = 0)" if df else "Scene (ENU)")
@@ -106,7 +109,7 @@ def blueprint(df: bool = False, many: bool = False, geo: bool = False) -> rrb.Bl
         rrb.Horizontal(*columns, column_shares=[3, 3, 2, 2] if geo else [3, 2, 2]),
         rrb.BlueprintPanel(state="collapsed"),
         rrb.SelectionPanel(state="collapsed"),
-        rrb.TimePanel(state="collapsed", timeline=TIMELINE),
+        rrb.TimePanel(state="collapsed", timeline=timeline),
     )
 
 
@@ -128,7 +131,8 @@ def _ui(points: float) -> list[float]:
 class Recording(rr.RecordingStream):
     """A recording stream that queues rows and sends them as columns.
 
-    :meth:`row` queues one row of an entity at a time on the ``sim_time`` timeline;
+    :meth:`row` queues one row of an entity at a time on the ``sim_time`` timeline (a
+    live session's: the ``utc`` timestamp timeline);
     :meth:`send_rows` sends each entity's queued rows, in order, with one
     ``send_columns`` per run of rows made of the same archetypes and components (each
     row stays one row, as ``log`` would make it). ``flush`` and ``disconnect`` send
@@ -137,10 +141,13 @@ class Recording(rr.RecordingStream):
     file of a rotation (:mod:`services.rotation`) with them.
     """
 
-    def __init__(self, app: str, recording_id: str | None = None):
+    def __init__(self, app: str, recording_id: str | None = None, live: bool = False):
         super().__init__(app, recording_id=recording_id)
         self._rows: dict[str, list[tuple[float, tuple[Part, ...]]]] = {}
         self.queued = 0
+        self.live = live
+        self.timeline = LIVE_TIMELINE if live else TIMELINE
+        self._time = "timestamp" if live else "duration"
         self._statics: list[tuple[Any, tuple[Any, ...]]] = []
         self._name: str | None = None
 
@@ -196,7 +203,8 @@ class Recording(rr.RecordingStream):
                     values.extend(v)
                     lengths.append(len(v))
                 columns.extend(archetype.columns(**{name: values}).partition(lengths))
-        self.send_columns(path, indexes=[rr.TimeColumn(TIMELINE, duration=[t for t, _ in rows])], columns=columns)
+        index = rr.TimeColumn(self.timeline, **{self._time: [t for t, _ in rows]})
+        self.send_columns(path, indexes=[index], columns=columns)
 
     def flush(self, **kwargs: Any) -> None:
         self.send_rows()
@@ -267,10 +275,14 @@ class Recorder:
         keys: the deployment's key space.
         reject: where rejected samples are counted (a fresh :class:`RejectLog` if omitted).
         scenario: the scenario, if known: sites are drawn from the start, DF sensors are
-            known in advance, and data beyond its end is rejected as "future".
+            known in advance, and data beyond its end is rejected as "future" (a site,
+            live: no end; sites drawn with their first report).
+        clock_guard: live: the guard that refuses stamps from the future
+            (:class:`services.live.ClockGuard`; :meth:`offer` then takes ``utc``).
     """
 
-    def __init__(self, rec: Recording, keys: KeySpace, reject: RejectLog | None = None, scenario=None):
+    def __init__(self, rec: Recording, keys: KeySpace, reject: RejectLog | None = None, scenario=None,
+                 clock_guard=None):
         self.rec = rec
         self.keys = keys
         self.reject = reject if reject is not None else RejectLog("recorder")
@@ -307,14 +319,17 @@ class Recorder:
         self._jam: dict[str, tuple] = {}
         self._jam_victims: dict[str, set[str]] = {}
         self.geo: recorder_geo.MapLayer | None = None  # the map, where the session has a geodetic origin
+        self.clock_guard = clock_guard  # live: no end, and the scenario (if any) is only its site
+        self.clock_events: list[str] = []
         rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
         if scenario is not None:
             self._from_scenario(scenario)
 
     # -- input ---------------------------------------------------------------------------------
 
-    def offer(self, key: str, data: bytes) -> Message | None:
-        """One sample off the wire. Bad input is counted and dropped; never raises."""
+    def offer(self, key: str, data: bytes, utc: float | None = None) -> Message | None:
+        """One sample off the wire (``utc``: this host's clock, live). Bad input is counted
+        and dropped; never raises."""
         try:
             family, ident = self.keys.family_and_id(key)
         except ValueError as e:
@@ -326,6 +341,11 @@ class Recorder:
         except SchemaError as e:
             self.reject(hint, e.cause, str(e))
             return None
+        if self.clock_guard is not None and utc is not None and msg.kind != "status":
+            rej = self.clock_guard.check(msg.src, msg.t, utc, self.clock_events)
+            if rej is not None:
+                self.reject(hint, rej.cause, rej.detail)
+                return None
         handler, why = self._route(family, ident, msg, hash(data))
         if handler is None:
             self.reject(hint, why[0], why[1])
@@ -469,22 +489,25 @@ class Recorder:
     def _from_scenario(self, sc) -> None:
         from sensors_sim.spec import DF_KINDS
 
-        self.horizon = float(sc.duration) + HORIZON_SLACK_S
+        duration = getattr(sc, "duration", None) if self.clock_guard is None else None  # a site (live): no end
+        if duration is not None:
+            self.horizon = float(duration) + HORIZON_SLACK_S
         association, _ = AssociationConfig.split(sc.tracker)
         if association is not None:
             self.delete_misses = association.delete_misses
         self.df_sensors = {sid for sid, s in sc.sensors.items() if s.kind in DF_KINDS}
-        self.many = many_targets(sc)
+        self.many = many_targets(sc) if hasattr(sc, "targets") else None  # a site: judged from the truth seen
         self.geo = recorder_geo.MapLayer.at(sc.origin, self._log)
         # The scenario's scale, from where its sensors and jammers are during the run (not its targets).
-        times = np.linspace(0.0, float(sc.duration), 9)
-        pts = [site.position(float(t)) for site in [s.site for s in sc.sensors.values()]
-               + [j.site for j in sc.jammers.values()] for t in (times if not site.fixed else [0.0])]
+        times = np.linspace(0.0, float(duration or 0.0), 9)
+        pts = [site.position(float(t)) for site in [s.site for s in sc.sensors.values() if s.site is not None]
+               + [j.site for j in getattr(sc, "jammers", {}).values()] for t in (times if not site.fixed else [0.0])]
         if len(pts) > 1:
             span = max(float(np.linalg.norm(a[:2] - b[:2])) for a in pts for b in pts)
             self.default_ray = draw.clamp_ray(max(DEFAULT_RAY_M, 1.5 * span))
-        for sid, s in sc.sensors.items():
-            self._site(sid, s.site.position(float(s.start)), float(s.start), s.kind)
+        if duration is not None:  # live: drawn with their first report, on the UTC timeline
+            for sid, s in sc.sensors.items():
+                self._site(sid, s.site.position(float(s.start)), float(s.start), s.kind)
         self.rec.send_recording_name(f"{sc.name}")
 
     # -- measurements ------------------------------------------------------------------------------
@@ -836,12 +859,12 @@ def has_display() -> bool:
 
 def open_recording(rrd_path: str, app: str = "zfusion", spawn: bool = False, df: bool = False,
                    port: int = VIEWER_PORT, many: bool = False, geo: bool = False,
-                   recording_id: str | None = None) -> tuple[Recording, bool]:
+                   recording_id: str | None = None, live: bool = False) -> tuple[Recording, bool]:
     """A recording stream writing to ``rrd_path`` and, with ``spawn`` and a display, to a
     Rerun viewer it starts (or one already listening on ``port``). Returns the stream and
-    whether a viewer is attached."""
-    rec = Recording(app, recording_id)
-    bp = blueprint(df, many, geo)
+    whether a viewer is attached. ``live``: on the ``utc`` timestamp timeline."""
+    rec = Recording(app, recording_id, live=live)
+    bp = blueprint(df, many, geo, rec.timeline)
     sinks: list[Any] = [rr.FileSink(rrd_path)]
     live = False
     if spawn and not has_display():
@@ -873,12 +896,14 @@ def _flush(rec: Recording, timeout: float) -> None:
 
 def run(process_id: str, keys: KeySpace, zopts, rrd_path: str, expect: list[str], app: str = "zfusion", *,
         spawn: bool = False, scenario: str | None = None, seed: int | None = None,
-        rotate_s: float | None = None) -> int:
+        rotate_s: float | None = None, live=None, duration: float | None = None) -> int:
+    """``live`` (:class:`services.live.LiveOptions`): a live session; ``scenario`` is then
+    a site (or a scenario taken as its site), optional."""
     sc = None
     if scenario is not None:
-        from .node import load
+        from .node import load, load_site
 
-        sc = load(scenario, seed)
+        sc = load(scenario, seed, duration) if live is None else load_site(scenario)
     from sensors_sim.spec import DF_KINDS
 
     df = sc is not None and bool(sc.sensors) and all(s.kind in DF_KINDS for s in sc.sensors.values())
@@ -887,10 +912,17 @@ def run(process_id: str, keys: KeySpace, zopts, rrd_path: str, expect: list[str]
     with Node(process_id, "recorder", keys, zopts) as node:
         # The file is opened once SIGTERM/SIGINT are handled, so a stop at any time leaves a whole file.
         rotation = Rotation(rrd_path, rotate_s) if rotate_s else None
-        opener = functools.partial(open_recording, app=app, spawn=spawn, df=df, many=sc is not None and many_targets(sc),
-                                   geo=sc is not None)
+        opener = functools.partial(open_recording, app=app, spawn=spawn, df=df,
+                                   many=hasattr(sc, "targets") and many_targets(sc), geo=sc is not None,
+                                   live=live is not None)
         rec, _ = opener(str(rotation.first()) if rotation else rrd_path)
-        recorder = Recorder(rec, keys, node.reject, sc)
+        guard = None
+        if live is not None:
+            from .live import ClockGuard
+
+            guard = ClockGuard(live.max_skew)
+        recorder = Recorder(rec, keys, node.reject, sc, clock_guard=guard)
+        utc = time.time if live is not None else lambda: None
         node.subscribe(keys.all(), inbox)
         # Started mid-session: begin with the fuser's current tracks (none answers at a run's start).
         late_join = picture.Request(node.session, keys, lambda data: inbox.put((keys.fused(), data)))
@@ -903,7 +935,7 @@ def run(process_id: str, keys: KeySpace, zopts, rrd_path: str, expect: list[str]
             except queue.Empty:
                 pass
             else:
-                if recorder.offer(key, data) is not None:
+                if recorder.offer(key, data, utc()) is not None:
                     node.count("recorded")
                 if key == keys.fused():
                     late_join.cancel()  # the fuser's own stream: its picture is coming anyway
@@ -914,6 +946,9 @@ def run(process_id: str, keys: KeySpace, zopts, rrd_path: str, expect: list[str]
                     rec = new
                     recorder.reopen(rec, at)
             late_join.poll()
+                for ev in recorder.clock_events:
+                    node.event(ev)
+                recorder.clock_events.clear()
             if rec.queued >= SEND_ROWS_MAX or time.monotonic() - last_send >= SEND_PERIOD_S:
                 rec.send_rows()
                 last_send = time.monotonic()

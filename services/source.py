@@ -11,10 +11,17 @@ evaluation draws.
 
 Sources wait until the consumers named by ``wait_for`` have announced themselves (their
 subscribers are declared), so nothing is published into the void.
+
+Live emulation (``live``): the same streams on the UTC time base, for a live session's
+consumers: every ``t`` on the wire is ``start_at + t`` (UTC POSIX seconds; scenario
+time 0 is ``start_at``), paced at ``speed`` 1. A sensor with ``latency_s`` (an emulated
+slow link) publishes each scan, and the watermark after it, that long after the scan's
+time of validity: its watermarks never claim a time whose data has not been sent.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from typing import Iterator
@@ -25,12 +32,17 @@ from .node import Node, load
 
 
 class Pacer:
-    """Sleeps until scenario time ``t`` is due; ``speed = inf`` never sleeps."""
+    """Sleeps until scenario time ``t`` is due; ``speed = inf`` never sleeps. ``stamp``
+    maps scenario time to the wire's time base (UTC in live emulation)."""
 
-    def __init__(self, node: Node, start_at: float, speed: float):
+    def __init__(self, node: Node, start_at: float, speed: float, live: bool = False):
         self.node = node
         self.start_at = start_at
         self.speed = speed
+        self.offset = start_at if live else 0.0
+
+    def stamp(self, t: float) -> float:
+        return self.offset + t
 
     def wait(self, t: float) -> bool:
         """Returns False if the process was asked to stop meanwhile."""
@@ -46,8 +58,8 @@ class Pacer:
 
 def run(process_id: str, scenario_ref: str, keys: KeySpace, zopts, speed: float, start_at: float | None,
         wait_for: list[str], run_index: int = 0, wait_timeout: float = 60.0,
-        seed: int | None = None) -> int:
-    scenario = load(scenario_ref, seed)
+        seed: int | None = None, live: bool = False, duration: float | None = None) -> int:
+    scenario = load(scenario_ref, seed, duration)
     if process_id == "truth":
         role = "truth"
     elif process_id in scenario.sensors:
@@ -66,10 +78,10 @@ def run(process_id: str, scenario_ref: str, keys: KeySpace, zopts, speed: float,
             node.event(str(e))
             node.publish_status("stopped")
             return 2
-        pacer = Pacer(node, start_at if start_at is not None else time.time(), speed)
+        pacer = Pacer(node, start_at if start_at is not None else time.time(), 1.0 if live else speed, live)
         play = {"sensor": _play_sensor, "truth": _play_truth, "jammer": _play_jammer}[role]
         t_last = play(node, scenario, pacer, run_index)
-        node.publish_status("done" if not node.stop.is_set() else "stopped", t_last)
+        node.publish_status("done" if not node.stop.is_set() else "stopped", pacer.stamp(t_last))
     return 0
 
 
@@ -96,18 +108,21 @@ def _play_sensor(node: Node, scenario, pacer: Pacer, run_index: int) -> float:
         # Watermarks have their own counter: ``seq`` of measurements counts measurements.
         meas_pub.put(encode("watermark", node.id, wm_seq, t, final=final))
 
+    latency = scenario.sensor(node.id).latency
     events = sensor_events(scenario, node.id, run=run_index)
     ev = next(events, None)
     t_last: float | None = None
     while ev is not None:
-        if not pacer.wait(ev.t):
+        if not pacer.wait(ev.t + latency):  # a slow link: the scan goes out latency_s late
             return ev.t
         node.count("scans")
         node.count("jammed", int(ev.jammed))
         node.count("outliers", int(ev.outlier))
         node.count("missed", int(ev.measurement is None))
         if ev.measurement is not None:
-            meas_pub.put(encode_measurement(ev.measurement, node.id))
+            m = ev.measurement
+            meas_pub.put(encode_measurement(dataclasses.replace(m, t=pacer.stamp(m.t)) if pacer.offset else m,
+                                            node.id))
             node.count("published")
         t_last, ev = ev.t, next(events, None)
         if ev is not None and ev.t > t_last:
@@ -115,10 +130,11 @@ def _play_sensor(node: Node, scenario, pacer: Pacer, run_index: int) -> float:
             # sensor can promise "nothing up to just before my next scan" (a watermark
             # still means "everything up to and including t has been sent"). Consumers
             # then wait for no sensor's next scan, only for the data itself.
-            watermark(math.nextafter(ev.t, -math.inf), False)
+            # (Taken on the wire's time base: one ulp of scenario time is nothing in UTC.)
+            watermark(math.nextafter(pacer.stamp(ev.t), -math.inf), False)
         next(status)
     t_end = max(t_last if t_last is not None else 0.0, scenario.duration)
-    watermark(t_end, True)
+    watermark(pacer.stamp(t_end), True)
     return t_end
 
 
@@ -135,7 +151,7 @@ def _play_truth(node: Node, scenario, pacer: Pacer, run_index: int) -> float:
         if s.target not in pubs:
             pubs[s.target] = node.publisher(node.keys.truth(s.target), reliable=False)
         seq += 1
-        pubs[s.target].put(encode("truth", node.id, seq, s.t, target=s.target, x=s.x))
+        pubs[s.target].put(encode("truth", node.id, seq, pacer.stamp(s.t), target=s.target, x=s.x))
         node.count("published")
         t = s.t
         next(status)
@@ -153,7 +169,7 @@ def _play_jammer(node: Node, scenario, pacer: Pacer, run_index: int) -> float:
         if not pacer.wait(js.t):
             return js.t
         seq += 1
-        pub.put(encode("jam_state", node.id, seq, js.t, pos=js.pos, on=bool(js.on), mode=js.mode,
+        pub.put(encode("jam_state", node.id, seq, pacer.stamp(js.t), pos=js.pos, on=bool(js.on), mode=js.mode,
                        power=float(js.power), law=js.law, affects=list(js.affects)))
         node.count("published")
         t = js.t

@@ -212,6 +212,32 @@ def tracks_summary(scores: Sequence) -> dict:
     }
 
 
+def scenario_times(estimates: Sequence[Estimate], epoch: float) -> list[Estimate]:
+    """A live run's fused estimates (UTC ``t``) on scenario time (``t − epoch``), the
+    latest of each ``(node, track, t)`` only: after a re-filtering the fuser re-publishes
+    corrected estimates of times it has published already (docs/live.md)."""
+    import dataclasses
+
+    latest: dict[tuple, Estimate] = {}
+    for e in estimates:
+        latest.pop((e.node, e.track, e.t), None)
+        latest[(e.node, e.track, e.t)] = e
+    return sorted((dataclasses.replace(e, t=e.t - epoch) for e in latest.values()), key=lambda e: e.t)
+
+
+def on_time_base(method: dict, epoch: float) -> dict:
+    """A method summary scored on scenario time, with its times moved to the UTC base."""
+    out = dict(method)
+    series = dict(out.get("series", {}))
+    series["t"] = [epoch + t for t in series.get("t", [])]
+    out["series"] = series
+    if out.get("final", {}).get("t") is not None:
+        out["final"] = {**out["final"], "t": epoch + out["final"]["t"]}
+    if "second_half" in out:
+        out["second_half"] = {**out["second_half"], "from_t": epoch + out["second_half"]["from_t"]}
+    return out
+
+
 def summary(scenario, topology: str, fusion_rule: str | None, seed: int, runs: int,
             methods: dict[str, dict], sources: dict | None = None, crb: dict | None = None) -> dict:
     return {

@@ -30,7 +30,8 @@ from schemas import KeySpace, SchemaError, decode, encode, tracker_id
 from schemas.links import downlink, encode_uplink
 
 from .fuser import FuserCore, MeasurementIntake
-from .node import Inbox, Node, load
+from .live import LiveOptions
+from .node import Inbox, Node, load, load_site
 
 
 class _Feed:
@@ -57,10 +58,14 @@ class _Feed:
 
 
 def run(sensor: str, scenario_ref: str, method_name: str, overrides: dict, keys: KeySpace, zopts,
-        fuser_id: str, feedback_timeout: float, start_grace: float, seed: int | None = None) -> int:
-    scenario = load(scenario_ref, seed)
+        fuser_id: str, feedback_timeout: float, start_grace: float, seed: int | None = None,
+        live: LiveOptions | None = None, duration: float | None = None) -> int:
+    """A scenario run's tracker, or (``live`` given, ``scenario_ref`` a site) a live
+    session's: UTC time, no end, stamps from the future refused. Its one sensor is in
+    order by itself, so it has no bounded wait and no out-of-sequence data."""
+    scenario = load(scenario_ref, seed, duration) if live is None else load_site(scenario_ref)
     if sensor not in scenario.sensors:
-        raise SystemExit(f"zfusion tracker: {sensor!r} is not a sensor of scenario {scenario.name} "
+        raise SystemExit(f"zfusion tracker: {sensor!r} is not a sensor of {scenario.name} "
                          f"(sensors: {', '.join(scenario.sensors)})")
     me = tracker_id(sensor)
     config = method_config(scenario.tracker, method_name, overrides)
@@ -72,7 +77,10 @@ def run(sensor: str, scenario_ref: str, method_name: str, overrides: dict, keys:
         # Its one sensor is never declared dead here: the tracker waits for it to come back
         # (the fuser, meanwhile, declares this tracker dead and carries on without it).
         core = FuserCore(feed, [sensor], keys, node.reject, math.inf, start_grace,
-                         horizon=scenario.duration + 1.0, now=time.monotonic(), intake=MeasurementIntake(scenario.sensors))
+                         horizon=scenario.duration + 1.0 if live is None else math.inf, now=time.monotonic(),
+                         intake=MeasurementIntake(scenario.sensors), live=live, refilter=False,
+                         periods={sensor: scenario.sensor(sensor).period})
+        utc = time.time if live is not None else lambda: None
         node.subscribe(keys.meas(sensor), inbox)
         node.subscribe(keys.feedback(me), inbox)
         pub = node.publisher(keys.local(me))
@@ -137,7 +145,7 @@ def run(sensor: str, scenario_ref: str, method_name: str, overrides: dict, keys:
                     if key == down_key:
                         on_downlink(data)
                     else:
-                        core.offer(key, data, time.monotonic())
+                        core.offer(key, data, time.monotonic(), utc())
                     key, data = inbox.get_nowait()
             except queue.Empty:
                 pass
