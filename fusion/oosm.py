@@ -25,8 +25,10 @@ buffer length: a checkpoint is dropped once a later one is older than ``t_now �
 so an OOSM with ``τ > t_now − W`` can always be applied, and anything older is
 *stale* (refused by the caller, which knows the bound from :attr:`oldest`).
 
-What the caller publishes: the replay's estimates for the latest output time (the
-corrected current picture), never the corrected history.
+What the caller publishes: the replay's estimates, in time order, from the late
+data's time to the latest output time: the corrected history of the last ``t_now − τ``
+seconds, ending with the corrected current picture. A consumer that keeps the latest
+estimate per ``(track, t)`` then holds what an in-order run would have given.
 """
 
 from __future__ import annotations
@@ -97,7 +99,8 @@ class Refiltering:
 
     def insert(self, late: list, t: float | None = None) -> list:
         """Apply measurements whose times were already released (each after
-        :attr:`oldest`); returns the corrected estimates of the latest output time."""
+        :attr:`oldest`); returns the replay's estimates, in time order: the corrected
+        history from the late data's time on, ending with the current picture."""
         if not late:
             return []
         t_now = self.t if t is None else max(self.t, t)
@@ -124,10 +127,7 @@ class Refiltering:
         if self._checkpoints[-1].t < t_now:
             self._checkpoints.append(_Checkpoint(t_now, self._copy(self.method)))
         self._prune()
-        if not out:
-            return []
-        latest = max(e.t for e in out)
-        return [e for e in out if e.t == latest]
+        return out
 
     def _replay(self, entries: list, t: float) -> list:
         out: list = []

@@ -79,6 +79,7 @@ RESTART_DELAY = 0.5  # s: lets the fabric see the dead process's token go before
 MAX_RESTARTS = 3  # per process: a process killed again and again is not coming back
 END_GRACE = 10.0  # s after the last source ends, when no fuser is left to say it is done
 EXPORTERS = {"geojson": ("export-geojson", "--file"), "cot": ("export-cot", "--to")}  # run flag -> child id, its option
+LIVE_LEAD = 8.0  # s from starting the sources of a live run to its scenario time 0 (their start-up)
 
 
 def free_port() -> int:
@@ -328,6 +329,7 @@ def run(args) -> int:
                          f"({', '.join(TRACK_FUSION_METHODS)}), not to {method}")
     overrides = _overrides(args)
     _check_overrides(scenario, [method], overrides, "run")  # fail here, with a clear error, not in a child
+    make_method(method, method_config(scenario.tracker, method, overrides))
     tracker_args = [a for k, v in getattr(args, "settings", []) for a in ("--set", f"{k}={json.dumps(v)}")]
     speed = math.inf if args.speed == "max" else float(args.speed)
     if not speed > 0:
@@ -421,7 +423,8 @@ def run(args) -> int:
                                          ["--fusion-rule", args.fusion_rule] if args.fusion_rule else []), *common])
             node.wait_for(trackers.values(), timeout=60.0, gone=lambda: children.exited(trackers.values()))
             sup.restartable = {FUSER_ID, RECORDER_ID, *trackers.values(), *exporters}
-            start_at = time.time() + (0.0 if math.isinf(speed) else 0.5)
+            # live: scenario time 0 a little ahead, so that the sources' first scans are not late
+            start_at = time.time() + (0.0 if math.isinf(speed) else LIVE_LEAD if live else 0.5)
             started.append(start_at)
             for sid in sources:
                 # A source waits only for its consumers: the fuser may finish (and vanish)

@@ -39,7 +39,8 @@ front is at least that watermark, whatever the laggards have said. With ``oosm_w
 not rejected: it is held apart as an *out-of-sequence* measurement (counted ``oosm``
 per source), which :meth:`WatermarkMerger.take_oosm` hands to the estimator to
 re-filter (:mod:`fusion.oosm`). A source's duplicates of such data are recognised by
-``seq`` until its own watermark passes them.
+``seq`` until its own watermark passes them (or they leave the window); at most
+``max_held`` of them per source, beyond which they are shed.
 
 Duplicates are recognised by ``seq`` among the measurements still held, not by a
 high-water mark of ``seq``: a forged message with a huge ``seq`` must not make every later
@@ -202,6 +203,9 @@ class WatermarkMerger:
                 st.stale += 1
                 return Rejection(src, "stale", f"t = {t:g} s is more than {self.oosm_window:g} s before the "
                                  f"released time {self.released_until:g} s (the re-filtering window)")
+            if len(st.oosm_seqs) >= self.max_held:  # a flood of "late" data: bounded like held data
+                self.shed += 1
+                return Rejection(src, "shed", f"holds {self.max_held} out-of-sequence measurements; t = {t:g} s dropped")
             st.oosm += 1
             st.oosm_seqs[seq] = t
             self._oosm.append((t, src, seq, item))
@@ -310,6 +314,11 @@ class WatermarkMerger:
             wm = max([self.released_until] + [st.watermark for st in self.sources.values()])
         if wm > self.released_until:
             self.released_until = wm
+            if self.oosm_window > 0:  # older than the window: stale by time, no need to remember
+                old = self.released_until - self.oosm_window
+                for st in self.sources.values():
+                    if st.oosm_seqs:
+                        st.oosm_seqs = {q: tq for q, tq in st.oosm_seqs.items() if tq > old}
         return out, self.released_until
 
     def held(self) -> int:

@@ -945,10 +945,10 @@ def run(process_id: str, keys: KeySpace, zopts, rrd_path: str, expect: list[str]
                     rec.hand_over(new, at)
                     rec = new
                     recorder.reopen(rec, at)
-            late_join.poll()
                 for ev in recorder.clock_events:
                     node.event(ev)
                 recorder.clock_events.clear()
+            late_join.poll()
             if rec.queued >= SEND_ROWS_MAX or time.monotonic() - last_send >= SEND_PERIOD_S:
                 rec.send_rows()
                 last_send = time.monotonic()

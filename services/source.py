@@ -16,7 +16,9 @@ Live emulation (``live``): the same streams on the UTC time base, for a live ses
 consumers: every ``t`` on the wire is ``start_at + t`` (UTC POSIX seconds; scenario
 time 0 is ``start_at``), paced at ``speed`` 1. A sensor with ``latency_s`` (an emulated
 slow link) publishes each scan, and the watermark after it, that long after the scan's
-time of validity: its watermarks never claim a time whose data has not been sent.
+time of validity: its watermarks never claim a time whose data has not been sent. A
+live emulator that is stopped marks its latest watermark final (its stream has ended,
+it is not a sensor gone silent).
 """
 
 from __future__ import annotations
@@ -102,11 +104,14 @@ def _play_sensor(node: Node, scenario, pacer: Pacer, run_index: int) -> float:
     wm_seq = 0
     status = _status_every(node)
 
+    sent = [-math.inf]  # the latest watermark, on the wire's time base
+
     def watermark(t: float, final: bool) -> None:
         nonlocal wm_seq
         wm_seq += 1
         # Watermarks have their own counter: ``seq`` of measurements counts measurements.
         meas_pub.put(encode("watermark", node.id, wm_seq, t, final=final))
+        sent[0] = t
 
     latency = scenario.sensor(node.id).latency
     events = sensor_events(scenario, node.id, run=run_index)
@@ -114,6 +119,8 @@ def _play_sensor(node: Node, scenario, pacer: Pacer, run_index: int) -> float:
     t_last: float | None = None
     while ev is not None:
         if not pacer.wait(ev.t + latency):  # a slow link: the scan goes out latency_s late
+            if pacer.offset and math.isfinite(sent[0]):  # live: a stopped emulator's stream ends here
+                watermark(sent[0], True)
             return ev.t
         node.count("scans")
         node.count("jammed", int(ev.jammed))

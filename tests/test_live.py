@@ -199,11 +199,11 @@ def _late_stream(scenario, late_sensor: str, delay_scans: int):
         yield on_time[t], t, (late[back] if back is not None else [])
 
 
-def _in_order(sc, method: str, received: list, t: float):
+def _in_order(sc, method: str, received: list) -> dict:
     """The in-order result: the method run on what was received, sorted, as if nothing
-    had been late; its centre estimate at ``t``."""
+    had been late; its (last) centre estimate at each time."""
     out = run_method(sc, method, measurements=sorted(received, key=lambda m: m.order_key))
-    return [e for e in out if e.node == "centre" and e.t == t][-1]
+    return {e.t: e for e in out if e.node == "centre"}
 
 
 @pytest.mark.parametrize("scenario_name, method, late_sensor", [
@@ -220,11 +220,12 @@ def test_refiltering_gives_the_in_order_estimate(scenario_name, method, late_sen
     for batch, t, late in _late_stream(sc, late_sensor, delay_scans=2):
         received += late
         fixed = [e for e in rf.insert(late) if e.node == "centre"]
-        if fixed:
-            assert fixed[-1].t >= max(m.t for m in late)
-            ref = _in_order(sc, method, received, fixed[-1].t)
-            np.testing.assert_allclose(fixed[-1].x, ref.x, rtol=0, atol=1e-9)
-            np.testing.assert_allclose(fixed[-1].P, ref.P, rtol=0, atol=1e-9 * max(1.0, np.abs(ref.P).max()))
+        if fixed:  # the corrected history, from the late data's time to the current picture
+            assert fixed[-1].t >= max(m.t for m in late) and fixed == sorted(fixed, key=lambda e: e.t)
+            ref = _in_order(sc, method, received)
+            for e in fixed:
+                np.testing.assert_allclose(e.x, ref[e.t].x, rtol=0, atol=1e-9)
+                np.testing.assert_allclose(e.P, ref[e.t].P, rtol=0, atol=1e-9 * max(1.0, np.abs(ref[e.t].P).max()))
             republished += 1
         received += batch
         rf.step(batch, t)
@@ -302,5 +303,5 @@ def test_live_core_applies_late_data_and_refuses_the_future():
     # each corrected estimate is the in-order result of what had been received by then
     assert len(fixed) >= 20
     for e, received in fixed[::5]:
-        ref = _in_order(sc, "SS", received, round(e.t - EPOCH))
+        ref = _in_order(sc, "SS", received)[round(e.t - EPOCH)]
         np.testing.assert_allclose(e.x, ref.x, rtol=0, atol=1e-6)  # UTC stamps: t is ~1e9 here

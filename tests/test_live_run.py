@@ -92,9 +92,9 @@ def _timelines(path: Path) -> dict[str, str]:
 @pytest.mark.parametrize("argv, says", [
     (["run", "--scenario", "patent-3d", "--live", "--speed", "max"], "zfusion run: --live runs in real time"),
     (["run", "--scenario", "patent-3d", "--for", "5"], "zfusion run: --for is for live runs"),
-    (["run", "--scenario", "patent-3d", "--set", "foo=1"], "zfusion run: --set: unknown tracker config key 'foo'"),
+    (["run", "--scenario", "patent-3d", "--set", "foo=1"], "zfusion run: unknown tracker config key 'foo'"),
     (["eval", "--scenario", "patent-3d", "--runs", "1", "--methods", "SS", "--set", "q='high'"],
-     "zfusion eval: --set: tracker config 'q' must be a finite number"),
+     "zfusion eval: tracker config 'q' must be a finite number"),
     (["fuser", "--site", "no-such-site.toml"], "zfusion fuser: no-such-site.toml: cannot read"),
     (["fuser", "--site", "patent-3d", "--max-delay", "-1"], "--max-delay: expected a non-negative number"),
 ])
