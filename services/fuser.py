@@ -42,11 +42,10 @@ from typing import Any, Mapping
 
 from fusion.methods import METHODS, make_method, method_config, split
 from fusion.network import TrackCentre
+from fusion.oosm import Refiltering
 from fusion.types import Estimate
 from schemas import MEASUREMENT_KINDS, KeySpace, Message, SchemaError, decode, encode_estimate, to_measurement, tracker_id
 from schemas.links import encode_downlink, horizon_message, uplink
-
-from fusion.oosm import Refiltering
 
 from .live import ClockGuard, LiveOptions
 from .node import Inbox, Node, RejectLog, load, load_site
@@ -312,7 +311,7 @@ def run(process_id: str, scenario_ref: str, method_name: str, overrides: dict, k
         inbox = Inbox(node.stop)
         if isinstance(method, TrackCentre):
             method = JoinGate(method, node.reject)
-        feedback = method_name in SPLITS and SPLITS[method_name].topology in ("feedback", "two-stage")
+        feedback = METHODS[method_name].topology in ("feedback", "two-stage")  # its centre's feedback is final
         core = FuserCore(method, sources, keys, node.reject, timeout, start_grace,
                          horizon=scenario.duration + 1.0 if live is None else math.inf, now=time.monotonic(),
                          intake=intake, max_held=max_held_for(scenario, None if live is None else timeout),

@@ -10,8 +10,7 @@ import textwrap
 import numpy as np
 import pytest
 
-from fusion.config import method_config
-from fusion.methods import make_method
+from fusion.methods import make_method, method_config
 from fusion.oosm import Refiltering
 from schemas import KeySpace, encode, encode_measurement
 from sensors_sim import Scenario, ScenarioError, SiteSpec, load_scenario, load_site
