@@ -24,6 +24,11 @@ waits for no t = 0 data; a source not heard within ``--start-grace`` is declared
   at the cost of one initialisation transient. Until a node has been answered, its
   reports (sent before it noticed the restart) are dropped and counted as ``not-joined``.
 
+**Live** (``--site``, docs/live.md): time is UTC and nothing ends; stamps from the
+future are refused (:class:`services.live.ClockGuard`), a lagging source is waited for
+at most ``--max-delay`` seconds, and what it then sends for released times is applied
+by re-filtering (:class:`fusion.oosm.Refiltering`), the corrected estimates re-published.
+
 The fuser says in its status events where it joined. It finishes when every source is
 final or dead *and at least one is final*: sources that are all dead at once (a
 network outage, a router restart) are not the end of the scenario.
