@@ -449,16 +449,16 @@ def _jsonl(node: Node, gateway: Gateway, source: tuple[str, tuple[str, int] | No
             try:
                 item = inbox.get(timeout=0.2)
             except queue.Empty:
-                item = ()
+                outlet.tick(time.time())
+                continue
             if item is None:  # end of stdin: promise what was sent, and finish
                 outlet.put(gateway.flush())
                 state = "done"
                 break
-            if item != ():
-                if isinstance(item, bytes):
-                    counts["lines"] += 1
-                    item = reading(item, args.id)
-                outlet.offer(item, time.time())
+            if isinstance(item, bytes):
+                counts["lines"] += 1
+                item = reading(item, args.id)
+            outlet.offer(item, time.time())
             outlet.tick(time.time())
         outlet.status(state, force=True)
     finally:
