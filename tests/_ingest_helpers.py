@@ -127,21 +127,13 @@ def kraken_json(t: float, bearing_deg: float, heading: float = 90.0, lat: float 
                        "freq": 433920000, "antType": "UCA", "latency": 100}).encode()
 
 
-def site_toml(sensors: dict[str, dict], emitter_m=(5000.0, 8000.0), origin=(21.0285, 105.8542, 0.0),
-              sigma_deg: float = 1.0) -> str:
-    """A site file (in the scenario format, which every site reader accepts) with DF
-    stations ``{id: {"pos_m": [...]}}`` (or ``{}``: the site is in the messages)."""
-    lines = ['description = "ingest test site"', "seed = 1", "duration_s = 3600.0", "",
-             "[origin]", f"lat_deg = {origin[0]}", f"lon_deg = {origin[1]}", f"alt_m = {origin[2]}", "",
-             "[defaults]", 'topology = "centralised"', 'method = "EKF"', "",
-             "[tracker]", f"sigma = {math.radians(sigma_deg)!r}", "",
-             "[targets.E1]", f"pos_m = [{emitter_m[0]}, {emitter_m[1]}]", 'segments = [{ type = "static" }]', ""]
+def site_toml(sensors: dict[str, dict], origin=(21.0285, 105.8542, 0.0), sigma_deg: float = 1.0) -> str:
+    """A site file with DF stations ``{id: {"pos_m": [...]}}``, or ``{id: {}}``: a mobile
+    station whose site is in its messages."""
+    lines = ['description = "ingest test site"', "", "[origin]", f"lat_deg = {origin[0]}",
+             f"lon_deg = {origin[1]}", f"alt_m = {origin[2]}", "", "[defaults]", 'topology = "centralised"',
+             'method = "EKF"', "", "[tracker]", f"sigma = {math.radians(sigma_deg)!r}", ""]
     for sid, spec in sensors.items():
-        kind = "df" if "pos_m" in spec else "airborne_df"
-        lines += [f"[sensors.{sid}]", f'kind = "{kind}"', "period_s = 1.0", f"std_az_deg = {sigma_deg}"]
-        if "pos_m" in spec:
-            lines.append(f"pos_m = {list(spec['pos_m'])}")
-        else:  # a mobile station: its site is in the messages
-            lines += ["path_m = [[90000.0, 90000.0, 0.0], [91000.0, 90000.0, 0.0]]", "path_t_s = [0.0, 3600.0]"]
-        lines.append("")
+        lines += [f"[sensors.{sid}]", 'kind = "df"', "period_s = 1.0", f"std_az_deg = {sigma_deg}",
+                  f"pos_m = {list(spec['pos_m'])}" if "pos_m" in spec else 'site = "messages"', ""]
     return "\n".join(lines)

@@ -85,6 +85,11 @@ class Session:
         dead = {n: p.stderr.read()[-2000:] for n, p in self.procs.items() if p.poll() is not None}
         assert ok and not dead, dead
 
+    def report(self) -> dict:
+        """What each process says (for a failing assertion's message)."""
+        return {src: (len(self.cap.of("bearing", src)), self.cap.status(src).get("counters"),
+                      self.cap.status(src).get("sources")) for src in [*self.procs, "fuser"]}
+
     def __exit__(self, *exc):
         errs = {}
         for p in self.procs.values():
@@ -149,7 +154,8 @@ def test_three_polled_stations_fix_the_emitter_within_3_crb(deployment, tmp_path
                 srv.docs[f"/{sid}{page}"] = make[encoding](t, noisy(rng, sid), heading)
 
         feed(FRAMES, publish)
-        assert s.cap.wait(lambda: len(s.cap.of("bearing")) >= 3 * FRAMES - 3, timeout=20)
+        # The first frames may go by while a gateway backs off from the 404 page before them.
+        assert s.cap.wait(lambda: len(s.cap.of("bearing")) >= 3 * (FRAMES - 4), timeout=20), s.report()
         time.sleep(4.0)  # heartbeat lag + the fuser's bounded wait
         result = check_fix(s.cap)
     assert result["bearings"] >= 3 * (FRAMES - 4)
@@ -176,7 +182,7 @@ def test_three_posting_stations_fix_the_emitter_within_3_crb(deployment, tmp_pat
                 post(sid, kraken_json(t, noisy(rng, sid), heading=heading))
 
         feed(FRAMES, publish)
-        assert s.cap.wait(lambda: len(s.cap.of("bearing")) == 3 * FRAMES, timeout=20)
+        assert s.cap.wait(lambda: len(s.cap.of("bearing")) == 3 * FRAMES, timeout=20), s.report()
         time.sleep(4.0)
         check_fix(s.cap)
 
@@ -205,7 +211,7 @@ def test_a_mobile_station_moves_and_turns_in_its_messages(deployment, tmp_path):
             sent.append((round(t * 1000) / 1000, FRAME.to_enu(float(lat), float(lon), ORIGIN[2]), b % 360))
 
         feed(FRAMES, publish)
-        assert s.cap.wait(lambda: len(s.cap.of("bearing", "m1")) >= FRAMES - 2, timeout=20)
+        assert s.cap.wait(lambda: len(s.cap.of("bearing", "m1")) >= FRAMES - 2, timeout=20), s.report()
         time.sleep(4.0)
         check_fix(s.cap)
     got = {m.t: m for m in map(to_measurement, s.cap.of("bearing", "m1"))}
@@ -259,7 +265,10 @@ def test_jsonl_radar_and_angle_sensor_give_the_in_process_track(deployment):
         for th in threads:
             th.join()
         for g in gws.values():
-            g.stdin.close()
+            g.stdin.close()  # the end of the input: each gateway promises what it sent, and exits 0
+            g.stdin = None
+        for g in gws.values():
+            assert g.wait(timeout=30) == 0
         last = t0 + n_scans - 1
         assert s.cap.wait(lambda: any(to_estimate(m).t >= last for m in s.cap.of("track", "fuser")), timeout=30)
     published = sorted((to_measurement(m) for m in s.cap.of("range_az") + s.cap.of("azel")),

@@ -216,7 +216,9 @@ def sensor_sites(site, ids: list[str]) -> dict[str, SensorSite]:
         if spec is None:
             raise ValueError(f"sensor {sid!r} is not in the site file (it has "
                              f"{', '.join(site.sensors) or 'no sensors'}); add [sensors.{sid}]")
-        pos = spec.site.points[0].copy() if getattr(spec, "site", None) is not None and spec.site.fixed else None
+        # A site file's mobile station (site = "messages") has none; a scenario's flight path is
+        # taken as mobile too: the messages say where it is.
+        pos = spec.site.points[0].copy() if spec.site is not None and spec.site.fixed else None
         out[sid] = SensorSite(sid, spec.measurement_kind, np.asarray(spec.std, dtype=float), pos)
     return out
 

@@ -144,11 +144,10 @@ def _gateway(node: Node, args, frame, sensors) -> Gateway:
 
 def load_site(path: str):
     """The site file (any scenario file is a site too)."""
-    from sensors_sim import load_scenario
-    from sensors_sim.spec import ScenarioError
+    from sensors_sim import ScenarioError, load_site
 
     try:
-        return load_scenario(path)
+        return load_site(path)
     except (ScenarioError, OSError, ValueError) as e:
         raise UsageError(f"cannot read the site file: {e}") from None
 
