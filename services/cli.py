@@ -294,11 +294,8 @@ def build_parser() -> argparse.ArgumentParser:
             q.add_argument("--type-track", default=TYPE_TRACK, help="CoT type of a 3D track (default: %(default)s)")
             q.add_argument("--type-sensor", help="CoT type of every sensor (default: by kind, a-f-G-E-S, "
                                                  "a-f-G-E-S-R for radars, a-f-A airborne)")
-        where = q.add_mutually_exclusive_group(required=True)
-        where.add_argument("--site", metavar="FILE", help="the site (or scenario) file: origin and sensors")
-        where.add_argument("--scenario", help="a built-in scenario name or file")
+        _site_or_scenario(q)  # --site: a live session, times in UTC; --scenario: scenario seconds
         q.add_argument("--id", default=f"export-{name}", help="process id (default: %(default)s)")
-        q.add_argument("--live", action="store_true", help="times are UTC (a live session), not scenario seconds")
         _fabric(q)
     return ap
 
@@ -376,11 +373,12 @@ def _export(args, keys: KeySpace) -> int:
     from sensors_sim.spec import ScenarioError
 
     from .export import cot, process
-    from .node import load
+    from .node import load, load_site
 
     command = f"zfusion export {args.exporter}"
+    live = args.site is not None
     try:
-        site = load(args.site or args.scenario)
+        site = load_site(args.site) if live else load(args.scenario)
     except ScenarioError as e:
         print(f"{command}: {e}; give a site or scenario file", file=sys.stderr)
         return 2
@@ -389,8 +387,8 @@ def _export(args, keys: KeySpace) -> int:
         if not path.parent.is_dir():
             print(f"{command}: --file {args.file}: no such directory {path.parent}, create it first", file=sys.stderr)
             return 2
-        return process.run(args.id, keys, _zopts(args), site, lambda: process.GeoJSONSink(path, site, args.live),
-                           live=args.live)
+        return process.run(args.id, keys, _zopts(args), site, lambda: process.GeoJSONSink(path, site, live),
+                           live=live, max_skew=args.max_skew)
     try:
         cot.parse_url(args.to)
     except ValueError as e:
@@ -402,7 +400,7 @@ def _export(args, keys: KeySpace) -> int:
     types = cot.Types(track=args.type_track, emitter=args.type_emitter, sensor=args.type_sensor)
     return process.run(args.id, keys, _zopts(args), site,
                        lambda: process.CoTSink(cot.sender_for(args.to), site, args.deployment, types, args.stale_s,
-                                               args.live), live=args.live)
+                                               live), live=live, max_skew=args.max_skew)
 
 
 def _scenario_of(args):

@@ -303,8 +303,8 @@ def exporter_argv(args) -> dict[str, list[str]]:
         else:
             value = str(Path(value).resolve())
             Path(value).parent.mkdir(parents=True, exist_ok=True)
-        out[name] = ["export", flag, option, value, "--scenario", args.scenario, "--id", name,
-                     *(["--live"] if getattr(args, "live", False) else [])]
+        live = getattr(args, "live", False)  # a live session: the scenario is the site, times are UTC
+        out[name] = ["export", flag, option, value, "--site" if live else "--scenario", args.scenario, "--id", name]
     return out
 
 

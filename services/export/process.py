@@ -25,7 +25,7 @@ from ..geo import frame_of
 from ..node import ListenerInbox, Node, ZenohOptions
 from ..picture import Request
 from . import cot, geojson
-from .tracks import TrackTable, sensor_sites
+from .tracks import MAX_SKEW_S, TrackTable, sensor_sites
 
 log = logging.getLogger("zfusion")
 
@@ -116,10 +116,11 @@ class CoTSink(Sink):
         self.sender.close()
 
 
-def run(process_id: str, keys: KeySpace, zopts: ZenohOptions, site, make_sink, live: bool = False) -> int:
+def run(process_id: str, keys: KeySpace, zopts: ZenohOptions, site, make_sink, live: bool = False,
+        max_skew: float = MAX_SKEW_S) -> int:
     """Run until SIGINT/SIGTERM. ``site`` is the loaded site or scenario; ``make_sink()``
     builds the sink once the process has its session (so a bad sink is an error at start);
-    ``live``: a session on UTC time (no end; data may lead the clock by ``MAX_SKEW_S``)."""
+    ``live``: a session on UTC time (no end; data may lead the clock by ``max_skew`` s)."""
     duration = None if live else getattr(site, "duration", None)
     association, _ = AssociationConfig.split(getattr(site, "tracker", {}) or {})
     inbox = ListenerInbox(BACKLOG_MAX)
@@ -127,7 +128,7 @@ def run(process_id: str, keys: KeySpace, zopts: ZenohOptions, site, make_sink, l
     with Node(process_id, "exporter", keys, zopts) as node:
         table = TrackTable(keys, node.reject, duration,
                            association.delete_misses if association is not None else AssociationConfig.delete_misses,
-                           clock=time.time if live else None)
+                           clock=time.time if live else None, max_skew=max_skew)
         sink = make_sink()
         try:
             node.subscribe(keys.fused(), inbox)

@@ -117,5 +117,7 @@ def session_time(t: float, live: bool) -> float | str:
 
 
 def sensor_sites(scenario) -> dict[str, tuple[str, np.ndarray]]:
-    """Sensor id -> (kind, ENU position) of a site or scenario (a moving site: where it starts)."""
-    return {sid: (s.kind, s.site.position(float(s.start))) for sid, s in scenario.sensors.items()}
+    """Sensor id -> (kind, ENU position) of a site or scenario (a moving site: where it
+    starts; a mobile station whose position comes with its measurements: left out)."""
+    return {sid: (s.kind, s.site.position(float(s.start))) for sid, s in scenario.sensors.items()
+            if s.site is not None}
