@@ -193,6 +193,13 @@ class FuserCore:
         """The estimator now (a re-filtering replaces it with a restored copy)."""
         return self.refilter.method if self.refilter is not None else self._method
 
+    @method.setter
+    def method(self, method: Any) -> None:
+        """Swap the estimator of a core that re-filters nothing (benchmarks time the shell)."""
+        if self.refilter is not None:
+            raise ValueError("a re-filtering core's estimator is restored from its checkpoints")
+        self._method = method
+
     def offer(self, key: str, data: bytes, now: float, utc: float | None = None) -> None:
         """One sample off the wire (``now``: monotonic clock; ``utc``: this host's UTC
         clock, live). Bad input is counted and dropped; never raises."""
