@@ -54,6 +54,7 @@ from schemas.links import encode_downlink, horizon_message, uplink
 
 from .live import ClockGuard, LiveOptions
 from .node import Inbox, Node, RejectLog, load, load_site
+from .ordering import DEFAULT_MAX_HELD, HORIZON_SLACK_S, WatermarkMerger
 from .picture import Picture
 
 
@@ -166,8 +167,6 @@ class FuserCore:
                  timeout: float, start_grace: float = 30.0, horizon: float = math.inf, now: float = 0.0,
                  intake: Any = None, max_held: int | None = None, live: LiveOptions | None = None,
                  refilter: bool = True, periods: Mapping[str, float] | None = None):
-        from .ordering import DEFAULT_MAX_HELD, WatermarkMerger
-
         self.keys = keys
         self.reject = reject
         self.intake = intake or MeasurementIntake()
@@ -325,7 +324,7 @@ def run(process_id: str, scenario_ref: str, method_name: str, overrides: dict, k
             method = JoinGate(method, node.reject)
         feedback = METHODS[method_name].topology in ("feedback", "two-stage")  # its centre's feedback is final
         core = FuserCore(method, sources, keys, node.reject, timeout, start_grace,
-                         horizon=scenario.duration + 1.0 if live is None else math.inf, now=time.monotonic(),
+                         horizon=scenario.duration + HORIZON_SLACK_S if live is None else math.inf, now=time.monotonic(),
                          intake=intake, max_held=max_held_for(scenario, None if live is None else timeout),
                          live=live, refilter=not feedback, periods=periods)
         utc = time.time if live is not None else lambda: None

@@ -82,6 +82,8 @@ from typing import Any
 # scenario's whole output per source (61 measurements), so no run at any speed sheds.
 DEFAULT_MAX_HELD = 1024
 LEAD_MAX = 4096  # rises of the leading watermark remembered for the bounded wait
+SEQ_WINDOW = 4096  # recent sequence numbers a listener remembers per source (duplicate detection)
+HORIZON_SLACK_S = 1.0  # data beyond a scenario's end + this is "future"
 
 
 def hold_cap(rate_hz: float, window_s: float, factor: float = 10.0) -> int:

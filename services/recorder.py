@@ -57,6 +57,7 @@ from . import recorder_draw as draw
 from . import recorder_geo
 from .evaluation import GOSPA_CUTOFF, many_targets
 from .node import ListenerInbox, Node, RejectLog
+from .ordering import HORIZON_SLACK_S, SEQ_WINDOW
 from .picture import Reports
 from .rotation import Rotation
 
@@ -71,13 +72,11 @@ PATH_MAX = 600  # points kept in a drawn path (truth, track, airborne site): 5 m
 # A truth or track path gets a point (and a row) at most this often in scenario time, so
 # the bytes it sends do not grow with the update rate (module docstring, "Paths").
 TRAIL_STEP_S = 0.5
-SEQ_WINDOW = 4096  # recent sequence numbers remembered per source (duplicate detection)
 BACKLOG_MAX = 50_000  # queued samples before the recorder starts dropping (and counting): seconds of traffic
 SEND_PERIOD_S = 0.2  # queued rows go out at least this often (wall clock)
 SEND_ROWS_MAX = 2_000  # ... or once this many are queued (rows hold arrays: this bounds their memory)
 VIEWER_PORT = 9876  # Rerun's default: a second run reuses a viewer that is already open
 CONTAMINATION = ("jammed", "outliers")  # sensor counters plotted under jamming/<sensor>/
-HORIZON_SLACK_S = 1.0  # as the fuser: data beyond the scenario's end + this is "future"
 
 FUSED_NODE = "centre"
 

@@ -31,14 +31,12 @@ reasoning, docs/notes.md what the tests on ``df-multi`` showed.
 from __future__ import annotations
 
 import dataclasses
-import functools
 import itertools
 from collections import deque
 from typing import Callable, Sequence
 
 import numpy as np
 from scipy.optimize import Bounds, LinearConstraint, milp
-from scipy.stats import chi2
 
 from ..angles import wrap_pi
 from ..association import CONFIRMED, DELETED, TrackIds, TrackLogic, gate_threshold, gnn
@@ -462,9 +460,8 @@ def _fit_cost(window, x0=None) -> tuple[float, float] | None:
     return fix.chi2, _suspect_level(len(betas) - 2)
 
 
-@functools.lru_cache(maxsize=256)
 def _suspect_level(dof: int) -> float:
-    return float(chi2.ppf(SUSPECT_PROB, dof))
+    return gate_threshold(dof, SUSPECT_PROB)
 
 
 def _exchange(a, b, stations: set) -> tuple[list, list]:

@@ -30,7 +30,7 @@ from schemas import KeySpace, SchemaError, decode, to_estimate
 
 from ..node import RejectLog
 from ..picture import Reports
-from ..recorder import HORIZON_SLACK_S, SEQ_WINDOW
+from ..ordering import HORIZON_SLACK_S, SEQ_WINDOW
 
 MAX_TRACKS = 4096
 MAX_SKEW_S = 5.0  # live: how far ahead of this host's clock a time of validity may be
