@@ -192,7 +192,7 @@ def plot_fixes(doc: dict, methods: Sequence[str], path: Path, title: str) -> str
     """Final-fix errors per method: scatter, the filter's mean 95 % ellipse, the CRB's
     95 % ellipse, the textbook CEP50 circle and the median point (the thesis's statistic)."""
     plt = _plt()
-    methods = [m for m in methods if m in doc["methods"] and doc["methods"][m]["final"].get("err")]
+    methods = [m for m in methods if m in doc["methods"] and (doc["methods"][m].get("final") or {}).get("err")]
     n = len(methods)
     cols = min(3, n) or 1
     rows = max(1, math.ceil(n / cols))
@@ -231,6 +231,11 @@ def _series(doc: dict, key: str) -> dict[str, tuple[list, list]]:
     return {name: (m["series"]["t"], m["series"].get(key, [])) for name, m in doc["methods"].items()}
 
 
+def _has_series(doc: dict, key: str) -> bool:
+    """Whether any method has a value of series ``key`` (many-target runs have GOSPA, no RMSE)."""
+    return any(v is not None for m in doc["methods"].values() for v in m["series"].get(key, []))
+
+
 def _nees_band(doc: dict) -> tuple[float, float] | None:
     b = {tuple(m["anees_bounds"]) for m in doc["methods"].values() if m.get("anees_bounds")}
     return b.pop() if len(b) == 1 else None
@@ -252,22 +257,29 @@ def write_eval_report(doc: dict, out_dir: Path, command: str = "") -> Path:
     (out_dir / "summary.json").write_text(dumps(doc) + "\n")
     crb = doc.get("crb") or {}
     bound = (crb.get("t", []), crb.get("rmse_pos", [])) if crb.get("t") else None
-    figs = [("RMS position error", plot_series(_series(doc, "rmse_pos"), out_dir / "rmse_pos.png",
-                                               "RMS position error (m)", f"{doc['scenario']}: position", bound))]
-    if any(m["rmse_vel"] is not None for m in doc["methods"].values()):
+    figs = []
+    if _has_series(doc, "rmse_pos"):  # a many-target evaluation has GOSPA instead
+        figs.append(("RMS position error", plot_series(_series(doc, "rmse_pos"), out_dir / "rmse_pos.png",
+                                                       "RMS position error (m)", f"{doc['scenario']}: position",
+                                                       bound)))
+    if _has_series(doc, "rmse_vel"):
         vb = (crb["t"], crb["rmse_vel"]) if crb.get("rmse_vel") else None
         figs.append(("RMS velocity error", plot_series(_series(doc, "rmse_vel"), out_dir / "rmse_vel.png",
                                                        "RMS velocity error (m/s)", f"{doc['scenario']}: velocity", vb)))
-    figs.append(("ANEES against its χ² interval", plot_series(
-        _series(doc, "anees"), out_dir / "nees.png", "average NEES", f"{doc['scenario']}: NEES ({doc['runs']} runs)",
-        band=_nees_band(doc))))
+    if _has_series(doc, "gospa"):
+        figs.append(("Mean GOSPA", plot_series(_series(doc, "gospa"), out_dir / "gospa.png", "mean GOSPA (m)",
+                                               f"{doc['scenario']}: GOSPA ({doc['runs']} runs)")))
+    if _has_series(doc, "anees"):
+        figs.append(("ANEES against its χ² interval", plot_series(
+            _series(doc, "anees"), out_dir / "nees.png", "average NEES",
+            f"{doc['scenario']}: NEES ({doc['runs']} runs)", band=_nees_band(doc))))
     nis = _nis_normalised(doc)
     if any(any(v is not None for v in y) for _, y in nis.values()):
         dofs = [d for m in doc["methods"].values() for d in _dofs(m["series"])]
         figs.append(("ANIS per degree of freedom against its χ² interval", plot_series(
             nis, out_dir / "nis.png", "average NIS / dof", f"{doc['scenario']}: NIS per dof (1 if consistent)",
             bands=nis_bands(dofs, doc["runs"]))))
-    fixes = [n for n, m in doc["methods"].items() if m["final"].get("err")]
+    fixes = [n for n, m in doc["methods"].items() if (m.get("final") or {}).get("err")]
     if fixes:
         figs.append(("Final fixes, CEP and error ellipses",
                      plot_fixes(doc, fixes, out_dir / "fixes.png", f"{doc['scenario']}: final fixes")))
