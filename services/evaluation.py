@@ -351,14 +351,20 @@ def _crb_emitter(scenario, target: str) -> dict | None:
     from sensors_sim.geometry import in_coverage
     from sensors_sim.trajectories import Static
 
-    spec_t = scenario.target(target)
-    if spec_t.jerk_psd > 0 or not all(isinstance(s, Static) for s in spec_t.segments):
-        return {"t": [], "rmse_pos": [], "notes": ["the emitter moves: no static-emitter bound"]}
-    p = truth_trajectory(scenario, target, 0).state(0.0)[:3]
-    sensors = [s for s, spec in scenario.sensors.items() if target in spec.targets and spec.measurement_kind == "bearing"]
     from fusion.df.methods import DFConfig
 
+    spec_t = scenario.target(target)
+    sensors = [s for s, spec in scenario.sensors.items() if target in spec.targets and spec.measurement_kind == "bearing"]
     groups = _scan_groups(scenario, sensors, _pair_tol(scenario, DFConfig.pair_tol))
+    try:  # the recursive methods' model: EKF's table
+        cfg = DFConfig.from_dict(method_config(scenario.tracker, "EKF"))
+    except ValueError:
+        cfg = None
+    if cfg is not None and cfg.motion == "cv":
+        return _crb_moving_emitter(scenario, target, groups, cfg)
+    if spec_t.jerk_psd > 0 or not all(isinstance(s, Static) for s in spec_t.segments):
+        return {"t": [], "rmse_pos": [], "notes": ["the emitter moves and the tracker's motion is static: no bound"]}
+    p = truth_trajectory(scenario, target, 0).state(0.0)[:3]
     J = np.zeros((2, 2))
     times, rms, regular = [], [], True
     C = None
@@ -392,6 +398,64 @@ def _crb_emitter(scenario, target: str) -> dict | None:
         out["cep50"] = cep50(C)
         out["rmse_pos_final"] = rms[-1]
     return out
+
+
+def _crb_moving_emitter(scenario, target: str, groups, cfg) -> dict:
+    """Posterior CRB of the constant-velocity emitter (:func:`fusion.df.crb.moving_emitter_pcrb`)
+    along run 0's truth, with the ``[tracker]``'s ``q`` and ``init_vel_std``; jammed
+    bearings with the information of their noise mixture, detection probability scaling
+    it, a station out of coverage giving none."""
+    from fusion.df.crb import moving_emitter_pcrb
+    from fusion.metrics import cep50
+    from sensors_sim import truth_trajectory
+    from sensors_sim.geometry import in_coverage
+
+    traj = truth_trajectory(scenario, target, 0)
+    times, positions, epochs, regular = [], [], [], True
+    for t, t_last, members in groups:
+        p = traj.position(t_last)
+        sites, stds = [], []
+        for s in members:
+            spec = scenario.sensor(s)
+            site = spec.site.position(t)
+            if not in_coverage(spec, p - site) or spec.p_detect == 0.0:
+                continue
+            std, reg = _noise_std(scenario, s, t, p)
+            regular &= reg
+            sites.append(site[:2])
+            stds.append(std[0] / math.sqrt(spec.p_detect))  # information × P_D
+        times.append(t_last)
+        positions.append(p[:2])
+        epochs.append((np.array(sites).reshape(-1, 2), np.array(stds)))
+    C = moving_emitter_pcrb(cfg.model, times, positions, epochs, cfg.init_vel_std)
+    pos = np.sqrt(C[:, 0, 0] + C[:, 1, 1])
+    vel = np.sqrt(C[:, 2, 2] + C[:, 3, 3])
+    tt = np.array(times)
+    late = tt >= 0.5 * (tt[0] + tt[-1])  # as services.summary's "second_half"
+    notes = [f"constant-velocity model of the tracker (q = {cfg.q:g} m²/s³, velocity prior "
+             f"0 ± {cfg.init_vel_std:g} m/s), information at run 0's true positions"]
+    if not regular:
+        notes.append("uniform outliers: their density is not regular, the bound is indicative only")
+    if scenario.jammers:
+        notes.append("jammed bearings enter with the Fisher information of their noise mixture")
+    P = C[-1, :2, :2]
+    return {
+        "t": times,
+        "rmse_pos": pos.tolist(),
+        "rmse_vel": vel.tolist(),
+        "overall": {"rmse_pos": float(np.sqrt(np.mean(pos ** 2))), "rmse_vel": float(np.sqrt(np.mean(vel ** 2))),
+                    "rmse_acc": None},
+        "second_half": {"from_t": float(0.5 * (tt[0] + tt[-1])), "rmse_pos": float(np.sqrt(np.mean(pos[late] ** 2))),
+                        "rmse_vel": float(np.sqrt(np.mean(vel[late] ** 2))), "rmse_acc": None},
+        "final": {"t": float(tt[-1]), "rmse_pos": float(pos[-1]), "rmse_vel": float(vel[-1]), "rmse_acc": None},
+        "final_P": (0.5 * (P + P.T)).tolist(),
+        "cep50": cep50(P),
+        "rmse_pos_final": float(pos[-1]),
+        "kind": "posterior CRB, constant-velocity emitter from bearings",
+        "target": target,
+        "regular": regular,
+        "notes": notes,
+    }
 
 
 def with_sensors(scenario, sensors: dict, name: str | None = None):

@@ -59,12 +59,23 @@ def truth_function(scenario) -> TruthFn:
     return truth
 
 
+#: where a moving emitter's estimate ``[px, py, vx, vy]`` sits in the truth
+#: ``[px py pz vx vy vz ax ay az]`` (a fix ``[px, py]`` and a 3D track are its leading components)
+_EMITTER_CV = [0, 1, 3, 4]
+
+
 def _errors(e: Estimate, xt: np.ndarray) -> dict:
     n = e.x.size
-    xt = np.asarray(xt, dtype=float)[:n] if xt.size >= n else np.pad(xt, (0, n - xt.size))
+    xt = np.asarray(xt, dtype=float)
+    if n == 4:
+        xt = xt[_EMITTER_CV]
+    else:
+        xt = xt[:n] if xt.size >= n else np.pad(xt, (0, n - xt.size))
     err = e.x - xt
-    d = 3 if n >= 6 else n  # position block: 3D track or 2D emitter fix
+    d = 3 if n >= 6 else 2 if n == 4 else n  # position block: 3D track, moving or fixed 2D emitter
     out: dict = {"t": float(e.t), "n": n, "pos2": float(err[:d] @ err[:d]), "vel2": None, "acc2": None}
+    if n == 4:
+        out["vel2"] = float(err[2:4] @ err[2:4])
     if n >= 6:
         out["vel2"] = float(err[3:6] @ err[3:6])
     if n >= 9:

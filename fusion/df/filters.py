@@ -1,8 +1,11 @@
-r"""Bearing filters for a static emitter: EKFT, EKFS, SKF and the cross-fed MEKF.
+r"""Bearing filters: EKFT, EKFS, SKF and the cross-fed MEKF.
 
 The three filters of the MEKF thesis (document 000) run the same Kalman step — predict
-with ``Φ = I``, ``+Q``, then a scalar Joseph-form update (:func:`fusion.kalman.update`)
-— and differ only in the row ``H``. With ``Δx = x̂_e − x_k``, ``Δy = ŷ_e − y_k``,
+with the emitter model's ``(F, Q) = model.transition(dt)`` (:mod:`fusion.df.models`:
+the theses' ``Φ = I``, ``+Q`` per bearing, or constant velocity), then a scalar
+Joseph-form update (:func:`fusion.kalman.update`) — and differ only in the row ``H``,
+a function of the predicted position alone; on a constant-velocity state its velocity
+entries are zero (``H = [h_p, 0, 0]``). With ``Δx = x̂_e − x_k``, ``Δy = ŷ_e − y_k``,
 ``r² = Δx² + Δy²``, ``u = Δy/Δx`` and ``h = atan2(Δy, Δx)``::
 
     EKFT (linearises the bearing)   ν = wrap(β − h)    H = [−Δy, Δx] / r²
@@ -30,9 +33,8 @@ import numpy as np
 
 from ..angles import wrap_pi
 from ..kalman import UpdateResult, predict, update
-from .models import bearing, bearing_jacobian
+from .models import EmitterModel, bearing, bearing_jacobian, emitter_model
 
-_I2 = np.eye(2)
 #: |divisor| below this fraction of the geometry's scale counts as singular.
 _SINGULAR_REL = 1e-9
 #: The thesis's length unit (km), in which EKFS's H is evaluated "as printed".
@@ -79,44 +81,56 @@ LINEARISATIONS: dict[str, Linearisation] = {"EKFT": lin_ekft, "EKFS": lin_ekfs, 
 
 
 def bearing_step(x: np.ndarray, P: np.ndarray, site: np.ndarray, beta: float, sigma: float,
-                 Q: np.ndarray, linearisation: str = "EKFT") -> UpdateResult:
-    """One thesis step for one bearing: predict (``Φ = I``, ``+Q``), then update.
+                 model, linearisation: str = "EKFT", dt: float = 0.0) -> UpdateResult:
+    """One step for one bearing: predict over ``dt`` with ``model`` (an emitter model,
+    or a 2×2 ``Q``: the static emitter), then update with the row of ``linearisation``.
 
     Raises :class:`SingularLinearisation` where EKFS/SKF are undefined.
     """
-    xp, Pp = predict(x, P, _I2, Q)
-    nu, H = LINEARISATIONS[linearisation](xp, site, beta)
-    return update(xp, Pp, np.array([nu]), H[None, :], np.array([[sigma * sigma]]))
+    F, Q = emitter_model(model).transition(dt)
+    xp, Pp = predict(x, P, F, Q)
+    nu, Hp = LINEARISATIONS[linearisation](xp, site, beta)
+    H = np.zeros((1, xp.size))
+    H[0, :2] = Hp
+    return update(xp, Pp, np.array([nu]), H, np.array([[sigma * sigma]]))
 
 
 class BearingEKF:
-    """One bearing filter (EKFT, EKFS or SKF) on a static emitter.
+    """One bearing filter (EKFT, EKFS or SKF) on an emitter model.
 
+    Args:
+        model: a :mod:`fusion.df.models` emitter model, or a 2×2 ``Q`` (static emitter).
     Attributes:
-        x, P: current estimate ``[px, py]`` (m) and its covariance (m²).
+        x, P: current estimate (``[px, py]``, or ``[px, py, vx, vy]`` with constant
+            velocity; m, m/s) and its covariance.
         linearisation: ``"EKFT"``, ``"EKFS"`` or ``"SKF"``.
         n_fallbacks: updates where EKFS/SKF were singular and EKFT's row was used.
     """
 
-    def __init__(self, x0: np.ndarray, P0: np.ndarray, Q: np.ndarray, linearisation: str = "EKFT"):
+    def __init__(self, x0: np.ndarray, P0: np.ndarray, model, linearisation: str = "EKFT"):
         if linearisation not in LINEARISATIONS:
             raise ValueError(f"unknown linearisation {linearisation!r}; expected one of {sorted(LINEARISATIONS)}")
+        self.model: EmitterModel = emitter_model(model)
         self.x = np.asarray(x0, dtype=float).copy()
         self.P = np.asarray(P0, dtype=float).copy()
-        self.Q = np.asarray(Q, dtype=float)
+        if self.x.shape != (self.model.n_x,) or self.P.shape != (self.model.n_x,) * 2:
+            raise ValueError(f"BearingEKF: the {self.model.name} model has {self.model.n_x} states; "
+                             f"x0 {self.x.shape}, P0 {self.P.shape}")
         self.linearisation = linearisation
         self.n_fallbacks = 0
 
-    def run(self, x: np.ndarray, P: np.ndarray, site: np.ndarray, beta: float, sigma: float) -> UpdateResult:
-        """The step from a given prior (used by the cross-fed and IMM schemes)."""
+    def run(self, x: np.ndarray, P: np.ndarray, site: np.ndarray, beta: float, sigma: float,
+            dt: float = 0.0) -> UpdateResult:
+        """The step from a given prior ``dt`` seconds before the bearing (used by the
+        cross-fed and IMM schemes)."""
         try:
-            return bearing_step(x, P, site, beta, sigma, self.Q, self.linearisation)
+            return bearing_step(x, P, site, beta, sigma, self.model, self.linearisation, dt)
         except SingularLinearisation:
             self.n_fallbacks += 1
-            return bearing_step(x, P, site, beta, sigma, self.Q, "EKFT")
+            return bearing_step(x, P, site, beta, sigma, self.model, "EKFT", dt)
 
-    def step(self, site: np.ndarray, beta: float, sigma: float) -> UpdateResult:
-        res = self.run(self.x, self.P, site, beta, sigma)
+    def step(self, site: np.ndarray, beta: float, sigma: float, dt: float = 0.0) -> UpdateResult:
+        res = self.run(self.x, self.P, site, beta, sigma, dt)
         self.x, self.P = res.x, res.P
         return res
 
@@ -170,14 +184,15 @@ class MEKF(CrossFed):
     """Modified EKF #1..#5: two bearing filters A1, A2 (``MEKF_VARIANTS[variant]``) that
     both process every bearing, each starting its next update from the other's output;
     the estimate reported is A1's. ``handoff`` says whether covariances swap with the
-    states (``"swap"``) or A2's stays at ``P0`` as in the printed listing."""
+    states (``"swap"``) or A2's stays at ``P0`` as in the printed listing. ``step(site,
+    β, σ, dt)``: both filters predict over the same ``dt`` from their own priors."""
 
-    def __init__(self, variant: int, x0: np.ndarray, P0: np.ndarray, Q: np.ndarray, handoff: str = "swap"):
+    def __init__(self, variant: int, x0: np.ndarray, P0: np.ndarray, model, handoff: str = "swap"):
         if variant not in MEKF_VARIANTS:
             raise ValueError(f"unknown MEKF variant {variant!r}; expected one of {sorted(MEKF_VARIANTS)}")
         self.variant = variant
-        self.a1 = BearingEKF(x0, P0, Q, MEKF_VARIANTS[variant][0])
-        self.a2 = BearingEKF(x0, P0, Q, MEKF_VARIANTS[variant][1])
+        self.a1 = BearingEKF(x0, P0, model, MEKF_VARIANTS[variant][0])
+        self.a2 = BearingEKF(x0, P0, model, MEKF_VARIANTS[variant][1])
         super().__init__(self.a1.run, self.a2.run, x0, P0, handoff)
 
     @property

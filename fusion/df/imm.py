@@ -1,6 +1,7 @@
 r"""Interacting Multiple Model estimator (Bar-Shalom), as used against jamming (document 003).
 
-Two bearing EKFs (EKFT) with the same ``Φ = I`` and ``Q``, model 1 with ``R₁ = σ₁²``
+Two bearing EKFs (EKFT) with the same emitter model (:mod:`fusion.df.models`: the
+theses' ``Φ = I``, ``+Q``, or constant velocity), model 1 with ``R₁ = σ₁²``
 (clean) and model 2 with ``R₂ = σ₂²`` (outlier), and a Markov transition matrix
 ``Π[i, j] = P(model j now | model i before)``. One cycle per bearing:
 
@@ -29,6 +30,7 @@ import numpy as np
 
 from ..kalman import UpdateResult, gaussian_loglikelihood
 from .filters import bearing_step
+from .models import emitter_model
 
 TRANSITIONS = ("symmetric", "iid")
 
@@ -101,15 +103,19 @@ class IMM:
 class BearingIMM(IMM):
     """IMM of two (or more) EKFT bearing filters differing only in bearing noise.
 
-    ``step(site, beta, sigmas)`` runs one cycle with model ``j`` assuming std
-    ``sigmas[j]``.
+    ``model``: the emitter model both filters predict with (or a 2×2 ``Q``: the static
+    emitter). ``step(site, beta, sigmas, dt)`` runs one cycle ``dt`` seconds after the
+    last, model ``j`` assuming std ``sigmas[j]``; the mixing is done at the previous
+    time and each mixed prior predicted over ``dt`` (the models share ``F``, so mixing
+    before or after the prediction is the same).
     """
 
-    def __init__(self, x0s, P0s, Q: np.ndarray, Pi: np.ndarray, mu0: Sequence[float]):
+    def __init__(self, x0s, P0s, model, Pi: np.ndarray, mu0: Sequence[float]):
         super().__init__(x0s, P0s, Pi, mu0)
-        self.Q = np.asarray(Q, dtype=float)
+        self.model = emitter_model(model)
 
-    def step(self, site: np.ndarray, beta: float, sigmas: Sequence[float]) -> list[UpdateResult]:  # type: ignore[override]
+    def step(self, site: np.ndarray, beta: float, sigmas: Sequence[float],  # type: ignore[override]
+             dt: float = 0.0) -> list[UpdateResult]:
         return super().step([
-            (lambda x, P, s=s: bearing_step(x, P, site, beta, s, self.Q, "EKFT")) for s in sigmas
+            (lambda x, P, s=s: bearing_step(x, P, site, beta, s, self.model, "EKFT", dt)) for s in sigmas
         ])

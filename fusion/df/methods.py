@@ -26,6 +26,13 @@ KF+TR      per-station scalar KF bearing smoothers; Torrieri on their latest out
 MKF+TR     as KF+TR with two cross-fed KFs per station
 ========== ===========================================================================
 
+**Motion.** ``motion = "static"`` (default) is the theses' fixed emitter, estimate
+``[px, py]``; ``motion = "cv"`` a moving one at nearly constant velocity, estimate
+``[px, py, vx, vy]`` (:class:`fusion.df.models.ConstantVelocityEmitter`, PSD ``q``), for
+EKF, MEKF1..5 and IMM: each bearing is predicted to from the filter's last time. The
+batch and smoothed-bearing methods (TORRIERI, KF+TR, MKF+TR) fit one position to all
+bearings so far and refuse ``"cv"``.
+
 The recursive filters start from ``init = "ipu"`` (the crossing of the first usable pair
 of bearings, consumed; earlier bearings replayed after it) or ``"robust"`` (the pair of
 the first ``init_epochs`` epochs that best explains all of them, :mod:`fusion.df.init`);
@@ -46,7 +53,16 @@ from ..types import Estimate, Measurement
 from .filters import MEKF, MEKF_VARIANTS, BearingEKF, CrossFed
 from .imm import TRANSITIONS, BearingIMM, transition_matrix
 from .init import SAME_SITE, ranked_pairs, usable_pairs
-from .models import THESIS_SIGMA, bearing_of, emitter_Q, stated_sigma
+from .models import (
+    EMITTER_MOTIONS,
+    THESIS_SIGMA,
+    ConstantVelocityEmitter,
+    EmitterModel,
+    StaticEmitter,
+    bearing_of,
+    emitter_Q,
+    stated_sigma,
+)
 from .smoothing import BearingSmoother, CrossFedBearingSmoother
 from .triangulation import Fix, GeometryError, fix_from_bearings, ipu, leave_one_out, pairwise_intersection_mean
 
@@ -62,12 +78,18 @@ class DFConfig:
     ====================== =========== =======================================================
     key                    default     meaning
     ====================== =========== =======================================================
-    q22                    0.0         process noise on y (m²) added before every bearing; 0: the
+    motion                 "static"    emitter motion: ``"static"`` (state [x, y]) or ``"cv"`` (constant
+                                       velocity, [x, y, vx, vy]; EKF, MEKF1..5 and IMM only)
+    q                      1.0         ``"cv"``: white-acceleration PSD per axis (m²/s³); 1 m²/s³ lets
+                                       the velocity wander ≈1 m/s in a second (a vehicle turning)
+    init_vel_std           20.0        ``"cv"``: initial velocity std per axis around zero (m/s;
+                                       covers road speeds)
+    q22                    0.0         ``"static"``: process noise on y (m²) added before every bearing; 0: the
                                        static-emitter model, which keeps converging (to the CRB)
                                        however long it runs. The theses' random walk, 625 m²
                                        (``THESIS_Q22``, 0.025² km²), is for reproducing them (their
                                        scenarios set it): it stalls (docs/algorithms.md)
-    q11                    0.0         process noise on x (m²); the theses have 0
+    q11                    0.0         ``"static"``: process noise on x (m²); the theses have 0
     sigma                  0.0175      bearing std assumed by the filters (rad), or
                                        ``"sensor"`` to use each measurement's stated std
     pair_tol               0.0         epoch grouping tolerance (s); 0 = one epoch per timestamp, so
@@ -92,6 +114,9 @@ class DFConfig:
     ====================== =========== =======================================================
     """
 
+    motion: str = "static"
+    q: float = 1.0
+    init_vel_std: float = 20.0
     q22: float = 0.0
     q11: float = 0.0
     sigma: float | str = THESIS_SIGMA
@@ -125,6 +150,12 @@ class DFConfig:
             if not ok:
                 raise ValueError(f"config {key!r} = {getattr(self, key)!r}: {what}")
 
+        need(self.motion in EMITTER_MOTIONS, "motion", f"must be one of {EMITTER_MOTIONS}")
+        need(self.q >= 0, "q", "must be >= 0")
+        need(self.init_vel_std > 0, "init_vel_std", "must be > 0")
+        if self.motion == "cv":
+            need(self.q22 == 0 and self.q11 == 0, "q22" if self.q22 else "q11",
+                 "is the static emitter's process noise; with motion = \"cv\" set q (m²/s³)")
         need(self.q22 >= 0, "q22", "must be >= 0")
         need(self.q11 >= 0, "q11", "must be >= 0")
         need(self.sigma == "sensor" or self.sigma > 0, "sigma", "must be > 0 or \"sensor\"")
@@ -147,6 +178,11 @@ class DFConfig:
     def Q(self) -> np.ndarray:
         return emitter_Q(self.q22, self.q11)
 
+    @property
+    def model(self) -> EmitterModel:
+        """The emitter model the recursive filters take (:mod:`fusion.df.models`)."""
+        return ConstantVelocityEmitter(self.q) if self.motion == "cv" else StaticEmitter(self.Q)
+
 
 class DFMethod:
     """Base of the DF methods: config, stream checks and epoch grouping.
@@ -156,9 +192,14 @@ class DFMethod:
     """
 
     name: str = "DF"
+    #: the ``motion`` values the method accepts
+    motions: tuple[str, ...] = ("static",)
 
     def __init__(self, config: dict | None = None):
         self.config = DFConfig.from_dict(config)
+        if self.config.motion not in self.motions:
+            raise ValueError(f"{self.name} fits one fixed position to all the bearings so far: motion = "
+                             f"{self.config.motion!r} does not apply (a moving emitter: EKF, MEKF1..5 or IMM)")
         self._group: list[Measurement] = []
         self._last_key: tuple | None = None
         self._watermark = -np.inf
@@ -210,15 +251,26 @@ class DFMethod:
 
 
 class _RecursiveMethod(DFMethod):
-    """EKF, MEKF and IMM: ``ipu`` or robust initialisation, then one filter step per bearing."""
+    """EKF, MEKF and IMM: ``ipu`` or robust initialisation, then one filter step per bearing.
+
+    Bearings are ``(site, β, σ, t)``. The filter's state is at ``self._t``, the latest
+    time it has processed; a bearing is predicted to over ``dt = t − self._t``. The fix
+    of a pair is stamped with the later bearing's time; with ``motion = "cv"`` a bearing
+    older than the state (replayed after the initial pair) is left out, since the
+    emitter has moved since (``replays_past``), with the static model it is processed.
+    """
+
+    motions = EMITTER_MOTIONS
 
     def __init__(self, config: dict | None = None):
         super().__init__(config)
+        self._model = self.config.model
         self._filter = None
-        self._pending: list[tuple[np.ndarray, float, float]] = []
+        self._t = -np.inf
+        self._pending: list[tuple[np.ndarray, float, float, float]] = []
         self._n = 0
         # robust initialisation: the window's bearings while it is open, else None
-        self._window: list[tuple[np.ndarray, float, float]] | None = [] if self.config.init == "robust" else None
+        self._window: list[tuple[np.ndarray, float, float, float]] | None = [] if self.config.init == "robust" else None
         self._window_epochs = 0
 
     def _ipu(self, a, b, sa: float, sb: float, check: bool = True):
@@ -237,19 +289,39 @@ class _RecursiveMethod(DFMethod):
     def _build(self, a, b):
         raise NotImplementedError
 
-    def _step(self, site, beta, sigma) -> float | None:
-        """One bearing through the filter; returns its NIS (None if not defined)."""
-        return self._filter.step(site, beta, sigma).nis
+    def _initial(self, p, P):
+        """The filter's initial state from a position fix (:meth:`EmitterModel.initial`)."""
+        return self._model.initial(p, P, self.config.init_vel_std)
+
+    def _start(self, a, b) -> None:
+        """The filter from the pair ``a``, ``b`` (GeometryError if it is not usable)."""
+        self._filter = self._build(a, b)
+        self._t = max(a[3], b[3])
+
+    def _step(self, site, beta, sigma, dt) -> float | None:
+        """One bearing through the filter, ``dt`` after its state; returns its NIS (None
+        if not defined)."""
+        return self._filter.step(site, beta, sigma, dt).nis
+
+    def _feed(self, bearing) -> float | None:
+        """One bearing after the start: predicted to and processed, or, older than the
+        state of a moving emitter, left out. Returns its NIS."""
+        site, beta, sigma, t = bearing
+        if t < self._t and not self._model.replays_past:
+            return None
+        dt = max(t - self._t, 0.0)
+        self._t = max(self._t, t)
+        self._n += 1
+        return self._step(site, beta, sigma, dt)
 
     def _ingest(self, bearing) -> list[float | None]:
         if self._filter is not None:
-            self._n += 1
-            return [self._step(*bearing)]
+            return [self._feed(bearing)]
         for i, a in enumerate(self._pending):
             if np.linalg.norm(a[0] - bearing[0]) <= SAME_SITE:
                 continue
             try:
-                self._filter = self._build(a, bearing)
+                self._start(a, bearing)
             except GeometryError:
                 continue
             self._n = 2
@@ -278,7 +350,7 @@ class _RecursiveMethod(DFMethod):
         self._filter = None
         for choice in ranked_pairs(sites, betas, sigmas, c.imm_p, c.imm_sigma2, c.ipu_max_rel):
             try:  # the method's own ipu (covariance rule, conditioning test)
-                self._filter = self._build(w[choice.i], w[choice.j])
+                self._start(w[choice.i], w[choice.j])
             except GeometryError:
                 continue
             break
@@ -289,8 +361,7 @@ class _RecursiveMethod(DFMethod):
         for k, b in enumerate(w):
             if k in (choice.i, choice.j):
                 continue
-            self._n += 1
-            v = self._step(*b)
+            v = self._feed(b)
             if k >= start:
                 nis.append(v)
         if self._window_epochs >= c.init_epochs:
@@ -298,7 +369,7 @@ class _RecursiveMethod(DFMethod):
         return nis
 
     def _epoch(self, group):
-        bearings = [(*bearing_of(m), self.config.sigma_of(m)) for m in group]
+        bearings = [(*bearing_of(m), self.config.sigma_of(m), m.t) for m in group]
         if self._window is not None:
             nis = self._robust(bearings)
         else:
@@ -320,8 +391,8 @@ class EKFMethod(_RecursiveMethod):
     name = "EKF"
 
     def _build(self, a, b):
-        p, P = self._ipu(a, b, a[2], b[2])
-        return BearingEKF(p, P, self.config.Q, "EKFT")
+        x, P = self._initial(*self._ipu(a, b, a[2], b[2]))
+        return BearingEKF(x, P, self._model, "EKFT")
 
 
 class MEKFMethod(_RecursiveMethod):
@@ -335,8 +406,8 @@ class MEKFMethod(_RecursiveMethod):
         super().__init__(config)
 
     def _build(self, a, b):
-        p, P = self._ipu(a, b, a[2], b[2])
-        return MEKF(self.variant, p, P, self.config.Q, self.config.mekf_handoff)
+        x, P = self._initial(*self._ipu(a, b, a[2], b[2]))
+        return MEKF(self.variant, x, P, self._model, self.config.mekf_handoff)
 
     def _extra(self):
         return {"fallbacks": self._filter.n_fallbacks}
@@ -351,12 +422,12 @@ class IMMMethod(_RecursiveMethod):
         c = self.config
         self._ipu(a, b, a[2], b[2])  # conditioning judged on the clean model, as for the EKF
         mix = [np.sqrt((1.0 - c.imm_mu0) * s ** 2 + c.imm_mu0 * c.imm_sigma2 ** 2) for s in (a[2], b[2])]
-        p, P = self._ipu(a, b, mix[0], mix[1], check=False)
-        return BearingIMM([p, p], [P, P], c.Q, transition_matrix(c.imm_p, c.imm_transition),
+        x, P = self._initial(*self._ipu(a, b, mix[0], mix[1], check=False))
+        return BearingIMM([x, x], [P, P], self._model, transition_matrix(c.imm_p, c.imm_transition),
                           [1.0 - c.imm_mu0, c.imm_mu0])
 
-    def _step(self, site, beta, sigma):
-        self._filter.step(site, beta, (sigma, self.config.imm_sigma2))
+    def _step(self, site, beta, sigma, dt):
+        self._filter.step(site, beta, (sigma, self.config.imm_sigma2), dt)
         return None
 
     def _extra(self):

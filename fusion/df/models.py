@@ -1,18 +1,26 @@
-r"""Bearings-only emitter model (documents 000–003).
+r"""Bearings-only emitter models (documents 000–003).
 
-Geometry is the horizontal plane of the local ENU frame, in metres. The emitter is
-stationary, state ``X = [x_e, y_e]``. Inside ``fusion.df`` a bearing ``β`` is a *math*
-angle (counter-clockwise from east, radians), as in the theses::
+Geometry is the horizontal plane of the local ENU frame, in metres. Inside ``fusion.df``
+a bearing ``β`` is a *math* angle (counter-clockwise from east, radians), as in the
+theses::
 
-    β = h(X) = atan2(y_e − y_k, x_e − x_k)
+    β = h(X) = atan2(y_e − y_k, x_e − x_k),     R = σ²
 
-with ``(x_k, y_k)`` the observer's position at the time of the bearing (it moves for an
-airborne DF). Measurements arrive as :class:`fusion.types.Measurement` of kind
-``"bearing"`` whose ``z[0]`` is a *compass* azimuth; :func:`bearing_of` converts at the
-edge. The site's height is ignored: a DF azimuth is a horizontal-plane angle.
+with ``(x_e, y_e)`` the emitter's position (the first two states) and ``(x_k, y_k)`` the
+observer's at the time of the bearing (it moves for an airborne DF). Measurements arrive
+as :class:`fusion.types.Measurement` of kind ``"bearing"`` whose ``z[0]`` is a *compass*
+azimuth; :func:`bearing_of` converts at the edge. A DF azimuth is a horizontal-plane
+angle: the site's height is ignored.
 
-Model (as in the theses): ``Φ = I₂``, ``Q = diag(q11, q22)`` added once per bearing
-(not per second), ``R = σ²``.
+Two emitter motion models (``[tracker]`` key ``motion``), one interface that every DF
+filter takes (``transition(dt) -> (F, Q)``, ``initial``, ``replays_past``):
+
+* :class:`StaticEmitter` (``"static"``, the theses'): ``X = [x_e, y_e]``, ``Φ = I₂``,
+  ``Q = diag(q11, q22)`` added once per *bearing*, whatever the time between bearings;
+* :class:`ConstantVelocityEmitter` (``"cv"``): ``X = [x_e, y_e, vx, vy]``,
+  ``F(dt) = F₁(dt) ⊗ I₂``, ``Q(dt) = q·Q₁(dt) ⊗ I₂`` with the white-acceleration blocks
+  ``F₁ = [[1, dt], [0, 1]]``, ``Q₁ = [[dt³/3, dt²/2], [dt²/2, dt]]`` (:mod:`fusion.motion`),
+  ``q`` the acceleration PSD in m²/s³; ``H = [∂h/∂p, 0, 0]``.
 """
 
 from __future__ import annotations
@@ -22,7 +30,11 @@ from typing import Sequence
 import numpy as np
 
 from ..angles import compass_to_math, math_to_compass
+from ..motion import ConstantVelocity
 from ..types import Measurement
+
+_I2 = np.eye(2)
+_I2.setflags(write=False)
 
 #: The theses' bearing noise, radians (≈1°).
 THESIS_SIGMA = 0.0175
@@ -55,6 +67,84 @@ def emitter_Q(q22: float, q11: float = 0.0) -> np.ndarray:
     if q11 < 0.0 or q22 < 0.0:
         raise ValueError(f"emitter_Q: q11={q11} and q22={q22} must be >= 0")
     return np.diag([float(q11), float(q22)])
+
+
+class StaticEmitter:
+    """The theses' static emitter: ``X = [x_e, y_e]``, ``Φ = I₂`` and ``Q`` added before
+    every bearing update, independent of ``dt`` (a random walk per bearing, not per second).
+
+    Its position is the same at every time, so bearings may be processed in any order
+    (``replays_past``): an initialiser can replay bearings older than its fix.
+    """
+
+    name = "static"
+    n_x = 2
+    replays_past = True
+
+    def __init__(self, Q: np.ndarray):
+        self.Q = np.asarray(Q, dtype=float)
+        if self.Q.shape != (2, 2):
+            raise ValueError(f"StaticEmitter: Q must be 2×2, got shape {self.Q.shape}")
+
+    def transition(self, dt: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+        """``(I₂, Q)`` for any ``dt``."""
+        return _I2, self.Q
+
+    def initial(self, p: np.ndarray, P: np.ndarray, vel_std: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+        """The state of a position fix ``(p, P)``: the fix itself."""
+        return np.asarray(p, dtype=float).copy(), np.asarray(P, dtype=float).copy()
+
+
+class ConstantVelocityEmitter:
+    r"""A moving emitter at nearly constant velocity: ``X = [x_e, y_e, vx, vy]``::
+
+        F(dt) = [[I₂, dt·I₂], [0, I₂]]
+        Q(dt) = q [[dt³/3·I₂, dt²/2·I₂], [dt²/2·I₂, dt·I₂]]
+
+    the exact discretisation of continuous white acceleration of PSD ``q`` (m²/s³) on
+    each axis — :class:`fusion.motion.ConstantVelocity`'s per-axis blocks on two axes.
+    ``dt = 0`` (bearings of one epoch) gives ``(I, 0)``. Bearings older than the state
+    cannot be processed (``replays_past`` is False): the emitter has moved since.
+    """
+
+    name = "cv"
+    n_x = 4
+    replays_past = False
+
+    def __init__(self, q: float):
+        self.axis = ConstantVelocity(q)  # validates q >= 0
+        self.q = self.axis.q
+
+    def F(self, dt: float) -> np.ndarray:
+        return np.kron(self.axis.F_axis(dt), _I2)
+
+    def Q(self, dt: float) -> np.ndarray:
+        return np.kron(self.axis.Q_axis(dt), _I2)
+
+    def transition(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
+        """``(F(dt), Q(dt))``; ValueError for ``dt < 0``."""
+        return self.F(dt), self.Q(dt)
+
+    def initial(self, p: np.ndarray, P: np.ndarray, vel_std: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+        """The state of a position fix ``(p, P)`` with velocity ``0 ± vel_std`` per axis,
+        independent of the position: ``[p, 0, 0]``, ``blockdiag(P, vel_std²·I₂)``."""
+        x = np.concatenate([np.asarray(p, dtype=float)[:2], np.zeros(2)])
+        P4 = np.zeros((4, 4))
+        P4[:2, :2] = P
+        P4[2:, 2:] = vel_std * vel_std * _I2
+        return x, P4
+
+
+EmitterModel = StaticEmitter | ConstantVelocityEmitter
+#: ``[tracker]`` ``motion`` of the DF methods
+EMITTER_MOTIONS = ("static", "cv")
+
+
+def emitter_model(model) -> EmitterModel:
+    """``model`` itself, or, for a 2×2 array, the static emitter with that ``Q``."""
+    if isinstance(model, (StaticEmitter, ConstantVelocityEmitter)):
+        return model
+    return StaticEmitter(model)
 
 
 def bearing_of(m: Measurement) -> tuple[np.ndarray, float]:
