@@ -3,7 +3,8 @@ r"""Sensor emulators: the measurement stream of one sensor, as a pure function o
 
 A sensor scans at ``start + k·period`` up to the scenario's duration. At each scan, for
 each object it observes (targets; for DF kinds also jammers, which are emitters while
-on), in its configured order, it yields one :class:`SensorEvent`:
+on; then the ``[traffic]`` aircraft alive at the scan, :mod:`sensors_sim.traffic`), in
+its configured order, it yields one :class:`SensorEvent`:
 
 1. draw the scan's variates (:class:`sensors_sim.noise.ScanDraws`: always the same
    pattern, so streams stay aligned whatever is detected or jammed);
@@ -40,6 +41,7 @@ from .spec import SensorSpec
 from .jammer import jam_effect, switched_on_at
 from .noise import ScanDraws, outlier_from_uniform, process_rng
 from .spec import Scenario
+from .traffic import Traffic
 from .trajectories import sample_times, truth_trajectories
 
 
@@ -85,14 +87,16 @@ def sensor_events(scenario: Scenario, sensor_id: str, run: int = 0) -> Iterator[
     rng = process_rng(scenario.seed, sensor_id, run)
     truths = truth_trajectories(scenario, run)
     seq = 0
+    traffic = Traffic(scenario.traffic, scenario.seed, run) if scenario.traffic is not None else None
     for t in scan_times(scenario, sensor_id):
         t = float(t)
         site = sensor.site.position(t)
         scan: list[tuple[SensorEvent, np.ndarray | None]] = []  # (event without measurement, z)
-        for obj in sensor.targets:
+        aircraft = {a.id: a for a in traffic.alive(t)} if traffic is not None else {}
+        for obj in (*sensor.targets, *aircraft):
             draws = ScanDraws(rng, n)
-            if obj in truths:
-                position, emitting = truths[obj].position(t), True
+            if obj in truths or obj in aircraft:
+                position, emitting = (truths[obj] if obj in truths else aircraft[obj]).position(t), True
                 effect = jam_effect(scenario, sensor_id, t, position)
             else:  # a jammer, seen by a DF only while it transmits
                 jammer = scenario.jammers[obj]

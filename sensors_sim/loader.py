@@ -38,6 +38,7 @@ from .spec import (
     Site,
     SiteSpec,
     TargetSpec,
+    TrafficSpec,
 )
 from .trajectories import (
     ConstantAcceleration,
@@ -51,7 +52,7 @@ from .trajectories import (
 _ID = re.compile(r"^[A-Za-z0-9_-]+$")  # ids become Zenoh key chunks: no '/', '*', ...
 _MIN_SEPARATION = 1.0  # m: a sensor closer than this to a target or jammer is "at" it
 _GRID_TOL = 1e-9
-_SCENARIO_KEYS = ("seed", "duration_s", "truth_dt_s", "targets", "jammers")  # what makes a file a scenario
+_SCENARIO_KEYS = ("seed", "duration_s", "truth_dt_s", "targets", "jammers", "traffic")  # what makes a file a scenario
 MOBILE = "messages"  # ``site = "messages"``: a mobile station's position comes with each measurement
 
 
@@ -159,7 +160,9 @@ def _scenario(root: Reader, name: str, display: str) -> Scenario:
     truth_dt = root.quantity("truth_dt", TIME, default=None, gt=0)
     header = _header(root, scenario=True)
     origin = header["origin"]
-    targets = {tid: _target(r, origin) for tid, r in root.tables("targets")}
+    traffic_r = root.table("traffic", required=False)
+    traffic = _traffic(traffic_r) if traffic_r is not None else None
+    targets = {tid: _target(r, origin) for tid, r in root.tables("targets", required=traffic is None)}
     jammers = {jid: _jammer(r, origin) for jid, r in root.tables("jammers", required=False)}
     sensors, sensor_pos_keys = {}, {}
     for sid, r in root.tables("sensors"):
@@ -186,7 +189,7 @@ def _scenario(root: Reader, name: str, display: str) -> Scenario:
                                     f"multiple of truth_dt_s = {truth_dt:g}")
     return Scenario(
         name=name, **header, sensors=sensors, seed=seed, duration=duration, targets=targets, jammers=jammers,
-        truth_dt=truth_dt if noisy else None, source=display,
+        truth_dt=truth_dt if noisy else None, source=display, traffic=traffic,
     )
 
 
@@ -252,6 +255,31 @@ def _target(r: Reader, origin) -> TargetSpec:
                      for i, s in enumerate(seg_readers)) if seg_readers else (ConstantAcceleration(),)
     r.finish()
     return TargetSpec(r.path[-1], np.concatenate([p0, v0, a0]), segments, jerk_psd)
+
+
+def _pair(r: Reader, key: str, factor: float = 1.0, lo: float = 0.0) -> tuple[float, float]:
+    """``[lowest, highest]``, ``lo <= lowest <= highest`` (then scaled by ``factor``)."""
+    a, b = r.vector(key, (2,))
+    if not lo <= a <= b:
+        raise r.error(f"must be [lowest, highest] with {lo:g} <= lowest <= highest", key)
+    return a * factor, b * factor
+
+
+def _traffic(r: Reader) -> TrafficSpec:
+    """The ``[traffic]`` table: aircraft crossing a box at random (:mod:`sensors_sim.traffic`)."""
+    rate = r.number("rate_per_min", gt=0) / 60.0
+    max_alive = r.integer("max_alive", ge=1)
+    key = r.unit_key("box", LENGTH)
+    x0, x1, y0, y1 = r.vector(key, (4,), LENGTH[key[4:]])
+    if not (x0 < x1 and y0 < y1):
+        raise r.error("must be [x_min, x_max, y_min, y_max] with x_min < x_max and y_min < y_max", key)
+    speed = _pair(r, "speed_mps")
+    if speed[0] <= 0:
+        raise r.error("must be [lowest, highest] with 0 < lowest <= highest", "speed_mps")
+    alt = _pair(r, "alt_m")
+    r.finish()
+    return TrafficSpec(rate, max_alive, (float(x0), float(x1), float(y0), float(y1)),
+                       (float(speed[0]), float(speed[1])), (float(alt[0]), float(alt[1])))
 
 
 _SEGMENT_TYPES = ("static", "cv", "ca", "turn", "waypoints", "orbit")

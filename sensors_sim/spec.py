@@ -78,6 +78,25 @@ class TargetSpec:
 
 
 @dataclass(frozen=True, eq=False)
+class TrafficSpec:
+    """An endless stream of aircraft crossing a box (``[traffic]``; :mod:`sensors_sim.traffic`).
+
+    Attributes:
+        rate: births per second (Poisson).
+        max_alive: at most this many aircraft at once: a birth while that many fly is dropped.
+        box: ``(x_min, x_max, y_min, y_max)`` ENU metres, the area crossed edge to edge.
+        speed: ``(lowest, highest)`` ground speed (m/s), uniform.
+        alt: ``(lowest, highest)`` altitude (m, ENU up), uniform; level flight.
+    """
+
+    rate: float
+    max_alive: int
+    box: tuple[float, float, float, float]
+    speed: tuple[float, float]
+    alt: tuple[float, float]
+
+
+@dataclass(frozen=True, eq=False)
 class SensorSpec:
     """One sensor process.
 
@@ -214,6 +233,7 @@ class Scenario(SiteSpec):
         targets, jammers: id -> spec, in file order.
         truth_dt: step of the truth's process-noise grid (s), or None if no target has
             process noise.
+        traffic: aircraft entering and leaving at random, seen by every sensor, or None.
     """
 
     seed: int
@@ -221,6 +241,7 @@ class Scenario(SiteSpec):
     targets: dict[str, TargetSpec]
     jammers: dict[str, JammerSpec]
     truth_dt: float | None = None
+    traffic: TrafficSpec | None = None
 
     def process_ids(self) -> list[str]:
         """Ids of every source process: sensors, jammers, then ``truth``."""

@@ -40,6 +40,7 @@ from fusion.motion import ConstantAcceleration as _CA
 
 from .noise import jerk_deviation, process_rng
 from .spec import TRUTH_PROCESS, Scenario, TargetSpec
+from .traffic import Traffic
 
 _CA_TRANSITION = _CA(0.0)  # only its F₁(τ) is used, to carry the deviation between nodes
 # Relative tolerance for "this time is on that grid node" (float round-off of k·dt).
@@ -268,10 +269,14 @@ class TruthSample(NamedTuple):
 
 def truth_events(scenario: Scenario, run: int = 0, period: float | None = None) -> Iterator[TruthSample]:
     """Every target's true state at ``0, period, 2·period, ...`` up to the duration
-    (default period: the fastest sensor's), in time order, targets in file order."""
+    (default period: the fastest sensor's), in time order, targets in file order, then
+    the ``[traffic]`` aircraft alive at that time in birth order."""
     if period is None:
         period = min(s.period for s in scenario.sensors.values())
     trajectories = truth_trajectories(scenario, run)
+    traffic = Traffic(scenario.traffic, scenario.seed, run) if scenario.traffic is not None else None
     for t in sample_times(0.0, period, scenario.duration):
         for tid, traj in trajectories.items():
             yield TruthSample(float(t), tid, traj.state(float(t)))
+        for a in traffic.alive(float(t)) if traffic is not None else ():
+            yield TruthSample(float(t), a.id, a.state(float(t)))

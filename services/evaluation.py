@@ -467,16 +467,18 @@ def with_sensors(scenario, sensors: dict, name: str | None = None):
 def track_steps(scenario, estimates: Sequence[Estimate], run: int = 0, node: str = "centre"):
     """The run as :class:`fusion.mtt_metrics.Step` s: one per scan group of the scenario's
     sensors (as the methods group them, ``pair_tol`` of ``[tracker]``), with every
-    target's true position and every track's estimate of that group. Emitter fixes are
+    target's (and alive ``[traffic]`` aircraft's) true position and every track's estimate of that group. Emitter fixes are
     horizontal (``[px, py]``): they are scored against the truth's horizontal position."""
     from fusion.mtt_metrics import Step
     from sensors_sim import truth_trajectory
+    from sensors_sim.traffic import Traffic
 
     from fusion.patent import TrackerConfig
 
     tol = _pair_tol(scenario, TrackerConfig.pair_tol)
     starts = [g[0] for g in _scan_groups(scenario, list(scenario.sensors), tol)]
     trajs = {tid: truth_trajectory(scenario, tid, run) for tid in scenario.targets}
+    traffic = Traffic(scenario.traffic, scenario.seed, run) if scenario.traffic is not None else None
     tracks: list[dict[str, np.ndarray]] = [{} for _ in starts]
     for e in estimates:
         if e.node != node:
@@ -485,7 +487,9 @@ def track_steps(scenario, estimates: Sequence[Estimate], run: int = 0, node: str
         if k >= 0 and e.t - starts[k] <= tol:  # estimates of that scan group
             tracks[k][e.track] = np.asarray(e.x[:3], dtype=float)
     dim = min((len(p) for tk in tracks for p in tk.values()), default=3)
-    return [Step(t, {tid: tr.position(t)[:dim] for tid, tr in trajs.items()}, tk) for t, tk in zip(starts, tracks)]
+    return [Step(t, {tid: tr.position(t)[:dim]
+                     for tid, tr in (*trajs.items(), *((a.id, a) for a in traffic.alive(t) if traffic))}, tk)
+            for t, tk in zip(starts, tracks)]
 
 
 GOSPA_CUTOFF = 1000.0  # m: GOSPA's c, order p = 2, for every many-target score
@@ -493,7 +497,7 @@ GOSPA_CUTOFF = 1000.0  # m: GOSPA's c, order p = 2, for every many-target score
 
 def many_targets(scenario) -> bool:
     """Scored as an air picture (set metrics) rather than per target."""
-    return len(scenario.targets) > 1
+    return len(scenario.targets) > 1 or getattr(scenario, "traffic", None) is not None
 
 
 def score_tracks_of(scenario, estimates: Sequence[Estimate], run: int = 0, c: float = GOSPA_CUTOFF,

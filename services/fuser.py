@@ -287,7 +287,8 @@ def max_held_for(scenario, window: float | None = None) -> int:
     which a laggard is declared dead (:func:`services.ordering.hold_cap`)."""
     from .ordering import hold_cap
 
-    rate = max((max(len(s.targets), 1) + s.clutter_rate) / s.period for s in scenario.sensors.values())
+    traffic = scenario.traffic.max_alive if getattr(scenario, "traffic", None) is not None else 0
+    rate = max((max(len(s.targets) + traffic, 1) + s.clutter_rate) / s.period for s in scenario.sensors.values())
     return hold_cap(rate, (scenario.duration if window is None else window) + 1.0)
 
 
