@@ -488,7 +488,7 @@ def track_steps(scenario, estimates: Sequence[Estimate], run: int = 0, node: str
             tracks[k][e.track] = np.asarray(e.x[:3], dtype=float)
     dim = min((len(p) for tk in tracks for p in tk.values()), default=3)
     return [Step(t, {tid: tr.position(t)[:dim]
-                     for tid, tr in (*trajs.items(), *((a.id, a) for a in traffic.alive(t) if traffic))}, tk)
+                     for tid, tr in (*trajs.items(), *((a.id, a) for a in (traffic.alive(t) if traffic else ())))}, tk)
             for t, tk in zip(starts, tracks)]
 
 

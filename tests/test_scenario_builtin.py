@@ -9,6 +9,8 @@ from importlib import resources
 import numpy as np
 import pytest
 
+from sensors_sim.traffic import Traffic
+
 from fusion.methods import method_config
 from sensors_sim import (
     jam_state,
@@ -41,7 +43,9 @@ def test_builtin_loads_and_every_sensor_produces_measurements(name):
     assert sc.process_ids()[-1] == "truth"
     for sid in sc.sensors:
         events = [e for e in sensor_events(sc, sid) if not e.clutter]  # one per scan per target
-        assert len(events) == len(scan_times(sc, sid)) * len(sc.sensors[sid].targets) > 0
+        traffic = Traffic(sc.traffic, sc.seed) if sc.traffic is not None else None  # and per aircraft alive
+        alive = sum(len(traffic.alive(float(t))) for t in scan_times(sc, sid)) if traffic else 0
+        assert len(events) == len(scan_times(sc, sid)) * len(sc.sensors[sid].targets) + alive > 0
         assert any(e.measurement is not None for e in events), sid
     for jid in sc.jammers:
         assert jam_state(sc, jid, sc.duration).jammer == jid
