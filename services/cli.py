@@ -182,6 +182,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="run the scenario's processes as a live session on UTC time (scenario time 0 = start), "
                         "until Ctrl-C, --for, or the sources' end")
     g.add_argument("--for", dest="for_s", type=_seconds, metavar="SECONDS", help="live: stop after this long")
+    p.add_argument("--listen", metavar="ENDPOINT",
+                   help="where the run's processes meet (default tcp/127.0.0.1:<a free port>); printed at start, "
+                        "for another shell's `zfusion picture --connect ENDPOINT`")
     g.add_argument("--max-delay", type=_non_negative, default=1.0, metavar="S",
                    help="live: the fuser waits at most S seconds for a lagging source (default %(default)s)")
     _fabric(p, per_process=False)  # every child shares these

@@ -44,6 +44,7 @@ and the summary is written as for a scenario run, with UTC times.
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import dataclasses
 import datetime as _dt
@@ -59,6 +60,8 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Iterable
+
+import zenoh
 
 from fusion.methods import METHODS, TRACK_FUSION_METHODS, topology_default, track_fusion_rule
 from fusion.types import Estimate
@@ -86,6 +89,11 @@ def free_port() -> int:
     with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
+
+
+def zenoh_reason(e: Exception) -> str:
+    """A Zenoh error on one line, without its source locations."""
+    return str(e).split(" at /")[0].replace("\n", " ")[:300]
 
 
 def die_with_parent() -> None:  # runs in the child between fork and exec
@@ -339,13 +347,22 @@ def run(args) -> int:
     Path(rrd).parent.mkdir(parents=True, exist_ok=True)
 
     keys = KeySpace(args.deployment)
+    listen = getattr(args, "listen", None)
     if args.connect or args.zenoh_config:
-        mine = ZenohOptions(connect=args.connect or [], config_file=args.zenoh_config)
+        mine = ZenohOptions(connect=args.connect or [], config_file=args.zenoh_config,
+                            **({"listen": [listen]} if listen else {}))
         theirs = mine
     else:
-        hub = f"tcp/127.0.0.1:{free_port()}"
+        hub = listen or f"tcp/127.0.0.1:{free_port()}"
         mine = ZenohOptions(listen=[hub])
         theirs = ZenohOptions(connect=[hub])
+    try:
+        mine.to_config()
+    except (zenoh.ZError, ValueError) as e:
+        print(f"zfusion run: --listen {listen}: not a Zenoh endpoint (e.g. tcp/127.0.0.1:7447)"
+              if listen else f"zfusion run: {zenoh_reason(e)}", file=sys.stderr)
+        return 2
+    endpoint = listen or (None if args.connect or args.zenoh_config else hub)
     common = ["--deployment", args.deployment, *theirs.to_args()] + (["-v"] if args.verbose else [])
     seed = ["--seed", str(scenario.seed)]
     # what the fuser, trackers and recorder are given: the scenario (with its overrides), or live its site
@@ -371,7 +388,16 @@ def run(args) -> int:
             return estimates[-1].t if estimates else 0.0
         return round((time.time() - started[0]) * speed, 3)
 
-    with Node(LAUNCHER_ID, "launcher", keys, mine) as node:
+    node = Node(LAUNCHER_ID, "launcher", keys, mine)
+    try:
+        node.__enter__()
+    except zenoh.ZError as e:  # e.g. --listen on a port in use
+        print(f"zfusion run: cannot open the session: {zenoh_reason(e)}", file=sys.stderr)
+        return 2
+    if endpoint:  # a user's other shell joins the session here (docs/live.md, "The current picture")
+        print(f"zfusion run: session at {endpoint} (zfusion picture --connect {endpoint}"
+              f"{'' if args.deployment == 'default' else ' --deployment ' + args.deployment})", file=sys.stderr, flush=True)
+    with contextlib.closing(node):
         inbox = Inbox(node.stop)
 
         def event(text: str) -> None:
@@ -499,7 +525,10 @@ def run(args) -> int:
     epoch = started[0] if live else 0.0
     if live:  # the latest estimate per (node, track, t): a re-filtering re-publishes corrected ones
         estimates = scenario_times(estimates, epoch)
-    scored = (tracks_summary([score_tracks_of(scenario, estimates)]) if many_targets(scenario)
+    played = scenario  # live: scored over the time the sources played (--for, Ctrl-C), not the whole duration
+    if live:
+        played = dataclasses.replace(scenario, duration=min(scenario.duration, max((e.t for e in estimates), default=0.0)))
+    scored = (tracks_summary([score_tracks_of(played, estimates)]) if many_targets(scenario)
               else method_summary([estimates], truth))
     doc = summary(scenario, topology, args.fusion_rule or track_fusion_rule(scenario.tracker, [method]), scenario.seed, 1,
                   {method: on_time_base(scored, epoch) if live else scored}, sources=src_report)

@@ -15,7 +15,11 @@ Many targets: each track is an entity keyed by (node, id) and is cleared (``rr.C
 recursively) once its stream has reported ``delete_misses`` frames without it, or at
 once when the centre tells its node to ``drop`` it; a cleared track's path and frame
 bookkeeping are forgotten, so state is held for the live tracks only. The fused picture
-is scored per frame as ``zfusion eval`` scores it (GOSPA, cut-off ``GOSPA_CUTOFF``).
+is scored per frame as ``zfusion eval`` scores it (GOSPA, cut-off ``GOSPA_CUTOFF``),
+against the targets that have a truth sample at that time. Targets come and go too
+(``[traffic]``): a target missing from one truth frame is cleared from the drawing, and
+one missing from ``TRUTH_GONE_FRAMES`` frames is forgotten (its truth samples, path and
+duplicate bookkeeping), so truth is held for the targets alive of late only.
 
 Bounded work per row: a path gets a point at most every ``TRAIL_STEP_S`` of scenario
 time and keeps ``PATH_MAX`` points; a 3D path is logged only with the row that adds a
@@ -67,6 +71,7 @@ TIMELINE = "sim_time"
 LIVE_TIMELINE = "utc"  # live sessions: t is UTC POSIX seconds, a timestamp timeline
 DEFAULT_RAY_M = 20_000.0
 TRUTH_CACHE = 4096  # truth samples kept per target, to score estimates against
+TRUTH_GONE_FRAMES = 30  # truth frames a target may miss before its samples are forgotten (it has left)
 PENDING_MAX = 4096  # estimates waiting for the truth sample of their time
 PATH_MAX = 600  # points kept in a drawn path (truth, track, airborne site): 5 min at TRAIL_STEP_S
 # A truth or track path gets a point (and a row) at most this often in scenario time, so
@@ -304,6 +309,9 @@ class Recorder:
         self._ref_pos: np.ndarray | None = None  # latest fused (else any) estimate: scales rays
         self._truth: dict[str, OrderedDict[float, np.ndarray]] = {}
         self._truth_paths: dict[str, Trail] = {}
+        self._truth_t = -math.inf  # the latest truth frame's time
+        self._truth_drawn = Reports()  # truth frames: a target missing from one is no longer drawn
+        self._truth_kept = Reports()  # ... one missing from TRUTH_GONE_FRAMES is forgotten
         self._track_paths: dict[str, Trail] = {}
         self.delete_misses = AssociationConfig.delete_misses  # the trackers' default; the scenario may set it
         self._reports: dict[tuple[str, str], Reports] = {}  # by stream (family, key id)
@@ -599,6 +607,14 @@ class Recorder:
     def _on_truth(self, family: str, ident: str | None, msg: Message) -> None:
         tgt, x = msg.body["target"], np.asarray(msg.body["x"], dtype=float)
         self._advance(msg.t)
+        self._truth_t = max(self._truth_t, msg.t)
+        missed = self._truth_drawn.t  # the frame a target gone at this one is missing from: cleared there
+        for gone in self._truth_drawn.report(tgt, msg.t, 1):
+            self._log(_p("world", "truth", gone), missed, part(rr.Clear, is_recursive=[True]))
+            if self.geo is not None:
+                self.geo.clear(_p("world", "truth", gone), missed)
+        for gone in self._truth_kept.report(tgt, msg.t, TRUTH_GONE_FRAMES):
+            self._forget_truth(gone)
         cache = self._truth.setdefault(tgt, OrderedDict())
         cache[msg.t] = x
         while len(cache) > TRUTH_CACHE:
@@ -626,6 +642,25 @@ class Recorder:
         self._log(_p("world", "truth", tgt), msg.t, *parts)
         if self.geo is not None:
             self.geo.truth(_p("world", "truth", tgt), msg.t, pos, path, grew, draw.TRUTH_COLOR)
+
+    def _forget_truth(self, tgt: str) -> None:
+        """``tgt`` has left: its truth samples, path and duplicate bookkeeping go."""
+        self._truth.pop(tgt, None)
+        self._truth_paths.pop(tgt, None)
+        for stream in [s for s in self._seqs if s[0] == "truth" and s[1] == tgt]:
+            del self._seqs[stream]
+
+    def _truth_at(self, t: float) -> list[np.ndarray] | None:
+        """The truth of every target present at ``t`` (one whose samples start after ``t`` or
+        end before it is not), or None if a target whose samples span ``t`` lacks it (lost)."""
+        out = []
+        for cache in self._truth.values():
+            x = cache.get(t)
+            if x is not None:
+                out.append(x)
+            elif cache and next(iter(cache)) < t < next(reversed(cache)):
+                return None
+        return out
 
     def _draw_estimate(self, path: str, e: Estimate, color: tuple[int, int, int], label: str) -> np.ndarray | None:
         """Point + 3σ ellipsoid / ellipse + path so far; a smoothed bearing as a ray with its
@@ -765,10 +800,10 @@ class Recorder:
             n = self._picture_size[method]
             while len(frames) > (0 if final else 1) and self._truth:
                 t = next(iter(frames))
-                truths = [cache.get(t) for cache in self._truth.values()]
-                if any(x is None for x in truths):
-                    if not final and any(not cache or next(reversed(cache)) < t for cache in self._truth.values()):
-                        break  # the truth of this time is still to come
+                if not final and self._truth_t <= t:
+                    break  # the truth of this time is still to come (a later truth frame closes it)
+                truths = self._truth_at(t)
+                if not truths:  # a sample lost, or no truth of that time: not scored
                     frames.popitem(last=False)
                     continue
                 refs = [draw.truth_part(x, n) for x in truths]

@@ -610,6 +610,53 @@ def test_many_target_picture_is_scored_as_eval_scores_it(tmp_path, truth_first):
     assert not any(p.startswith("/metrics/error_pos") or p.startswith("/metrics/nees") for p in rows)
 
 
+def test_traffic_picture_scored_against_the_aircraft_alive_and_departed_forgotten(tmp_path):
+    """Random traffic (``[traffic]``: aircraft born and leaving, 40-75 s crossings over
+    150 s): the recording's GOSPA per frame is the in-process scorer's, which takes the
+    aircraft alive at each frame; an aircraft that has left is cleared from the drawing
+    at the first truth frame without it and its truth is forgotten after
+    ``TRUTH_GONE_FRAMES``, so the recorder holds only the aircraft of late."""
+    from fusion.metrics import gospa
+    from sensors_sim import truth_events
+    from services.evaluation import GOSPA_CUTOFF, run_method, track_steps
+
+    text = (Path(__file__).resolve().parents[1] / "sensors_sim/scenarios/air-picture-live.toml").read_text()
+    for old, new in (("box_km = [10.0, 45.0, 10.0, 45.0]", "box_km = [15.0, 30.0, 15.0, 30.0]"),
+                     ("speed_mps = [150.0, 250.0]", "speed_mps = [200.0, 250.0]"),
+                     ("duration_s = 600.0", "duration_s = 150.0")):
+        assert old in text
+        text = text.replace(old, new)
+    (tmp_path / "traffic.toml").write_text(text)
+    sc = load_scenario(tmp_path / "traffic.toml")
+    out = run_method(sc, "SS")
+    samples = list(truth_events(sc))
+    truth = [(x.t, KEYS.truth(x.target), encode("truth", "truth", k + 1, x.t, target=x.target, x=x.x))
+             for k, x in enumerate(samples)]
+    fused = [(e.t, KEYS.fused(), encode_estimate(e, "fuser", k + 1, "track")) for k, e in enumerate(out)]
+    s = Session(tmp_path, scenario=sc)
+    held = []  # aircraft whose truth the recorder holds, after each truth frame
+    for _, key, data in sorted(truth + fused, key=lambda r: (r[0], r[1] == KEYS.fused())):
+        assert s.put(key, data) is not None
+        held.append(len(s.r._truth))
+    last_seen = {}
+    for x in samples:
+        last_seen[x.target] = x.t
+    t_end = samples[-1].t
+    recent = {a for a, t in last_seen.items() if t_end - t < recorder_mod.TRUTH_GONE_FRAMES + 1}
+    assert set(s.r._truth) == recent and len(last_seen) > len(recent) + 3, (len(last_seen), len(recent))
+    rows = s.close()
+
+    steps = [st for st in track_steps(sc, out) if st.tracks and st.truths]
+    want = [gospa(list(st.tracks.values()), list(st.truths.values()), GOSPA_CUTOFF) for st in steps]
+    got = rows["/metrics/gospa/SS"]
+    assert [r["t"] for r in got] == [st.t for st in steps] and len(steps) > 100
+    np.testing.assert_allclose([r["Scalars:scalars"][0] for r in got], [g.distance for g in want], rtol=1e-12)
+    gone = sorted(set(last_seen) - {x.target for x in samples if x.t == t_end})
+    for a in gone:  # cleared one truth frame after its last sample
+        clears = [r["t"] for r in rows[f"/world/truth/{a}"] if r.get("Clear:is_recursive") is not None]
+        assert clears == [last_seen[a] + 1.0], (a, clears, last_seen[a])
+
+
 @pytest.mark.slow
 def test_many_target_run_records_every_fused_track_by_id(tmp_path, deployment):
     """`zfusion run` on the crossing scenario: the recording has one entity per fused
