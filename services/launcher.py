@@ -23,8 +23,10 @@ exit by a signal the launcher did not send) is an *outage*, not the end of the r
   restarted by hand (same command line): the run then ends when a fuser reports done,
   or :data:`END_GRACE` seconds after the last source has finished.
 
-A child that fails on its own (positive exit code) is a bug, not an outage: it is not
-restarted and ``run`` exits 1. The run ends when the fuser finishes. The summary's
+A child that fails on its own (positive exit code) is an error, not an outage: it is not
+restarted, ``run`` stops every process at once and exits 1 with the child's last line on
+stderr (children's stderr is relayed through the launcher). The run ends when the fuser
+finishes. The summary's
 ``outages`` lists, per process, every death the launcher saw (scenario time down and
 back up, the exit code) and ``exit_codes`` the first non-zero code of any incarnation.
 
@@ -56,6 +58,7 @@ import signal
 import socket
 import subprocess
 import sys
+import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -105,20 +108,55 @@ def die_with_parent() -> None:  # runs in the child between fork and exec
 
 @dataclass
 class Children:
+    """The run's child processes. Each child's stderr is relayed line by line to ours by a
+    thread that keeps only its last non-blank line (what a failed child said last)."""
+
     procs: dict[str, subprocess.Popen] = field(default_factory=dict)
     argv: dict[str, list[str]] = field(default_factory=dict)  # each child's command line, to restart it
+    last_line: dict[str, str] = field(default_factory=dict)  # each child's last line on stderr
+    relays: list[threading.Thread] = field(default_factory=list)
 
     def start(self, name: str, argv: list[str]) -> None:
         cmd = [sys.executable, "-m", "services.cli", *argv]
         log.debug("starting %s: %s", name, " ".join(cmd))
         self.argv[name] = argv
-        self.procs[name] = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, preexec_fn=die_with_parent)
+        proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stderr=subprocess.PIPE, preexec_fn=die_with_parent)
+        self.procs[name] = proc
+        relay = threading.Thread(target=self._relay, args=(name, proc.stderr), daemon=True, name=f"stderr-{name}")
+        relay.start()
+        self.relays.append(relay)
+
+    def _relay(self, name: str, stream) -> None:
+        out = getattr(sys.stderr, "buffer", None)
+        for line in iter(stream.readline, b""):
+            if line.strip():
+                self.last_line[name] = line.decode(errors="replace").strip()
+            try:
+                if out is not None:
+                    out.write(line)
+                    out.flush()
+                else:
+                    sys.stderr.write(line.decode(errors="replace"))
+            except (OSError, ValueError):  # our stderr closed: keep draining the child's
+                pass
+        stream.close()
 
     def exited(self, names: Iterable[str]) -> str | None:
         """Which of ``names`` have exited, with their exit codes (None if none has)."""
         dead = [f"{n} exited with code {self.procs[n].poll()}" for n in names
                 if n in self.procs and self.procs[n].poll() is not None]
         return "; ".join(dead) + " (its error is above)" if dead else None
+
+    def failed(self) -> str | None:
+        """The first child that failed on its own (a positive exit code), with what it said
+        last; None while none has. A kill (negative code) is an outage, not a failure."""
+        for name, proc in self.procs.items():
+            code = proc.poll()
+            if code is not None and code > 0:
+                time.sleep(0.05)  # its last line may still be in the relay
+                said = self.last_line.get(name)
+                return f"{name} failed (exit {code})" + (f": {said}" if said else "")
+        return None
 
     def wait(self, name: str, timeout: float) -> int | None:
         try:
@@ -151,6 +189,8 @@ class Children:
             except subprocess.TimeoutExpired:
                 p.kill()
                 p.wait()
+        for relay in self.relays:  # their last words before ours
+            relay.join(timeout=1.0)
 
 
 class Supervisor:
@@ -247,8 +287,8 @@ def _live_until_done(node: Node, children: Children, sup: "Supervisor", drain, s
         drain(0.1)
         sup.poll()
         code = children.procs[FUSER_ID].poll()
-        if code is not None and code >= 0:
-            break  # the fuser ended on its own (a failure; a kill is the supervisor's to restart)
+        if code is not None and code >= 0 or children.failed():
+            break  # the fuser ended on its own, or a child failed (a kill is the supervisor's to restart)
         if all(children.procs[s].poll() is not None for s in sources):
             break
     node.stop.clear()  # Ctrl-C ends a live run like --for; a second one ends the stop sequence
@@ -378,6 +418,7 @@ def run(args) -> int:
     usage: dict[str, ProcessUsage] = {}  # each process's CPU time and peak memory, from its statuses
     children = Children()
     interrupted = not_started = False
+    failure: str | None = None  # a child that failed on its own, and what it said
     started: list[float] = []  # wall-clock epoch of scenario time 0, once the sources start
 
     def clock() -> float | None:
@@ -469,6 +510,9 @@ def run(args) -> int:
             while not node.stop.is_set() and not live:
                 drain(0.1)
                 sup.poll()
+                failure = children.failed()
+                if failure:  # a child's own error: the run cannot give what was asked
+                    break
                 code = children.procs[FUSER_ID].returncode
                 if code is not None and code >= 0:  # the fuser finished (or failed)
                     break
@@ -482,7 +526,8 @@ def run(args) -> int:
                     if last_source_end is not None and time.monotonic() - last_source_end > END_GRACE:
                         break
             interrupted = node.stop.is_set()
-            if not interrupted and not live:
+            failure = children.failed()
+            if not interrupted and not live and not failure:
                 for sid in [*sources, *trackers.values()]:
                     children.wait(sid, 10.0)
                 never_back = [n for n, outs in sup.outages.items() if outs[-1]["t_up"] is None]
@@ -502,18 +547,22 @@ def run(args) -> int:
         except TimeoutError as e:  # a process did not come up (or Ctrl-C while waiting)
             interrupted = node.stop.is_set()
             not_started = not interrupted
-            if not_started:
+            failure = children.failed()
+            if not_started and not failure:
                 log.error("%s", e)
         finally:
             sup.restart = False
             children.stop_all()
     codes = sup.finish()
-    if not_started:
-        print("zfusion run: the run could not start; all processes stopped", file=sys.stderr)
-        return 1
     if interrupted:
         print("zfusion run: interrupted; all processes stopped", file=sys.stderr)
         return 130
+    if failure:
+        print(f"zfusion run: {failure}; all processes stopped", file=sys.stderr)
+        return 1
+    if not_started:
+        print("zfusion run: the run could not start; all processes stopped", file=sys.stderr)
+        return 1
     if codes.get(FUSER_ID, 0) > 0:
         print(f"zfusion run: the fuser failed (exit {codes.get(FUSER_ID)})", file=sys.stderr)
         return 1
