@@ -15,6 +15,7 @@ from fusion.track_fusion import FUSION_RULES
 from schemas import KeySpace
 from schemas.keys import DEFAULT_DEPLOYMENT
 
+from .errors import INTERRUPTED, USAGE, UserError, one_line
 from .node import ZenohOptions, setup_logging, split_override
 
 
@@ -30,6 +31,16 @@ def _speed(text: str) -> str:
         except ValueError:
             raise argparse.ArgumentTypeError(f"--speed takes a positive number or 'max', not {text!r}") from None
     return text
+
+
+def _seed(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        value = -1
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"a seed is a non-negative integer, not {text!r}")
+    return value
 
 
 def _seconds(text: str) -> float:
@@ -156,7 +167,7 @@ def _zopts(args) -> ZenohOptions:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(prog="zfusion", description="Real-time multi-sensor fusion over Zenoh.")
+    ap = _Parser(prog="zfusion", description="Real-time multi-sensor fusion over Zenoh.")
     sub = ap.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     p = sub.add_parser("run", help="run a scenario end to end as separate processes over Zenoh")
@@ -165,7 +176,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--method", help="estimation method (default: the scenario's)")
     p.add_argument("--fusion-rule", choices=FUSION_RULES)
     p.add_argument("--speed", type=_speed, default="1", help="scenario seconds per wall second, or 'max' (default 1)")
-    p.add_argument("--seed", type=int, help="replace the scenario's seed")
+    p.add_argument("--seed", type=_seed, help="replace the scenario's seed (a non-negative integer)")
     p.add_argument("--rrd", help="recording path (default runs/<scenario>-<topology>-<time>.rrd)")
     p.add_argument("--json", help="write the summary JSON here")
     p.add_argument("--spawn", action="store_true",
@@ -195,7 +206,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--methods", nargs="+",
                    help="methods to evaluate (default: every method the scenario's sensors can feed)")
     p.add_argument("--fusion-rule", choices=FUSION_RULES)
-    p.add_argument("--seed", type=int)
+    p.add_argument("--seed", type=_seed, help="replace the scenario's seed (a non-negative integer)")
     p.add_argument("--json", help="write the summary JSON here")
     p.add_argument("--report", metavar="DIR", help="write a Markdown report with PNG plots into DIR")
     p.add_argument("--jobs", type=int, default=1, help="worker processes for the Monte Carlo runs (default 1)")
@@ -221,7 +232,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--speed", type=_speed, default="1")
     p.add_argument("--start-at", type=float, help="wall-clock epoch of scenario time 0 (default: when ready)")
     p.add_argument("--wait-for", type=_ids, default=[], help="comma-separated processes to wait for")
-    p.add_argument("--seed", type=int)
+    p.add_argument("--seed", type=_seed, help="replace the scenario's seed (a non-negative integer)")
     p.add_argument("--live", action="store_true",
                    help="live emulation: stamps on the UTC time base (scenario time 0 = --start-at), speed 1")
     p.add_argument("--duration-s", type=_seconds, metavar="N", help="override the scenario's duration (s)")
@@ -240,7 +251,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--id", default="fuser")
     p.add_argument("--source-timeout", type=float, default=5.0, help="seconds of silence before a source is dead")
     p.add_argument("--start-grace", type=float, default=30.0, help="seconds a never-heard source gets at start")
-    p.add_argument("--seed", type=int)
+    p.add_argument("--seed", type=_seed, help="replace the scenario's seed (a non-negative integer)")
     _tracker_options(p)
     _fabric(p)
 
@@ -253,7 +264,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--feedback-timeout", type=float, default=5.0,
                    help="seconds without an answer from the fuser before running alone")
     p.add_argument("--start-grace", type=float, default=30.0, help=argparse.SUPPRESS)
-    p.add_argument("--seed", type=int)
+    p.add_argument("--seed", type=_seed, help="replace the scenario's seed (a non-negative integer)")
     _tracker_options(p)
     _fabric(p)
 
@@ -268,7 +279,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--expect", type=_ids, default=[],
                    help="stop once these processes have reported done (default: run until signalled)")
     _site_or_scenario(p, required=False)
-    p.add_argument("--seed", type=int)
+    p.add_argument("--seed", type=_seed, help="replace the scenario's seed (a non-negative integer)")
     p.add_argument("--spawn", action="store_true",
                    help="also stream to a Rerun viewer (started, or reused on port 9876) if a display is available")
     p.add_argument("--rotate-s", type=_seconds, metavar="N",
@@ -303,9 +314,38 @@ def build_parser() -> argparse.ArgumentParser:
     return ap
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse with its errors as one line: ``zfusion <command>: <what> (see --help)``."""
+
+    def error(self, message: str):
+        self.exit(USAGE, f"{self.prog}: {message} (see {self.prog} --help)\n")
+
+
 def main(argv: list[str] | None = None) -> int:
+    """Run one command; a user's error is one line on stderr (services/errors.py)."""
     args = build_parser().parse_args(argv)
     setup_logging(getattr(args, "verbose", False))
+    try:
+        return _command(args)
+    except KeyboardInterrupt:
+        return INTERRUPTED
+    except (Exception, SystemExit) as exc:
+        said = one_line(exc)
+        if said is None or getattr(args, "verbose", False):
+            raise
+        text, code = said
+        print(text if text.startswith("zfusion ") else f"zfusion {_name(args)}: {text}", file=sys.stderr)
+        return code
+
+
+def _name(args) -> str:
+    return " ".join(filter(None, (args.command, getattr(args, "exporter", None), getattr(args, "gateway", None))))
+
+
+def _command(args) -> int:
+    config = getattr(args, "zenoh_config", None)
+    if config and not Path(config).is_file():
+        raise UserError(f"--zenoh-config {config}: no such file; give a Zenoh JSON5 config file (see deploy/zenoh/)")
     if args.command == "run":
         from .launcher import run
 
@@ -419,14 +459,30 @@ def _scenario_of(args):
         raise SystemExit(2) from None
 
 
+def writable_dir(path: Path, option: str) -> None:
+    """``path`` made if needed and written to once, or a :class:`UserError` saying why not."""
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+        probe = path / f".zfusion-probe-{os.getpid()}"
+        probe.write_bytes(b"")
+        probe.unlink()
+    except OSError as e:
+        raise UserError(f"{option} {path}: cannot write there ({e.strerror or e}); choose a directory "
+                        f"you may write to") from None
+
+
 def _check_overrides(scenario, methods: list[str], overrides: dict, command: str) -> None:
-    """Every method must accept the ``[tracker]`` overrides (an unknown key, a bad value):
-    else one line on stderr and exit 2."""
-    if not overrides:
-        return
+    """Every method must be one the scenario's sensors can feed, and accept the scenario's
+    ``[tracker]`` table with the overrides (an unknown key, a bad value): else one line on
+    stderr and exit 2."""
     from fusion.methods import make_method, method_config
 
+    from .evaluation import method_misfit
+
     for m in methods:
+        misfit = method_misfit(scenario, m)
+        if misfit:
+            raise UserError(misfit)
         try:
             make_method(m, method_config(scenario.tracker, m, overrides))
         except ValueError as e:
@@ -452,6 +508,15 @@ def _eval(args) -> int:
                          f"({', '.join(TRACK_FUSION_METHODS)}); none of {', '.join(methods)} fuses tracks")
     overrides = _overrides(args)
     _check_overrides(scenario, methods, overrides, "eval")
+    if args.json:  # the outputs checked before the Monte Carlo, not after it
+        writable_dir(Path(args.json).parent, "--json")
+    if args.report:
+        writable_dir(Path(args.report), "--report")
+        try:
+            import matplotlib  # noqa: F401
+        except ImportError:
+            raise UserError("--report draws its plots with matplotlib, which is not installed: "
+                            "pip install 'zfusion[report]', or leave out --report") from None
     show = sys.stderr.isatty() if args.progress is None else args.progress
     rule = args.fusion_rule or track_fusion_rule(scenario.tracker, methods)
 

@@ -84,6 +84,24 @@ def default_methods(scenario) -> list[str]:
     return [m for m, s in METHODS.items() if s.runs_on(kinds, fixed_stations=fixed, colocated=colocated)]
 
 
+def method_misfit(scenario, method: str) -> str | None:
+    """Why ``method`` cannot run on ``scenario`` (an unknown name, a DF method on 3D
+    sensors, a sensor kind the scenario lacks), with the methods that can; None if it can."""
+    fits = default_methods(scenario)
+    if method in fits:
+        return None
+    choose = f"choose one of {', '.join(fits)}" if fits else "no method can use its sensors"
+    spec = METHODS.get(method)
+    if spec is None:
+        return f"unknown method {method!r}; for scenario {scenario.name} {choose}"
+    kinds = measurement_kinds(scenario)
+    family = "a DF (bearings-only) method" if spec.family == "df" else "a 3D tracking method"
+    if not spec.kinds & kinds:
+        return (f"{method} is {family} using {'/'.join(sorted(spec.kinds))} measurements; scenario {scenario.name} "
+                f"has {', '.join(sorted(kinds))}: {choose}")
+    return f"{method} cannot use the sensors of scenario {scenario.name} ({', '.join(sorted(kinds))}): {choose}"
+
+
 def _colocated_pair(scenario) -> bool:
     from fusion.patent import COLOCATED_TOL
 

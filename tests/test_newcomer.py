@@ -53,3 +53,65 @@ def test_a_failing_child_ends_the_run_promptly_with_its_message(tmp_path):
     assert p.returncode == 1, p.stderr[-2000:]
     last = p.stderr.strip().splitlines()[-1]
     assert last.startswith("zfusion run: radar2d failed (exit ") and "seed" in last, last
+
+
+# 3. every user error is one line -------------------------------------------------------------
+def _free_port() -> int:
+    from services.launcher import free_port
+
+    return free_port()
+
+
+def _typo_scenario(tmp_path):
+    from pathlib import Path
+
+    import sensors_sim
+
+    text = (Path(sensors_sim.__file__).parent / "scenarios" / "patent-3d.toml").read_text()
+    text = text.replace("\nq = 0.01 ", "\nqq = 0.01", 1)  # the [tracker] key q misspelt
+    path = tmp_path / "typo.toml"
+    path.write_text(text)
+    return path
+
+
+NO_MATPLOTLIB = "import sys; sys.modules['matplotlib'] = None; from services.cli import main; sys.exit(main(sys.argv[1:]))"
+
+MISTAKES = {  # name: (argv with {tmp}, {port}, {typo}, exit code, what the line says)
+    "scenario-file": (["run", "--scenario", "{tmp}/bad.toml", "--speed", "max"], 2, "bad.toml"),
+    "scenario-file-eval": (["eval", "--scenario", "{tmp}/bad.toml", "--runs", "1"], 2, "bad.toml"),
+    "unknown-method": (["run", "--scenario", "patent-3d", "--method", "FOO"], 2, "unknown method 'FOO'"),
+    "tracker-key-typo": (["run", "--scenario", "{typo}", "--speed", "max"], 2, "'qq'"),
+    "df-method-on-3d": (["run", "--scenario", "patent-3d", "--method", "EKF"], 2, "DF (bearings-only)"),
+    "missing-zenoh-config": (["run", "--scenario", "patent-3d", "--zenoh-config", "{tmp}/no.json5"], 2,
+                             "--zenoh-config"),
+    "refused-connection": (["sensor", "--scenario", "patent-3d", "--id", "radar2d", "--zenoh-mode", "client",
+                            "--connect", "tcp/127.0.0.1:{port}"], 1, "nothing answers there"),
+    "bad-listen-port": (["router", "--listen", "tcp/127.0.0.1:notaport"], 2, "invalid port"),
+    "missing-tls-key": (["router", "--zenoh-config", "deploy/zenoh/router-tls-acl.json5",
+                         "--listen", "tls/127.0.0.1:{port}"], 2, "private key"),
+    "report-without-matplotlib": (["-c", NO_MATPLOTLIB, "eval", "--scenario", "patent-3d", "--runs", "1",
+                                   "--report", "{tmp}/r"], 2, "pip install 'zfusion[report]'"),
+    "unwritable-report": (["eval", "--scenario", "patent-3d", "--runs", "1", "--report", "/etc/passwd/r"], 2,
+                          "cannot write there"),
+    "negative-seed": (["run", "--scenario", "patent-3d", "--seed", "-1"], 2, "non-negative"),
+}
+
+
+@pytest.mark.parametrize("case", list(MISTAKES))
+def test_a_user_mistake_is_one_line(tmp_path, case):
+    import os
+    from pathlib import Path
+
+    argv, code, says = MISTAKES[case]
+    (tmp_path / "bad.toml").write_text('name = "bad"\nduration = 10\n')
+    subs = {"{tmp}": str(tmp_path), "{port}": str(_free_port()), "{typo}": str(_typo_scenario(tmp_path))}
+    for k, v in subs.items():
+        argv = [a.replace(k, v) for a in argv]
+    cmd = [sys.executable, *argv] if argv[0] == "-c" else [sys.executable, "-m", "services.cli", *argv]
+    root = Path(__file__).resolve().parents[1]
+    p = subprocess.run(cmd, capture_output=True, text=True, timeout=60, stdin=subprocess.DEVNULL, cwd=root,
+                       env={**os.environ, "PYTHONPATH": str(root)})
+    lines = [ln for ln in p.stderr.splitlines() if ln.strip()]
+    assert "Traceback" not in p.stderr, p.stderr[-3000:]
+    assert p.returncode == code, (p.returncode, p.stderr)
+    assert len(lines) == 1 and lines[0].startswith("zfusion ") and says in lines[0], p.stderr

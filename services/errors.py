@@ -1,0 +1,67 @@
+"""A user's mistake as one line: ``zfusion <command>: <what>, <how to fix>``.
+
+Every command runs inside :func:`services.cli.main`, which turns the errors a user can
+cause into one line on stderr and an exit code, and lets any other exception (a bug)
+through as a traceback. ``-v`` shows the traceback of these too.
+
+* :class:`UserError`: raised by the command line and the launcher for a request that
+  cannot be carried out as given (exit 2, or 1 for a failure such as a refused
+  connection); its text is the "what, how to fix" part.
+* ``ScenarioError`` (a bad scenario or site file), a bad file given on the command line
+  (``OSError`` with a file name), a Zenoh configuration or endpoint that Zenoh refuses
+  (``zenoh.ZError``, its Rust source location dropped), and a missing optional
+  dependency (``ImportError``) are mapped by :func:`one_line`.
+* ``SystemExit`` with a text (the older ``raise SystemExit("zfusion x: ...")``) is a
+  usage error: exit 2.
+
+Exit codes: 2 usage and input errors, 1 failures, 130 interrupted (Ctrl-C).
+"""
+
+from __future__ import annotations
+
+import re
+
+USAGE = 2
+FAILURE = 1
+INTERRUPTED = 130
+
+_RUST_AT = re.compile(r"\s+at /\S+\.rs:\d+\.?")
+
+
+class UserError(Exception):
+    """A request that cannot be carried out as given: ``what, how to fix`` and an exit code."""
+
+    def __init__(self, text: str, code: int = USAGE):
+        super().__init__(text)
+        self.code = code
+
+
+def zenoh_text(exc: BaseException) -> tuple[str, int]:
+    """A Zenoh error without its Rust source location, with what to check."""
+    text = re.sub(r"Single\((\S+?)\)", r"\1", _RUST_AT.sub("", str(exc))).strip().rstrip(".!")
+    if "Unable to connect" in text or "Timeout" in text:
+        return (f"Zenoh: {text}: nothing answers there; start the router (zfusion router --listen EP) "
+                f"or fix --connect"), FAILURE
+    if "No such file" in text:
+        return f"Zenoh: {text}: a file named in the Zenoh config (--zenoh-config, --zenoh-set) is missing", USAGE
+    return f"Zenoh: {text}; check --listen/--connect endpoints (tcp/HOST:PORT) and the Zenoh config", USAGE
+
+
+def one_line(exc: BaseException) -> tuple[str, int] | None:
+    """The one line and exit code for an error a user can cause, else None (a bug)."""
+    from sensors_sim import ScenarioError
+
+    if isinstance(exc, UserError):
+        return str(exc), exc.code
+    if isinstance(exc, ScenarioError):
+        return f"{exc}", USAGE
+    if type(exc).__name__ == "ZError":
+        return zenoh_text(exc)
+    if isinstance(exc, ImportError) and exc.name:
+        extra = " (pip install 'zfusion[report]')" if exc.name.split(".")[0] == "matplotlib" else ""
+        return f"this needs the Python package {exc.name.split('.')[0]}, which is not installed{extra}", USAGE
+    if isinstance(exc, OSError) and exc.filename is not None:
+        return f"{exc.filename}: {exc.strerror or exc}; give a path that exists and that you may use", USAGE
+    if isinstance(exc, SystemExit) and isinstance(exc.code, str):
+        return exc.code, USAGE
+    return None
