@@ -476,8 +476,9 @@ def _check_overrides(scenario, methods: list[str], overrides: dict, command: str
     ``[tracker]`` table with the overrides (an unknown key, a bad value): else one line on
     stderr and exit 2."""
     from fusion.methods import make_method, method_config
+    from fusion.mtt import AssociationConfig
 
-    from .evaluation import method_misfit
+    from .evaluation import many_targets, method_misfit
 
     for m in methods:
         misfit = method_misfit(scenario, m)
@@ -488,6 +489,11 @@ def _check_overrides(scenario, methods: list[str], overrides: dict, command: str
         except ValueError as e:
             print(f"zfusion {command}: {e}", file=sys.stderr)
             raise SystemExit(2) from None
+        if many_targets(scenario) and AssociationConfig.split(method_config(scenario.tracker, m, overrides))[0] is None:
+            # a single-target method would follow one of them and be scored against all
+            raise UserError(f"scenario {scenario.name} has {len(scenario.targets) or 'changing'} targets but no "
+                            f"association: {m} alone follows one target; add association = \"gnn\" to its "
+                            f"[tracker] table, or --set association=gnn")
 
 
 def _eval(args) -> int:

@@ -99,6 +99,21 @@ def zenoh_reason(e: Exception) -> str:
     return str(e).split(" at /")[0].replace("\n", " ")[:300]
 
 
+def unreachable(endpoints: Iterable[str], timeout: float = 2.0) -> list[str]:
+    """The ``tcp/`` and ``tls/`` endpoints of ``endpoints`` where nothing accepts a connection."""
+    out = []
+    for ep in endpoints:
+        proto, _, addr = ep.partition("/")
+        host, _, port = addr.split("#")[0].rpartition(":")
+        if proto not in ("tcp", "tls") or not host:
+            continue
+        try:
+            socket.create_connection((host.strip("[]"), int(port)), timeout=timeout).close()
+        except (OSError, ValueError):
+            out.append(ep)
+    return out
+
+
 def die_with_parent() -> None:  # runs in the child between fork and exec
     try:
         ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
@@ -387,6 +402,11 @@ def run(args) -> int:
     Path(rrd).parent.mkdir(parents=True, exist_ok=True)
 
     keys = KeySpace(args.deployment)
+    if args.connect and len(unreachable(args.connect)) == len(args.connect):
+        from .errors import FAILURE, UserError
+
+        raise UserError(f"--connect {' '.join(args.connect)}: nothing accepts a connection there; start the "
+                        f"router first (zfusion router --listen ENDPOINT) or fix the endpoint", FAILURE)
     listen = getattr(args, "listen", None)
     if args.connect or args.zenoh_config:
         mine = ZenohOptions(connect=args.connect or [], config_file=args.zenoh_config,
