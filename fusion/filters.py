@@ -3,6 +3,8 @@ manager uses it, and the registry of filters by name (``[tracker]`` key ``filter
 
 A filter holds a Gaussian ``(x, P)`` at time ``t`` and offers
 
+* :meth:`Filter.set_state` ``(x, P, t)``, restarting from a fed-back prior (a filter with
+  state beyond ``(x, P)``, the IMM's mode probabilities, keeps it);
 * :meth:`Filter.predicted` ``(t) -> (x⁻, P⁻)``, the prediction without changing it (gates);
 * :meth:`Filter.predict` ``(t)``, moving it there with the motion model;
 * :meth:`Filter.update` ``(model, z)``, the update with a :class:`fusion.sensors3d.SphericalModel`
@@ -13,6 +15,9 @@ A filter holds a Gaussian ``(x, P)`` at time ``t`` and offers
   holds for every filter.
 
 A new filter is one module with a class of this shape and one line in :data:`FILTERS`.
+Given an IMM's :class:`fusion.imm.ModelSet` for a motion model (``motion = "imm"``),
+:func:`filter_factory` builds a :class:`fusion.imm.TrackIMM` whose model-matched
+filters are the named filter, one per model.
 """
 
 from __future__ import annotations
@@ -22,6 +27,7 @@ from typing import Callable, Protocol
 
 import numpy as np
 
+from .imm import ModelSet, TrackIMM
 from .kalman import UpdateResult
 from .sensors3d import SphericalModel, TrackEKF
 from .ukf import TrackUKF
@@ -34,6 +40,7 @@ class Filter(Protocol):
     P: np.ndarray
     t: float
 
+    def set_state(self, x: np.ndarray, P: np.ndarray, t: float) -> None: ...
     def predicted(self, t: float) -> tuple[np.ndarray, np.ndarray]: ...
     def predict(self, t: float) -> None: ...
     def update(self, model: SphericalModel, z: np.ndarray) -> UpdateResult: ...
@@ -63,7 +70,12 @@ FILTERS: dict[str, Callable[..., NewFilter]] = {
 
 
 def filter_factory(name: str, motion, iterations: int = 1) -> NewFilter:
+    """The filter ``name`` of ``motion``; for a :class:`~fusion.imm.ModelSet`, an IMM of
+    such filters."""
     try:
-        return FILTERS[name](motion, iterations)
+        make = FILTERS[name]
     except KeyError:
         raise ValueError(f"unknown filter {name!r} (known: {', '.join(FILTERS)})") from None
+    if isinstance(motion, ModelSet):
+        return partial(TrackIMM, motion, [make(m, iterations) for m in motion.models])
+    return make(motion, iterations)

@@ -38,6 +38,7 @@ simulated truth and the filter's model are matched by construction.
 from __future__ import annotations
 
 import numpy as np
+from scipy.linalg import expm
 
 NOISE_FORMS = ("continuous", "discrete")
 
@@ -176,6 +177,92 @@ class ConstantAcceleration(KinematicModel):
 
     order = 3
     name = "ca"
+
+
+class PaddedConstantVelocity(KinematicModel):
+    """Constant velocity on the CA state ``[p v a]`` (an IMM's common state): per axis
+    ``F₁ = [[1, dt, 0], [0, 1, 0], [0, 0, 0]]``, so the acceleration is zero after any
+    step, and ``Q₁`` is :class:`ConstantVelocity`'s padded with a zero acceleration
+    row and column (white acceleration, ``q`` in m²/s³, or ``Γ = [dt²/2, dt, 0]ᵀ`` with
+    ``q`` in m²/s⁴)."""
+
+    order = 3
+    name = "cv"
+
+    def F_axis(self, dt: float) -> np.ndarray:
+        F1 = np.zeros((3, 3))
+        F1[:2, :2] = [[1.0, self._check_dt(dt)], [0.0, 1.0]]
+        return F1
+
+    def noise_gain_axis(self, dt: float) -> np.ndarray | None:
+        if self.noise != "discrete":
+            return None
+        dt = self._check_dt(dt)
+        return np.array([[0.5 * dt * dt], [dt], [0.0]])
+
+    def Q_axis(self, dt: float) -> np.ndarray:
+        dt = self._check_dt(dt)
+        G = self.noise_gain_axis(dt)
+        if G is not None:
+            return self.q * (G @ G.T)
+        Q1 = np.zeros((3, 3))
+        Q1[:2, :2] = self.q * np.array([[dt**3 / 3.0, dt**2 / 2.0], [dt**2 / 2.0, dt]])
+        return Q1
+
+
+class ConstantTurn(KinematicModel):
+    r"""Constant turn at a known rate ω on the CA state ``[p v a]`` (3D, any turn plane).
+
+    A constant-speed turn at rate ω about an axis perpendicular to the velocity has
+    ``a = ω × v`` and so ``ȧ = ω × a = −ω² v``: with ``ṗ = v``, ``v̇ = a`` every axis
+    follows the same linear system ``A₁ = [[0, 1, 0], [0, 0, 1], [0, −ω², 0]]``
+    whatever the turn's direction or plane (the direction is in ``a``)::
+
+        F₁ = exp(A₁ dt) = [[1, sin ωdt / ω, (1 − cos ωdt) / ω²],
+                           [0, cos ωdt,     sin ωdt / ω       ],
+                           [0, −ω sin ωdt,  cos ωdt           ]]
+
+    ``ω → 0`` is :class:`ConstantAcceleration`. Process noise on ``ȧ``: white jerk of
+    PSD ``q`` (m²/s⁵), ``Q₁ = ∫₀^dt e^{A₁s} [0 0 1]ᵀ q [0 0 1] e^{A₁ᵀs} ds`` (Van Loan's
+    matrix exponential), or the discrete form with CA's ``Γ = [dt²/2, dt, 1]ᵀ``.
+    """
+
+    order = 3
+    name = "ct"
+
+    def __init__(self, q: float, turn_rate: float, noise: str = "continuous"):
+        turn_rate = float(turn_rate)
+        if not np.isfinite(turn_rate) or turn_rate <= 0.0:
+            raise ValueError(f"turn rate must be finite and > 0 rad/s, got {turn_rate!r}")
+        self.turn_rate = turn_rate
+        super().__init__(q, noise)
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}(q={self.q!r}, turn_rate={self.turn_rate!r}, noise={self.noise!r})"
+
+    def A_axis(self) -> np.ndarray:
+        """The per-axis system matrix ``A₁`` (``ẋ = A₁ x`` per axis)."""
+        return np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [0.0, -self.turn_rate**2, 0.0]])
+
+    def F_axis(self, dt: float) -> np.ndarray:
+        dt = self._check_dt(dt)
+        w = self.turn_rate
+        s, c = np.sin(w * dt), np.cos(w * dt)
+        return np.array([[1.0, s / w, (1.0 - c) / w**2], [0.0, c, s / w], [0.0, -w * s, c]])
+
+    def Q_axis(self, dt: float) -> np.ndarray:
+        dt = self._check_dt(dt)
+        G = self.noise_gain_axis(dt)
+        if G is not None:
+            return self.q * (G @ G.T)
+        A = self.A_axis()
+        M = np.zeros((6, 6))
+        M[:3, :3] = -A
+        M[:3, 3:] = np.diag([0.0, 0.0, self.q])
+        M[3:, 3:] = A.T
+        E = expm(M * dt)
+        Q1 = E[3:, 3:].T @ E[:3, 3:]  # Van Loan: F₁ · (upper-right block)
+        return 0.5 * (Q1 + Q1.T)
 
 
 MOTION_MODELS = {"cv": ConstantVelocity, "ca": ConstantAcceleration}

@@ -299,7 +299,10 @@ class TrackNode(LocalNode):
         if d.init or self.mode != "track":
             if self.tracker.initialised and e.t < self.tracker.t:
                 return  # older than where this node already is (it ran alone meanwhile)
-            self.tracker.initialise(e.x, e.P, e.t)
+            if d.init:
+                self.tracker.initialise(e.x, e.P, e.t)
+            else:
+                self.tracker.accept_prior(e.x, e.P, e.t)
             self._requested = False
 
     def _blocked(self, m):

@@ -58,8 +58,9 @@ does not use are accepted and ignored so one table serves every method):
 ===============  =========================  =============================================
 key              default                    meaning
 ===============  =========================  =============================================
-motion           ``"ca"``                   ``"ca"`` (9 states) or ``"cv"`` (6 states)
-q                0.01                       process-noise PSD (m²/s⁵ CA, m²/s³ CV)
+motion           ``"ca"``                   ``"ca"`` (9 states), ``"cv"`` (6 states) or ``"imm"``
+                                            (9 states, :mod:`fusion.imm`; the ``imm_*`` keys)
+q                0.01                       process-noise PSD (m²/s⁵ CA, m²/s³ CV; not the IMM's)
 process_noise    ``"continuous"``           ``"continuous"`` or ``"discrete"`` (motion.py)
 fusion_rule      ``"info"``                 ``naive``, ``bar-shalom-campo``, ``ci``, ``info``
 ci_criterion     ``"trace"``                ``trace`` or ``det`` (for ``ci``)
@@ -74,7 +75,14 @@ init_acc_std     10.0                       m/s² per horizontal axis, around ze
 init_acc_std_up  10.0                       m/s² vertical, around zero (CA)
 ekf_iterations   1                          > 1: iterated EKF updates in the centralised
                                             methods (:func:`fusion.sensors3d.iterated_ekf_update`)
-filter           ``"ekf"``                  the track filter, by name (:data:`fusion.filters.FILTERS`)
+filter           ``"ekf"``                  the track filter, by name (:data:`fusion.filters.FILTERS`);
+                                            with ``imm``, each model's filter
+imm_models       ``"cv,ct,ca"``             the IMM's models, of ``cv``, ``ct``, ``ca``
+imm_q_cv         0.1                        CV white-acceleration PSD (m²/s³)
+imm_q_ct         1.0                        CT white-jerk PSD (m²/s⁵)
+imm_q_ca         10.0                       CA white-jerk PSD (m²/s⁵)
+imm_turn_rate    0.15                       rad/s, the CT model's turn rate ω
+imm_p_stay       0.95                       P(same model next update); the rest shared equally
 ===============  =========================  =============================================
 
 HNV, PHHNV and DDHNV are split into local nodes and a centre in :mod:`fusion.network`,
@@ -94,10 +102,12 @@ from .config import config_values
 from .init3d import InitPriors, initial_state
 from .motion import make_motion, NOISE_FORMS
 from .filters import FILTERS, Filter, NewFilter, filter_factory
+from .imm import IMM_MODELS, model_set
 from .sensors3d import SphericalModel
 from .track_fusion import CI_CRITERIA, FUSION_RULES
 from .types import KIND_COMPONENTS, Estimate, Measurement
 
+MOTIONS = ("ca", "cv", "imm")
 KINDS_3D = frozenset({"range_az", "azel", "az_el_range"})
 COLOCATED_TOL = 1e-3  # m: HNDD fuses two azimuths only if they are measured from one point
 
@@ -133,6 +143,12 @@ class TrackerConfig:
     init_acc_std_up: float = InitPriors.acc_std_up
     ekf_iterations: int = 1
     filter: str = "ekf"
+    imm_models: str = "cv,ct,ca"
+    imm_q_cv: float = 0.1
+    imm_q_ct: float = 1.0
+    imm_q_ca: float = 10.0
+    imm_turn_rate: float = 0.15
+    imm_p_stay: float = 0.95
 
     @classmethod
     def from_dict(cls, config: dict | None) -> "TrackerConfig":
@@ -145,8 +161,8 @@ class TrackerConfig:
         return cfg
 
     def _validate(self) -> None:
-        if self.motion not in ("ca", "cv"):
-            raise ValueError(f"tracker config 'motion' must be 'ca' or 'cv', got {self.motion!r}")
+        if self.motion not in MOTIONS:
+            raise ValueError(f"tracker config 'motion' must be one of {MOTIONS}, got {self.motion!r}")
         if self.process_noise not in NOISE_FORMS:
             raise ValueError(f"tracker config 'process_noise' must be one of {NOISE_FORMS}, got {self.process_noise!r}")
         if self.fusion_rule not in FUSION_RULES:
@@ -164,10 +180,28 @@ class TrackerConfig:
                 raise ValueError(f"tracker config {key!r} must be > 0, got {getattr(self, key)}")
         if not 1 <= self.ekf_iterations <= 50:
             raise ValueError(f"tracker config 'ekf_iterations' must lie in 1..50, got {self.ekf_iterations}")
+        names = self.imm_model_names()
+        if not names or len(set(names)) != len(names) or not set(names) <= set(IMM_MODELS):
+            raise ValueError(f"tracker config 'imm_models' must be distinct names among {IMM_MODELS} "
+                             f"separated by commas, got {self.imm_models!r}")
+        for key in ("imm_q_cv", "imm_q_ct", "imm_q_ca"):
+            if getattr(self, key) < 0.0:
+                raise ValueError(f"tracker config {key!r} must be >= 0, got {getattr(self, key)}")
+        if self.imm_turn_rate <= 0.0:
+            raise ValueError(f"tracker config 'imm_turn_rate' must be > 0 rad/s, got {self.imm_turn_rate}")
+        if not 0.0 < self.imm_p_stay <= 1.0 or (len(names) == 1 and self.imm_p_stay != 1.0):
+            raise ValueError(f"tracker config 'imm_p_stay' must lie in (0, 1] (1 with one model), got {self.imm_p_stay}")
         if abs(self.init_el) >= np.pi / 2:
             raise ValueError(f"tracker config 'init_el' must lie in (-π/2, π/2) rad, got {self.init_el}")
 
+    def imm_model_names(self) -> tuple[str, ...]:
+        return tuple(n.strip() for n in self.imm_models.split(",") if n.strip())
+
     def motion_model(self):
+        """The motion model, or for ``motion = "imm"`` the IMM's :class:`fusion.imm.ModelSet`."""
+        if self.motion == "imm":
+            q = {"cv": self.imm_q_cv, "ct": self.imm_q_ct, "ca": self.imm_q_ca}
+            return model_set(self.imm_model_names(), q, self.imm_turn_rate, self.imm_p_stay, self.process_noise)
         return make_motion(self.motion, self.q, self.process_noise)
 
     def new_filter(self, motion, centralised: bool = False) -> NewFilter:
@@ -459,7 +493,14 @@ class LocalTracker:
         self.filter = self.new_filter(x, P, t)
         self._feedback_t = float(t)
 
-    accept_prior = initialise  # feedback: the centre's estimate becomes the next prior
+    def accept_prior(self, x: np.ndarray, P: np.ndarray, t: float) -> None:
+        """Feedback: the centre's estimate becomes the next prior (the filter restarts
+        from it, keeping what it holds beyond ``(x, P)``, e.g. an IMM's mode probabilities)."""
+        if self.filter is None:
+            self.initialise(x, P, t)
+            return
+        self.filter.set_state(x, P, t)
+        self._feedback_t = float(t)
 
     def _report(self, prior_x, prior_P, KH, nis=None, dof=None) -> Estimate:
         extra = {

@@ -59,6 +59,14 @@ class TrackUKF:
         self.Wc[0] += 1.0 - alpha**2 + beta
         self._KH = np.zeros((n, n))
 
+    def set_state(self, x: np.ndarray, P: np.ndarray, t: float) -> None:
+        """Restart from ``(x, P)`` at ``t`` (a fed-back prior)."""
+        x = self.motion.check_state(x)
+        P = np.asarray(P, dtype=float)
+        if P.shape != (x.size,) * 2:
+            raise ValueError(f"covariance must be {x.size}×{x.size}, got shape {P.shape}")
+        self.x, self.P, self.t = x, P, float(t)
+
     def sigma_points(self) -> np.ndarray:
         """The ``2n + 1`` sigma points of ``(x, P)``, one per row."""
         L = np.linalg.cholesky(self.P) * np.sqrt(self._c)

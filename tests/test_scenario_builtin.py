@@ -139,3 +139,18 @@ def test_a_builtin_copied_to_a_path_loads_the_same(tmp_path):
     za = [e.measurement.z for e in sensor_events(a, "angle")]
     zb = [e.measurement.z for e in sensor_events(b, "angle")]
     np.testing.assert_array_equal(za, zb)
+
+
+def test_patent_3d_maneuver_is_patent_3d_with_a_turning_aircraft():
+    base, man = load_scenario("patent-3d"), load_scenario("patent-3d-maneuver")
+    assert man.tracker == base.tracker and man.process_ids() == base.process_ids()
+    for sid in ("radar2d", "angle"):
+        np.testing.assert_array_equal(man.sensors[sid].std, base.sensors[sid].std)
+    np.testing.assert_array_equal(scan_times(man, "radar2d"), np.arange(81.0))
+    tr = truth_trajectory(man, "T1")
+    g = [np.linalg.norm(tr.state(float(t))[6:9]) / 9.80665 for t in range(81)]
+    speed = [np.linalg.norm(tr.state(float(t))[3:6]) for t in range(81)]
+    np.testing.assert_allclose(speed, 250.0)
+    assert max(g[:20]) == 0.0 and max(g[56:]) == 0.0
+    np.testing.assert_allclose(g[21:40], 4.0, rtol=1e-4)
+    np.testing.assert_allclose(g[41:55], 6.0, rtol=1e-4)

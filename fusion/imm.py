@@ -1,0 +1,204 @@
+r"""Interacting Multiple Model filter of one 3D track (Blom & Bar-Shalom 1988), ``motion = "imm"``.
+
+Models (:class:`ModelSet`) on one common state, the CA layout ``[p v a]`` (9 states), so
+that mixing adds like quantities: ``cv`` (:class:`fusion.motion.PaddedConstantVelocity`,
+acceleration held at zero), ``ct`` (:class:`fusion.motion.ConstantTurn`, ``ȧ = −ω² v``
+at a fixed rate ω, any direction and plane) and ``ca``. Every model is linear, so each
+model-matched filter is an ordinary track filter (EKF or UKF, ``filter``) and the
+IMM adds only the cycle below. ``Π[i, j] = P(model j at k | model i at k − 1)``.
+
+Predict to ``t`` (posterior mode probabilities μ, model states ``(xᵢ, Pᵢ)``)::
+
+    c̄ⱼ = Σᵢ Π[i, j] μᵢ,        μᵢ|ⱼ = Π[i, j] μᵢ / c̄ⱼ                      (mixing)
+    x₀ⱼ = Σᵢ μᵢ|ⱼ xᵢ,         P₀ⱼ = Σᵢ μᵢ|ⱼ (Pᵢ + (xᵢ − x₀ⱼ)(xᵢ − x₀ⱼ)ᵀ)
+    xⱼ⁻ = Fⱼ x₀ⱼ,             Pⱼ⁻ = Fⱼ P₀ⱼ Fⱼᵀ + Qⱼ                         (model j)
+
+and ``μ ← c̄``. Update with a measurement: each model's own update gives ``νⱼ, Sⱼ``
+and the likelihood ``Λⱼ = N(νⱼ; 0, Sⱼ)``; ``μⱼ ∝ Λⱼ c̄ⱼ``, in the log domain
+(``ℓⱼ = log Λⱼ + log c̄ⱼ``, ``μⱼ = exp(ℓⱼ − max ℓ) / Σ``). The track's Gaussian, for
+predictions as for updates, is the moment-matched mixture::
+
+    x = Σⱼ μⱼ xⱼ,             P = Σⱼ μⱼ (Pⱼ + (xⱼ − x)(xⱼ − x)ᵀ)
+
+Several updates at one time (no predict between them) are sequential Bayes: each
+multiplies μ by its likelihoods. ``K·H`` for the track-fusion rules is the one that
+gives ``P⁺ = (I − K H) P⁻`` for the mixtures, ``K H = I − (P⁻⁻¹ P⁺)ᵀ``; the update's
+ν, S are the mixture's (``ν = Σ c̄ⱼ νⱼ``, ``S = Σ c̄ⱼ (Sⱼ + (νⱼ − ν)(νⱼ − ν)ᵀ)``).
+A Gaussian without mode probabilities (a track-fusion centre's fused estimate) is
+predicted with the set's ``prediction_model`` (its CA model, the widest).
+"""
+
+from __future__ import annotations
+
+from typing import Callable, Sequence
+
+import numpy as np
+
+from . import kalman
+from .motion import ConstantAcceleration, ConstantTurn, KinematicModel, PaddedConstantVelocity
+
+IMM_MODELS = ("cv", "ct", "ca")
+
+
+def gaussian_mixture(w: np.ndarray, xs: np.ndarray, Ps: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Mean and covariance of the mixture ``Σ wⱼ N(xⱼ, Pⱼ)`` (``w`` sums to 1)."""
+    x = w @ xs
+    d = xs - x
+    P = np.einsum("j,jab->ab", w, Ps) + np.einsum("j,ja,jb->ab", w, d, d)
+    return x, kalman.symmetrise(P)
+
+
+class ModelSet:
+    """The IMM's motion models, transition matrix and initial mode probabilities.
+
+    Args:
+        models: motion models on one state (``F(dt)``, ``Q(dt)``, ``n_x``, ``name``).
+        Pi: Markov transition matrix, rows "from", columns "to" (rows sum to 1).
+        mu0: initial mode probabilities (default equal).
+    """
+
+    def __init__(self, models: Sequence[KinematicModel], Pi, mu0=None):
+        self.models = tuple(models)
+        m = len(self.models)
+        if m == 0 or len({md.n_x for md in self.models}) != 1:
+            raise ValueError("an IMM needs at least one model, all on one state")
+        self.n_x = self.models[0].n_x
+        self.Pi = np.array(Pi, dtype=float)
+        self.mu0 = np.full(m, 1.0 / m) if mu0 is None else np.array(mu0, dtype=float)
+        if self.Pi.shape != (m, m) or np.any(self.Pi < 0) or np.any(np.abs(self.Pi.sum(axis=1) - 1.0) > 1e-12):
+            raise ValueError(f"IMM transition matrix must be {m}×{m} with rows of probabilities summing to 1")
+        if self.mu0.shape != (m,) or np.any(self.mu0 < 0) or abs(self.mu0.sum() - 1.0) > 1e-12:
+            raise ValueError(f"IMM initial mode probabilities must be {m} values >= 0 summing to 1")
+        self.names = tuple(md.name for md in self.models)
+        self.prediction_model = next((md for md in self.models if md.name == "ca"), self.models[-1])
+        self.name = "imm"
+
+    def __repr__(self) -> str:
+        return f"ModelSet({list(self.models)!r})"
+
+    def F(self, dt: float) -> np.ndarray:
+        return self.prediction_model.F(dt)
+
+    def Q(self, dt: float) -> np.ndarray:
+        return self.prediction_model.Q(dt)
+
+    def check_state(self, x: np.ndarray) -> np.ndarray:
+        return self.models[0].check_state(x)
+
+
+def model_set(names: Sequence[str], q: dict[str, float], turn_rate: float, p_stay: float,
+              noise: str = "continuous") -> ModelSet:
+    """The ``[tracker]`` IMM: models by name (of :data:`IMM_MODELS`, each once), process
+    noise ``q[name]``, the CT model's rate, and ``Π`` with ``p_stay`` on the diagonal and
+    ``(1 − p_stay)/(m − 1)`` elsewhere."""
+    names = tuple(names)
+    if not names or len(set(names)) != len(names) or not set(names) <= set(IMM_MODELS):
+        raise ValueError(f"IMM models must be distinct names among {IMM_MODELS}, got {names}")
+    build: dict[str, Callable[[], KinematicModel]] = {
+        "cv": lambda: PaddedConstantVelocity(q["cv"], noise),
+        "ct": lambda: ConstantTurn(q["ct"], turn_rate, noise),
+        "ca": lambda: ConstantAcceleration(q["ca"], noise),
+    }
+    m = len(names)
+    if not (0.0 < p_stay <= 1.0) or (m == 1 and p_stay != 1.0):
+        raise ValueError(f"IMM p_stay must lie in (0, 1] (1 for one model), got {p_stay}")
+    Pi = np.full((m, m), (1.0 - p_stay) / max(m - 1, 1))
+    np.fill_diagonal(Pi, p_stay)
+    return ModelSet([build[n]() for n in names], Pi)
+
+
+class TrackIMM:
+    """IMM filter of one 3D track (module docstring): holds ``(x, P, t)``, the mode
+    probabilities ``mu`` and one model-matched filter per model.
+
+    Args:
+        models: the :class:`ModelSet`.
+        new_filters: one ``(x, P, t) -> Filter`` per model (:data:`fusion.filters.NewFilter`).
+        x, P, t: the initial state, its covariance and its time (every model starts there).
+        mu: initial mode probabilities (default the set's ``mu0``).
+    """
+
+    def __init__(self, models: ModelSet, new_filters: Sequence[Callable], x: np.ndarray, P: np.ndarray,
+                 t: float, mu=None):
+        if len(new_filters) != len(models.models):
+            raise ValueError("an IMM needs one filter per model")
+        self.models = models
+        x = models.check_state(x)
+        self.filters = [f(x, P, t) for f in new_filters]
+        self.mu = np.array(models.mu0 if mu is None else mu, dtype=float)
+        self.x, self.P, self.t = x, np.asarray(P, dtype=float), float(t)
+        self._prior_P = self._post_P = None
+
+    def set_state(self, x: np.ndarray, P: np.ndarray, t: float) -> None:
+        """Restart every model from ``(x, P)`` at ``t`` (a fed-back prior), keeping ``mu``."""
+        x = self.models.check_state(x)
+        P = np.asarray(P, dtype=float)
+        for f in self.filters:
+            f.x, f.P, f.t = x, P, float(t)
+        self.x, self.P, self.t = x, P, float(t)
+
+    def _mixed_predictions(self, t: float):
+        dt = float(t) - self.t
+        cbar = self.mu @ self.models.Pi
+        xs = np.array([f.x for f in self.filters])
+        Ps = np.array([f.P for f in self.filters])
+        with np.errstate(divide="ignore", invalid="ignore"):
+            mix = self.models.Pi * self.mu[:, None] / cbar[None, :]  # mix[i, j] = μᵢ|ⱼ
+        out_x, out_P = [], []
+        for j, md in enumerate(self.models.models):
+            w = mix[:, j] if cbar[j] > 0.0 else self.mu  # a model of probability 0: any prior
+            x0, P0 = gaussian_mixture(w, xs, Ps)
+            xj, Pj = kalman.predict(x0, P0, md.F(dt), md.Q(dt))
+            out_x.append(xj)
+            out_P.append(Pj)
+        return np.array(out_x), np.array(out_P), cbar
+
+    def predicted(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """The mixture predicted to ``t`` (>= the filter's time), without changing the filter."""
+        if t < self.t:
+            raise ValueError(f"cannot predict backwards from t={self.t} to t={t}")
+        if t == self.t:
+            return self.x, self.P
+        xs, Ps, cbar = self._mixed_predictions(t)
+        return gaussian_mixture(cbar, xs, Ps)
+
+    def predict(self, t: float) -> None:
+        if t < self.t:
+            raise ValueError(f"cannot predict backwards from t={self.t} to t={t}")
+        if t == self.t:
+            return
+        xs, Ps, cbar = self._mixed_predictions(t)
+        for f, xj, Pj in zip(self.filters, xs, Ps):
+            f.x, f.P, f.t = xj, Pj, float(t)
+        self.mu = cbar
+        self.x, self.P = gaussian_mixture(cbar, xs, Ps)
+        self.t = float(t)
+
+    def update(self, model, z: np.ndarray) -> kalman.UpdateResult:
+        """Update every model with ``z`` of ``model`` at the filter's time; returns the
+        mixture's x, P and ν, S, NIS (module docstring) and ``K`` with ``K ν = x⁺ − x⁻``
+        for the mixture's mean ν (a least-squares gain; what fusion needs is :attr:`KH`)."""
+        prior = self.mu
+        results = [f.update(model, z) for f in self.filters]
+        with np.errstate(divide="ignore"):
+            ell = np.log(prior) + np.array([kalman.gaussian_loglikelihood(r.nu, r.S) for r in results])
+        w = np.exp(ell - ell.max())
+        self.mu = w / w.sum()
+        x_prior, self._prior_P = self.x, self.P
+        self.x, self.P = gaussian_mixture(self.mu, np.array([f.x for f in self.filters]),
+                                          np.array([f.P for f in self.filters]))
+        self._post_P = self.P
+        nu, S = gaussian_mixture(prior, np.array([r.nu for r in results]), np.array([r.S for r in results]))
+        L_inv = kalman.inverse_cholesky_factor(S)
+        v = L_inv @ nu
+        K = np.outer(self.x - x_prior, L_inv.T @ v) / max(float(v @ v), np.finfo(float).tiny)
+        return kalman.UpdateResult(self.x, self.P, nu, S, float(v @ v), K)
+
+    @property
+    def KH(self) -> np.ndarray:
+        """``K·H = I − (P⁻⁻¹ P⁺)ᵀ`` of the last update (module docstring)."""
+        Pm, Pp = self._prior_P, self._post_P
+        try:
+            return np.eye(Pm.shape[0]) - np.linalg.solve(Pm, Pp).T
+        except np.linalg.LinAlgError:
+            return np.eye(Pm.shape[0]) - (np.linalg.pinv(Pm) @ Pp).T
