@@ -193,6 +193,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="run the scenario's processes as a live session on UTC time (scenario time 0 = start), "
                         "until Ctrl-C, --for, or the sources' end")
     g.add_argument("--for", dest="for_s", type=_seconds, metavar="SECONDS", help="live: stop after this long")
+    g.add_argument("--oosm-window", type=_seconds, default=10.0, metavar="S",
+                   help="live: the fuser's re-filtering window (default %(default)s s; docs/live.md)")
     p.add_argument("--listen", metavar="ENDPOINT",
                    help="where the run's processes meet (default tcp/127.0.0.1:<a free port>); printed at start, "
                         "for another shell's `zfusion picture --connect ENDPOINT`")

@@ -43,6 +43,7 @@ from __future__ import annotations
 import math
 import queue
 import time
+from collections import deque
 from typing import Any, Mapping
 
 from fusion.methods import METHODS, make_method, method_config, split
@@ -217,6 +218,13 @@ class FuserCore:
         if family != self.intake.family or msg.src != key_id:
             self.reject(hint, "spoofed-src", f"message says src={msg.src!r} but came on {key}")
             return
+        st = self.merger.sources.get(msg.src)
+        if self.clock is not None and utc is not None and st is not None and st.dead:
+            # Heard again after it was declared dead: what it sent while cut off comes now, given
+            # back by its publisher; that is its data stamped more than its usual lag (before the
+            # outage) and one period before now.
+            lag = self.clock.report(msg.src)["lag_s"] or 0.0
+            st.recovery_until = utc - lag - self.periods.get(msg.src, 0.0)
         if self.clock is not None and utc is not None and msg.src in self.merger.sources:
             rej = self.clock.check(msg.src, msg.t, utc, self.events,
                                    self.periods.get(msg.src, 0.0) if msg.kind == "watermark" else None)
@@ -275,7 +283,8 @@ class FuserCore:
         for s, st in self.merger.sources.items():
             out[s] = {"dead_intervals": st.dead_intervals, "rejected": rejected.get(s, 0)}
             if self.live is not None:
-                out[s].update(oosm=st.oosm, stale=st.stale, **self.clock.report(s))
+                out[s].update(oosm=st.oosm, stale=st.stale, recovered=st.recovered, missed=st.missed,
+                              **self.clock.report(s))
         return out
 
 
@@ -329,7 +338,12 @@ def run(process_id: str, scenario_ref: str, method_name: str, overrides: dict, k
                          intake=intake, max_held=max_held_for(scenario, None if live is None else timeout),
                          live=live, refilter=not feedback, periods=periods)
         utc = time.time if live is not None else lambda: None
-        node.subscribe(keys.all(intake.family), inbox)
+        misses: deque[tuple[str, int]] = deque(maxlen=1024)  # (publisher's session, samples it could not give back)
+        if live is not None and intake.family == "meas":  # live sensors' publishers give back what a cut-off missed
+            sessions = node.processes_by_session()
+            node.recovering_subscriber(keys.all(intake.family), inbox, lambda zid, n: misses.append((zid, n)))
+        else:
+            node.subscribe(keys.all(intake.family), inbox)
         pub = node.publisher(keys.fused())
         picture = Picture(process_id, _delete_misses(scenario))
         node.keep(picture.serve(node.session, keys))
@@ -366,6 +380,12 @@ def run(process_id: str, scenario_ref: str, method_name: str, overrides: dict, k
                     down_seq += 1
                     for p in down.values():
                         p.put(horizon_message(process_id, down_seq, horizon))
+            while misses:
+                zid, n = misses.popleft()
+                src = sessions.get(zid)
+                if src in core.merger.sources:
+                    core.merger.sources[src].missed += n
+                    core.events.append(f"source {src}: {n} samples lost (beyond its publisher's cache)")
             for ev in core.events:
                 node.event(ev)
             core.events.clear()

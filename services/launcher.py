@@ -493,7 +493,7 @@ def run(args) -> int:
         try:
             children.start(FUSER_ID, ["fuser", *given, "--method", method, "--id", FUSER_ID,
                                       "--source-timeout", str(timeout), *tracker_args, *(
-                                          ["--max-delay", repr(args.max_delay)] if live else []), *(
+                                          ["--max-delay", repr(args.max_delay), "--oosm-window", repr(args.oosm_window)] if live else []), *(
                                           ["--fusion-rule", args.fusion_rule] if args.fusion_rule else []), *common])
             trackers = {s: tracker_id(s) for s in scenario.sensors} if topology != "centralised" else {}
             children.start(RECORDER_ID, ["record", "--rrd", rrd, "--id", RECORDER_ID, *given,

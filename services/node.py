@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 from typing import Any, Callable, Iterable
 
 import zenoh
+import zenoh.ext as zx
 
 from schemas import KeySpace, SchemaError, encode
 
@@ -28,6 +29,7 @@ from .resources import own_usage
 log = logging.getLogger("zfusion")
 
 LOOPBACK_LISTEN = "tcp/127.0.0.1:0"
+HEARTBEAT_S = 0.5  # a recoverable publisher's heartbeat: how soon a subscriber sees what it missed
 
 
 @dataclass
@@ -275,6 +277,46 @@ class Node:
             pub = self.session.declare_publisher(key, congestion_control=zenoh.CongestionControl.DROP)
         self._declared.append(pub)
         return pub
+
+    def recoverable_publisher(self, key: str, cache: int) -> Any:
+        """A fusion-path publisher whose last ``cache`` samples a subscriber that missed
+        them (a router down or restarting) gets back once it hears the publisher's
+        heartbeat again (Zenoh's advanced publisher: cache, sample-miss detection)."""
+        pub = zx.declare_advanced_publisher(
+            self.session, key, congestion_control=zenoh.CongestionControl.BLOCK,
+            reliability=zenoh.Reliability.RELIABLE, cache=zx.CacheConfig(cache),
+            sample_miss_detection=zx.MissDetectionConfig(heartbeat=HEARTBEAT_S, sporadic_heartbeat=None),
+            publisher_detection=True)
+        self._declared.append(pub)
+        return pub
+
+    def recovering_subscriber(self, key: str, callback: Callable[[zenoh.Sample], None],
+                              on_miss: Callable[[str, int], None]) -> Any:
+        """A subscriber that recovers what a :meth:`recoverable_publisher` sent while the
+        two were cut off (delivered in order, through ``callback``), and calls
+        ``on_miss(zid, n)`` on Zenoh's thread for ``n`` samples of the publisher of
+        session ``zid`` that its cache no longer held."""
+        sub = zx.declare_advanced_subscriber(self.session, key, callback,
+                                             recovery=zx.RecoveryConfig(periodic_queries=None, heartbeat=True))
+        self._declared.append(sub)
+        self._declared.append(sub.sample_miss_listener(lambda m: on_miss(str(m.source.zid), int(m.nb))))
+        return sub
+
+    def processes_by_session(self) -> dict[str, str]:
+        """Session id -> process id of every process alive, kept up to date (liveliness)."""
+        out: dict[str, str] = {}
+
+        def on_token(sample: zenoh.Sample) -> None:
+            try:
+                process, zid = self.keys.alive_process(str(sample.key_expr))
+            except ValueError:
+                return
+            if sample.kind == zenoh.SampleKind.PUT and len(out) < 4096:
+                out[zid] = process
+
+        self._declared.append(self.session.liveliness().declare_subscriber(self.keys.all("alive"), on_token,
+                                                                           history=True))
+        return out
 
     def keep(self, declaration: Any) -> Any:
         """Undeclare ``declaration`` (a queryable, ...) with the rest when the node closes."""

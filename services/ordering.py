@@ -112,6 +112,9 @@ class SourceState:
     oosm: int = 0  # out-of-sequence measurements taken (live)
     stale: int = 0  # measurements too old to re-filter (live)
     oosm_seqs: dict[int, float] = field(default_factory=dict)  # seq -> t of OOSMs after its watermark
+    recovery_until: float = -math.inf  # live: its data stamped up to this was sent while it was cut off
+    recovered: int = 0  # live: measurements sent while it was cut off (dead), arrived after it came back
+    missed: int = 0  # live: measurements its publisher could not give back (told by the fabric)
 
 
 @dataclass(frozen=True)
@@ -196,6 +199,8 @@ class WatermarkMerger:
         if seq in st.held_seqs or seq in st.oosm_seqs:
             return Rejection(src, "duplicate", f"seq {seq} is already held")
         self._heard(src, st, now, events)
+        if t <= st.recovery_until:  # sent while it was cut off, given back on reconnection (the caller says until when)
+            st.recovered += 1
         if t <= self.released_until:
             if self.oosm_window <= 0:
                 self.late += 1

@@ -18,7 +18,10 @@ time 0 is ``start_at``), paced at ``speed`` 1. A sensor with ``latency_s`` (an e
 slow link) publishes each scan, and the watermark after it, that long after the scan's
 time of validity: its watermarks never claim a time whose data has not been sent. A
 live emulator that is stopped marks its latest watermark final (its stream has ended,
-it is not a sensor gone silent).
+it is not a sensor gone silent). Its measurements and watermarks go out on a recoverable
+publisher (:meth:`services.node.Node.recoverable_publisher`): it keeps the last
+:func:`recovery_cache` samples, ``RECOVERY_S`` seconds of its stream, for a fuser that
+was cut off from it (a router down or restarting) to get back on reconnection.
 """
 
 from __future__ import annotations
@@ -31,6 +34,18 @@ from typing import Iterator
 from schemas import KeySpace, encode, encode_measurement
 
 from .node import Node, load
+
+
+RECOVERY_S = 30.0  # s of a live sensor's stream its publisher keeps for a fuser cut off from it
+
+
+def recovery_cache(scenario, sensor_id: str) -> int:
+    """Samples in ``RECOVERY_S`` of a sensor's stream, twice over: per scan its targets
+    (and at most ``max_alive`` traffic aircraft), its mean clutter and one watermark."""
+    s = scenario.sensor(sensor_id)
+    traffic = getattr(scenario, "traffic", None)
+    per_scan = len(s.targets) + (traffic.max_alive if traffic is not None else 0) + s.clutter_rate + 1
+    return math.ceil(2.0 * RECOVERY_S * per_scan / s.period)
 
 
 class Pacer:
@@ -100,7 +115,8 @@ def _status_every(node: Node, period: float = 1.0) -> Iterator[None]:
 def _play_sensor(node: Node, scenario, pacer: Pacer, run_index: int) -> float:
     from sensors_sim import sensor_events
 
-    meas_pub = node.publisher(node.keys.meas(node.id))
+    meas_pub = (node.recoverable_publisher(node.keys.meas(node.id), recovery_cache(scenario, node.id)) if pacer.offset
+                else node.publisher(node.keys.meas(node.id)))
     wm_seq = 0
     status = _status_every(node)
 

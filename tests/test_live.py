@@ -172,6 +172,35 @@ def test_merger_waits_at_most_max_delay_for_a_lagging_source():
     assert rej.cause == "stale" and m2.sources["b"].stale == 1
 
 
+def test_data_of_a_dead_source_given_back_after_it_rejoins_is_recovered_and_applied():
+    """A source cut off (declared dead) whose publisher gives back what it sent meanwhile:
+    each such measurement (stamped up to ``recovery_until``, set as it is heard again) counts as
+    ``recovered`` and is applied out of sequence, or refused as stale past the window;
+    its data after that is neither."""
+    m = WatermarkMerger(["a", "b"], timeout=2.0, earliest=-math.inf, max_delay=0.5, oosm_window=10.0)
+    ev: list[str] = []
+    for k in range(3):  # both flow, then b goes silent at EPOCH + 2
+        for src in ("a", "b"):
+            m.add(src, EPOCH + k, k, f"{src}{k}", float(k), ev)
+            m.watermark(src, EPOCH + k + 0.99, False, float(k), ev)
+        m.release(float(k))
+    for k in range(3, 15):
+        m.add("a", EPOCH + k, k, f"a{k}", float(k), ev)
+        m.watermark("a", EPOCH + k + 0.99, False, float(k), ev)
+        m.check_timeouts(float(k), ev)
+        m.release(float(k))
+    assert m.sources["b"].dead and m.released_until == EPOCH + 14.99
+    m.sources["b"].recovery_until = EPOCH + 14.0  # the fuser's judgement as it hears b again
+    for k in range(3, 15):  # b's cache, in order, on reconnection
+        rej = m.add("b", EPOCH + k, k, f"b{k}", 14.0, ev)
+        assert (rej is None) == (k >= 5), (k, rej)  # b3, b4: more than the window before the front
+    st = m.sources["b"]
+    assert not st.dead and st.recovered == 12 and st.oosm == 10 and st.stale == 2
+    assert m.take_oosm() == [f"b{k}" for k in range(5, 15)]
+    m.watermark("b", EPOCH + 15.99, False, 15.0, ev)
+    assert m.add("b", EPOCH + 16, 16, "b16", 15.5, ev) is None and st.recovered == 12 and st.oosm == 10
+
+
 def test_scenario_merger_is_unchanged_without_max_delay():
     m = WatermarkMerger(["fast", "slow"], timeout=100.0)
     ev: list[str] = []
