@@ -219,6 +219,17 @@ def build_parser() -> argparse.ArgumentParser:
 
     sub.add_parser("scenarios", help="list the built-in scenarios")
 
+    p = sub.add_parser("plan", help="the processes of a run and the exact command to start each by hand")
+    p.add_argument("--scenario", required=True, help="built-in scenario name or path to a .toml file")
+    p.add_argument("--topology", choices=TOPOLOGIES)
+    p.add_argument("--method", help="estimation method (default: the scenario's)")
+    p.add_argument("--seed", type=_seed, help="replace the scenario's seed (a non-negative integer)")
+    p.add_argument("--connect", default="tcp/127.0.0.1:7447", metavar="ENDPOINT",
+                   help="the router every process dials (default %(default)s)")
+    p.add_argument("--speed", type=_speed, default="1", help="the sources' speed (default 1)")
+    p.add_argument("--rrd", default="site.rrd", help="the recorder's file (default %(default)s)")
+    p.add_argument("--json", default="result.json", help="the fuser's summary (default %(default)s)")
+
     p = sub.add_parser("view", help="open a recording in the Rerun viewer")
     p.add_argument("path")
 
@@ -254,6 +265,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--source-timeout", type=float, default=5.0, help="seconds of silence before a source is dead")
     p.add_argument("--start-grace", type=float, default=30.0, help="seconds a never-heard source gets at start")
     p.add_argument("--seed", type=_seed, help="replace the scenario's seed (a non-negative integer)")
+    p.add_argument("--json", metavar="PATH", help="scenario run: when done, print the result table and write the "
+                                                  "summary JSON here (as zfusion run --json)")
     _tracker_options(p)
     _fabric(p)
 
@@ -362,6 +375,16 @@ def _command(args) -> int:
         for name, line in rows:
             print(f"{name:<{width}}  {line}")
         return 0
+    if args.command == "plan":
+        from .launcher import resolve_topology
+        from .plan import format_plan, plan
+
+        scenario = _scenario_of(args)
+        topology, method = resolve_topology(scenario, args.topology, args.method)
+        _check_overrides(scenario, [method], {}, "plan")
+        print(format_plan(scenario, topology, method, plan(args.scenario, scenario, topology, method, args.connect,
+                                                           args.speed, args.rrd, args.json)))
+        return 0
     if args.command == "view":
         if not Path(args.path).is_file():
             raise SystemExit(f"zfusion view: no such recording: {args.path}")
@@ -383,7 +406,8 @@ def _command(args) -> int:
 
         method = args.method or _defaults(args).get("method")
         return fuser(args.id, args.site or args.scenario, method, _overrides(args), keys, _zopts(args),
-                     args.source_timeout, args.start_grace, seed=args.seed, live=_live(args), duration=args.duration_s)
+                     args.source_timeout, args.start_grace, seed=args.seed, live=_live(args), duration=args.duration_s,
+                     json_path=args.json)
     if args.command == "tracker":
         from .tracker import run as tracker
 

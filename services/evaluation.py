@@ -38,7 +38,7 @@ import numpy as np
 from fusion.methods import METHODS, make_method, method_config
 from fusion.types import Estimate, Measurement
 
-from .summary import aggregate, score_run, summary, tracks_summary, truth_function
+from .summary import aggregate, method_summary, score_run, summary, tracks_summary, truth_function
 
 def merged_measurements(scenario, run: int = 0, sensors: Iterable[str] | None = None) -> list[Measurement]:
     from sensors_sim import sensor_events
@@ -516,6 +516,18 @@ GOSPA_CUTOFF = 1000.0  # m: GOSPA's c, order p = 2, for every many-target score
 def many_targets(scenario) -> bool:
     """Scored as an air picture (set metrics) rather than per target."""
     return len(scenario.targets) > 1 or getattr(scenario, "traffic", None) is not None
+
+
+def run_summary(scenario, topology: str, method: str, fusion_rule: str | None, estimates: Sequence[Estimate],
+                sources: dict) -> dict:
+    """The summary of one distributed run from its fused estimates (what ``zfusion run``
+    prints, and ``zfusion fuser --json`` writes for a deployment started by hand)."""
+    scored = (tracks_summary([score_tracks_of(scenario, estimates)]) if many_targets(scenario)
+              else method_summary([estimates], truth_function(scenario)))
+    doc = summary(scenario, topology, fusion_rule, scenario.seed, 1, {method: scored}, sources=sources)
+    if many_targets(scenario):
+        doc["gospa_cutoff"] = GOSPA_CUTOFF
+    return doc
 
 
 def score_tracks_of(scenario, estimates: Sequence[Estimate], run: int = 0, c: float = GOSPA_CUTOFF,

@@ -46,11 +46,12 @@ import time
 from collections import deque
 from typing import Any, Mapping
 
-from fusion.methods import METHODS, make_method, method_config, split
+from fusion.methods import METHODS, make_method, method_config, split, track_fusion_rule
 from fusion.network import TrackCentre
 from fusion.oosm import Refiltering
 from fusion.types import Estimate
-from schemas import MEASUREMENT_KINDS, KeySpace, Message, SchemaError, decode, encode_estimate, to_measurement, tracker_id
+from schemas import (MEASUREMENT_KINDS, KeySpace, Message, SchemaError, decode, encode_estimate, to_estimate,
+                     to_measurement, tracker_id)
 from schemas.links import encode_downlink, horizon_message, uplink
 
 from .live import ClockGuard, LiveOptions
@@ -311,9 +312,11 @@ def _delete_misses(scenario) -> int:
 
 def run(process_id: str, scenario_ref: str, method_name: str, overrides: dict, keys: KeySpace, zopts,
         timeout: float, start_grace: float, seed: int | None = None, live: LiveOptions | None = None,
-        duration: float | None = None) -> int:
+        duration: float | None = None, json_path: str | None = None) -> int:
     """The fuser of a scenario run (``scenario_ref``), or of a live session (``live``
-    given: ``scenario_ref`` is a site or scenario file, time is UTC, it runs until stopped)."""
+    given: ``scenario_ref`` is a site or scenario file, time is UTC, it runs until stopped).
+    ``json_path``: a scenario run's summary, scored against its truth, written there when
+    done (the result of a deployment started by hand; it keeps every estimate until then)."""
     scenario = load(scenario_ref, seed, duration) if live is None else load_site(scenario_ref)
     config = method_config(scenario.tracker, method_name, overrides)
     distributed = METHODS[method_name].split is not None
@@ -351,6 +354,7 @@ def run(process_id: str, scenario_ref: str, method_name: str, overrides: dict, k
         node.announce()
         node.publish_status("ready")
         seq = down_seq = 0
+        kept: list[Estimate] | None = [] if json_path and live is None else None
         horizon = -math.inf
         last_status = 0.0
         t_now = 0.0
@@ -367,6 +371,8 @@ def run(process_id: str, scenario_ref: str, method_name: str, overrides: dict, k
                 seq += 1
                 data = encode_estimate(e, process_id, seq)
                 pub.put(data)
+                if kept is not None:
+                    kept.append(to_estimate(decode(data)))  # what a listener gets
                 picture.published(e, data)
                 t_now = e.t
             if down:
@@ -401,4 +407,25 @@ def run(process_id: str, scenario_ref: str, method_name: str, overrides: dict, k
                 node.publish_status("running", t_now, sources=core.sources_report())
                 last_status = time.monotonic()
         node.publish_status("done" if core.finished else "stopped", t_now, sources=core.sources_report())
+    if kept is not None and core.finished:
+        _write_result(json_path, scenario, method_name, config, kept, core.sources_report())
     return 0
+
+
+def _write_result(path: str, scenario, method: str, config: Mapping, estimates: list[Estimate],
+                  sources: dict) -> None:
+    """``--json``: the run's summary, as ``zfusion run --json`` writes it, and its table on stdout."""
+    import json
+    from pathlib import Path
+
+    from .evaluation import run_summary
+    from .summary import format_table
+
+    rule = (config.get("fusion_rule") if METHODS[method].fuses_tracks else None) or track_fusion_rule(
+        scenario.tracker, [method])
+    for sid in scenario.process_ids():  # processes the fuser does not consume (truth, jammers) too
+        sources.setdefault(sid, {"dead_intervals": [], "rejected": 0})
+    doc = run_summary(scenario, METHODS[method].topology, method, rule, estimates, sources)
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    Path(path).write_text(json.dumps(doc, indent=1))
+    print(format_table(doc), flush=True)
