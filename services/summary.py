@@ -264,11 +264,13 @@ def summary(scenario, topology: str, fusion_rule: str | None, seed: int, runs: i
 
 
 def _fmt(v: float | None, w: int = 10) -> str:
+    """A table cell of width ``w``, always with a space before it: four decimals below
+    1000, one up to 10^6, else a power of ten (columns never run together)."""
     if v is None or not math.isfinite(v):
         return f"{'—':>{w}}"
-    if v != 0.0 and (abs(v) >= 1e5 or abs(v) < 1e-3):
-        return f"{v:>{w}.3e}"
-    return f"{v:>{w}.4f}"
+    if v != 0.0 and (abs(v) >= 1e6 or abs(v) < 1e-3):
+        return f" {v:>{w - 1}.3e}"
+    return f" {v:>{w - 1}.{4 if abs(v) < 1000 else 1}f}"
 
 
 def format_table(doc: dict) -> str:
@@ -280,8 +282,9 @@ def format_table(doc: dict) -> str:
     head = f"{'method':<{width}}{'rmse_pos':>10}{'rmse_vel':>10}{'rmse_acc':>10}{'cep50':>10}"
     head += f"{'median_pt':>10}" if any_fix else ""
     head += f"{'anees':>10}{'updates':>9}"
-    lines = [f"scenario {doc['scenario']} · topology {doc['topology']} · fusion rule {doc['fusion_rule']} · "
-             f"seed {doc['seed']} · runs {doc['runs']}", head]
+    rule = f" · fusion rule {doc['fusion_rule']}" if doc.get("fusion_rule") else ""
+    lines = [f"scenario {doc['scenario']} · topology {doc['topology']}{rule} · seed {doc['seed']} · runs {doc['runs']}",
+             head]
     for name, m in methods.items():
         row = f"{name:<{width}}{_fmt(m['rmse_pos'])}{_fmt(m['rmse_vel'])}{_fmt(m['rmse_acc'])}{_fmt(m['cep50'])}"
         row += _fmt(m.get("median_point_distance")) if any_fix else ""
@@ -292,10 +295,12 @@ def format_table(doc: dict) -> str:
     if overall:
         row = f"{'CRB':<{width}}{_fmt(overall['rmse_pos'])}{_fmt(overall['rmse_vel'])}{_fmt(overall['rmse_acc'])}"
         row += _fmt(crb.get("cep50")) + (_fmt(None) if any_fix else "")
-        note = "Cramér–Rao bound on the same RMSE"
+        note = ("Cramér–Rao bound on the same RMSE, from the trackers' start-up prior; it averages over that "
+                "prior, so in the first scans (velocity, acceleration) a filter can beat it: "
+                "docs/algorithms.md, Posterior bound")
         if crb.get("cep50") is not None:
             note += "; cep50: the bound's Gaussian CEP50 at the last epoch"
-        lines.append(f"{row}   ({note})")
+        lines += [row, f"CRB: {note}"]
     bounds = {tuple(m["anees_bounds"]) + (m["nees_dof"],) for m in methods.values() if m.get("anees_bounds")}
     for lo, hi, dof in sorted(bounds, key=lambda b: b[2]):
         lines.append(f"per-step ANEES 95 % interval for {doc['runs']} runs, dof {dof}: [{lo:.3f}, {hi:.3f}]")

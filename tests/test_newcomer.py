@@ -134,3 +134,24 @@ def test_a_user_mistake_is_one_line(tmp_path, case):
     assert "Traceback" not in p.stderr, p.stderr[-3000:]
     assert p.returncode == code, (p.returncode, p.stderr)
     assert len(lines) == 1 and lines[0].startswith("zfusion ") and says in lines[0], p.stderr
+
+
+# 6. output ---------------------------------------------------------------------------------
+def test_the_table_keeps_its_columns_apart_and_explains_the_bound():
+    from services.summary import format_table
+
+    m = {"rmse_pos": 28138.939827, "rmse_vel": 390.4548, "rmse_acc": 15.999999999999998, "cep50": None,
+         "anees": 2.1e6, "n_updates": 31}
+    doc = {"scenario": "s", "topology": "centralised", "fusion_rule": None, "seed": 1, "runs": 1,
+           "methods": {"RADAR2D": m, "SS": {**m, "rmse_pos": 16.94}},
+           "crb": {"overall": {"rmse_pos": 16.79, "rmse_vel": 311.87, "rmse_acc": 45.27}}}
+    lines = format_table(doc).splitlines()
+    assert "fusion rule" not in lines[0]
+    head = lines[1].split()
+    for line in lines[2:4]:
+        cells = line.split()
+        assert len(cells) == len(head), line  # 28138.9398390.4548 ran together
+        assert float(cells[1]) == pytest.approx(m["rmse_pos"] if cells[0] == "RADAR2D" else 16.94, rel=1e-5)
+        assert cells[3] == "16.0000" and cells[5] == "2.100e+06"
+    crb = next(i for i, ln in enumerate(lines) if ln.startswith("CRB "))
+    assert "first scans" in lines[crb + 1]  # why a filter's velocity error can be below the bound
