@@ -386,10 +386,8 @@ def _command(args) -> int:
                                                            args.speed, args.rrd, args.json)))
         return 0
     if args.command == "view":
-        if not Path(args.path).is_file():
-            raise SystemExit(f"zfusion view: no such recording: {args.path}")
-        exe = shutil.which("rerun") or str(Path(sys.executable).with_name("rerun"))
-        os.execv(exe, [exe, args.path])
+        argv = viewer_argv(args.path, os.environ)
+        os.execv(argv[0], argv)
     if args.command == "router":
         from .router import run as router
 
@@ -436,6 +434,27 @@ def _command(args) -> int:
 
         return ingest(args, keys, _zopts(args))
     raise AssertionError(args.command)
+
+
+RRD_MAGIC = b"RRF2"  # how every Rerun recording file starts
+
+
+def viewer_argv(path: str, env) -> list[str]:
+    """The Rerun viewer's command line for ``zfusion view PATH`` (its server on loopback
+    only), once the file is a recording and there is a display; else a :class:`UserError`."""
+    file = Path(path)
+    if not file.is_file():
+        raise UserError(f"no such recording: {path}; give the .rrd file a run wrote (zfusion run --rrd PATH)")
+    with file.open("rb") as f:
+        if f.read(len(RRD_MAGIC)) != RRD_MAGIC:
+            raise UserError(f"{path} is not a Rerun recording (it does not start as an .rrd file does); "
+                            f"check that the file is whole and is the one a run wrote")
+    if sys.platform.startswith("linux") and not (env.get("DISPLAY") or env.get("WAYLAND_DISPLAY")):
+        raise UserError(f"no display here (neither DISPLAY nor WAYLAND_DISPLAY is set): copy {path} to a machine "
+                        f"with one, or run rerun --serve-web --bind 127.0.0.1 {path} and tunnel ports 9090 and "
+                        f"9876 (README)", code=1)
+    exe = shutil.which("rerun") or str(Path(sys.executable).with_name("rerun"))
+    return [exe, "--bind", "127.0.0.1", path]
 
 
 def _export(args, keys: KeySpace) -> int:

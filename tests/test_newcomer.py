@@ -155,3 +155,22 @@ def test_the_table_keeps_its_columns_apart_and_explains_the_bound():
         assert cells[3] == "16.0000" and cells[5] == "2.100e+06"
     crb = next(i for i, ln in enumerate(lines) if ln.startswith("CRB "))
     assert "first scans" in lines[crb + 1]  # why a filter's velocity error can be below the bound
+
+
+def test_view_checks_the_file_and_the_display_first(tmp_path):
+    from services.cli import viewer_argv
+    from services.errors import UserError
+
+    good, bad = tmp_path / "good.rrd", tmp_path / "bad.rrd"
+    good.write_bytes(b"RRF2" + bytes(60))
+    bad.write_bytes(b"not a recording")
+    for path, env, code, says in ((tmp_path / "none.rrd", {"DISPLAY": ":0"}, 2, "no such recording"),
+                                  (bad, {"DISPLAY": ":0"}, 2, "not a Rerun recording"),
+                                  (good, {}, 1, "no display")):
+        with pytest.raises(UserError, match=says) as e:
+            viewer_argv(str(path), env)
+        assert e.value.code == code and "\n" not in str(e.value)
+    argv = viewer_argv(str(good), {"DISPLAY": ":0"})
+    assert argv[1:] == ["--bind", "127.0.0.1", str(good)]  # its port on loopback, not on every interface
+    p = zf("view", str(bad))
+    assert p.returncode == 2 and p.stderr.count("\n") == 1 and "Traceback" not in p.stderr
