@@ -68,8 +68,18 @@ class TrackUKF:
         self.x, self.P, self.t = x, P, float(t)
 
     def sigma_points(self) -> np.ndarray:
-        """The ``2n + 1`` sigma points of ``(x, P)``, one per row."""
-        L = np.linalg.cholesky(self.P) * np.sqrt(self._c)
+        """The ``2n + 1`` sigma points of ``(x, P)``, one per row. A covariance that is
+        only semi-definite (an IMM's constant-velocity model holds the acceleration with
+        zero variance) has no Cholesky factor; any ``L Lᵀ = P`` will do, so it takes the
+        symmetric square root ``V √Λ`` of its eigen-decomposition instead."""
+        try:
+            L = np.linalg.cholesky(self.P)
+        except np.linalg.LinAlgError:
+            w, V = np.linalg.eigh(self.P)
+            if w.min() < -1e-9 * max(w.max(), 1.0):
+                raise
+            L = V * np.sqrt(np.clip(w, 0.0, None))
+        L = L * np.sqrt(self._c)
         return np.vstack([self.x, self.x + L.T, self.x - L.T])
 
     def predicted(self, t: float) -> tuple[np.ndarray, np.ndarray]:
@@ -107,7 +117,10 @@ class TrackUKF:
         w = L_inv @ nu
         x = self.x + K @ nu
         P = kalman.symmetrise(self.P - K @ S @ K.T)
-        self._KH = K @ np.linalg.solve(self.P, Pxz).T  # K Pₓᵤᵀ P⁻⁻¹ (P⁻ symmetric)
+        try:
+            self._KH = K @ np.linalg.solve(self.P, Pxz).T  # K Pₓᵤᵀ P⁻⁻¹ (P⁻ symmetric)
+        except np.linalg.LinAlgError:  # a semi-definite P⁻ (sigma_points): its pseudo-inverse
+            self._KH = K @ (np.linalg.pinv(self.P, hermitian=True) @ Pxz).T
         self.x, self.P = x, P
         return kalman.UpdateResult(x, P, nu, S, float(w @ w), K)
 

@@ -245,3 +245,19 @@ def test_committed_report_is_its_json():
     ss = found["SS-imm"][0] / found["SS-ca"][0]
     verdict = "holds" if ss <= 0.7 else "fails"
     assert f"| SS | — | {ss:.3f} | {verdict} |" in md
+
+
+def test_an_imm_of_ukfs_runs_on_the_semi_definite_cv_model_and_agrees_with_the_ekf_one():
+    """The CV model holds the acceleration with zero variance: the UKF's sigma points and
+    K·H must accept a semi-definite covariance. On a straight radar track the IMM of
+    UKFs and the IMM of EKFs give nearly one estimate."""
+    scans = _radar_scans(25, seed=5)
+    table = {"motion": "imm", "init_vel_std": 1000.0, "init_acc_std": 100.0,
+             "init_vel_std_up": 1000.0, "init_acc_std_up": 100.0}
+    out = {}
+    for name in ("ekf", "ukf"):
+        meth = make_method("SS", {**table, "filter": name})
+        out[name] = [e for m in scans for e in meth.process(m)] + meth.finish()
+    for a, b in zip(out["ekf"][5:], out["ukf"][5:]):
+        assert np.linalg.norm(a.x[:3] - b.x[:3]) < 0.1 * np.sqrt(np.trace(a.P[:3, :3]))
+        assert np.all(np.isfinite(b.P))
