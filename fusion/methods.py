@@ -146,6 +146,9 @@ def make_method(name: str, config: dict | None = None) -> Any:
         return s.make(dict(config or {}))
     if s.split is not None:  # it associates in its own nodes and centre
         return NetworkMethod(s.split, dict(config or {}))
+    if s.family == "df" and rest.get("motion", "static") != "static":
+        raise ValueError(f"association with motion = {rest['motion']!r}: many emitters are tracked as static ones "
+                         "(the bearing association gates on their latest positions)")
     wrap = MultiEmitterMethod if s.family == "df" else MultiTargetMethod
     return wrap(name, lambda: s.make(dict(rest)), association)
 

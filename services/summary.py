@@ -36,6 +36,8 @@ import numpy as np
 from fusion.metrics import chi2_bounds, median_point_distance
 from fusion.types import Estimate
 
+from .recorder_draw import TRUTH_INDEX
+
 TruthFn = Callable[[int, str, float], np.ndarray]  # (run, track, t) -> true state
 
 
@@ -59,16 +61,11 @@ def truth_function(scenario) -> TruthFn:
     return truth
 
 
-#: where a moving emitter's estimate ``[px, py, vx, vy]`` sits in the truth
-#: ``[px py pz vx vy vz ax ay az]`` (a fix ``[px, py]`` and a 3D track are its leading components)
-_EMITTER_CV = [0, 1, 3, 4]
-
-
 def _errors(e: Estimate, xt: np.ndarray) -> dict:
     n = e.x.size
     xt = np.asarray(xt, dtype=float)
-    if n == 4:
-        xt = xt[_EMITTER_CV]
+    if n == 4:  # a moving emitter [px py vx vy]; a fix [px py] and a 3D track are the truth's leading parts
+        xt = xt[list(TRUTH_INDEX[4])]
     else:
         xt = xt[:n] if xt.size >= n else np.pad(xt, (0, n - xt.size))
     err = e.x - xt

@@ -159,6 +159,14 @@ def test_configuration_errors_are_one_line(name, config, match):
     assert "\n" not in str(exc.value)
 
 
+def test_many_emitters_refuse_cv_in_one_line():
+    from fusion.methods import make_method
+
+    with pytest.raises(ValueError, match="many emitters are tracked as static ones") as exc:
+        make_method("EKF", {"association": "gnn", "motion": "cv"})
+    assert "\n" not in str(exc.value)
+
+
 def test_cli_reports_a_static_only_method_with_cv_in_one_line():
     r = subprocess.run([sys.executable, "-m", "services.cli", "eval", "--scenario", "df-moving", "--runs", "1",
                         "--methods", "TORRIERI", "--set", "motion=cv"], capture_output=True, text=True, timeout=120)

@@ -228,6 +228,27 @@ def test_cli_eval_rejects_bad_input(capsys):
     assert "unknown method 'NOPE'" in capsys.readouterr().err
 
 
+def check_moving(md: str, bundle: dict) -> int:
+    runs, k0 = bundle["runs"], bundle["from_epoch"] - 1
+    tables = md_tables(md)
+    assert len(tables) == len(bundle["evaluations"])
+    n = 0
+    for table, (name, doc) in zip(tables, bundle["evaluations"].items()):
+        crb = doc["crb"]
+        bound = math.sqrt(np.mean(np.square(crb["rmse_pos"][k0:])))
+        for row in table:
+            if row["method"] == "**PCRB**":
+                assert same(row["pos (m)"], crb["overall"]["rmse_pos"]) and same(row["pos from epoch 10 (m)"], bound)
+                continue
+            m = doc["methods"][row["method"].strip("`")]
+            late = math.sqrt(np.mean(np.square(m["series"]["rmse_pos"][k0:])))
+            assert same(row["pos (m)"], m["rmse_pos"]) and same(row["pos from epoch 10 (m)"], late), name
+            assert same(row["/ PCRB"], late / bound) and same(row["vel (m/s)"], m["rmse_vel"])
+            assert same(row["ANEES"], m["anees"]) and same(row["epochs in χ²"], steps_inside(m["series"]["anees"], 4, runs))
+            n += 1
+    return n
+
+
 # The reproduction reports -------------------------------------------------------------------
 def test_tiny_reports_tables_equal_their_json(tmp_path):
     from services import report
@@ -250,10 +271,15 @@ def test_tiny_reports_tables_equal_their_json(tmp_path):
     assert check_many(md, json.loads((tmp_path / "df-multi.json").read_text())) == 10
     assert (tmp_path / "df-multi" / "gospa.png").is_file()
 
+    b = report.build_moving(runs=2, scenarios=("df-moving",))
+    md = report.write_moving_report(b, tmp_path).read_text()
+    assert check_moving(md, json.loads((tmp_path / "df-moving.json").read_text())) == 2
+
 
 @pytest.mark.parametrize("name,check", [("patent-3d", check_patent), ("patent-3d-60", check_patent),
                                         ("thesis-cep", check_thesis), ("jammed-df-sweep", check_sweep),
-                                        ("air-picture", check_many), ("df-multi", check_many)])
+                                        ("air-picture", check_many), ("df-multi", check_many),
+                                        ("df-moving", check_moving)])
 def test_committed_reports_match_their_json(name, check):
     md, js = RESULTS / f"{name}.md", RESULTS / f"{name}.json"
     assert md.is_file() and js.is_file(), f"regenerate with: python -m services.report {name}"
