@@ -1133,6 +1133,9 @@ def write_moving_report(bundle: dict, out_dir: Path) -> Path:
         "* The truth is not the model: its straight legs have no acceleration and its turns a constant one. "
         "On the legs an estimator can beat the bound (it is computed for white acceleration of PSD q), in the "
         "turns the constant-velocity filter lags; the ratio to the bound averages the two.",
+        "* An ANEES below 4 (the state's dimension) is a pessimistic filter: q is the turns' process noise, and "
+        "the legs have none. On a truth drawn from the filter's own model its NEES is inside the χ² interval "
+        "(`tests/test_df_moving.py`).",
         "* Under jamming the EKF takes every outlier at face value; the IMM's outlier model (told p and σ₂, as in "
         "`jammed-df`) discounts them. The bound there uses each bearing's information under the noise mixture.",
         "",
