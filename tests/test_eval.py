@@ -271,9 +271,14 @@ def test_tiny_reports_tables_equal_their_json(tmp_path):
     assert check_many(md, json.loads((tmp_path / "df-multi.json").read_text())) == 10
     assert (tmp_path / "df-multi" / "gospa.png").is_file()
 
+
+def test_tiny_moving_report_tables_equal_their_json(tmp_path):
+    from services import report
+
     b = report.build_moving(runs=2, scenarios=("df-moving",))
     md = report.write_moving_report(b, tmp_path).read_text()
     assert check_moving(md, json.loads((tmp_path / "df-moving.json").read_text())) == 2
+    assert (tmp_path / "df-moving" / "df-moving-rmse_pos.png").is_file()
 
 
 @pytest.mark.parametrize("name,check", [("patent-3d", check_patent), ("patent-3d-60", check_patent),
