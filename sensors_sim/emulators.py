@@ -42,7 +42,7 @@ from .jammer import jam_effect, switched_on_at
 from .noise import ScanDraws, outlier_from_uniform, process_rng
 from .spec import Scenario
 from .traffic import Traffic
-from .trajectories import sample_times, truth_trajectories
+from .trajectories import iter_times, sample_times, truth_trajectories
 
 
 @dataclass(frozen=True, eq=False)
@@ -88,7 +88,7 @@ def sensor_events(scenario: Scenario, sensor_id: str, run: int = 0) -> Iterator[
     truths = truth_trajectories(scenario, run)
     seq = 0
     traffic = Traffic(scenario.traffic, scenario.seed, run) if scenario.traffic is not None else None
-    for t in scan_times(scenario, sensor_id):
+    for t in iter_times(sensor.start, sensor.period, scenario.duration):  # lazily: an endless scenario's too
         t = float(t)
         site = sensor.site.position(t)
         scan: list[tuple[SensorEvent, np.ndarray | None]] = []  # (event without measurement, z)

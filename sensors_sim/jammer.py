@@ -33,7 +33,7 @@ from typing import Iterator
 import numpy as np
 
 from .spec import JammerSpec, Scenario, SensorSpec
-from .trajectories import sample_times
+from .trajectories import iter_times
 
 _D_REF = 1000.0  # m: the distance powers are referred to
 _D_MIN = 1.0  # m: floor of distances in the J/S ratio (a jammer flying over a sensor)
@@ -102,7 +102,7 @@ def jam_state(scenario: Scenario, jammer_id: str, t: float) -> JamState:
 def jam_events(scenario: Scenario, jammer_id: str) -> Iterator[JamState]:
     """The jammer's state every ``period`` from 0 up to the duration, for publishing."""
     j = scenario.jammer(jammer_id)
-    for t in sample_times(0.0, j.period, scenario.duration):
+    for t in iter_times(0.0, j.period, scenario.duration):
         yield jam_state(scenario, jammer_id, float(t))
 
 

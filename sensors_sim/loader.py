@@ -158,6 +158,9 @@ def _scenario(root: Reader, name: str, display: str) -> Scenario:
     seed = root.integer("seed", ge=0)
     duration = root.quantity("duration", TIME, gt=0)
     truth_dt = root.quantity("truth_dt", TIME, default=None, gt=0)
+    endless = root.raw("endless", default=False)
+    if not isinstance(endless, bool):
+        raise root.error("must be true or false", "endless")
     header = _header(root, scenario=True)
     origin = header["origin"]
     traffic_r = root.table("traffic", required=False)
@@ -179,6 +182,9 @@ def _scenario(root: Reader, name: str, display: str) -> Scenario:
                      {**{t: ts.x0[:3] for t, ts in targets.items()},
                       **{j: js.site.points for j, js in jammers.items()}})
     noisy = [tid for tid, t in targets.items() if t.jerk_psd > 0]
+    if noisy and endless:  # its truth is a grid of states over the duration: it has an end
+        raise src.error(("targets", noisy[0], "jerk_psd"), "an endless scenario needs closed-form truth "
+                        "(no process noise)")
     if noisy and truth_dt is None:
         raise src.error(("targets", noisy[0], "jerk_psd"), "process noise needs truth_dt_s (the truth grid step)")
     if noisy:
@@ -189,7 +195,7 @@ def _scenario(root: Reader, name: str, display: str) -> Scenario:
                                     f"multiple of truth_dt_s = {truth_dt:g}")
     return Scenario(
         name=name, **header, sensors=sensors, seed=seed, duration=duration, targets=targets, jammers=jammers,
-        truth_dt=truth_dt if noisy else None, source=display, traffic=traffic,
+        truth_dt=truth_dt if noisy else None, source=display, traffic=traffic, endless=endless,
     )
 
 

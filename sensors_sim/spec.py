@@ -234,6 +234,8 @@ class Scenario(SiteSpec):
         truth_dt: step of the truth's process-noise grid (s), or None if no target has
             process noise.
         traffic: aircraft entering and leaving at random, seen by every sensor, or None.
+        endless: it can go on past its duration (closed-form truth, no process-noise
+            grid): a live emulation without ``--for`` plays it until stopped.
     """
 
     seed: int
@@ -242,6 +244,7 @@ class Scenario(SiteSpec):
     jammers: dict[str, JammerSpec]
     truth_dt: float | None = None
     traffic: TrafficSpec | None = None
+    endless: bool = False
 
     def process_ids(self) -> list[str]:
         """Ids of every source process: sensors, jammers, then ``truth``."""

@@ -58,6 +58,19 @@ def sample_times(start: float, period: float, end: float) -> np.ndarray:
     return start + period * np.arange(n)
 
 
+def iter_times(start: float, period: float, end: float) -> Iterator[float]:
+    """:func:`sample_times` lazily, as floats (the same values); ``end`` may be infinite."""
+    if period <= 0:
+        raise ValueError(f"period must be > 0, got {period}")
+    if start > end * (1 + _TIME_TOL) + _TIME_TOL:
+        return
+    n = math.inf if math.isinf(end) else math.floor((end - start) / period + _TIME_TOL) + 1
+    k = 0
+    while k < n:
+        yield float(start + period * k)
+        k += 1
+
+
 # --- motion segments --------------------------------------------------------------------
 
 
@@ -275,7 +288,7 @@ def truth_events(scenario: Scenario, run: int = 0, period: float | None = None) 
         period = min(s.period for s in scenario.sensors.values())
     trajectories = truth_trajectories(scenario, run)
     traffic = Traffic(scenario.traffic, scenario.seed, run) if scenario.traffic is not None else None
-    for t in sample_times(0.0, period, scenario.duration):
+    for t in iter_times(0.0, period, scenario.duration):
         for tid, traj in trajectories.items():
             yield TruthSample(float(t), tid, traj.state(float(t)))
         for a in traffic.alive(float(t)) if traffic is not None else ():

@@ -384,6 +384,7 @@ def run(args) -> int:
     scenario = _scenario_of(args)
     if live and args.duration_s is None and args.for_s is not None and args.for_s > scenario.duration:
         scenario = dataclasses.replace(scenario, duration=args.for_s)  # the sources play until --for
+    endless = live and args.duration_s is None and args.for_s is None and scenario.endless  # until Ctrl-C
     topology, method = resolve_topology(scenario, args.topology, args.method)
     from fusion.methods import make_method, method_config
 
@@ -520,7 +521,8 @@ def run(args) -> int:
                 consumers = [first, RECORDER_ID] if sid in scenario.sensors else [RECORDER_ID]
                 children.start(sid, ["sensor", "--scenario", args.scenario, "--id", sid, "--speed", str(args.speed),
                                      "--start-at", repr(start_at), *seed, *(
-                                         ["--duration-s", repr(scenario.duration)] if live or args.duration_s else []),
+                                         ["--duration-s", repr(scenario.duration)]
+                                         if (live and not endless) or args.duration_s else []),
                                      *(["--live"] if live else []),
                                      "--wait-for", ",".join([*consumers, LAUNCHER_ID]), *common])
             last_source_end: float | None = None
@@ -596,7 +598,8 @@ def run(args) -> int:
         estimates = scenario_times(estimates, epoch)
     played = scenario  # live: scored over the time the sources played (--for, Ctrl-C), not the whole duration
     if live:
-        played = dataclasses.replace(scenario, duration=min(scenario.duration, max((e.t for e in estimates), default=0.0)))
+        played = dataclasses.replace(scenario, duration=min(math.inf if endless else scenario.duration,
+                                                             max((e.t for e in estimates), default=0.0)))
     scored = (tracks_summary([score_tracks_of(played, estimates)]) if many_targets(scenario)
               else method_summary([estimates], truth))
     doc = summary(scenario, topology, args.fusion_rule or track_fusion_rule(scenario.tracker, [method]), scenario.seed, 1,

@@ -77,6 +77,8 @@ def run(process_id: str, scenario_ref: str, keys: KeySpace, zopts, speed: float,
         wait_for: list[str], run_index: int = 0, wait_timeout: float = 60.0,
         seed: int | None = None, live: bool = False, duration: float | None = None) -> int:
     scenario = load(scenario_ref, seed, duration)
+    if live and duration is None and scenario.endless:  # a live emulation without an end: until stopped
+        scenario = dataclasses.replace(scenario, duration=math.inf)
     if process_id == "truth":
         role = "truth"
     elif process_id in scenario.sensors:

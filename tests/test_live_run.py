@@ -124,3 +124,45 @@ def test_eval_duration_and_tracker_overrides(tmp_path):
     assert got["n_updates"] == ref["n_updates"] == 11
     assert got["rmse_pos"] == pytest.approx(ref["rmse_pos"], abs=1e-9)
     assert abs(got["rmse_pos"] - default["rmse_pos"]) > 1e-6
+
+
+@pytest.mark.slow
+def test_live_run_of_an_endless_scenario_goes_on_past_its_duration_until_stopped(tmp_path, deployment):
+    """`run --live` without --for on a scenario marked endless (patent-3d-orbit, here with
+    duration_s = 4): the sources go on past the duration until Ctrl-C, then the run stops
+    in order and writes its summary, its fused updates one a second up to the stop."""
+    import signal
+
+    from services.launcher import free_port
+
+    text = (Path(__file__).resolve().parents[1] / "sensors_sim/scenarios/patent-3d-orbit.toml").read_text()
+    assert "duration_s = 600.0\nendless = true" in text
+    (tmp_path / "orbit.toml").write_text(text.replace("duration_s = 600.0", "duration_s = 4.0"))
+    hub = f"tcp/127.0.0.1:{free_port()}"
+    p = zfusion("run", "--scenario", str(tmp_path / "orbit.toml"), "--live", "--deployment", deployment,
+                "--listen", hub, "--json", str(tmp_path / "e.json"), "--rrd", str(tmp_path / "e.rrd"),
+                stdout=subprocess.DEVNULL, stderr=(tmp_path / "e.err").open("w"))
+    try:
+        deadline = time.monotonic() + 120
+        latest = None
+        while time.monotonic() < deadline and p.poll() is None:  # until the picture is 10 s past the duration
+            time.sleep(2)
+            q = zfusion("picture", "--deployment", deployment, "--connect", hub, "--timeout", "5",
+                        stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+            out, _ = q.communicate(timeout=60)
+            tracks = json.loads(out)["tracks"] if q.returncode == 0 and out.strip() else []
+            if tracks:
+                latest = latest or tracks[0]["t"]
+                if tracks[0]["t"] - latest >= 14.0:
+                    break
+        assert p.poll() is None, "the run ended by itself"
+        p.send_signal(signal.SIGINT)
+        p.wait(timeout=120)
+    finally:
+        if p.poll() is None:
+            p.kill()
+    err = (tmp_path / "e.err").read_text()
+    assert p.returncode == 0, err[-3000:]
+    doc = json.loads((tmp_path / "e.json").read_text())
+    t = np.array(doc["methods"]["SS"]["series"]["t"]) - doc["epoch_utc"]
+    assert t[-1] >= 14.0 and np.all(np.diff(t) <= 1.0 + 1e-6), t

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import re
+from pathlib import Path
 
 import numpy as np
 import pymap3d
@@ -245,3 +246,14 @@ def test_missing_file_and_unknown_name(tmp_path):
         load_scenario(tmp_path / "nope.toml")
     with pytest.raises(ScenarioError, match="unknown scenario 'no-such-scenario'.*patent-3d"):
         load_scenario("no-such-scenario")
+
+
+def test_endless_is_a_boolean_of_scenarios_that_can_go_on(tmp_path):
+    from sensors_sim import load_scenario
+
+    assert load_scenario("patent-3d-orbit").endless and load_scenario("air-picture-live").endless
+    assert not load_scenario("patent-3d").endless
+    text = (Path(__file__).resolve().parents[1] / "sensors_sim/scenarios/patent-3d-orbit.toml").read_text()
+    (tmp_path / "bad.toml").write_text(text.replace("endless = true", 'endless = "yes"'))
+    with pytest.raises(ScenarioError, match="endless"):
+        load_scenario(tmp_path / "bad.toml")

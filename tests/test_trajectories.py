@@ -289,3 +289,16 @@ def test_orbit_axes_are_checked(tmp_path):
     path.write_text(src)
     with pytest.raises(ScenarioError, match="axes_m"):
         load_scenario(str(path))
+
+
+def test_iter_times_is_sample_times_lazily_and_may_be_endless():
+    """The sources' lazy scan and truth times: the same floats as :func:`sample_times`
+    (bit for bit: a scenario run's measurements are unchanged), and an infinite end."""
+    import itertools
+
+    from sensors_sim.trajectories import iter_times, sample_times
+
+    for args in [(0.0, 1.0, 30.0), (0.5, 0.1, 600.0), (0.25, 1 / 3, 10.0), (5.0, 1.0, 4.0), (0.0, 0.1, 100.0),
+                 (0.3, 0.7, 0.3)]:
+        assert list(iter_times(*args)) == sample_times(*args).tolist(), args
+    assert list(itertools.islice(iter_times(2.0, 0.5, float("inf")), 10**5))[-1] == 2.0 + 0.5 * (10**5 - 1)
