@@ -135,7 +135,10 @@ class Children:
         cmd = [sys.executable, "-m", "services.cli", *argv]
         log.debug("starting %s: %s", name, " ".join(cmd))
         self.argv[name] = argv
-        proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stderr=subprocess.PIPE, preexec_fn=die_with_parent)
+        # Its own process group: a Ctrl-C at the terminal reaches the launcher alone, which
+        # stops the children in order (one still importing would print a traceback).
+        proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stderr=subprocess.PIPE, preexec_fn=die_with_parent,
+                                process_group=0)
         self.procs[name] = proc
         relay = threading.Thread(target=self._relay, args=(name, proc.stderr), daemon=True, name=f"stderr-{name}")
         relay.start()

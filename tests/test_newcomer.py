@@ -174,3 +174,26 @@ def test_view_checks_the_file_and_the_display_first(tmp_path):
     assert argv[1:] == ["--bind", "127.0.0.1", str(good)]  # its port on loopback, not on every interface
     p = zf("view", str(bad))
     assert p.returncode == 2 and p.stderr.count("\n") == 1 and "Traceback" not in p.stderr
+
+
+@pytest.mark.parametrize("delay", [0.3, 1.0, 2.0])
+def test_ctrl_c_in_the_first_seconds_prints_no_traceback(tmp_path, delay):
+    """Ctrl-C at a terminal signals the whole foreground process group: the launcher and
+    its children still starting. Only the launcher's one line may come out."""
+    import os
+    import signal
+    import time
+
+    p = subprocess.Popen([sys.executable, "-m", "services.cli", "run", "--scenario", "patent-3d", "--speed", "max",
+                          "--rrd", str(tmp_path / "r.rrd")], stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
+                         stderr=subprocess.PIPE, text=True, process_group=0)
+    import psutil
+
+    deadline = time.monotonic() + 60
+    while not psutil.Process(p.pid).children() and time.monotonic() < deadline:
+        time.sleep(0.05)  # the launcher is up and has started its first child
+    time.sleep(delay)  # its children are still importing, or just started
+    os.killpg(p.pid, signal.SIGINT)
+    _, err = p.communicate(timeout=60)
+    assert "Traceback" not in err and "KeyboardInterrupt" not in err, err[-3000:]
+    assert p.returncode in (130, 0), err[-2000:]
