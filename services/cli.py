@@ -571,12 +571,21 @@ def _eval(args) -> int:
     show = sys.stderr.isatty() if args.progress is None else args.progress
     rule = args.fusion_rule or track_fusion_rule(scenario.tracker, methods)
 
+    import time
+
+    began = time.monotonic()
+
     def progress(done: int, total: int) -> None:
         bar = "#" * (30 * done // total)
-        sys.stderr.write(f"\r{scenario.name}: run {done}/{total} [{bar:<30}]")
+        spent = time.monotonic() - began
+        eta = f", {spent * (total - done) / done:.0f} s left" if 0 < done < total else f", {spent:.0f} s" if done else ""
+        sys.stderr.write(f"\r{scenario.name}: run {done}/{total} [{bar:<30}]{eta}   ")
         if done == total:
             sys.stderr.write("\n")
         sys.stderr.flush()
+
+    if show:  # at once, not after the first run
+        progress(0, args.runs)
 
     try:
         doc = evaluate(scenario, variants_for(methods, overrides), args.runs, jobs=args.jobs,

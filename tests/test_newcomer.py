@@ -197,3 +197,12 @@ def test_ctrl_c_in_the_first_seconds_prints_no_traceback(tmp_path, delay):
     _, err = p.communicate(timeout=60)
     assert "Traceback" not in err and "KeyboardInterrupt" not in err, err[-3000:]
     assert p.returncode in (130, 0), err[-2000:]
+
+
+def test_eval_progress_shows_at_once_with_a_time_estimate():
+    p = zf("eval", "--scenario", "thesis-fixed-c1", "--runs", "3", "--methods", "EKF", "--progress")
+    steps = [s.strip() for s in p.stderr.split("\r") if s.strip()]
+    assert p.returncode == 0 and steps[0].startswith("thesis-fixed-c1: run 0/3")  # before the first run ends
+    assert any("run 1/3" in s and "s left" in s for s in steps), steps
+    q = zf("eval", "--scenario", "thesis-fixed-c1", "--runs", "1", "--methods", "EKF")
+    assert q.stderr == ""  # quiet when stderr is not a terminal
