@@ -322,6 +322,14 @@ def _live_until_done(node: Node, children: Children, sup: "Supervisor", drain, s
     drain(0.2)
 
 
+def progress_line(scenario, t: float | None, updates: int, sources: dict) -> None:
+    """``zfusion run``'s progress on a terminal: scenario time, updates, dead sources."""
+    dead = [s for s, r in sources.items() if r.get("dead_intervals") and r["dead_intervals"][-1][1] is None]
+    sys.stderr.write(f"\r\033[K{scenario.name}: t = {t or 0.0:.0f} of {scenario.duration:g} s, {updates} updates"
+                     + (f", dead: {', '.join(dead)}" if dead else "") + "\r")
+    sys.stderr.flush()
+
+
 def topology_of(method: str) -> str:
     return METHODS[method].topology if method in METHODS else "centralised"  # an unknown one fails at make_method
 
@@ -532,9 +540,14 @@ def run(args) -> int:
             if live:
                 _live_until_done(node, children, sup, drain, sources, [*trackers.values()],
                                  start_at + (args.for_s if args.for_s else math.inf), args.max_delay)
+            show = sys.stderr.isatty()  # a progress line on a terminal only
+            shown = 0.0
             while not node.stop.is_set() and not live:
                 drain(0.1)
                 sup.poll()
+                if show and time.monotonic() - shown >= 1.0:
+                    shown = time.monotonic()
+                    progress_line(scenario, clock(), len(estimates), statuses.get(FUSER_ID, {}).get("sources", {}))
                 failure = children.failed()
                 if failure:  # a child's own error: the run cannot give what was asked
                     break

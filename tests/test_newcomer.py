@@ -206,3 +206,25 @@ def test_eval_progress_shows_at_once_with_a_time_estimate():
     assert any("run 1/3" in s and "s left" in s for s in steps), steps
     q = zf("eval", "--scenario", "thesis-fixed-c1", "--runs", "1", "--methods", "EKF")
     assert q.stderr == ""  # quiet when stderr is not a terminal
+
+
+def test_run_shows_progress_on_a_terminal_only(tmp_path):
+    import os
+    import pty
+
+    master, slave = pty.openpty()
+    p = subprocess.Popen([sys.executable, "-m", "services.cli", "run", "--scenario", "patent-3d", "--speed", "3",
+                          "--rrd", str(tmp_path / "r.rrd")], stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
+                         stderr=slave)
+    os.close(slave)
+    seen = b""
+    while True:
+        try:
+            chunk = os.read(master, 4096)
+        except OSError:  # the pty closed: the run ended
+            break
+        if not chunk:
+            break
+        seen += chunk
+    assert p.wait(120) == 0
+    assert b"patent-3d: t = " in seen and b" updates" in seen, seen[-2000:]
