@@ -172,9 +172,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("run", help="run a scenario end to end as separate processes over Zenoh")
     p.add_argument("--scenario", required=True, help="built-in scenario name or path to a .toml file")
-    p.add_argument("--topology", choices=TOPOLOGIES)
+    p.add_argument("--topology", choices=TOPOLOGIES, help="process layout (default: the method's)")
     p.add_argument("--method", help="estimation method (default: the scenario's)")
-    p.add_argument("--fusion-rule", choices=FUSION_RULES)
+    p.add_argument("--fusion-rule", choices=FUSION_RULES, help="track-to-track fusion rule of a track-fusion method")
     p.add_argument("--speed", type=_speed, default="1", help="scenario seconds per wall second, or 'max' (default 1)")
     p.add_argument("--seed", type=_seed, help="replace the scenario's seed (a non-negative integer)")
     p.add_argument("--rrd", help="recording path (default runs/<scenario>-<topology>-<time>.rrd)")
@@ -203,11 +203,11 @@ def build_parser() -> argparse.ArgumentParser:
     _fabric(p, per_process=False)  # every child shares these
 
     p = sub.add_parser("eval", help="Monte Carlo evaluation in-process, with the services' own estimators")
-    p.add_argument("--scenario", required=True)
-    p.add_argument("--runs", type=int, required=True)
+    p.add_argument("--scenario", required=True, help="built-in scenario name or path to a .toml file")
+    p.add_argument("--runs", type=int, required=True, help="number of Monte Carlo runs")
     p.add_argument("--methods", nargs="+",
                    help="methods to evaluate (default: every method the scenario's sensors can feed)")
-    p.add_argument("--fusion-rule", choices=FUSION_RULES)
+    p.add_argument("--fusion-rule", choices=FUSION_RULES, help="track-to-track fusion rule of the track-fusion methods")
     p.add_argument("--seed", type=_seed, help="replace the scenario's seed (a non-negative integer)")
     p.add_argument("--json", help="write the summary JSON here")
     p.add_argument("--report", metavar="DIR", help="write a Markdown report with PNG plots into DIR")
@@ -215,7 +215,7 @@ def build_parser() -> argparse.ArgumentParser:
     _tracker_options(p)
     p.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
                    help="progress line on stderr (default: when stderr is a terminal)")
-    p.add_argument("-v", "--verbose", action="store_true")
+    p.add_argument("-v", "--verbose", action="store_true", help="log at debug level; tracebacks for errors")
 
     sub.add_parser("scenarios", help="list the built-in scenarios")
 
