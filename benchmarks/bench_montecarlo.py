@@ -53,14 +53,15 @@ def ss_vectorised(scenario, streams: list[list], clock: dict | None = None) -> l
     from fusion import batch
     from fusion.methods import method_config
     from fusion.init3d import initial_state
-    from fusion.patent import ScanGrouper, TrackerConfig, pieces_stacked
+    from fusion.grouping import TimeGrouper
+    from fusion.patent import TrackerConfig, pieces_stacked
 
     cfg = TrackerConfig.from_dict(method_config(scenario.tracker, "SS"))
     motion = cfg.motion_model()
     n_x = motion.n_x
     scans = []
     for stream in streams:  # group each run's stream into scans exactly as the method does
-        g = ScanGrouper(cfg.pair_tol)
+        g = TimeGrouper(cfg.pair_tol, one_per_sensor=True)
         out, t_prev = [], None
         for m in stream:
             if t_prev is not None and m.t > t_prev:

@@ -97,7 +97,8 @@ from .angles import wrap_pi
 from .association import CONFIRMED, DELETED, DuplicateWatch, ManagementRule, TrackIds, TrackLogic, gate_threshold, gnn, mahalanobis2
 from .config import config_values
 from .init3d import initial_state, spherical_to_position
-from .patent import CentralisedMethod, GroupedMethod, ScanGrouper
+from .grouping import TimeGrouper
+from .patent import CentralisedMethod, GroupedMethod
 from .sensors3d import SphericalModel
 from .types import KIND_COMPONENTS, Estimate, Measurement
 
@@ -163,14 +164,6 @@ class AssociationConfig:
         return DuplicateWatch(self.merge_frames, self.gate_prob)
 
 
-class FrameGrouper(ScanGrouper):
-    """Groups a time-ordered stream into frames (module docstring, "Frames"): the scan
-    grouper of the one-target methods, with any number of plots per sensor."""
-
-    def __init__(self, pair_tol: float):
-        super().__init__(pair_tol, one_per_sensor=False)
-
-
 class _Track:
     """One track: its filter (an instance of the wrapped method) and its life."""
 
@@ -202,7 +195,7 @@ class MultiTargetMethod(GroupedMethod):
         self.config = config
         self.rule = config.rule()
         self._initiator = Initiator(self.n_x, proto.priors, config.gate_prob)
-        self._grouper = FrameGrouper(proto.config.pair_tol)
+        self._grouper = TimeGrouper(proto.config.pair_tol)
         self._ids = TrackIds()
         self._births = 0
         self._duplicates = config.duplicate_watch()

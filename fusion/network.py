@@ -37,7 +37,7 @@ arriving later (a sensor that joins or a tracker that restarts) is answered with
 centre's latest fused state. The request's measurement initialises, it is not used
 again.
 
-**Scans at the centre** are those of :class:`fusion.patent.ScanGrouper`, over uplinks
+**Scans at the centre** are those of :class:`fusion.grouping.TimeGrouper`, over uplinks
 (one per node per scan); a scan is fused at the time of its first uplink (offsets
 within ``pair_tol`` are neglected, as in the centralised methods). Only the nodes with
 an uplink in the scan take part.
@@ -77,7 +77,7 @@ formed the pair is sent the new track. HNV stays distributed: after that the loc
 trackers run without feedback.
 
 *Local trackers.* A node groups its sensor's plots into frames
-(:class:`fusion.mtt.FrameGrouper`; the sensor's watermark closes them), gates them
+(:class:`fusion.grouping.TimeGrouper`; the sensor's watermark closes them), gates them
 against its local tracks' predictions (χ², GNN), updates the tracks that took one and
 reports each (``track`` = its local id), sends the other plots up as requests, and
 deletes a local track after ``delete_misses`` frames without a plot or when its
@@ -143,8 +143,9 @@ from .df.methods import DFConfig, SmootherTorrieriMethod, make_station_smoother
 from .df.models import bearing_of
 from .df.multi import MultiEmitterMethod
 from .init3d import initial_state
-from .mtt import AssociationConfig, FrameGrouper, Initiator, scores_hit
-from .patent import KINDS_3D, LocalTracker, ScanGrouper, TrackerConfig
+from .grouping import TimeGrouper
+from .mtt import AssociationConfig, Initiator, scores_hit
+from .patent import KINDS_3D, LocalTracker, TrackerConfig
 from .sensors3d import SphericalModel
 from .track_fusion import TrackFuser
 from .types import Estimate, Measurement
@@ -411,7 +412,7 @@ class TrackCentre(GroupedCentre):
         self._new_filter = config.new_filter(self.motion)
         self.fuser = TrackFuser(config.fusion_rule, self.motion, config.ci_criterion, name, track)
         self.nodes: set[str] = set()
-        self._grouper = ScanGrouper(config.pair_tol)
+        self._grouper = TimeGrouper(config.pair_tol, one_per_sensor=True)
 
     # -- scans ----------------------------------------------------------------------------
     def _group(self, scan: list[Uplink]) -> list[Estimate]:
@@ -518,12 +519,12 @@ class StationCentre(Centre):
 # Many targets --------------------------------------------------------------------------
 class FramedNode(LocalNode):
     """Base of the many-target nodes: the sensor's reports are grouped into frames
-    (:class:`fusion.mtt.FrameGrouper`, closed by the sensor's watermark), and a frame,
+    (:class:`fusion.grouping.TimeGrouper`, closed by the sensor's watermark), and a frame,
     not a measurement, is the unit :meth:`_process` takes."""
 
     def __init__(self, node: str, pair_tol: float):
         super().__init__(node, pair_tol)
-        self._frames = FrameGrouper(pair_tol)
+        self._frames = TimeGrouper(pair_tol)
 
     def offer(self, m: Measurement) -> None:
         if m.kind not in self.kinds:
@@ -709,7 +710,7 @@ class MultiTrackCentre(GroupedCentre):
         self._new_filter = config.new_filter(self.motion)
         self.tracks: list[_Fused] = []  # confirmed in id order, then tentative in birth order
         self._initiator = Initiator(self.motion.n_x, config.priors(), association.gate_prob)
-        self._grouper = FrameGrouper(config.pair_tol)
+        self._grouper = TimeGrouper(config.pair_tol)
         self._ids = TrackIds()
         self._births = 0
         self._duplicates = association.duplicate_watch()

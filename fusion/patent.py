@@ -32,11 +32,9 @@ update starts from one shared prior, which the rule counts once).
 
 Streaming and scans. Measurements arrive in ``(t, sensor, seq)`` order. A *scan* is the
 group of measurements whose times lie within ``pair_tol`` of the scan's first
-measurement, at most one per sensor. A scan closes when (a) a measurement arrives that
-cannot join it, (b) a watermark ``advance(t)`` with ``t − t_first > pair_tol`` proves no
-member can still come, (c) it holds a measurement of every sensor seen so far (after
-the first scan), or (d) ``finish()``. Each of these depends only on the measurement
-sequence, so the emitted estimates never depend on when ``advance`` is called. A scan
+measurement, at most one per sensor, cut by :class:`fusion.grouping.TimeGrouper` (the
+rule every method family shares), so the emitted estimates never depend on when
+``advance`` is called. A scan
 is processed at the time of its first measurement (time offsets within ``pair_tol``
 are neglected; keep ``pair_tol`` ≪ σ/speed). Sequential fallback: a scan holding only
 one sensor (asynchronous sensors, a dropped report) is processed with that sensor's
@@ -102,6 +100,7 @@ from .config import config_values
 from .init3d import InitPriors, initial_state
 from .motion import make_motion, NOISE_FORMS
 from .filters import FILTERS, Filter, NewFilter, filter_factory
+from .grouping import TimeGrouper
 from .imm import IMM_MODELS, model_set
 from .sensors3d import SphericalModel
 from .track_fusion import CI_CRITERIA, FUSION_RULES
@@ -221,64 +220,6 @@ class TrackerConfig:
         )
 
 
-# Scans -------------------------------------------------------------------------------
-class ScanGrouper:
-    """Groups a time-ordered measurement stream into scans (module docstring, "Streaming").
-
-    ``one_per_sensor=False`` makes it a many-target *frame* grouper (:mod:`fusion.mtt`):
-    a sensor may report any number of plots within ``pair_tol``, so a group closes on
-    time alone, never because every sensor has reported."""
-
-    def __init__(self, pair_tol: float, one_per_sensor: bool = True):
-        if pair_tol < 0.0:
-            raise ValueError(f"pair_tol must be >= 0, got {pair_tol}")
-        self.pair_tol = float(pair_tol)
-        self.one_per_sensor = one_per_sensor
-        self._open: list[Measurement] = []
-        self._seen: set[str] = set()
-        self._closed = 0
-        self._last_key: tuple | None = None
-        self._watermark = -np.inf
-
-    def _close(self) -> list[list[Measurement]]:
-        if not self._open:
-            return []
-        scan, self._open = self._open, []
-        self._closed += 1
-        return [scan]
-
-    def push(self, m: Measurement) -> list[list[Measurement]]:
-        key = m.order_key
-        if self._last_key is not None and key <= self._last_key:
-            raise ValueError(f"measurement {key} out of order (after {self._last_key})")
-        if m.t <= self._watermark:
-            raise ValueError(f"measurement at t={m.t} from {m.sensor!r} arrived after watermark {self._watermark}")
-        self._last_key = key
-        out = []
-        if self._open and (m.t - self._open[0].t > self.pair_tol
-                           or (self.one_per_sensor and any(o.sensor == m.sensor for o in self._open))):
-            out += self._close()
-        self._open.append(m)
-        if self.one_per_sensor:
-            self._seen.add(m.sensor)
-            if self._closed and self._seen <= {o.sensor for o in self._open}:
-                out += self._close()
-        return out
-
-    def advance(self, t: float) -> list[list[Measurement]]:
-        self._watermark = max(self._watermark, float(t))
-        if self._open and self._watermark - self._open[0].t > self.pair_tol:
-            return self._close()
-        return []
-
-    def finish(self) -> list[list[Measurement]]:
-        return self._close()
-
-    def held_since(self) -> float | None:
-        """Time of the open scan's first member (None when no scan is open)."""
-        return self._open[0].t if self._open else None
-
-
 def uses(name: str, kinds: frozenset, m: Measurement) -> bool:
     """Whether method ``name``, which takes measurements of ``kinds``, uses ``m``; a
     measurement no 3D method can use (a bearing) is an error, not silently ignored."""
@@ -318,7 +259,7 @@ class GroupedMethod:
 
 
 class ScanMethod(GroupedMethod):
-    """Base of the patent methods: a :class:`GroupedMethod` on :class:`ScanGrouper`
+    """Base of the patent methods: a :class:`GroupedMethod` on :class:`~fusion.grouping.TimeGrouper`
     scans. Subclasses implement :meth:`process_scan`.
     """
 
@@ -329,7 +270,7 @@ class ScanMethod(GroupedMethod):
         self.motion = config.motion_model()
         self.n_x = self.motion.n_x
         self.priors = config.priors()
-        self._grouper = ScanGrouper(config.pair_tol)
+        self._grouper = TimeGrouper(config.pair_tol, one_per_sensor=True)
 
     def __repr__(self) -> str:
         return f"{type(self).__name__}({self.name!r})"

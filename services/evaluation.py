@@ -14,7 +14,7 @@ distributed run.
   methods are not sampling noise between different data. (Each sensor draws from
   ``process_rng(seed, sensor, r)``, so a variant restricted to some sensors sees
   exactly those sensors' measurements of the full stream.)
-* Each run is scored as soon as it is estimated (:func:`services.summary.score_run`)
+* Each run is scored as soon as it is estimated (:func:`services.scoring.score_run`)
   and only the per-estimate errors are kept; runs may be spread over worker processes
   (``jobs``) with results identical to a serial evaluation (every run's randomness is a
   function of the run index only).
@@ -38,7 +38,8 @@ import numpy as np
 from fusion.methods import METHODS, make_method, method_config
 from fusion.types import Estimate, Measurement
 
-from .summary import aggregate, method_summary, score_run, summary, tracks_summary, truth_function
+from .scoring import GOSPA_CUTOFF, many_targets, pair_tol_of, scan_groups, score_run, score_tracks_of, truth_function
+from .summary import aggregate, method_summary, summary, tracks_summary
 
 def merged_measurements(scenario, run: int = 0, sensors: Iterable[str] | None = None) -> list[Measurement]:
     from sensors_sim import sensor_events
@@ -239,28 +240,6 @@ def _noise_std(scenario, sensor_id: str, t: float, position: np.ndarray) -> tupl
     return out, regular
 
 
-def _scan_groups(scenario, sensor_ids: Sequence[str], tol: float) -> list[tuple[float, float, list[str]]]:
-    """Scan times of the sensors grouped as the methods group them: ``(first time, last
-    time, sensors)`` per group (3D methods stamp a scan with its first time, DF methods
-    an epoch with its last)."""
-    from sensors_sim import scan_times
-
-    events = sorted((float(t), s) for s in sensor_ids for t in scan_times(scenario, s))
-    groups: list[tuple[float, float, list[str]]] = []
-    for t, s in events:
-        if groups and t - groups[-1][0] <= tol and s not in groups[-1][2]:
-            groups[-1] = (groups[-1][0], t, groups[-1][2] + [s])
-        else:
-            groups.append((t, t, [s]))
-    return groups
-
-
-def _pair_tol(scenario, default: float) -> float:
-    """The common ``[tracker]`` grouping tolerance (s), else the methods' ``default``."""
-    tol = scenario.tracker.get("pair_tol", default)
-    return float(tol) if isinstance(tol, (int, float)) else default
-
-
 def crb_summary(scenario, runs: int) -> dict | None:
     """The bound on position RMSE at the methods' output times, or None if none applies.
 
@@ -302,7 +281,7 @@ def _crb_3d(scenario, target: str, runs: int) -> dict | None:
     except ValueError:
         return None
     sensors = [s for s, spec in scenario.sensors.items() if target in spec.targets and spec.measurement_kind in KINDS_3D]
-    groups = _scan_groups(scenario, sensors, cfg.pair_tol)
+    groups = scan_groups(scenario, sensors, cfg.pair_tol)
     spec_t = scenario.target(target)
     trajs = [truth_trajectory(scenario, target, r) for r in range(runs)]
     times = np.array([g[0] for g in groups])
@@ -373,7 +352,7 @@ def _crb_emitter(scenario, target: str) -> dict | None:
 
     spec_t = scenario.target(target)
     sensors = [s for s, spec in scenario.sensors.items() if target in spec.targets and spec.measurement_kind == "bearing"]
-    groups = _scan_groups(scenario, sensors, _pair_tol(scenario, DFConfig.pair_tol))
+    groups = scan_groups(scenario, sensors, pair_tol_of(scenario, DFConfig.pair_tol))
     try:  # the recursive methods' model: EKF's table
         cfg = DFConfig.from_dict(method_config(scenario.tracker, "EKF"))
     except ValueError:
@@ -481,43 +460,6 @@ def with_sensors(scenario, sensors: dict, name: str | None = None):
     return dataclasses.replace(scenario, sensors=dict(sensors), name=name or scenario.name)
 
 
-# Many targets ------------------------------------------------------------------------
-def track_steps(scenario, estimates: Sequence[Estimate], run: int = 0, node: str = "centre"):
-    """The run as :class:`fusion.mtt_metrics.Step` s: one per scan group of the scenario's
-    sensors (as the methods group them, ``pair_tol`` of ``[tracker]``), with every
-    target's (and alive ``[traffic]`` aircraft's) true position and every track's estimate of that group. Emitter fixes are
-    horizontal (``[px, py]``): they are scored against the truth's horizontal position."""
-    from fusion.mtt_metrics import Step
-    from sensors_sim import truth_trajectory
-    from sensors_sim.traffic import Traffic
-
-    from fusion.patent import TrackerConfig
-
-    tol = _pair_tol(scenario, TrackerConfig.pair_tol)
-    starts = [g[0] for g in _scan_groups(scenario, list(scenario.sensors), tol)]
-    trajs = {tid: truth_trajectory(scenario, tid, run) for tid in scenario.targets}
-    traffic = Traffic(scenario.traffic, scenario.seed, run) if scenario.traffic is not None else None
-    tracks: list[dict[str, np.ndarray]] = [{} for _ in starts]
-    for e in estimates:
-        if e.node != node:
-            continue
-        k = int(np.searchsorted(starts, e.t + 1e-12, side="right")) - 1
-        if k >= 0 and e.t - starts[k] <= tol:  # estimates of that scan group
-            tracks[k][e.track] = np.asarray(e.x[:3], dtype=float)
-    dim = min((len(p) for tk in tracks for p in tk.values()), default=3)
-    return [Step(t, {tid: tr.position(t)[:dim]
-                     for tid, tr in (*trajs.items(), *((a.id, a) for a in (traffic.alive(t) if traffic else ())))}, tk)
-            for t, tk in zip(starts, tracks)]
-
-
-GOSPA_CUTOFF = 1000.0  # m: GOSPA's c, order p = 2, for every many-target score
-
-
-def many_targets(scenario) -> bool:
-    """Scored as an air picture (set metrics) rather than per target."""
-    return len(scenario.targets) > 1 or getattr(scenario, "traffic", None) is not None
-
-
 def run_summary(scenario, topology: str, method: str, fusion_rule: str | None, estimates: Sequence[Estimate],
                 sources: dict) -> dict:
     """The summary of one distributed run from its fused estimates (what ``zfusion run``
@@ -528,14 +470,6 @@ def run_summary(scenario, topology: str, method: str, fusion_rule: str | None, e
     if many_targets(scenario):
         doc["gospa_cutoff"] = GOSPA_CUTOFF
     return doc
-
-
-def score_tracks_of(scenario, estimates: Sequence[Estimate], run: int = 0, c: float = GOSPA_CUTOFF,
-                    p: float = 2.0):
-    """A run's fused tracks scored by :func:`fusion.mtt_metrics.score_tracks`."""
-    from fusion.mtt_metrics import score_tracks
-
-    return score_tracks(track_steps(scenario, estimates, run), c, p)
 
 
 def score_tracks_run(scenario, method_name: str, run: int = 0, c: float = GOSPA_CUTOFF, p: float = 2.0,

@@ -73,8 +73,8 @@ from schemas import KeySpace, SchemaError, decode, to_estimate, tracker_id
 from .node import Inbox, Node, ZenohOptions, load
 from .resources import ProcessUsage, own_usage
 from .rotation import rotated_files
-from .evaluation import GOSPA_CUTOFF, many_targets, score_tracks_of
-from .summary import format_table, method_summary, on_time_base, scenario_times, summary, tracks_summary, truth_function
+from .scoring import GOSPA_CUTOFF, many_targets, score_tracks_of, truth_function
+from .summary import format_table, method_summary, on_time_base, scenario_times, summary, tracks_summary
 
 log = logging.getLogger("zfusion")
 

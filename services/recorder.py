@@ -59,7 +59,7 @@ from schemas.links import downlink
 from . import picture
 from . import recorder_draw as draw
 from . import recorder_geo
-from .evaluation import GOSPA_CUTOFF, many_targets
+from .scoring import GOSPA_CUTOFF, many_targets
 from .node import ListenerInbox, Node, RejectLog
 from .ordering import HORIZON_SLACK_S, SEQ_WINDOW
 from .picture import Reports

@@ -1,11 +1,11 @@
-"""Score estimates against truth and build the ``--json`` summary (docs/design.md).
+"""The ``--json`` summary (docs/design.md) from scored estimates (:mod:`services.scoring`).
 
 Shared by ``zfusion run`` (one run, estimates received over Zenoh) and ``zfusion eval``
 (many in-process Monte Carlo runs), so both report the same numbers the same way.
 
-Scoring is two steps: :func:`score_run` turns one run's estimates into per-estimate
-error records (so a Monte Carlo worker returns a few numbers per estimate instead of the
-estimates), and :func:`aggregate` turns the records of all runs into one method's
+Scoring is two steps: :func:`services.scoring.score_run` turns one run's estimates into
+per-estimate error records (so a Monte Carlo worker returns a few numbers per estimate
+instead of the estimates), and :func:`aggregate` turns the records of all runs into one method's
 summary; :func:`method_summary` does both. Per method, beside the contract's fields
 (``rmse_pos``/``rmse_vel``/``rmse_acc``: ``√mean‖e‖²`` over every scored estimate of
 every run; ``cep50``: the median horizontal miss of the final fixes; ``anees``: mean
@@ -29,71 +29,14 @@ from __future__ import annotations
 
 import math
 from collections import defaultdict
-from typing import Callable, Sequence
+from typing import Sequence
 
 import numpy as np
 
 from fusion.metrics import chi2_bounds, median_point_distance
 from fusion.types import Estimate
 
-from .recorder_draw import TRUTH_INDEX
-
-TruthFn = Callable[[int, str, float], np.ndarray]  # (run, track, t) -> true state
-
-
-def truth_function(scenario) -> TruthFn:
-    """Truth of the scenario's targets, evaluated from the scenario itself (the scorer may
-    see truth; trackers and fusers never do)."""
-    from sensors_sim import truth_trajectory
-
-    cache: dict[tuple[int, str], object] = {}
-    targets = list(scenario.targets)
-
-    def truth(run: int, track: str, t: float) -> np.ndarray:
-        target = track if track in scenario.targets else (targets[0] if len(targets) == 1 else None)
-        if target is None:
-            raise KeyError(f"track {track!r} matches no target of {scenario.name}")
-        traj = cache.get((run, target))
-        if traj is None:
-            traj = cache[(run, target)] = truth_trajectory(scenario, target, run=run)
-        return np.asarray(traj.state(t), dtype=float)
-
-    return truth
-
-
-def _errors(e: Estimate, xt: np.ndarray) -> dict:
-    n = e.x.size
-    xt = np.asarray(xt, dtype=float)
-    if n == 4:  # a moving emitter [px py vx vy]; a fix [px py] and a 3D track are the truth's leading parts
-        xt = xt[list(TRUTH_INDEX[4])]
-    else:
-        xt = xt[:n] if xt.size >= n else np.pad(xt, (0, n - xt.size))
-    err = e.x - xt
-    d = 3 if n >= 6 else 2 if n == 4 else n  # position block: 3D track, moving or fixed 2D emitter
-    out: dict = {"t": float(e.t), "n": n, "pos2": float(err[:d] @ err[:d]), "vel2": None, "acc2": None}
-    if n == 4:
-        out["vel2"] = float(err[2:4] @ err[2:4])
-    if n >= 6:
-        out["vel2"] = float(err[3:6] @ err[3:6])
-    if n >= 9:
-        out["acc2"] = float(err[6:9] @ err[6:9])
-    try:
-        out["nees"] = float(err @ np.linalg.solve(e.P, err))
-    except np.linalg.LinAlgError:
-        out["nees"] = math.nan
-    out["nis"] = None if e.nis is None else float(e.nis)
-    out["nis_dof"] = None if e.nis_dof is None else int(e.nis_dof)
-    out["eh"] = (float(err[0]), float(err[1]))  # horizontal error (fix scatter, CEP)
-    if n < 6:
-        P = np.asarray(e.P, dtype=float)
-        out["Ph"] = (float(P[0, 0]), float(P[0, 1]), float(P[1, 1]))
-    return out
-
-
-def score_run(estimates: Sequence[Estimate], truth: TruthFn, run: int, node: str = "centre") -> list[dict]:
-    """Error records of one run's estimates from ``node`` (in emission order)."""
-    return [_errors(e, truth(run, e.track, e.t)) for e in estimates if e.node == node]
-
+from .scoring import TruthFn, score_run
 
 def _rms(values: Sequence[float | None]) -> float | None:
     vals = [v for v in values if v is not None]

@@ -2,8 +2,12 @@
 
 from __future__ import annotations
 
+import json
+import math
+import subprocess
 import sys
 import time
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -11,11 +15,15 @@ import psutil
 import zenoh
 
 from schemas import KeySpace, decode
-from services.launcher import free_port
+from services.launcher import FUSER_ID, free_port
 from services.node import ZenohOptions
 from services.evaluation import run_method
-from services.summary import method_summary, truth_function
+from services.scoring import truth_function
+from services.summary import method_summary
 from sensors_sim import load_scenario
+
+from _wire import SCENARIO
+from conftest import zfusion
 
 
 def run_cmd(tmp_path: Path, scenario: str, deployment: str, *extra: str) -> list[str]:
@@ -84,3 +92,93 @@ class FusedWatch:
     def close(self) -> None:
         self._sub.undeclare()
         self.session.close()
+
+
+class LiveRun:
+    """A ``zfusion run`` of the scenario that also dials a Zenoh session of the test's own,
+    through which the test publishes on the run's keys and watches its ``fused`` output
+    (``fused_t``: the latest time fused) and the fuser's ``status`` (``statuses``)."""
+
+    def __init__(self, tmp_path, deployment: str, speed: str):
+        self.keys = KeySpace(deployment)
+        ep = f"tcp/127.0.0.1:{free_port()}"
+        self.session = zenoh.open(ZenohOptions(listen=[ep]).to_config())
+        self.json = tmp_path / "run.json"
+        self.launcher = zfusion("run", "--scenario", SCENARIO, "--speed", speed, "--rrd", str(tmp_path / "run.rrd"),
+                                "--json", str(self.json), "--deployment", deployment, "--connect", ep,
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+        self.fused_t = -math.inf
+        self.statuses: list[dict] = []
+        self._pubs: dict[str, zenoh.Publisher] = {}
+        self._subs = [self.session.declare_subscriber(self.keys.fused(), self._on_fused),
+                      self.session.declare_subscriber(self.keys.status(FUSER_ID), self._on_status)]
+        self.fuser = self._child(FUSER_ID)
+
+    def _on_fused(self, sample) -> None:
+        self.fused_t = max(self.fused_t, decode(sample.payload.to_bytes()).t)
+
+    def _on_status(self, sample) -> None:
+        msg = decode(sample.payload.to_bytes())
+        self.statuses.append({"seq": msg.seq, **msg.body})
+
+    def _child(self, role: str) -> psutil.Process:
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline:
+            for p in psutil.Process(self.launcher.pid).children(recursive=True):
+                try:
+                    cmd = p.cmdline()
+                except psutil.NoSuchProcess:
+                    continue
+                if "services.cli" in cmd and cmd[cmd.index("services.cli") + 1] == role:
+                    return p
+            time.sleep(0.05)
+        raise AssertionError(f"no {role} process under the launcher")
+
+    def put(self, key_id: str, data: bytes) -> None:
+        """Publish on ``meas/<key_id>`` as a sensor does: reliable, blocking when congested,
+        so everything sent is delivered."""
+        if key_id not in self._pubs:
+            self._pubs[key_id] = self.session.declare_publisher(
+                self.keys.meas(key_id), congestion_control=zenoh.CongestionControl.BLOCK,
+                reliability=zenoh.Reliability.RELIABLE)
+        self._pubs[key_id].put(data)
+
+    def wait_fused(self, t: float, timeout: float = 60.0) -> None:
+        deadline = time.monotonic() + timeout
+        while self.fused_t < t:
+            assert self.launcher.poll() is None, "the run ended early"
+            assert time.monotonic() < deadline, f"no fused output at {t} s within {timeout} s"
+            time.sleep(0.01)
+
+    def finish(self, timeout: float = 90.0) -> tuple[dict, dict]:
+        """Wait for the run to end; its JSON summary and the fuser's last status."""
+        _, err = self.launcher.communicate(timeout=timeout)
+        assert self.launcher.returncode == 0, err[-3000:].decode(errors="replace")
+        last = max(self.statuses, key=lambda s: s["seq"])
+        return json.loads(self.json.read_text()), last
+
+    def close(self) -> None:
+        if self.launcher.poll() is None:
+            self.launcher.kill()
+            self.launcher.wait()
+        for s in self._subs:
+            s.undeclare()
+        self.session.close()
+
+
+@contextmanager
+def live_run(tmp_path, deployment: str, speed: str):
+    run = LiveRun(tmp_path, deployment, speed)
+    try:
+        yield run
+    finally:
+        run.close()
+
+
+def assert_equals_in_process(doc: dict, until: float = math.inf) -> None:
+    """The run's fused series (up to ``until``) equal the clean in-process evaluation to 1e-9."""
+    ref, got = in_process(SCENARIO, "SS"), doc["methods"]["SS"]
+    n = sum(1 for t in ref["series"]["t"] if t <= until)
+    assert n and got["series"]["t"][:n] == ref["series"]["t"][:n]
+    for key in ("rmse_pos", "anees"):
+        np.testing.assert_allclose(got["series"][key][:n], ref["series"][key][:n], rtol=0, atol=1e-9)

@@ -6,8 +6,12 @@ import os
 import subprocess
 import sys
 import uuid
+from pathlib import Path
 
 import pytest
+
+DATA = Path(__file__).resolve().parent / "data"
+CROSSING = DATA / "crossing.toml"  # three aircraft crossing in clutter: the many-target scenario
 
 
 @pytest.fixture
@@ -19,3 +23,11 @@ def zfusion(*args: str, **kw) -> subprocess.Popen:
     """Start ``zfusion ARGS`` with this interpreter (the installed console script's code)."""
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
     return subprocess.Popen([sys.executable, "-m", "services.cli", *args], env=env, **kw)
+
+
+@pytest.fixture(scope="session")
+def crossing():
+    """The loaded :data:`CROSSING` scenario."""
+    from sensors_sim import load_scenario
+
+    return load_scenario(CROSSING)

@@ -17,7 +17,8 @@ from fusion.df.multi import MultiEmitterMethod, bearing_d2, initiate
 from fusion.methods import make_method
 from fusion.mtt_metrics import score_tracks
 from sensors_sim import load_scenario
-from services.evaluation import run_method, track_steps
+from services.evaluation import run_method
+from services.scoring import track_steps
 
 SIGMA = 0.0175
 G = gate_threshold(1, 0.999)
@@ -327,7 +328,7 @@ def test_df_multi_over_zenoh_equals_in_process(tmp_path, deployment, method, top
     tracker process per station tracks its bearings (a smoother per bearing track) and
     sends the smoothed ones up; the fuser associates them into emitters."""
     from _runs import run_cmd
-    from services.evaluation import score_tracks_of
+    from services.scoring import score_tracks_of
     from services.summary import tracks_summary
 
     p = subprocess.run(run_cmd(tmp_path, "df-multi", deployment, "--speed", "max", "--topology", topology,

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import json
 import math
-import shutil
 import signal
 import socket
 import subprocess
@@ -20,12 +19,11 @@ import pytest
 import zenoh
 
 from schemas import KeySpace, encode
-from services.evaluation import run_method
 from services.node import ZenohOptions
-from services.summary import method_summary, truth_function
-from sensors_sim import load_scenario
 
 from conftest import zfusion
+from _runs import in_process
+from _recording import rerun_exe
 
 pytestmark = pytest.mark.slow
 
@@ -38,27 +36,18 @@ def _run(tmp_path: Path, *extra: str, timeout: float = 90) -> tuple[dict, Path, 
     return json.loads(js.read_text()), rrd, p
 
 
-def _in_process(method: str = "SS") -> dict:
-    sc = load_scenario("patent-3d")
-    return method_summary([run_method(sc, method)], truth_function(sc))
-
-
-def _rerun() -> str:
-    return shutil.which("rerun") or str(Path(sys.executable).with_name("rerun"))
-
-
 def test_run_patent_3d_max_speed(tmp_path, deployment):
     t0 = time.monotonic()
     doc, rrd, p = _run(tmp_path, "--speed", "max", "--deployment", deployment)
     assert time.monotonic() - t0 < 60
     ss = doc["methods"]["SS"]
-    radar_alone = _in_process("RADAR2D")["rmse_pos"]
+    radar_alone = in_process("patent-3d", "RADAR2D")["rmse_pos"]
     assert ss["rmse_pos"] < 0.2 * radar_alone, (ss["rmse_pos"], radar_alone)
     assert ss["n_updates"] == 31
     assert set(doc["sources"]) >= {"radar2d", "angle", "truth"}
     assert all(not s["dead_intervals"] and s["rejected"] == 0 for s in doc["sources"].values())
     assert "SS" in p.stdout and "rmse_pos" in p.stdout
-    v = subprocess.run([_rerun(), "rrd", "verify", str(rrd)], capture_output=True, text=True)
+    v = subprocess.run([rerun_exe(), "rrd", "verify", str(rrd)], capture_output=True, text=True)
     assert v.returncode == 0, v.stderr
     rows = rrd_rows(rrd)
     # one row per measurement and per fused update, read back from the file
@@ -82,7 +71,7 @@ def rrd_rows(path: Path) -> dict[str, int]:
 @pytest.mark.parametrize("speed", ["max", "5"])
 def test_distributed_equals_in_process(tmp_path, deployment, speed):
     doc, _, _ = _run(tmp_path, "--speed", speed, "--deployment", deployment)
-    ref = _in_process("SS")
+    ref = in_process("patent-3d", "SS")
     got = doc["methods"]["SS"]
     assert got["n_updates"] == ref["n_updates"]
     assert got["series"]["t"] == ref["series"]["t"]
@@ -176,7 +165,7 @@ def test_garbage_on_the_wire_changes_nothing(tmp_path, deployment):
     finally:
         session.close()
     doc = json.loads(js.read_text())
-    ref = _in_process("SS")
+    ref = in_process("patent-3d", "SS")
     np.testing.assert_allclose(doc["methods"]["SS"]["series"]["rmse_pos"], ref["series"]["rmse_pos"], atol=1e-9,
                                rtol=0)
     assert doc["sources"]["radar2d"]["rejected"] >= 5 * 10

@@ -29,8 +29,9 @@ from services import geo
 from services.export import cot, geojson
 from services.export.tracks import TrackTable, sensor_sites
 from services.node import RejectLog, ZenohOptions
-from services.summary import truth_function
+from services.scoring import truth_function
 
+from services.launcher import free_port
 from conftest import zfusion
 
 KEYS = KeySpace("xtest")
@@ -259,12 +260,6 @@ def test_tcp_sender_reconnects_with_backoff_and_resends_the_picture():
 # -- processes -----------------------------------------------------------------------------------
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 def test_cli_mistakes_are_one_line_and_exit_2(tmp_path):
     for argv in (["export", "cot", "--to", "udp://nowhere", "--scenario", "patent-3d"],
                  ["export", "geojson", "--file", str(tmp_path / "no" / "g.json"), "--scenario", "patent-3d"],
@@ -280,7 +275,7 @@ def test_cli_mistakes_are_one_line_and_exit_2(tmp_path):
 def test_geojson_process_rides_through_a_fuser_restart_and_stops_cleanly(tmp_path, deployment):
     """The process over Zenoh: garbage is counted, a 'fuser' that goes and comes back with
     its seq from 1 again is followed, SIGTERM leaves the last picture and exit 0."""
-    ep = f"tcp/127.0.0.1:{_free_port()}"
+    ep = f"tcp/127.0.0.1:{free_port()}"
     keys = KeySpace(deployment)
     path = tmp_path / "g.json"
     hub = zenoh.open(ZenohOptions(listen=[ep]).to_config())
@@ -404,7 +399,7 @@ def test_an_exporter_started_mid_session_begins_with_the_fusers_picture(tmp_path
     """No update on ``fused`` at all: the file gets the track a 'fuser' answers the picture query with."""
     from schemas import encode
 
-    ep = f"tcp/127.0.0.1:{_free_port()}"
+    ep = f"tcp/127.0.0.1:{free_port()}"
     keys = KeySpace(deployment)
     path = tmp_path / "g.json"
     hub = zenoh.open(ZenohOptions(listen=[ep]).to_config())

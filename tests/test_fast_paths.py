@@ -328,7 +328,7 @@ def test_recorder_rows_sent_as_columns_equal_rows_logged_one_by_one(tmp_path):
 
     from schemas import KeySpace
     from services import recorder as rec_mod
-    from test_recorder import _est, _meas, _status, _truth, read_rrd, verify
+    from _recording import est_msg, meas_msg, read_rrd, status_msg, truth_msg, verify
 
     class OneByOne(rec_mod.Recording):
         def row(self, path, t, parts):
@@ -340,18 +340,18 @@ def test_recorder_rows_sent_as_columns_equal_rows_logged_one_by_one(tmp_path):
     for k in range(rec_mod.PATH_MAX // 50 + 60):  # trails of many points; a few runs of different shapes
         t = 0.5 * k
         x = np.array([6000.0 + 100 * t, 8000.0, 2000.0, 100.0, 0, 0, 0, 0, 0])
-        samples.append((keys.truth("T1"), _truth(k + 1, t)))
-        samples.append((keys.meas("radar2d"), _meas("radar2d", "range_az", [0.64, 10200.0 + k], [0.017, 20.0], t, k)))
-        samples.append((keys.meas("angle"), _meas("angle", "azel", [0.64, 0.19], [1e-3, 1e-3], t, k)))
+        samples.append((keys.truth("T1"), truth_msg(k + 1, t)))
+        samples.append((keys.meas("radar2d"), meas_msg("radar2d", "range_az", [0.64, 10200.0 + k], [0.017, 20.0], t, k)))
+        samples.append((keys.meas("angle"), meas_msg("angle", "azel", [0.64, 0.19], [1e-3, 1e-3], t, k)))
         if k % 7:  # some scans without a 3D radar report: the entity's runs change shape
-            samples.append((keys.meas("r3"), _meas("r3", "az_el_range", [0.6, 0.2, 9000.0 + k], [1e-3, 1e-3, 9.0],
+            samples.append((keys.meas("r3"), meas_msg("r3", "az_el_range", [0.6, 0.2, 9000.0 + k], [1e-3, 1e-3, 9.0],
                                                    t, k, site=(10.0, 0.0, 0.0))))
         P = np.diag([400.0, 300.0, 200.0] + [10.0] * 6)
         P[0, 1] = P[1, 0] = 50.0 + k
-        samples.append((keys.fused(), _est(t, x + [30.0, -40.0, 0, 0, 0, 0, 0, 0, 0], P, nis=1.0 + k % 5, dof=3,
+        samples.append((keys.fused(), est_msg(t, x + [30.0, -40.0, 0, 0, 0, 0, 0, 0, 0], P, nis=1.0 + k % 5, dof=3,
                                            seq=k + 1)))
         if k % 10 == 0:
-            samples.append((keys.status("fuser"), _status("fuser", k, t, role="fuser", counters={"held": k},
+            samples.append((keys.status("fuser"), status_msg("fuser", k, t, role="fuser", counters={"held": k},
                                                           events=[f"event {k}"] if k % 20 == 0 else [])))
     files = {}
     for name, cls in (("columns", rec_mod.Recording), ("rows", OneByOne)):

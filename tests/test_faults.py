@@ -15,6 +15,7 @@ import numpy as np
 import psutil
 import pytest
 
+from conftest import CROSSING
 from _runs import FusedWatch, child, in_process, run_cmd
 from services.launcher import free_port
 
@@ -89,15 +90,12 @@ def test_fuser_killed_with_many_targets_in_the_feedback_topology(tmp_path, deplo
     back. When the nodes kept their tracks (and the centre dropped each as it was
     reported), no aircraft was held for 9 s and one not for 16 s: a mean GOSPA of 398 m
     over the window below, against 108 m undisturbed."""
-    import textwrap
-
     from sensors_sim import load_scenario
-    from services.evaluation import GOSPA_CUTOFF, run_method, score_tracks_of
+    from services.evaluation import run_method
+    from services.scoring import GOSPA_CUTOFF, score_tracks_of
     from services.summary import tracks_summary
-    from test_mtt import CROSSING
 
-    path = tmp_path / "crossing.toml"
-    path.write_text(textwrap.dedent(CROSSING))
+    path = CROSSING
     doc, err = _disturb(tmp_path, str(path), deployment, 3.0, [(25.0, "fuser", "fuser")], "--topology", "feedback")
     fuser = _outage(doc, "fuser", 25.0)
     assert err.count("fuser restarted: tracks dropped, asking it for initial states again") == 2
@@ -132,7 +130,7 @@ def test_no_restart_ends_the_run_after_the_sources(tmp_path, deployment):
     assert 8.0 <= t[-1] <= out["t_down"] + 1.0 and t == sorted(t)  # nothing fused after the kill
     # the recorder hears no "done" from the dead fuser: it is stopped once it has recorded
     # everything (before, the launcher waited 30 s more for it), and its file is whole
-    from test_recorder import verify
+    from _recording import verify
 
     verify(tmp_path / "out.rrd")
 
@@ -142,7 +140,7 @@ def test_recorder_then_fuser_killed_centralised(tmp_path, deployment):
     changes nothing fused and its restart records the rest of the run in a second,
     verified file; the restarted fuser joins mid-stream and initialises from the
     measurements it gets (it does not wait for t = 0 data)."""
-    from test_recorder import read_rrd, verify
+    from _recording import read_rrd, verify
 
     doc, err = _disturb(tmp_path, "patent-3d-60", deployment, 4.0,
                         [(6.0, "record", "recorder"), (20.0, "fuser", "fuser")])

@@ -9,32 +9,13 @@ import msgpack
 import numpy as np
 
 from fusion.methods import make_method, method_config
-from schemas import KeySpace, encode, encode_measurement
+from schemas import encode_measurement
 from sensors_sim import load_scenario, sensor_events
 from services.evaluation import run_method
 from services.fuser import FuserCore, MeasurementIntake
 from services.node import RejectLog
 
-from test_schemas import CASES, good
-
-KEYS = KeySpace("unit")
-
-
-def _wire_stream(scenario):
-    """(key, bytes) per sensor in publication order: measurements then a watermark per scan."""
-    out = []
-    for sid in scenario.sensors:
-        wm = 0
-        evs = list(sensor_events(scenario, sid))
-        for i, ev in enumerate(evs):
-            if ev.measurement is not None:
-                out.append((ev.t, sid, KEYS.meas(sid), encode_measurement(ev.measurement, sid)))
-            wm += 1
-            out.append((ev.t, sid, KEYS.meas(sid), encode("watermark", sid, wm, ev.t, final=i == len(evs) - 1)))
-    # interleave sources by time, as a network would (stable within a source)
-    out.sort(key=lambda r: r[0])
-    return [(k, b) for _, _, k, b in out]
-
+from _wire import CASES, KEYS, good, wire_stream
 
 def _garbage(sid: str) -> list[bytes]:
     bad = []
@@ -67,7 +48,7 @@ def _run(scenario, noisy: bool, garbage: list[bytes] | None = None, intake=None)
                      timeout=1e9, intake=intake)
     garbage = _garbage("radar2d") if garbage is None else garbage
     out = []
-    for i, (key, data) in enumerate(_wire_stream(scenario)):
+    for i, (key, data) in enumerate(wire_stream(scenario)):
         if noisy and i % 3 == 0:
             for g in garbage[i % 7:: 7]:
                 core.offer(KEYS.meas("radar2d"), g, 0.0)

@@ -21,58 +21,33 @@ cannot silence the real source (its ``seq`` does not poison duplicate detection)
 
 from __future__ import annotations
 
-import json
 import math
 import random
-import subprocess
 import time
 from collections import Counter
-from contextlib import contextmanager
 from dataclasses import dataclass
 from functools import lru_cache
 
-import msgpack
 import numpy as np
-import psutil
 import pytest
-import zenoh
 from hypothesis import HealthCheck, Phase, given, seed, settings
 from hypothesis import strategies as st
 
 from fusion.methods import make_method, method_config
-from schemas import KINDS, KeySpace, SchemaError, decode
+from schemas import KINDS, SchemaError, decode
 from schemas.messages import MAX_BYTES, TWO_PI
-from sensors_sim import load_scenario
 from services.fuser import FuserCore
-from services.launcher import FUSER_ID, free_port
-from services.node import RejectLog, ZenohOptions
+from services.node import RejectLog
 
-from conftest import zfusion
-from test_e2e_run import _in_process
-from test_fuser_core import KEYS, _wire_stream
-from test_schemas import good
-
-SCENARIO = "patent-3d"
-STRANGER = "mallory"  # publishes on meas/mallory; not a sensor of the scenario
-
-
-@lru_cache(maxsize=None)
-def _scenario():
-    return load_scenario(SCENARIO)
-
-
-@lru_cache(maxsize=None)
-def _real() -> tuple[tuple[str, bytes, dict], ...]:
-    """The scenario's real wire stream: (key id, bytes, decoded map) in arrival order."""
-    return tuple((KEYS.family_and_id(k)[1], b, msgpack.unpackb(b)) for k, b in _wire_stream(_scenario()))
-
+from _runs import assert_equals_in_process, in_process, live_run
+from _wire import KEYS, SCENARIO, STRANGER, good, pack, real_stream, scenario
 
 def _sensors() -> list[str]:
-    return list(_scenario().sensors)
+    return list(scenario().sensors)
 
 
 def _horizon() -> float:
-    return _scenario().duration + 1.0  # what the fuser process uses
+    return scenario().duration + 1.0  # what the fuser process uses
 
 
 @dataclass(frozen=True)
@@ -86,10 +61,6 @@ class Hostile:
     duplicate: bool = False  # sent while the original is still held (else after it was closed)
 
 
-def _pack(d) -> bytes:
-    return msgpack.packb(d, use_bin_type=True)
-
-
 def _schema_cause(data: bytes) -> str | None:
     try:
         decode(data)
@@ -100,7 +71,7 @@ def _schema_cause(data: bytes) -> str | None:
 
 def _broken(key_id: str, d, cause: str = "") -> Hostile:
     """A message meant to fail validation; its cause is the validator's."""
-    data = d if isinstance(d, bytes) else _pack(d)
+    data = d if isinstance(d, bytes) else pack(d)
     return Hostile(key_id, data, _schema_cause(data) or "VALID:" + cause)
 
 
@@ -150,7 +121,7 @@ BAD_VALUE = {
 
 @lru_cache(maxsize=None)
 def _pool(sid: str, watermark: bool) -> list[dict]:
-    return [d for k, _, d in _real() if k == sid and (d["kind"] == "watermark") == watermark]
+    return [d for k, _, d in real_stream() if k == sid and (d["kind"] == "watermark") == watermark]
 
 
 anything = st.integers(0, 2**63 - 1)
@@ -196,7 +167,7 @@ msgpack_value = st.recursive(
     st.none() | st.booleans() | msgpack_int | st.floats() | st.text(max_size=8) | st.binary(max_size=8),
     lambda c: st.lists(c, max_size=4) | st.dictionaries(st.text(max_size=6) | msgpack_int, c, max_size=6),
     max_leaves=12)
-real_bytes = st.integers(0, 10**6).map(lambda i: _real()[i % len(_real())][1])
+real_bytes = st.integers(0, 10**6).map(lambda i: real_stream()[i % len(real_stream())][1])
 cut = st.integers(0, 10**6)
 
 
@@ -208,7 +179,7 @@ def _mangled(draw) -> bytes:
     return real + draw(st.binary(min_size=1, max_size=8))
 
 
-noise_bytes = st.one_of(st.binary(max_size=256), msgpack_value.map(_pack), _mangled())
+noise_bytes = st.one_of(st.binary(max_size=256), msgpack_value.map(pack), _mangled())
 
 
 @st.composite
@@ -234,7 +205,7 @@ def huge(draw) -> Hostile:
 def oversized() -> tuple[Hostile, ...]:
     """Messages over the 1 MiB limit, one per key. Fixed, not drawn: a few suffice, and
     drawing megabytes thousands of times would only slow the fuzzer down."""
-    return tuple(_broken(k, {**_real()[0][2], "site": [1.0] * (MAX_BYTES // 9 + 1)}) for k in ["radar2d", "angle", STRANGER])
+    return tuple(_broken(k, {**real_stream()[0][2], "site": [1.0] * (MAX_BYTES // 9 + 1)}) for k in ["radar2d", "angle", STRANGER])
 
 
 misplacement = st.sampled_from([(case, k, w) for case in ["kind", "src", "sensor", "stranger", "future", "past"]
@@ -271,7 +242,7 @@ def misplaced(draw) -> Hostile:
     else:
         d = {**_plausible(key_id, False, r), "t": draw(past_t)}
         cause = "past"
-    data = _pack(d)
+    data = pack(d)
     assert _schema_cause(data) is None, d  # these must pass validation: the intake has to catch them
     return Hostile(key_id, data, cause)
 
@@ -279,9 +250,9 @@ def misplaced(draw) -> Hostile:
 @lru_cache(maxsize=None)
 def _closing_index(i: int) -> int | None:
     """Index of the first watermark of message ``i``'s source that is later than ``i``'s time."""
-    key_id, _, d = _real()[i]
-    for j in range(i + 1, len(_real())):
-        k, _, w = _real()[j]
+    key_id, _, d = real_stream()[i]
+    for j in range(i + 1, len(real_stream())):
+        k, _, w = real_stream()[j]
         if k == key_id and w["kind"] == "watermark" and w["t"] > d["t"]:
             return j
     return None
@@ -290,16 +261,16 @@ def _closing_index(i: int) -> int | None:
 @st.composite
 def replay(draw) -> Hostile:
     """A real message again, after its source has moved past it (out of order)."""
-    i = draw(st.sampled_from([i for i in range(len(_real())) if _closing_index(i) is not None]))
-    key_id, data, _ = _real()[i]
+    i = draw(st.sampled_from([i for i in range(len(real_stream())) if _closing_index(i) is not None]))
+    key_id, data, _ = real_stream()[i]
     return Hostile(key_id, data, "out-of-order", replay_of=i)
 
 
 @st.composite
 def duplicate(draw) -> Hostile:
     """A real measurement again while the original is still held."""
-    i = draw(st.sampled_from([i for i, (_, _, d) in enumerate(_real()) if d["kind"] != "watermark"]))
-    key_id, data, _ = _real()[i]
+    i = draw(st.sampled_from([i for i, (_, _, d) in enumerate(real_stream()) if d["kind"] != "watermark"]))
+    key_id, data, _ = real_stream()[i]
     return Hostile(key_id, data, "duplicate", replay_of=i, duplicate=True)
 
 
@@ -330,7 +301,7 @@ def _run_core(insertions: list[tuple[int, Hostile]]) -> tuple[list, RejectLog, l
     """Feed the real stream through a FuserCore, offering each hostile message before the
     real message at its index (or after the end). Returns estimates, the reject log, and the held count
     after each real message."""
-    sc = _scenario()
+    sc = scenario()
     reject = RejectLog("fuzz")
     core = FuserCore(make_method("SS", method_config(sc.tracker, "SS")), _sensors(), KEYS, reject, timeout=1e9,
                      horizon=_horizon())
@@ -338,7 +309,7 @@ def _run_core(insertions: list[tuple[int, Hostile]]) -> tuple[list, RejectLog, l
     for pos, h in insertions:
         before.setdefault(pos, []).append(h)
     out, held = [], []
-    for i, (key_id, data, _) in enumerate([*_real(), (None, None, None)]):
+    for i, (key_id, data, _) in enumerate([*real_stream(), (None, None, None)]):
         for h in before.get(i, []):
             core.offer(KEYS.meas(h.key_id), h.data, 0.0)
             out.extend(core.step(0.0))
@@ -362,10 +333,10 @@ def placed(draw) -> tuple[int, Hostile]:
     """A hostile message and the index of the real message it goes before."""
     h = draw(st.one_of(hostile, hostile, hostile, replay(), duplicate(), st.sampled_from(oversized())))
     if h.replay_of is None:
-        return draw(st.integers(0, len(_real()) - 1)), h
+        return draw(st.integers(0, len(real_stream()) - 1)), h
     if h.duplicate:
         return h.replay_of + 1, h
-    return draw(st.integers(_closing_index(h.replay_of) + 1, len(_real()))), h
+    return draw(st.integers(_closing_index(h.replay_of) + 1, len(real_stream()))), h
 
 
 N_BATCH, N_EXAMPLES = 100, 100  # 10,000 hostile messages
@@ -407,100 +378,10 @@ def _flood() -> tuple[list[Hostile], list[tuple[float, Hostile]]]:
     batches = draw_examples(st.lists(hostile, min_size=100, max_size=100), N_FLOOD // FLOOD_REPEAT // 100, FLOOD_SEED)
     msgs = [h for b in batches for h in b] * FLOOD_REPEAT + list(oversized())
     random.Random(FLOOD_SEED).shuffle(msgs)
-    early = [i for i, (_, _, d) in enumerate(_real()) if d["t"] <= 8.0]
-    replays = [(_real()[i][2]["t"] + 1.0, Hostile(_real()[i][0], _real()[i][1], "out-of-order", replay_of=i))
+    early = [i for i, (_, _, d) in enumerate(real_stream()) if d["t"] <= 8.0]
+    replays = [(real_stream()[i][2]["t"] + 1.0, Hostile(real_stream()[i][0], real_stream()[i][1], "out-of-order", replay_of=i))
                for i in early]
     return msgs, replays
-
-
-class LiveRun:
-    """A ``zfusion run`` of the scenario that also dials a Zenoh session of the test's own,
-    through which the test publishes on the run's keys and watches its ``fused`` output
-    (``fused_t``: the latest time fused) and the fuser's ``status`` (``statuses``)."""
-
-    def __init__(self, tmp_path, deployment: str, speed: str):
-        self.keys = KeySpace(deployment)
-        ep = f"tcp/127.0.0.1:{free_port()}"
-        self.session = zenoh.open(ZenohOptions(listen=[ep]).to_config())
-        self.json = tmp_path / "run.json"
-        self.launcher = zfusion("run", "--scenario", SCENARIO, "--speed", speed, "--rrd", str(tmp_path / "run.rrd"),
-                                "--json", str(self.json), "--deployment", deployment, "--connect", ep,
-                                stdout=subprocess.PIPE, stderr=subprocess.PIPE)
-        self.fused_t = -math.inf
-        self.statuses: list[dict] = []
-        self._pubs: dict[str, zenoh.Publisher] = {}
-        self._subs = [self.session.declare_subscriber(self.keys.fused(), self._on_fused),
-                      self.session.declare_subscriber(self.keys.status(FUSER_ID), self._on_status)]
-        self.fuser = self._child(FUSER_ID)
-
-    def _on_fused(self, sample) -> None:
-        self.fused_t = max(self.fused_t, decode(sample.payload.to_bytes()).t)
-
-    def _on_status(self, sample) -> None:
-        msg = decode(sample.payload.to_bytes())
-        self.statuses.append({"seq": msg.seq, **msg.body})
-
-    def _child(self, role: str) -> psutil.Process:
-        deadline = time.monotonic() + 60
-        while time.monotonic() < deadline:
-            for p in psutil.Process(self.launcher.pid).children(recursive=True):
-                try:
-                    cmd = p.cmdline()
-                except psutil.NoSuchProcess:
-                    continue
-                if "services.cli" in cmd and cmd[cmd.index("services.cli") + 1] == role:
-                    return p
-            time.sleep(0.05)
-        raise AssertionError(f"no {role} process under the launcher")
-
-    def put(self, key_id: str, data: bytes) -> None:
-        """Publish on ``meas/<key_id>`` as a sensor does: reliable, blocking when congested,
-        so everything sent is delivered."""
-        if key_id not in self._pubs:
-            self._pubs[key_id] = self.session.declare_publisher(
-                self.keys.meas(key_id), congestion_control=zenoh.CongestionControl.BLOCK,
-                reliability=zenoh.Reliability.RELIABLE)
-        self._pubs[key_id].put(data)
-
-    def wait_fused(self, t: float, timeout: float = 60.0) -> None:
-        deadline = time.monotonic() + timeout
-        while self.fused_t < t:
-            assert self.launcher.poll() is None, "the run ended early"
-            assert time.monotonic() < deadline, f"no fused output at {t} s within {timeout} s"
-            time.sleep(0.01)
-
-    def finish(self, timeout: float = 90.0) -> tuple[dict, dict]:
-        """Wait for the run to end; its JSON summary and the fuser's last status."""
-        _, err = self.launcher.communicate(timeout=timeout)
-        assert self.launcher.returncode == 0, err[-3000:].decode(errors="replace")
-        last = max(self.statuses, key=lambda s: s["seq"])
-        return json.loads(self.json.read_text()), last
-
-    def close(self) -> None:
-        if self.launcher.poll() is None:
-            self.launcher.kill()
-            self.launcher.wait()
-        for s in self._subs:
-            s.undeclare()
-        self.session.close()
-
-
-@contextmanager
-def live_run(tmp_path, deployment: str, speed: str):
-    run = LiveRun(tmp_path, deployment, speed)
-    try:
-        yield run
-    finally:
-        run.close()
-
-
-def assert_equals_in_process(doc: dict, until: float = math.inf) -> None:
-    """The run's fused series (up to ``until``) equal the clean in-process evaluation to 1e-9."""
-    ref, got = _in_process("SS"), doc["methods"]["SS"]
-    n = sum(1 for t in ref["series"]["t"] if t <= until)
-    assert n and got["series"]["t"][:n] == ref["series"]["t"][:n]
-    for key in ("rmse_pos", "anees"):
-        np.testing.assert_allclose(got["series"][key][:n], ref["series"][key][:n], rtol=0, atol=1e-9)
 
 
 @pytest.mark.slow
@@ -530,16 +411,16 @@ def test_live_flood_is_counted_and_changes_nothing(tmp_path, deployment):
             run.put(h.key_id, h.data)
         flood_end_t = run.fused_t
         doc, status = run.finish()
-    assert flood_end_t < _scenario().duration, "the flood was not alongside the run"
+    assert flood_end_t < scenario().duration, "the flood was not alongside the run"
 
-    assert doc["methods"]["SS"]["n_updates"] == _in_process("SS")["n_updates"]
+    assert doc["methods"]["SS"]["n_updates"] == in_process(SCENARIO, "SS")["n_updates"]
     assert_equals_in_process(doc)
     assert status["state"] == "done", status["state"]
     counters = status["counters"]
     by_cause = {c.removeprefix("rejected."): int(n) for c, n in counters.items() if c.startswith("rejected.")}
     assert by_cause == dict(expected)
     assert counters["rejected"] == len(msgs) + len(replays) == sum(expected.values())
-    assert counters["received"] == counters["rejected"] + len(_real())
+    assert counters["received"] == counters["rejected"] + len(real_stream())
     for sid in _sensors():
         src = doc["sources"][sid]
         assert src["dead_intervals"] == []

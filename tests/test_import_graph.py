@@ -154,3 +154,17 @@ def test_a_source_process_does_not_import_the_recording_sdk():
             "print(sorted(m for m in ('rerun', 'scipy.stats', 'matplotlib') if m in sys.modules))")
     out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "[]", out.stdout
+
+
+def test_no_test_module_imports_another():
+    """Shared helpers live in the support modules (``tests/_*.py``) and fixtures in
+    ``conftest.py``: a test module imported by another would run its tests' imports and
+    fixtures twice, and a helper would be found only by knowing which test holds it."""
+    tests = ROOT / "tests"
+    offenders = []
+    for path in sorted(tests.glob("test_*.py")):
+        for node in ast.walk(ast.parse(path.read_text())):
+            names = [a.name for a in node.names] if isinstance(node, ast.Import) else \
+                [node.module or ""] if isinstance(node, ast.ImportFrom) and not node.level else []
+            offenders += [f"{path.name}: {n}" for n in names if n.split(".")[0].startswith("test_")]
+    assert not offenders, offenders

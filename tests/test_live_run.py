@@ -5,7 +5,6 @@ line's live and override options (user mistakes are one line, exit 2)."""
 from __future__ import annotations
 
 import json
-import shutil
 import subprocess
 import sys
 import time
@@ -15,16 +14,14 @@ import numpy as np
 import pytest
 
 from services.evaluation import run_method
-from services.summary import method_summary, truth_function
+from services.scoring import truth_function
+from services.summary import method_summary
 from sensors_sim import load_scenario
 
 from conftest import zfusion
+from _recording import rerun_exe
 
 DATA = Path(__file__).parent / "data"
-
-
-def _rerun() -> str:
-    return shutil.which("rerun") or str(Path(sys.executable).with_name("rerun"))
 
 
 def _live(tmp_path: Path, name: str, scenario: str, deployment: str, *extra: str) -> subprocess.Popen:
@@ -57,7 +54,7 @@ def test_live_run_on_utc_time_and_a_slow_link_applied_out_of_sequence(tmp_path, 
         ts = ss["series"]["t"]
         assert ts == sorted(ts) and epoch - 1e-6 <= ts[0] and ts[-1] <= epoch + 21.0, (epoch, ts[:3], ts[-3:])
         np.testing.assert_allclose(np.diff(ts), 1.0, atol=1e-5)  # one fused update per 1 s scan, on UTC
-        v = subprocess.run([_rerun(), "rrd", "verify", str(tmp_path / f"{name}.rrd")], capture_output=True, text=True)
+        v = subprocess.run([rerun_exe(), "rrd", "verify", str(tmp_path / f"{name}.rrd")], capture_output=True, text=True)
         assert v.returncode == 0, v.stderr
         assert _timelines(tmp_path / f"{name}.rrd") == {"utc": "timestamp"}
     angle = docs["slow"]["sources"]["angle"]

@@ -6,7 +6,6 @@ from __future__ import annotations
 import json
 import math
 import subprocess
-import textwrap
 
 import numpy as np
 import pytest
@@ -16,9 +15,11 @@ from fusion.mtt import MultiTargetMethod
 from fusion.mtt_metrics import Step, score_tracks
 from fusion.types import Measurement
 from sensors_sim import load_scenario
-from services.evaluation import merged_measurements, run_method, score_tracks_of, score_tracks_run, track_steps
+from services.evaluation import merged_measurements, run_method, score_tracks_run
+from services.scoring import score_tracks_of, track_steps
 from services.summary import tracks_summary
 
+from conftest import CROSSING
 from _runs import run_cmd
 
 
@@ -134,63 +135,7 @@ def test_ids_follow_confirmation_order_and_are_never_reused():
 
 
 # Three aircraft crossing, with clutter -----------------------------------------------------
-CROSSING = """\
-description = "three aircraft crossing, clutter and missed detections"
-seed = 3
-duration_s = 60.0
-truth_dt_s = 0.1
-[origin]
-lat_deg = 21.0
-lon_deg = 105.0
-alt_m = 0.0
-[defaults]
-topology = "centralised"
-method = "SS"
-[tracker]
-motion = "ca"
-q = 0.1
-association = "gnn"
-init_vel_std = 300.0
-init_vel_std_up = 30.0
-init_acc_std_up = 1.0
-[targets.A]
-pos_m = [4000.0, 20000.0, 5000.0]
-vel_mps = [200.0, 0.0, 0.0]
-jerk_psd = 0.1
-[targets.B]
-pos_m = [10000.0, 14000.0, 5300.0]
-vel_mps = [0.0, 200.0, 0.0]
-jerk_psd = 0.1
-[targets.C]
-pos_m = [16000.0, 14000.0, 4700.0]
-vel_mps = [-100.0, 100.0, 0.0]
-jerk_psd = 0.1
-[sensors.radar]
-kind = "radar2d"
-pos_m = [0.0, 0.0, 0.0]
-period_s = 1.0
-std_az_deg = 1.0
-std_range_m = 20.0
-p_detect = 0.9
-max_range_km = 60.0
-clutter_rate = 5.0
-[sensors.angle]
-kind = "angle"
-pos_m = [30000.0, 0.0, 0.0]
-period_s = 1.0
-std_az_deg = 0.05
-std_el_deg = 0.05
-p_detect = 0.9
-fov_el_deg = [0.0, 45.0]
-clutter_rate = 3.0
-"""
 
-
-@pytest.fixture(scope="module")
-def crossing(tmp_path_factory):
-    path = tmp_path_factory.mktemp("mtt") / "crossing.toml"
-    path.write_text(textwrap.dedent(CROSSING))
-    return load_scenario(path)
 
 
 def test_three_crossing_aircraft_in_clutter_are_all_held(crossing):
@@ -284,8 +229,7 @@ def test_many_targets_over_zenoh_equal_in_process(crossing, tmp_path, deployment
     """`zfusion run` on a many-target scenario: the processes' fused tracks, scored as an
     air picture, are the in-process evaluation's, step by step (ids included: breaks and
     purity depend on them)."""
-    path = tmp_path / "crossing.toml"
-    path.write_text(textwrap.dedent(CROSSING))
+    path = CROSSING
     p = subprocess.run(run_cmd(tmp_path, str(path), deployment, "--speed", "max"), capture_output=True, text=True,
                        timeout=300)
     assert p.returncode == 0, p.stderr[-3000:]

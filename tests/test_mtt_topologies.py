@@ -7,16 +7,16 @@ from __future__ import annotations
 
 import json
 import subprocess
-import textwrap
 
 import numpy as np
 import pytest
 
-from services.evaluation import run_method, score_tracks_of
+from services.evaluation import run_method
+from services.scoring import score_tracks_of
 from services.summary import tracks_summary
 
+from conftest import CROSSING
 from _runs import run_cmd
-from test_mtt import CROSSING, crossing  # noqa: F401  (the 3-target crossing scenario and its fixture)
 
 
 @pytest.mark.slow
@@ -26,8 +26,7 @@ def test_many_targets_through_the_processes_equal_in_process(crossing, tmp_path,
     processes is the in-process network's, step by step — ids included (breaks and
     purity depend on them), so the local ids, inits and drops crossed the wire intact
     and every frame was processed after the centre's answers, as in-process."""
-    path = tmp_path / "crossing.toml"
-    path.write_text(textwrap.dedent(CROSSING))
+    path = CROSSING
     p = subprocess.run(run_cmd(tmp_path, str(path), deployment, "--topology", topology, "--speed", "max"),
                        capture_output=True, text=True, timeout=300)
     assert p.returncode == 0, p.stderr[-3000:]

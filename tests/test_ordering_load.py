@@ -11,7 +11,8 @@ from sensors_sim import load_scenario, sensor_events
 from services.fuser import max_held_for
 from services.ordering import DEFAULT_MAX_HELD, WatermarkMerger, hold_cap
 
-from test_fuzz import STRANGER, _real, assert_equals_in_process, live_run
+from _runs import assert_equals_in_process, live_run
+from _wire import STRANGER, real_stream
 
 NOMINAL_HZ = 1.0  # each source's measurements per second of scenario time
 WINDOW_S = 10.0  # how far a source may run ahead of the slowest
@@ -106,7 +107,7 @@ def test_a_burst_against_a_live_fuser_is_shed_and_the_fuser_keeps_up(tmp_path, d
     """A burst of plausible measurements on a real sensor's key, all stamped just before
     the scenario's last scan, is held to the fuser's cap and the rest shed; the real data
     before the burst's times is fused exactly as without it, and the run ends on time."""
-    radar = next(d for k, _, d in _real() if k == "radar2d" and d["kind"] != "watermark")
+    radar = next(d for k, _, d in real_stream() if k == "radar2d" and d["kind"] != "watermark")
     burst = [encode(radar["kind"], "radar2d", 10**6 + i, 29.0 + (i + 1) * 1e-4,
                     **{f: radar[f] for f in radar if f not in ("v", "kind", "src", "seq", "t")}) for i in range(BURST)]
     with live_run(tmp_path, deployment, "4") as run:

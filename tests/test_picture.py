@@ -22,7 +22,7 @@ from services.node import ZenohOptions
 from services.picture import Picture, Reports, query
 
 from conftest import zfusion
-from test_recorder import read_rrd, verify
+from _recording import read_rrd, verify
 
 pytestmark = pytest.mark.slow
 

@@ -7,109 +7,29 @@ from __future__ import annotations
 
 import json
 import math
-import shutil
 import signal
-import socket
 import subprocess
 import sys
-import textwrap
 import time
-from pathlib import Path
 
 import msgpack
 import numpy as np
-import pyarrow as pa
 import pytest
 import zenoh
 
 import services.recorder as recorder_mod
-from fusion.types import Estimate, Measurement
+from fusion.types import Measurement
 from schemas import KeySpace, encode, encode_estimate, encode_measurement
 from sensors_sim import load_scenario
 from services import recorder_draw as draw
-from services.node import RejectLog, ZenohOptions
-from services.recorder import Recorder, open_recording
+from services.node import ZenohOptions
+from services.recorder import open_recording
 
-from conftest import zfusion
+from services.launcher import free_port
+from conftest import CROSSING, zfusion
+from _recording import KEYS, Session, est_msg, meas_msg, read_rrd, static_paths, status_msg, truth_msg, verify
 
-KEYS = KeySpace("rtest")
 N = 8  # scans in the scripted streams
-
-
-def _rerun() -> str:
-    return shutil.which("rerun") or str(Path(sys.executable).with_name("rerun"))
-
-
-def read_rrd(path: Path) -> dict[str, list[dict]]:
-    """Temporal rows per entity path, in time order, each as {column: value} (sim_time in s)."""
-    from rerun.chunk import RrdReader
-
-    out: dict[str, list[dict]] = {}
-    for chunk in RrdReader(path).stream():
-        if chunk.is_static:
-            continue
-        rb = chunk.to_record_batch()
-        cols = {n: rb.column(n).to_pylist() for n in rb.schema.names if ":" in n}  # archetype components
-        ns = rb.column("sim_time").cast(pa.int64()).to_pylist()
-        for i in range(rb.num_rows):
-            row = {n: v[i] for n, v in cols.items()}
-            row["t"] = ns[i] / 1e9
-            out.setdefault(chunk.entity_path, []).append(row)
-    for rows in out.values():
-        rows.sort(key=lambda r: r["t"])  # stable: rows of one time keep their logged order
-    return out
-
-
-def static_paths(path: Path) -> set[str]:
-    from rerun.chunk import RrdReader
-
-    return {c.entity_path for c in RrdReader(path).stream() if c.is_static}
-
-
-def verify(path: Path) -> None:
-    v = subprocess.run([_rerun(), "rrd", "verify", str(path)], capture_output=True, text=True, timeout=60)
-    assert v.returncode == 0, v.stderr[-2000:]
-
-
-class Session:
-    """A recorder writing to a file, fed like the process feeds it."""
-
-    def __init__(self, tmp_path: Path, scenario=None, name: str = "r.rrd"):
-        self.path = tmp_path / name
-        self.rec, live = open_recording(str(self.path))
-        assert not live
-        self.reject = RejectLog("recorder")
-        self.r = Recorder(self.rec, KEYS, self.reject, scenario)
-
-    def put(self, key: str, data: bytes):
-        return self.r.offer(key, data)
-
-    def close(self) -> dict[str, list[dict]]:
-        self.r.finish()
-        self.rec.flush()
-        self.rec.disconnect()
-        verify(self.path)
-        return read_rrd(self.path)
-
-
-def _truth(k: int, t: float, target: str = "T1", x=None) -> bytes:
-    x = [6000.0 + 100 * t, 8000.0, 2000.0, 100.0, 0, 0, 0, 0, 0] if x is None else x
-    return encode("truth", "truth", k, t, target=target, x=x)
-
-
-def _meas(sensor: str, kind: str, z, std, t: float, seq: int, site=(0.0, 0.0, 0.0)) -> bytes:
-    m = Measurement(t, sensor, kind, np.array(z, float), np.array(std, float), np.array(site, float), seq)
-    return encode_measurement(m, sensor)
-
-
-def _est(t: float, x, P, method="SS", node="centre", track="T1", nis=None, dof=None, seq=1, kind="track",
-         src="fuser") -> bytes:
-    return encode_estimate(Estimate(t, np.asarray(x, float), np.asarray(P, float), method, node, track, nis, dof),
-                           src, seq, kind)
-
-
-def _status(src: str, seq: int, t: float, state="running", role="sensor", counters=None, events=None) -> bytes:
-    return encode("status", src, seq, t, state=state, role=role, counters=counters or {}, events=events or [])
 
 
 def test_patent_like_stream_rows_read_back_from_file(tmp_path):
@@ -121,13 +41,13 @@ def test_patent_like_stream_rows_read_back_from_file(tmp_path):
         x_true = [6000.0 + 100 * t, 8000.0, 2000.0, 100.0, 0, 0, 0, 0, 0]
         est = np.array(x_true) + np.r_[30.0, -40.0, 0.0, np.zeros(6)]
         if k % 2:  # truth late for odd scans: the estimate must wait for it
-            s.put(KEYS.fused(), _est(t, est, np.eye(9) * 400.0, nis=1.0 + k, dof=3, seq=k + 1))
-        s.put(KEYS.truth("T1"), _truth(k + 1, t))
-        s.put(KEYS.meas("radar2d"), _meas("radar2d", "range_az", [0.64, 10200.0], [0.017, 20.0], t, k))
+            s.put(KEYS.fused(), est_msg(t, est, np.eye(9) * 400.0, nis=1.0 + k, dof=3, seq=k + 1))
+        s.put(KEYS.truth("T1"), truth_msg(k + 1, t))
+        s.put(KEYS.meas("radar2d"), meas_msg("radar2d", "range_az", [0.64, 10200.0], [0.017, 20.0], t, k))
         s.put(KEYS.meas("radar2d"), encode("watermark", "radar2d", k + 1, t))
-        s.put(KEYS.meas("angle"), _meas("angle", "azel", [0.64, 0.19], [1e-3, 1e-3], t, k))
+        s.put(KEYS.meas("angle"), meas_msg("angle", "azel", [0.64, 0.19], [1e-3, 1e-3], t, k))
         if not k % 2:
-            s.put(KEYS.fused(), _est(t, est, np.eye(9) * 400.0, nis=1.0 + k, dof=3, seq=k + 1))
+            s.put(KEYS.fused(), est_msg(t, est, np.eye(9) * 400.0, nis=1.0 + k, dof=3, seq=k + 1))
     assert s.reject.total == 0
     rows = s.close()
     for path in ("/world/meas/radar2d", "/world/meas/angle", "/world/tracks/centre/T1", "/world/truth/T1",
@@ -167,7 +87,7 @@ def test_patent_like_stream_rows_read_back_from_file(tmp_path):
 def test_bad_input_is_counted_and_dropped(tmp_path, monkeypatch):
     sc = load_scenario("patent-3d")  # horizon: its duration (30 s) + 1 s
     s = Session(tmp_path, scenario=sc)
-    good = _meas("radar2d", "range_az", [0.5, 1e4], [0.01, 20.0], 1.0, 0)
+    good = meas_msg("radar2d", "range_az", [0.5, 1e4], [0.01, 20.0], 1.0, 0)
     assert s.put(KEYS.meas("radar2d"), good) is not None
     plain = msgpack.unpackb(good)
     bad = {
@@ -179,7 +99,7 @@ def test_bad_input_is_counted_and_dropped(tmp_path, monkeypatch):
         "spoofed-src": (KEYS.meas("radar2d"), msgpack.packb({**plain, "src": "angle", "seq": 5})),
         "future": (KEYS.meas("radar2d"), msgpack.packb({**plain, "t": 1e6, "seq": 10**9})),
         "past": (KEYS.meas("radar2d"), msgpack.packb({**plain, "t": -1e308, "seq": 10**9 + 1})),
-        "kind": (KEYS.meas("radar2d"), _est(1.0, np.zeros(9), np.eye(9))),
+        "kind": (KEYS.meas("radar2d"), est_msg(1.0, np.zeros(9), np.eye(9))),
         "key": ("zf/other/meas/radar2d", good),
     }
     for cause, (key, data) in bad.items():
@@ -187,17 +107,17 @@ def test_bad_input_is_counted_and_dropped(tmp_path, monkeypatch):
     # not bad: a local tracker holding a plot at t = 0 says "nothing before 0" (the watermark
     # just below 0 of every distributed run)
     assert s.put(KEYS.local("trk-radar2d"), encode("watermark", "trk-radar2d", 1, -5e-324)) is not None
-    s.put(KEYS.truth("T1"), _truth(1, 1.0, target="T2"))  # truth of T2 on truth/T1
-    s.put(KEYS.status("fuser"), _status("angle", 1, 0.0))  # status of angle on status/fuser
-    s.put(KEYS.jam("jammer"), _truth(2, 1.0))  # a truth message on jam/
+    s.put(KEYS.truth("T1"), truth_msg(1, 1.0, target="T2"))  # truth of T2 on truth/T1
+    s.put(KEYS.status("fuser"), status_msg("angle", 1, 0.0))  # status of angle on status/fuser
+    s.put(KEYS.jam("jammer"), truth_msg(2, 1.0))  # a truth message on jam/
     # the far-future message did not poison the stream: the next real report is recorded
-    assert s.put(KEYS.meas("radar2d"), _meas("radar2d", "range_az", [0.5, 1e4], [0.01, 20.0], 2.0, 1)) is not None
+    assert s.put(KEYS.meas("radar2d"), meas_msg("radar2d", "range_az", [0.5, 1e4], [0.01, 20.0], 2.0, 1)) is not None
     # a message the schema accepts but drawing chokes on: counted, and the recorder goes on
     monkeypatch.setattr(draw, "ellipsoid", lambda *a, **k: (_ for _ in ()).throw(np.linalg.LinAlgError("boom")))
-    assert s.put(KEYS.fused(), _est(1.0, np.zeros(9), np.eye(9))) is None
+    assert s.put(KEYS.fused(), est_msg(1.0, np.zeros(9), np.eye(9))) is None
     monkeypatch.undo()
-    assert s.put(KEYS.fused(), _est(2.0, np.zeros(9), np.eye(9), seq=2)) is not None
-    assert s.put(KEYS.fused(), _est(2.0, np.zeros(9), np.eye(9), seq=2)) is None  # the same update again
+    assert s.put(KEYS.fused(), est_msg(2.0, np.zeros(9), np.eye(9), seq=2)) is not None
+    assert s.put(KEYS.fused(), est_msg(2.0, np.zeros(9), np.eye(9), seq=2)) is None  # the same update again
     by = dict(s.reject.by_cause)
     for cause in ("malformed", "not-a-map", "version", "range", "future", "past", "key", "unrecordable"):
         assert by.get(cause) == 1, (cause, by)
@@ -212,19 +132,19 @@ def test_bad_input_is_counted_and_dropped(tmp_path, monkeypatch):
 
 def test_a_restarted_process_is_recorded_again_from_its_first_message(tmp_path):
     s = Session(tmp_path)
-    s.put(KEYS.status("fuser"), _status("fuser", 1, 0.0, state="ready", role="fuser"))
-    assert s.put(KEYS.fused(), _est(1.0, np.zeros(9), np.eye(9), seq=1)) is not None
-    s.put(KEYS.status("fuser"), _status("fuser", 2, 1.0, role="fuser"))
-    assert s.put(KEYS.fused(), _est(1.0, np.zeros(9), np.eye(9), seq=1)) is None  # a repeat
+    s.put(KEYS.status("fuser"), status_msg("fuser", 1, 0.0, state="ready", role="fuser"))
+    assert s.put(KEYS.fused(), est_msg(1.0, np.zeros(9), np.eye(9), seq=1)) is not None
+    s.put(KEYS.status("fuser"), status_msg("fuser", 2, 1.0, role="fuser"))
+    assert s.put(KEYS.fused(), est_msg(1.0, np.zeros(9), np.eye(9), seq=1)) is None  # a repeat
     # kill -9, restart: the new fuser says it is ready and counts from 1 again
-    s.put(KEYS.status("fuser"), _status("fuser", 1, 0.0, state="ready", role="fuser"))
-    assert s.put(KEYS.fused(), _est(5.0, np.zeros(9), np.eye(9), seq=1)) is not None
+    s.put(KEYS.status("fuser"), status_msg("fuser", 1, 0.0, state="ready", role="fuser"))
+    assert s.put(KEYS.fused(), est_msg(5.0, np.zeros(9), np.eye(9), seq=1)) is not None
     assert s.reject.by_cause["duplicate"] == 1
     # restarted again, and its "ready" (published as its session opens) reached no one:
     # its seq 1 and 2, other messages, are recorded; a replay of the same bytes is not
-    assert s.put(KEYS.fused(), _est(9.0, np.zeros(9), np.eye(9), seq=1)) is not None
-    assert s.put(KEYS.fused(), _est(10.0, np.zeros(9), np.eye(9), seq=2)) is not None
-    assert s.put(KEYS.fused(), _est(10.0, np.zeros(9), np.eye(9), seq=2)) is None
+    assert s.put(KEYS.fused(), est_msg(9.0, np.zeros(9), np.eye(9), seq=1)) is not None
+    assert s.put(KEYS.fused(), est_msg(10.0, np.zeros(9), np.eye(9), seq=2)) is not None
+    assert s.put(KEYS.fused(), est_msg(10.0, np.zeros(9), np.eye(9), seq=2)) is None
     assert s.reject.by_cause["duplicate"] == 2
     assert [r["t"] for r in s.close()["/world/tracks/centre/T1"]] == [1.0, 5.0, 9.0, 10.0]
 
@@ -234,21 +154,21 @@ def test_local_tracks_feedback_predictions_and_uplinked_measurements(tmp_path):
     P6 = np.eye(6) * 100.0
     for k in range(N):
         t = float(k)
-        s.put(KEYS.truth("T1"), _truth(k + 1, t))
+        s.put(KEYS.truth("T1"), truth_msg(k + 1, t))
         x = np.array([6000.0 + 100 * t + 10, 8000.0, 2000.0, 100.0, 0, 0])
-        m = _meas("radar2d", "range_az", [0.64, 10200.0], [0.017, 20.0], t, k)
+        m = meas_msg("radar2d", "range_az", [0.64, 10200.0], [0.017, 20.0], t, k)
         s.put(KEYS.meas("radar2d"), m)
         s.put(KEYS.local("trk-radar2d"), encode_measurement(Measurement(  # the tracker sends it up
             t, "radar2d", "range_az", np.array([0.64, 10200.0]), np.array([0.017, 20.0]), np.zeros(3), 2 * k + 1),
             "trk-radar2d"))
-        s.put(KEYS.local("trk-radar2d"), _est(t, x, P6, "HNV", "radar2d", nis=0.5, dof=2, seq=2 * k + 2,
+        s.put(KEYS.local("trk-radar2d"), est_msg(t, x, P6, "HNV", "radar2d", nis=0.5, dof=2, seq=2 * k + 2,
                                               src="trk-radar2d"))
         s.put(KEYS.local("trk-radar2d"), encode("watermark", "trk-radar2d", 2 * k + 3, t))
-        s.put(KEYS.local("trk-angle"), _est(t, x, P6, "HNV", "angle", seq=k + 1, kind="prediction",
+        s.put(KEYS.local("trk-angle"), est_msg(t, x, P6, "HNV", "angle", seq=k + 1, kind="prediction",
                                             src="trk-angle"))
-        s.put(KEYS.feedback("trk-radar2d"), _est(t, x, P6, "HNV", "centre", seq=2 * k + 1))
+        s.put(KEYS.feedback("trk-radar2d"), est_msg(t, x, P6, "HNV", "centre", seq=2 * k + 1))
         s.put(KEYS.feedback("trk-radar2d"), encode("watermark", "fuser", 2 * k + 2, t))  # feedback horizon
-        s.put(KEYS.fused(), _est(t, x, P6, "HNV", "centre", seq=k + 1))
+        s.put(KEYS.fused(), est_msg(t, x, P6, "HNV", "centre", seq=k + 1))
     assert s.reject.total == 0 and s.r.uplinked == N
     rows = s.close()
     assert len(rows["/world/meas/radar2d"]) == N  # the sensor's reports, once
@@ -272,11 +192,11 @@ def test_state_layouts_a_local_node_may_publish(tmp_path):
     planar CV state (4) a point and ellipse on the map plane; an unknown layout is
     accepted but not drawn."""
     s = Session(tmp_path)
-    s.put(KEYS.meas("df1"), _meas("df1", "bearing", [0.5], [0.02], 1.0, 0, (1000.0, 2000.0, 0.0)))
-    s.put(KEYS.local("trk-df1"), _est(1.0, [0.5], [[0.01 ** 2]], "KF+TR", "df1", track="B1", src="trk-df1"))
-    s.put(KEYS.local("trk-df1"), _est(1.0, [5e3, 6e3, 1.0, 2.0], np.diag([100.0, 400.0, 1.0, 1.0]), "KF", "df1",
+    s.put(KEYS.meas("df1"), meas_msg("df1", "bearing", [0.5], [0.02], 1.0, 0, (1000.0, 2000.0, 0.0)))
+    s.put(KEYS.local("trk-df1"), est_msg(1.0, [0.5], [[0.01 ** 2]], "KF+TR", "df1", track="B1", src="trk-df1"))
+    s.put(KEYS.local("trk-df1"), est_msg(1.0, [5e3, 6e3, 1.0, 2.0], np.diag([100.0, 400.0, 1.0, 1.0]), "KF", "df1",
                                       track="P1", seq=2, src="trk-df1"))
-    s.put(KEYS.local("trk-df1"), _est(1.0, np.zeros(5), np.eye(5), "X", "df1", track="Q1", seq=3, src="trk-df1"))
+    s.put(KEYS.local("trk-df1"), est_msg(1.0, np.zeros(5), np.eye(5), "X", "df1", track="Q1", seq=3, src="trk-df1"))
     assert s.reject.total == 0
     rows = s.close()
     strips = [np.array(x) for x in rows["/world/tracks/df1/B1"][0]["LineStrips3D:strips"]]
@@ -300,11 +220,11 @@ def test_df_bearings_fixes_and_airborne_path(tmp_path):
     for k, (t, site) in enumerate(zip((0.0, 300.0), sites)):
         d = emitter - site[:2]
         az = math.atan2(d[0], d[1]) % (2 * math.pi)
-        s.put(KEYS.truth("E1"), _truth(k + 1, t, "E1", [*emitter, 0, 0, 0, 0, 0, 0, 0]))
-        s.put(KEYS.meas("adf"), _meas("adf", "bearing", [az], [0.0175], t, k, site))
+        s.put(KEYS.truth("E1"), truth_msg(k + 1, t, "E1", [*emitter, 0, 0, 0, 0, 0, 0, 0]))
+        s.put(KEYS.meas("adf"), meas_msg("adf", "bearing", [az], [0.0175], t, k, site))
     P = np.array([[4e6, 1e6], [1e6, 9e6]])
-    s.put(KEYS.fused(), _est(300.0, emitter + [300.0, -400.0], P, "EKF", track="T1"))
-    s.put(KEYS.meas("adf"), _meas("adf", "bearing", [0.1], [0.0175], 300.5, 2, sites[1]))  # after the fix
+    s.put(KEYS.fused(), est_msg(300.0, emitter + [300.0, -400.0], P, "EKF", track="T1"))
+    s.put(KEYS.meas("adf"), meas_msg("adf", "bearing", [0.1], [0.0175], 300.5, 2, sites[1]))  # after the fix
     assert s.reject.total == 0
     rows = s.close()
     # the airborne site: drawn on the map plane where the scenario puts it, then where it moved, with its path
@@ -338,18 +258,18 @@ def test_df_bearings_fixes_and_airborne_path(tmp_path):
 def test_jamming_contamination_and_status_events(tmp_path):
     s = Session(tmp_path)
     for k, sensor in enumerate(("df1", "df2")):
-        s.put(KEYS.meas(sensor), _meas(sensor, "bearing", [0.7], [0.0175], 1.0, 0, (10e3 * k, 0.0, 0.0)))
+        s.put(KEYS.meas(sensor), meas_msg(sensor, "bearing", [0.7], [0.0175], 1.0, 0, (10e3 * k, 0.0, 0.0)))
     schedule = [False, True, True, False]
     for k, on in enumerate(schedule):
         s.put(KEYS.jam("jammer"), encode("jam_state", "jammer", k + 1, float(k + 1), pos=[15e3, 40e3, 0.0], on=on,
                                          mode="barrage", power=1.0, law="laplacian",
                                          affects=["df1"] if on else []))
-    s.put(KEYS.status("df1"), _status("df1", 1, 0.0, counters={"jammed": 2, "outliers": 1, "scans": 4}))
-    s.put(KEYS.status("fuser"), _status("fuser", 1, 3.0, role="fuser", counters={"late": 0},
+    s.put(KEYS.status("df1"), status_msg("df1", 1, 0.0, counters={"jammed": 2, "outliers": 1, "scans": 4}))
+    s.put(KEYS.status("fuser"), status_msg("fuser", 1, 3.0, role="fuser", counters={"late": 0},
                                         events=["source df2 declared dead (silent for more than 5 s)",
                                                 "source df2 rejoined"]))
-    s.put(KEYS.status("df1"), _status("df1", 2, 4.0, state="done", counters={"jammed": 2, "outliers": 1}))
-    s.put(KEYS.status("df2"), _status("df2", 1, 4.0, role="tracker", events=["feedback timeout: running alone"]))
+    s.put(KEYS.status("df1"), status_msg("df1", 2, 4.0, state="done", counters={"jammed": 2, "outliers": 1}))
+    s.put(KEYS.status("df2"), status_msg("df2", 1, 4.0, role="tracker", events=["feedback timeout: running alone"]))
     assert s.reject.total == 0 and s.r.finished == {"df1"}
     rows = s.close()
     assert [r["Scalars:scalars"][0] for r in rows["/jamming/jammer/on"]] == [0.0, 1.0, 1.0, 0.0]
@@ -410,16 +330,10 @@ def test_spawn_failure_falls_back_to_the_file(tmp_path, monkeypatch, caplog):
     verify(path)
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 def test_record_process_over_zenoh_until_expected_processes_are_done(tmp_path, deployment):
     """The process: subscribes to every key of its deployment, stops once the expected
     processes report done, leaves a verified file."""
-    ep = f"tcp/127.0.0.1:{_free_port()}"
+    ep = f"tcp/127.0.0.1:{free_port()}"
     keys = KeySpace(deployment)
     session = zenoh.open(ZenohOptions(listen=[ep]).to_config())
     path = tmp_path / "p.rrd"
@@ -439,11 +353,11 @@ def test_record_process_over_zenoh_until_expected_processes_are_done(tmp_path, d
                                           reliability=zenoh.Reliability.RELIABLE)
         status = session.declare_publisher(keys.status("radar2d"))
         for k in range(N):
-            meas.put(_meas("radar2d", "range_az", [0.5, 1e4], [0.01, 20.0], float(k), k))
-            fused.put(_est(float(k), np.zeros(9), np.eye(9), seq=k + 1))
+            meas.put(meas_msg("radar2d", "range_az", [0.5, 1e4], [0.01, 20.0], float(k), k))
+            fused.put(est_msg(float(k), np.zeros(9), np.eye(9), seq=k + 1))
         meas.put(b"garbage")
         time.sleep(0.5)
-        status.put(_status("radar2d", 1, float(N), state="done"))
+        status.put(status_msg("radar2d", 1, float(N), state="done"))
         out, err = proc.communicate(timeout=30)
         assert proc.returncode == 0, err[-2000:]
     finally:
@@ -463,10 +377,11 @@ def test_run_with_recorder_killed_half_way_completes_unchanged(tmp_path, deploym
     import psutil
 
     from services.evaluation import run_method
-    from services.summary import method_summary, truth_function
+    from services.scoring import truth_function
+    from services.summary import method_summary
 
     js = tmp_path / "k.json"
-    ep = f"tcp/127.0.0.1:{_free_port()}"
+    ep = f"tcp/127.0.0.1:{free_port()}"
     keys = KeySpace(deployment)
     session = zenoh.open(ZenohOptions(listen=[ep]).to_config())
     seen = {"fused": 0, "truth": 0}
@@ -506,14 +421,6 @@ def test_run_with_recorder_killed_half_way_completes_unchanged(tmp_path, deploym
 
 
 # Many targets ------------------------------------------------------------------------------------
-def _crossing(tmp_path: Path) -> Path:
-    from test_mtt import CROSSING
-
-    path = tmp_path / "crossing.toml"
-    path.write_text(textwrap.dedent(CROSSING))
-    return path
-
-
 def _track_entity(node: str, track: str) -> str:
     return f"/world/tracks/{node}/{track}"
 
@@ -530,7 +437,7 @@ def test_many_target_tracks_have_entities_by_id_and_are_cleared_once_gone(tmp_pa
     from schemas.links import encode_uplink
     from services.evaluation import run_method
 
-    sc = load_scenario(_crossing(tmp_path))
+    sc = load_scenario(CROSSING)
     K = AssociationConfig.split(sc.tracker)[0].delete_misses
     out = run_method(sc, "HNV")
     s = Session(tmp_path, scenario=sc)
@@ -582,9 +489,10 @@ def test_many_target_picture_is_scored_as_eval_scores_it(tmp_path, truth_first):
     logged: a ``T<n>`` names no target."""
     from fusion.metrics import gospa
     from sensors_sim import truth_events
-    from services.evaluation import GOSPA_CUTOFF, run_method, track_steps
+    from services.evaluation import run_method
+    from services.scoring import GOSPA_CUTOFF, track_steps
 
-    sc = load_scenario(_crossing(tmp_path))
+    sc = load_scenario(CROSSING)
     out = run_method(sc, "SS")
     samples = list(truth_events(sc))
     truth = [(x.t, KEYS.truth(x.target), encode("truth", "truth", k + 1, x.t, target=x.target, x=x.x))
@@ -665,7 +573,7 @@ def test_many_target_run_records_every_fused_track_by_id(tmp_path, deployment):
 
     from schemas import decode
 
-    ep = f"tcp/127.0.0.1:{_free_port()}"
+    ep = f"tcp/127.0.0.1:{free_port()}"
     keys = KeySpace(deployment)
     session = zenoh.open(ZenohOptions(listen=[ep]).to_config())
     published: dict[str, int] = {}  # fused estimates per track id, as the fuser published them
@@ -677,7 +585,7 @@ def test_many_target_run_records_every_fused_track_by_id(tmp_path, deployment):
 
     sub = session.declare_subscriber(keys.fused(), on_fused)
     try:
-        p = subprocess.run(run_cmd(tmp_path, str(_crossing(tmp_path)), deployment, "--speed", "max", "--connect", ep),
+        p = subprocess.run(run_cmd(tmp_path, str(CROSSING), deployment, "--speed", "max", "--connect", ep),
                            capture_output=True, text=True, timeout=300)
     finally:
         sub.undeclare()
@@ -706,7 +614,7 @@ def test_a_path_gets_a_point_per_trail_step_whatever_the_update_rate(tmp_path):
     n, dt = 200, 0.01
     xs = [[6000.0 + 100 * k * dt, 8000.0, 2000.0, 100.0, 0, 0, 0, 0, 0] for k in range(n)]
     for k, x in enumerate(xs):
-        s.put(KEYS.fused(), _est(k * dt, x, np.eye(9), seq=k + 1))
+        s.put(KEYS.fused(), est_msg(k * dt, x, np.eye(9), seq=k + 1))
     rows = s.close()["/world/tracks/centre/T1"]
     assert len(rows) == n
     kept = list(range(0, n, round(recorder_mod.TRAIL_STEP_S / dt)))  # the first update of every step

@@ -18,7 +18,7 @@ from services.recorder import Recorder, open_recording
 from services.recorder_geo import map_path
 
 from conftest import zfusion
-from test_recorder import KEYS, _est, _meas, _truth, read_rrd, verify
+from _recording import KEYS, est_msg, meas_msg, read_rrd, truth_msg, verify
 
 ORIGIN = (48.8566, 2.3522, 35.0)  # Paris: far from the equator, so lat and lon scale differently
 WGS84 = pymap3d.Ellipsoid.from_name("wgs84")
@@ -85,11 +85,11 @@ def test_recorder_draws_sites_bearings_fixes_tracks_and_truth_on_the_map(tmp_pat
     x_fix, P_fix = np.array([15_100.0, 14_900.0]), np.array([[40_000.0, 10_000.0], [10_000.0, 90_000.0]])
     for k in range(1, 4):
         t = float(k)
-        r.offer(KEYS.truth("E1"), _truth(k, t, "E1", x=[15_000.0, 15_000.0, 0, 0, 0, 0, 0, 0, 0]))
-        r.offer(KEYS.meas("df1"), _meas("df1", "bearing", [math.pi / 4], [0.0175], t, k))
-        r.offer(KEYS.fused(), _est(t, x_fix, P_fix, method="EKF", track="E1", seq=k))
+        r.offer(KEYS.truth("E1"), truth_msg(k, t, "E1", x=[15_000.0, 15_000.0, 0, 0, 0, 0, 0, 0, 0]))
+        r.offer(KEYS.meas("df1"), meas_msg("df1", "bearing", [math.pi / 4], [0.0175], t, k))
+        r.offer(KEYS.fused(), est_msg(t, x_fix, P_fix, method="EKF", track="E1", seq=k))
     x3 = np.array([6_000.0, 8_000.0, 2_000.0, 100.0, 0.0, 0.0])
-    r.offer(KEYS.fused(), _est(3.0, x3, np.diag([100.0, 400.0, 900.0, 1, 1, 1]), method="SS", track="T1", seq=9))
+    r.offer(KEYS.fused(), est_msg(3.0, x3, np.diag([100.0, 400.0, 900.0, 1, 1, 1]), method="SS", track="T1", seq=9))
     r.finish()
     rec.flush()
     rec.disconnect()

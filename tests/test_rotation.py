@@ -5,7 +5,6 @@ recording id across them, and together every fused update exactly once."""
 from __future__ import annotations
 
 import json
-import math
 import subprocess
 import sys
 
@@ -14,7 +13,7 @@ import pytest
 from services.rotation import Rotation, rotated_files, rotated_path
 
 from _runs import run_cmd
-from test_recorder import read_rrd, static_paths, verify
+from _recording import read_rrd, static_paths, verify
 
 
 def test_windows_are_aligned_and_empty_ones_make_no_file(tmp_path):

@@ -22,7 +22,7 @@ from services.launcher import Children, free_port
 from services.node import ZenohOptions
 from sensors_sim import load_scenario
 
-from test_multihost import DEPLOY, ROUTER_HOST, ZENOH, Watcher, site, wait_listening
+from _multihost import DEPLOY, ROUTER_HOST, ZENOH, Watcher, site, wait_listening
 from _runs import in_process, same_series
 
 pytestmark = pytest.mark.slow

@@ -19,9 +19,8 @@ from fusion.patent import LocalTracker
 from fusion.track_fusion import TrackFuser
 from fusion.types import Estimate, Measurement
 from sensors_sim import load_scenario
-from services.evaluation import merged_measurements, run_method, track_steps
-
-from test_mtt import crossing  # noqa: F401  (the 3-target crossing scenario fixture)
+from services.evaluation import merged_measurements, run_method
+from services.scoring import track_steps
 
 DISTRIBUTED = ("HNV", "PHHNV", "DDHNV")
 

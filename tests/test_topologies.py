@@ -16,7 +16,8 @@ import pytest
 
 from services.evaluation import run_method
 from services.launcher import resolve_topology
-from services.summary import method_summary, truth_function
+from services.scoring import truth_function
+from services.summary import method_summary
 from sensors_sim import load_scenario
 
 from _runs import FusedWatch, child, in_process, run_cmd, same_series

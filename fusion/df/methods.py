@@ -7,9 +7,9 @@ Every method follows the library's streaming interface::
     finish()   -> list[Estimate]   # end of stream
 
 **Epochs.** Bearings within ``pair_tol`` of the first bearing of a group form one epoch
-(one scan of the DF network; one bearing for a single moving observer). An epoch closes
-at the first later bearing (``t > t₀ + pair_tol``), a watermark ``≥ t₀ + pair_tol``, or
-:meth:`finish`, so the output depends on the bearings alone. Its bearings are processed
+(one scan of the DF network; one bearing for a single moving observer), cut by
+:class:`fusion.grouping.TimeGrouper` like every method's groups, so the output depends
+on the bearings alone. Its bearings are processed
 in arrival order and one :class:`~fusion.types.Estimate` of ``[px, py]`` (ENU m) is
 emitted, stamped with the epoch's latest bearing time, from the first epoch with a fix.
 An incomplete epoch is processed as it is (KF+TR reuses the missing stations' latest
@@ -49,6 +49,7 @@ from typing import Callable, Mapping
 import numpy as np
 
 from ..config import config_values
+from ..grouping import TimeGrouper
 from ..types import Estimate, Measurement
 from .filters import MEKF, MEKF_VARIANTS, BearingEKF, CrossFed
 from .imm import TRANSITIONS, BearingIMM, transition_matrix
@@ -200,9 +201,7 @@ class DFMethod:
         if self.config.motion not in self.motions:
             raise ValueError(f"{self.name} fits one fixed position to all the bearings so far: motion = "
                              f"{self.config.motion!r} does not apply (a moving emitter: EKF, MEKF1..5 or IMM)")
-        self._group: list[Measurement] = []
-        self._last_key: tuple | None = None
-        self._watermark = -np.inf
+        self._grouper = TimeGrouper(self.config.pair_tol)
         self._finished = False
 
     # -- streaming interface -------------------------------------------------------
@@ -212,35 +211,24 @@ class DFMethod:
         if not np.isfinite(m.t):
             raise ValueError(f"{self.name}: measurement from {m.sensor!r} has non-finite time {m.t}")
         bearing_of(m)  # validate early, so a bad message fails at its arrival
-        if m.t <= self._watermark:
-            raise ValueError(f"{self.name}: late measurement from {m.sensor!r}: t={m.t} <= watermark {self._watermark}")
-        if self._last_key is not None and m.order_key <= self._last_key:
-            raise ValueError(f"{self.name}: measurement {m.order_key} out of (t, sensor, seq) order after {self._last_key}")
-        self._last_key = m.order_key
-        out = []
-        if self._group and m.t > self._group[0].t + self.config.pair_tol:
-            out = self._close()
-        self._group.append(m)
-        return out
+        try:
+            return self._close(self._grouper.push(m))
+        except ValueError as e:  # out of order, or at or before a watermark
+            raise ValueError(f"{self.name}: {e}") from None
 
     def advance(self, t: float) -> list[Estimate]:
         if not np.isfinite(t):
             raise ValueError(f"{self.name}: watermark must be finite, got {t}")
-        self._watermark = max(self._watermark, float(t))
-        if self._group and self._watermark >= self._group[0].t + self.config.pair_tol:
-            return self._close()
-        return []
+        return self._close(self._grouper.advance(t))
 
     def finish(self) -> list[Estimate]:
-        out = self._close() if self._group else []
+        out = self._close(self._grouper.finish())
         self._finished = True
         return out
 
     # -- helpers ---------------------------------------------------------------------
-    def _close(self) -> list[Estimate]:
-        group, self._group = self._group, []
-        est = self._epoch(group)
-        return [] if est is None else [est]
+    def _close(self, groups: list[list[Measurement]]) -> list[Estimate]:
+        return [est for est in map(self._epoch, groups) if est is not None]
 
     def _estimate(self, group: list[Measurement], x, P, nis=None, nis_dof=None, **extra) -> Estimate:
         return Estimate(t=max(m.t for m in group), x=np.array(x, dtype=float), P=np.array(P, dtype=float),

@@ -4,7 +4,7 @@ localisation of each emitter by a DF method of :mod:`fusion.df.methods`.
 A station reports one bearing per emitter it hears, with nothing that says which. Two
 stations' bearings always cross, so ``n`` emitters give ``n²`` crossings of which
 ``n(n − 1)`` are ghosts; a third station tells them apart. Bearings are grouped into
-epochs (:class:`fusion.mtt.FrameGrouper`), and per epoch, with ``need = min(3, K)`` of
+epochs (:class:`fusion.grouping.TimeGrouper`), and per epoch, with ``need = min(3, K)`` of
 the ``K`` stations that reported:
 
 1. confirmed tracks take their bearings, station by station, by a χ²(1) gate and GNN on
@@ -40,7 +40,8 @@ from scipy.optimize import Bounds, LinearConstraint, milp
 
 from ..angles import wrap_pi
 from ..association import CONFIRMED, DELETED, TrackIds, TrackLogic, gate_threshold, gnn
-from ..mtt import AssociationConfig, FrameGrouper
+from ..grouping import TimeGrouper
+from ..mtt import AssociationConfig
 from ..types import Estimate, Measurement
 from .init import usable_pairs
 from .methods import DFMethod
@@ -255,7 +256,7 @@ class MultiEmitterMethod:
         self._make_emitter = make_emitter
         self._rule = config.rule()
         self._gate = gate_threshold(1, config.gate_prob)
-        self._grouper = FrameGrouper(self.df.pair_tol)
+        self._grouper = TimeGrouper(self.df.pair_tol)
         self._ids = TrackIds(prefix="E")
         self._births = 0
         self._window: deque = deque(maxlen=int(self.df.init_epochs) - 1)  # earlier epochs, newest first

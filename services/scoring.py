@@ -1,0 +1,146 @@
+"""Scoring against truth, in one place for every job that has truth: ``zfusion run``
+(estimates received over Zenoh), the recorder (its error panels) and ``zfusion eval``
+(in-process Monte Carlo runs), so all three give the same numbers.
+
+One target per track (a scenario with one target, or tracks named after targets):
+:func:`score_run` turns one run's estimates into per-estimate error records against
+:func:`truth_function` — position, velocity and acceleration error, NEES ``eᵀP⁻¹e``,
+NIS — which :mod:`services.summary` aggregates.
+
+Many targets (an air picture, scored with set metrics): :func:`track_steps` cuts the run
+into the scenario's scan groups (the methods' ``pair_tol``), each with every target's
+true position and every track's estimate, and :func:`score_tracks_of` scores them with
+GOSPA (cut-off :data:`GOSPA_CUTOFF`, order 2), track breaks, purity and false tracks
+(:mod:`fusion.mtt_metrics`). Emitter fixes are horizontal and scored so.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Callable, Sequence
+
+import numpy as np
+
+from fusion.mtt_metrics import Step, score_tracks
+from fusion.patent import TrackerConfig
+from fusion.types import Estimate
+from sensors_sim import scan_times, truth_trajectory
+from sensors_sim.traffic import Traffic
+
+from .recorder_draw import TRUTH_INDEX
+
+
+TruthFn = Callable[[int, str, float], np.ndarray]  # (run, track, t) -> true state
+
+
+def truth_function(scenario) -> TruthFn:
+    """Truth of the scenario's targets, evaluated from the scenario itself (the scorer may
+    see truth; trackers and fusers never do)."""
+
+    cache: dict[tuple[int, str], object] = {}
+    targets = list(scenario.targets)
+
+    def truth(run: int, track: str, t: float) -> np.ndarray:
+        target = track if track in scenario.targets else (targets[0] if len(targets) == 1 else None)
+        if target is None:
+            raise KeyError(f"track {track!r} matches no target of {scenario.name}")
+        traj = cache.get((run, target))
+        if traj is None:
+            traj = cache[(run, target)] = truth_trajectory(scenario, target, run=run)
+        return np.asarray(traj.state(t), dtype=float)
+
+    return truth
+
+
+def _errors(e: Estimate, xt: np.ndarray) -> dict:
+    n = e.x.size
+    xt = np.asarray(xt, dtype=float)
+    if n == 4:  # a moving emitter [px py vx vy]; a fix [px py] and a 3D track are the truth's leading parts
+        xt = xt[list(TRUTH_INDEX[4])]
+    else:
+        xt = xt[:n] if xt.size >= n else np.pad(xt, (0, n - xt.size))
+    err = e.x - xt
+    d = 3 if n >= 6 else 2 if n == 4 else n  # position block: 3D track, moving or fixed 2D emitter
+    out: dict = {"t": float(e.t), "n": n, "pos2": float(err[:d] @ err[:d]), "vel2": None, "acc2": None}
+    if n == 4:
+        out["vel2"] = float(err[2:4] @ err[2:4])
+    if n >= 6:
+        out["vel2"] = float(err[3:6] @ err[3:6])
+    if n >= 9:
+        out["acc2"] = float(err[6:9] @ err[6:9])
+    try:
+        out["nees"] = float(err @ np.linalg.solve(e.P, err))
+    except np.linalg.LinAlgError:
+        out["nees"] = math.nan
+    out["nis"] = None if e.nis is None else float(e.nis)
+    out["nis_dof"] = None if e.nis_dof is None else int(e.nis_dof)
+    out["eh"] = (float(err[0]), float(err[1]))  # horizontal error (fix scatter, CEP)
+    if n < 6:
+        P = np.asarray(e.P, dtype=float)
+        out["Ph"] = (float(P[0, 0]), float(P[0, 1]), float(P[1, 1]))
+    return out
+
+
+def score_run(estimates: Sequence[Estimate], truth: TruthFn, run: int, node: str = "centre") -> list[dict]:
+    """Error records of one run's estimates from ``node`` (in emission order)."""
+    return [_errors(e, truth(run, e.track, e.t)) for e in estimates if e.node == node]
+
+
+def scan_groups(scenario, sensor_ids: Sequence[str], tol: float) -> list[tuple[float, float, list[str]]]:
+    """Scan times of the sensors grouped as the methods group them: ``(first time, last
+    time, sensors)`` per group (3D methods stamp a scan with its first time, DF methods
+    an epoch with its last)."""
+
+    events = sorted((float(t), s) for s in sensor_ids for t in scan_times(scenario, s))
+    groups: list[tuple[float, float, list[str]]] = []
+    for t, s in events:
+        if groups and t - groups[-1][0] <= tol and s not in groups[-1][2]:
+            groups[-1] = (groups[-1][0], t, groups[-1][2] + [s])
+        else:
+            groups.append((t, t, [s]))
+    return groups
+
+
+def pair_tol_of(scenario, default: float) -> float:
+    """The common ``[tracker]`` grouping tolerance (s), else the methods' ``default``."""
+    tol = scenario.tracker.get("pair_tol", default)
+    return float(tol) if isinstance(tol, (int, float)) else default
+
+
+# Many targets ------------------------------------------------------------------------
+def track_steps(scenario, estimates: Sequence[Estimate], run: int = 0, node: str = "centre"):
+    """The run as :class:`fusion.mtt_metrics.Step` s: one per scan group of the scenario's
+    sensors (as the methods group them, ``pair_tol`` of ``[tracker]``), with every
+    target's (and alive ``[traffic]`` aircraft's) true position and every track's estimate
+    of that group. Emitter fixes are horizontal (``[px, py]``): they are scored against the
+    truth's horizontal position."""
+    tol = pair_tol_of(scenario, TrackerConfig.pair_tol)
+    starts = [g[0] for g in scan_groups(scenario, list(scenario.sensors), tol)]
+    trajs = {tid: truth_trajectory(scenario, tid, run) for tid in scenario.targets}
+    traffic = Traffic(scenario.traffic, scenario.seed, run) if scenario.traffic is not None else None
+    tracks: list[dict[str, np.ndarray]] = [{} for _ in starts]
+    for e in estimates:
+        if e.node != node:
+            continue
+        k = int(np.searchsorted(starts, e.t + 1e-12, side="right")) - 1
+        if k >= 0 and e.t - starts[k] <= tol:  # estimates of that scan group
+            tracks[k][e.track] = np.asarray(e.x[:3], dtype=float)
+    dim = min((len(p) for tk in tracks for p in tk.values()), default=3)
+    return [Step(t, {tid: tr.position(t)[:dim]
+                     for tid, tr in (*trajs.items(), *((a.id, a) for a in (traffic.alive(t) if traffic else ())))}, tk)
+            for t, tk in zip(starts, tracks)]
+
+
+GOSPA_CUTOFF = 1000.0  # m: GOSPA's c, order p = 2, for every many-target score
+
+
+def many_targets(scenario) -> bool:
+    """Scored as an air picture (set metrics) rather than per target."""
+    return len(scenario.targets) > 1 or getattr(scenario, "traffic", None) is not None
+
+
+def score_tracks_of(scenario, estimates: Sequence[Estimate], run: int = 0, c: float = GOSPA_CUTOFF,
+                    p: float = 2.0):
+    """A run's fused tracks scored by :func:`fusion.mtt_metrics.score_tracks`."""
+
+    return score_tracks(track_steps(scenario, estimates, run), c, p)
