@@ -11,58 +11,15 @@ table, so the method keeps its patent name. For HNV, PHHNV and DDHNV the same ke
 switches the network's nodes and centre to many targets (:mod:`fusion.network`, "Many
 targets"); :class:`MultiTargetMethod` then only hands them the stream.
 
-Frames
-------
-Measurements arrive in ``(t, sensor, seq)`` order; a *frame* is the group whose times
-lie within ``pair_tol`` of its first one, with any number of plots per sensor. It
-closes when a later measurement arrives, when a watermark ``advance(t)`` passes
-``t_first + pair_tol``, or at ``finish()`` — all functions of the measurement sequence,
-so the output never depends on when ``advance`` is called. (Unlike a one-target scan,
-a frame cannot close when "every sensor has reported": a sensor may report any number
-of plots, so a frame is emitted one frame late in a live run.)
-
-One frame, at the time ``t`` of its first plot:
-
-1. **Predict** every track to ``t``.
-2. **Associate** sensor by sensor, every sensor against the *same* predictions (the
-   plots of one scan are simultaneous; this is also what SS's stacked update assumes):
-   χ² gate on the Mahalanobis distance and global nearest neighbour
-   (:mod:`fusion.association`), first for the confirmed tracks, then for the tentative
-   ones over the plots left, so a young track with a broad gate cannot take a plot from
-   an established one.
-3. **Update** each track with its plots (in stream order) through its method; a track
-   without plots coasts on its prediction.
-4. **Initiate** tentative tracks from the plots no track took (below).
-5. **Manage**: M-of-N confirmation, deletion after K missed frames or when the position
-   standard deviation exceeds ``max_pos_std`` (:class:`fusion.association.TrackLogic`),
-   and of the later of two tracks that have agreed for ``merge_frames`` frames
-   (:class:`fusion.association.DuplicateWatch`).
-   A tentative track scores a hit with plots of two sensors (when the frame holds
-   two), a confirmed one with two or with one that measures range (:func:`scores_hit`).
-6. **Report** one estimate per confirmed track (``track`` = its id, ``node="centre"``),
-   in id order. Tentative tracks are not reported.
-
-Initiation from sensors that see part of the position
------------------------------------------------------
-A 2D radar has no elevation and an angle sensor no range; one plot of either fixes a
-line or a circle, not a point. As the patent's SS method does with the first scan of
-one target, a new track is started from *a pair across sensors*: an angle plot's ray
-(az, el) meets a 2D radar plot's range sphere (:func:`fusion.init3d.spherical_to_position`;
-the pair is impossible if they do not meet), and the radar's own azimuth — which the
-point did not use — must agree with it: ``d²`` of the radar azimuth against the paired
-initial state within the χ²(1) gate. Pairs are taken greedily in order of ``d²``; each
-accepted pair also gathers, from every other sensor of the frame, the nearest plot
-within the χ² gate of the new state, so one target seen by four sensors starts one
-track, not two. The track starts from the pair (:func:`fusion.init3d.initial_state`:
-the angle sensor's direction, the radar's range — the state whose consistency was
-checked) and is updated at once with the gathered plots. A plot left after pairing
-starts a track on its own only if nothing in its frame could pair with it (a 2D radar
-plot in a frame without angle plots, or the reverse; a 3D radar plot always): the
-broad prior of a lone plot (altitude ``init_el``/``init_el_std`` for a radar, range
-``init_range``/``init_range_std`` for an angle sensor) spans so much that false alarms
-of the other sensors fall in its gate and confirm it. On a single target without
-clutter this is exactly the wrapped method: its first scan is the pair (or the lone
-plot), every later scan the track's only plots.
+A *frame* is the group of plots within ``pair_tol`` of its first one, any number per
+sensor (:class:`fusion.grouping.TimeGrouper`). Per frame, at the time of its first plot:
+predict every track; associate sensor by sensor against the same predictions (χ² gate,
+GNN; confirmed tracks first, then tentative ones over the plots left); update each track
+with its plots through its method; initiate tentative tracks from the plots left, from
+pairs across sensors (an angle ray meets a 2D radar's range sphere and the radar's
+azimuth agrees) or from a lone plot that nothing in its frame could pair with; manage
+(M-of-N, K misses, ``max_pos_std``, duplicates); report the confirmed tracks in id order.
+The steps and the initiation rules in full: docs/algorithms.md, "Many targets".
 
 Configuration (keys of ``[tracker]`` read here; the rest goes to the wrapped method):
 

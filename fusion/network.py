@@ -1,131 +1,33 @@
 r"""The distributed topologies as pure state machines: local nodes and a centre.
 
 A *local node* runs beside one sensor; the *centre* fuses what the nodes send up. The
-same two classes run inside the tracker and fuser processes (which only move their
-inputs and outputs over Zenoh) and inside :class:`NetworkMethod`, the in-process
-composition the Monte Carlo evaluation uses — so a distributed run and the in-process
-evaluation compute the very same thing.
+same classes run inside the tracker and fuser processes (which only move their inputs
+and outputs over Zenoh) and inside :class:`NetworkMethod`, the in-process composition
+the Monte Carlo evaluation uses — so a distributed run and the in-process evaluation
+compute the very same thing.
 
-Messages::
+Messages: an :class:`Uplink` (node → centre) carries a local estimate, a raw
+measurement (an initialisation request, or DDHNV's measurement for the centre's
+update), or both; a :class:`Downlink` (centre → node) an estimate the node takes as its
+next prior (``init``, or PHHNV/DDHNV feedback).
 
-    Uplink   node → centre   a local estimate (track or prediction), a raw measurement
-                             (an *initialisation request*, or DDHNV's measurement for the
-                             centre's update), or both (DDHNV), stamped with its time
-    Downlink centre → node   an estimate the node takes as its next prior: ``init``
-                             (the shared initial state, or the fused state for a node
-                             that joins later) or feedback (PHHNV, DDHNV)
+=========  ===========  ==============================  ================================
+method     topology     local node                      centre
+=========  ===========  ==============================  ================================
+HNV        distributed  EKF update per measurement      fuse the reports of a scan
+PHHNV      feedback     update from the fed-back prior  fuse, feed the result back
+DDHNV      two-stage    predict from the fed-back       fuse the predictions, update with
+                        prior; send it + measurement    each measurement, fuse, feed back
+KF+TR,     distributed  smooth each bearing             Torrieri on the latest smoothed
+MKF+TR                                                  bearing of every station
+=========  ===========  ==============================  ================================
 
-Topologies (docs/design.md; ``mode`` of :class:`TrackNode`):
-
-==========  ==========  ==================================================================
-method      topology    local node                        centre
-==========  ==========  ==================================================================
-HNV         distributed EKF update per measurement        fuse the reports of a scan
-PHHNV       feedback    EKF update from the fed-back prior fuse, feed the result back
-DDHNV       two-stage   predict from the fed-back prior;  fuse the predictions (stage 1),
-                        send prediction + measurement     update it with each measurement,
-                                                          fuse those (stage 2), feed back
-KF+TR,      distributed smooth each bearing (KF / MKF)     Torrieri on the latest smoothed
-MKF+TR                                                    bearing of every station
-==========  ==========  ==================================================================
-
-**Initialisation.** A 3D node without a prior sends its first measurement up as an
-initialisation request and waits. The centre groups requests into a scan like any
-other input; its first scan gives the shared initial state
-(:func:`fusion.init3d.initial_state`), sent down to every node of that scan. A request
-arriving later (a sensor that joins or a tracker that restarts) is answered with the
-centre's latest fused state. The request's measurement initialises, it is not used
-again.
-
-**Scans at the centre** are those of :class:`fusion.grouping.TimeGrouper`, over uplinks
-(one per node per scan); a scan is fused at the time of its first uplink (offsets
-within ``pair_tol`` are neglected, as in the centralised methods). Only the nodes with
-an uplink in the scan take part.
-
-**Feedback ordering.** A fed-back node must start its update at ``t_k`` from the fusion
-of every scan that ended before it: those with ``t_k − t_s > pair_tol`` (a scan closer
-than that would have taken the measurement itself). The centre publishes a *horizon*
-``W``: every downlink of a fusion at ``t_s ≤ W`` has been sent. A node processes its
-pending measurement at ``t_k`` once ``t_k − W ≤ pair_tol``. Meanwhile it declares to
-the centre that it is complete only up to just before ``t_k`` (its upstream
-watermark), which lets the centre close every earlier scan — so the pipeline moves in
-lock-step without deadlock, and the result does not depend on message timing. A node
-whose downlink goes quiet is told by its process to run on alone (``alone=True``):
-it then updates from its own last estimate, or initialises itself from its own
-measurement; the result is then timing-dependent, and the process says so.
-
-Many targets
-------------
-With ``association`` in the ``[tracker]`` table (:class:`fusion.mtt.AssociationConfig`)
-HNV, PHHNV and DDHNV split into :class:`MultiTrackNode` and :class:`MultiTrackCentre`,
-and KF+TR and MKF+TR into :class:`MultiStationNode` and :class:`StationCentre` ("Many
-emitters", below).
-
-*Who starts tracks: the centre, in every topology.* A 2D radar plot fixes a circle
-and an angle plot a ray, and a local tracker of one such sensor cannot observe the
-full state; a track started from one plot attracts false alarms through its broad
-prior (:mod:`fusion.mtt`, "Initiation"). And every fusion rule but ``naive``/``ci``
-needs to know what a local track started from (``info`` its prior, ``bar-shalom-campo``
-its cross-covariance with the fused track). So tracks are born at the centre, as the
-one-target handshake does it: a plot no local track takes goes up as an
-initialisation request; the centre gates each request against its fused tracks
-(χ², GNN): in a track's gate, the node is sent that track's latest fused estimate as
-an ``init`` downlink (a node that lost its local track, or sees the target for the
-first time, joins); the requests left start fused tracks from angle/radar pairs
-(:class:`fusion.mtt.Initiator`, as the centralised methods), and every node whose plot
-formed the pair is sent the new track. HNV stays distributed: after that the local
-trackers run without feedback.
-
-*Local trackers.* A node groups its sensor's plots into frames
-(:class:`fusion.grouping.TimeGrouper`; the sensor's watermark closes them), gates them
-against its local tracks' predictions (χ², GNN), updates the tracks that took one and
-reports each (``track`` = its local id), sends the other plots up as requests, and
-deletes a local track after ``delete_misses`` frames without a plot or when its
-position σ exceeds ``max_pos_std`` (``local_max_pos_std`` for HNV, whose local tracks
-drift along what their sensor does not measure: past it the track rejoins from the
-fused one) — and then tells the centre (a ``drop`` uplink) —,
-or when the centre says ``drop``. Every mode
-waits for the centre's horizon before a frame (as PHHNV does with one target), so the
-inits and drops of earlier frames are in, and the result is independent of timing.
-
-*Memberships.* The centre names every local track it starts: the init carries its
-local id (``L1, L2, …`` per node, never reused for that node), so the local track is
-its fused track's member from birth, and the centre's records follow the node's
-track list exactly — an init adds a member, a drop either way removes it. (A local
-id the node chose itself would be unknown until its first report: a track that died
-before that would leave the centre waiting for it, and a restarted node's ``L1``
-would be taken for its previous incarnation's.) A track a node starts alone (no
-centre) is ``A1, A2, …``, a name the centre never gives, and it is dropped.
-
-*Track-to-track association at the centre*, per node and frame: a local track keeps
-its fused track while ``d²`` of the pair (position and velocity; with the
-cross-covariance where it is known, :meth:`fusion.track_fusion.TrackFuser.cross_covariance`)
-stays in the χ² gate (:func:`fusion.association.track_distance2`); one that leaves its
-gate is dropped (the node deletes it) and the node is sent the fused track again.
-One local track per node per fused track; a new one replaces the old one (dropped).
-Each fused track has its own :class:`~fusion.track_fusion.TrackFuser`
-and fuses its reports as the one-target centre does; a fused track without reports
-coasts. Management is :class:`fusion.association.TrackLogic` (M-of-N, K misses,
-``max_pos_std``) and :class:`fusion.association.DuplicateWatch` (the later of two
-fused tracks that agree for ``merge_frames`` frames is deleted, its members
-dropped): a tentative track scores a hit with reports or gated requests of two
-sensors, a confirmed one with two, or with one that measures range — the rule of the
-centralised tracker (:func:`fusion.mtt.scores_hit`; an angle sensor's local track alone
-would hold a fused track whose range drifts away from the radar plots, which start a
-second track on the target: a ghost along the ray). Confirmed tracks get the published
-ids ``T1, T2, …`` and are reported every frame. With one target, no clutter, P_D = 1
-and M = N = 1 this is exactly the one-target network (``tests/test_t2ta.py``).
-
-*Many emitters* (KF+TR, MKF+TR: :class:`MultiStationNode`, :class:`StationCentre`). A
-station hears every emitter and cannot tell which bearing is whose, so it keeps
-*bearing tracks*: its bearings of a scan are gated (χ²(1)) against each track's smoothed
-bearing and assigned by global nearest neighbour, a bearing no track takes starts one,
-and a track without bearings for ``delete_misses`` scans goes. Each track's smoothed
-bearing goes up as a bearing of the station, with the smoothed std and no id: the
-centre associates them into emitters as the centralised tracker does raw bearings
-(:class:`fusion.df.multi.MultiEmitterMethod`, ghost rejection included) and localises
-each emitter by Torrieri on its latest smoothed bearing from every station. Station
-tracks need no feedback, so a station node never waits for the centre.
+Tracks are initialised at the centre from the nodes' first measurements; a fed-back
+node waits for the centre's *horizon* so the result never depends on message timing
+(or runs on alone, timing-dependent, when told so). With ``association`` the nodes and
+centre track many targets (:class:`MultiTrackNode`, :class:`MultiTrackCentre`,
+:class:`MultiStationNode`, :class:`StationCentre`). The protocol, its ordering argument
+and the many-target rules in full: docs/network.md.
 """
 
 from __future__ import annotations
