@@ -6,6 +6,7 @@ recorder is killed half-way."""
 from __future__ import annotations
 
 import json
+from pathlib import Path
 import math
 import signal
 import subprocess
@@ -526,7 +527,8 @@ def test_traffic_picture_scored_against_the_aircraft_alive_and_departed_forgotte
     ``TRUTH_GONE_FRAMES``, so the recorder holds only the aircraft of late."""
     from fusion.metrics import gospa
     from sensors_sim import truth_events
-    from services.evaluation import GOSPA_CUTOFF, run_method, track_steps
+    from services.evaluation import run_method
+    from services.scoring import GOSPA_CUTOFF, track_steps
 
     text = (Path(__file__).resolve().parents[1] / "sensors_sim/scenarios/air-picture-live.toml").read_text()
     for old, new in (("box_km = [10.0, 45.0, 10.0, 45.0]", "box_km = [15.0, 30.0, 15.0, 30.0]"),
