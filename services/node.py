@@ -101,6 +101,9 @@ class Inbox:
     instead of dropping: Zenoh then stops reading that link, and publishers with
     blocking congestion control slow down, so data on the fusion path is never lost to
     a burst and memory stays bounded. ``waits`` counts the times a callback had to wait.
+    (Zenoh's own ``handlers.FifoChannel`` blocks the same way, but it is one channel per
+    subscriber: a process's loop waits on all its subscriptions at once, in arrival
+    order, and must wake when the process is told to stop.)
     """
 
     def __init__(self, stop: threading.Event, maxsize: int = 65_536):
