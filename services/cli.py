@@ -523,7 +523,8 @@ def _check_overrides(scenario, methods: list[str], overrides: dict, command: str
     from fusion.methods import make_method, method_config
     from fusion.mtt import AssociationConfig
 
-    from .evaluation import many_targets, method_misfit
+    from .evaluation import method_misfit
+    from .scoring import many_targets
 
     for m in methods:
         misfit = method_misfit(scenario, m)
