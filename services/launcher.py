@@ -85,6 +85,10 @@ RESTART_DELAY = 0.5  # s: lets the fabric see the dead process's token go before
 MAX_RESTARTS = 3  # per process: a process killed again and again is not coming back
 END_GRACE = 10.0  # s after the last source ends, when no fuser is left to say it is done
 EXPORTERS = {"geojson": ("export-geojson", "--file"), "cot": ("export-cot", "--to")}  # run flag -> child id, its option
+# s of silence after which a source is dead at --speed max: nothing is paced there, so a
+# source that is silent is far more often starved of CPU (many processes, two cores) than
+# dead, and taking it for dead changes what is fused
+MAX_SPEED_TIMEOUT = 15.0
 LIVE_LEAD = 8.0  # s from starting the sources of a live run to its scenario time 0 (their start-up)
 
 
@@ -442,7 +446,7 @@ def run(args) -> int:
              ["--scenario", args.scenario, *seed, *(["--duration-s", repr(scenario.duration)] if args.duration_s else [])])
     sources = list(scenario.process_ids())
     max_period = max([getattr(s, "period", 1.0) for s in scenario.sensors.values()] + [1.0])
-    timeout = 5.0 if math.isinf(speed) else max(3.0, 3.0 * max_period / speed)
+    timeout = MAX_SPEED_TIMEOUT if math.isinf(speed) else max(3.0, 3.0 * max_period / speed)
 
     estimates: list[Estimate] = []
     statuses: dict[str, dict] = {}
