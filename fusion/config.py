@@ -4,6 +4,7 @@ the per-method tables are resolved by :func:`fusion.methods.method_config`."""
 
 from __future__ import annotations
 
+import difflib
 from dataclasses import fields
 from typing import Any, Mapping
 
@@ -24,7 +25,9 @@ def config_values(cls: type, config: Mapping[str, Any] | None, what: str,
     known = {f.name: f for f in fields(cls)}
     for key in config:
         if key not in known:
-            raise ValueError(f"unknown {what} key {key!r} (known: {', '.join(sorted(known))})")
+            close = difflib.get_close_matches(str(key), sorted(known), n=1, cutoff=0.75)
+            hint = f"did you mean {close[0]!r}? " if close else ""
+            raise ValueError(f"unknown {what} key {key!r} ({hint}known: {', '.join(sorted(known))})")
     values = {}
     for key, value in config.items():
         if isinstance(known[key].default, str):

@@ -9,6 +9,7 @@ walks one table, converts unit-suffixed keys to SI and rejects keys it never rea
 
 from __future__ import annotations
 
+import difflib
 import math
 import re
 from typing import Any, Iterator
@@ -141,11 +142,21 @@ class Reader:
         """Declare keys valid here even if this read path did not use them."""
         self._known.update(keys)
 
+    def _misspelt(self, wanted: list[str]) -> str:
+        """A note naming a key of this table that looks like a misspelling of one of
+        ``wanted`` (a key nobody reads here, close to it), or ``""``."""
+        strays = [k for k in self.data if isinstance(k, str) and k not in self._known and k not in wanted]
+        for w in wanted:
+            close = difflib.get_close_matches(w, strays, n=1, cutoff=0.85)
+            if close:
+                return f"; '{close[0]}' is given: a misspelling of '{w}'?"
+        return ""
+
     def raw(self, key: str, default=REQUIRED):
         self._known.add(key)
         if key not in self.data:
             if default is REQUIRED:
-                raise self.error("missing (required)", key)
+                raise self.error(f"missing (required{self._misspelt([key])})", key)
             return default
         return self.data[key]
 
@@ -226,7 +237,7 @@ class Reader:
         if not given:
             if required:
                 alternatives = f"; or {' or '.join(variants[1:])}" if len(variants) > 1 else ""
-                raise self.error(f"missing (required{alternatives})", variants[0])
+                raise self.error(f"missing (required{alternatives}{self._misspelt(variants)})", variants[0])
             return None
         return given[0]
 
@@ -271,5 +282,7 @@ class Reader:
     def finish(self) -> None:
         unknown = [k for k in self.data if k not in self._known]
         if unknown:
-            raise self.error(f"unknown key (allowed here: {', '.join(sorted(self._known)) or 'none'})",
+            close = difflib.get_close_matches(str(unknown[0]), sorted(self._known), n=1, cutoff=0.75)
+            hint = f"did you mean '{close[0]}'? " if close else ""
+            raise self.error(f"unknown key ({hint}allowed here: {', '.join(sorted(self._known)) or 'none'})",
                              unknown[0])

@@ -259,3 +259,10 @@ def test_method_config_layers_common_per_method_and_overrides():
             method_config(bad, "SS")
     with pytest.raises(ValueError, match="unknown tracker config key 'methods'"):
         make("SS", table)  # an unresolved table cannot reach a method by mistake
+
+
+def test_an_unknown_tracker_key_close_to_a_known_one_is_suggested():
+    from fusion.methods import make_method
+
+    with pytest.raises(ValueError, match="unknown tracker config key 'motoin' \\(did you mean 'motion'\\?"):
+        make_method("SS", {"motoin": "ca"})

@@ -257,3 +257,30 @@ def test_endless_is_a_boolean_of_scenarios_that_can_go_on(tmp_path):
     (tmp_path / "bad.toml").write_text(text.replace("endless = true", 'endless = "yes"'))
     with pytest.raises(ScenarioError, match="endless"):
         load_scenario(tmp_path / "bad.toml")
+
+
+@pytest.mark.parametrize("old, new, said", [
+    ("period_s = 1.0", "perod_s = 1.0", "sensors.radar2d.period_s: missing (required; 'perod_s' is given: "
+                                        "a misspelling of 'period_s'?)"),
+    ("std_az_deg = 1.0", "std_az_dg = 1.0", "'std_az_dg' is given: a misspelling of 'std_az_deg'?"),
+    ("duration_s = 30.0", "duraton_s = 30.0", "duration_s: missing (required; 'duraton_s' is given"),
+])
+def test_a_misspelt_required_key_is_named(tmp_path, old, new, said):
+    with pytest.raises(ScenarioError) as info:
+        load_scenario(write(tmp_path, GOOD.replace(old, new, 1), "typo.toml"))
+    assert said in str(info.value)
+
+
+def test_a_valid_sibling_key_is_not_taken_for_a_misspelling(tmp_path):
+    """The angle sensor's std_el_deg is close to the missing std_az_deg but is a key of
+    its own: the message must not call it a misspelling."""
+    with pytest.raises(ScenarioError) as info:
+        load_scenario(write(tmp_path, GOOD.replace("std_az_rad = 0.001\n", "", 1), "sibling.toml"))
+    assert "std_az" in str(info.value) and "misspelling" not in str(info.value)
+
+
+def test_an_unknown_key_close_to_an_allowed_one_is_suggested(tmp_path):
+    with pytest.raises(ScenarioError) as info:
+        load_scenario(write(tmp_path, GOOD.replace("max_range_km = 50.0", "max_range_km = 50.0\np_detct = 0.9", 1),
+                            "unknown.toml"))
+    assert "sensors.radar2d.p_detct: unknown key (did you mean 'p_detect'?" in str(info.value)
