@@ -40,14 +40,6 @@ from .motion import ConstantAcceleration, ConstantTurn, KinematicModel, PaddedCo
 IMM_MODELS = ("cv", "ct", "ca")
 
 
-def gaussian_mixture(w: np.ndarray, xs: np.ndarray, Ps: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Mean and covariance of the mixture ``Σ wⱼ N(xⱼ, Pⱼ)`` (``w`` sums to 1)."""
-    x = w @ xs
-    d = xs - x
-    P = np.einsum("j,jab->ab", w, Ps) + np.einsum("j,ja,jb->ab", w, d, d)
-    return x, kalman.symmetrise(P)
-
-
 class ModelSet:
     """The IMM's motion models, transition matrix and initial mode probabilities.
 
@@ -147,7 +139,7 @@ class TrackIMM:
         out_x, out_P = [], []
         for j, md in enumerate(self.models.models):
             w = mix[:, j] if cbar[j] > 0.0 else self.mu  # a model of probability 0: any prior
-            x0, P0 = gaussian_mixture(w, xs, Ps)
+            x0, P0 = kalman.gaussian_mixture(w, xs, Ps)
             xj, Pj = kalman.predict(x0, P0, md.F(dt), md.Q(dt))
             out_x.append(xj)
             out_P.append(Pj)
@@ -160,7 +152,7 @@ class TrackIMM:
         if t == self.t:
             return self.x, self.P
         xs, Ps, cbar = self._mixed_predictions(t)
-        return gaussian_mixture(cbar, xs, Ps)
+        return kalman.gaussian_mixture(cbar, xs, Ps)
 
     def predict(self, t: float) -> None:
         if t < self.t:
@@ -171,7 +163,7 @@ class TrackIMM:
         for f, xj, Pj in zip(self.filters, xs, Ps):
             f.x, f.P, f.t = xj, Pj, float(t)
         self.mu = cbar
-        self.x, self.P = gaussian_mixture(cbar, xs, Ps)
+        self.x, self.P = kalman.gaussian_mixture(cbar, xs, Ps)
         self.t = float(t)
 
     def update(self, model, z: np.ndarray) -> kalman.UpdateResult:
@@ -185,10 +177,10 @@ class TrackIMM:
         w = np.exp(ell - ell.max())
         self.mu = w / w.sum()
         x_prior, self._prior_P = self.x, self.P
-        self.x, self.P = gaussian_mixture(self.mu, np.array([f.x for f in self.filters]),
+        self.x, self.P = kalman.gaussian_mixture(self.mu, np.array([f.x for f in self.filters]),
                                           np.array([f.P for f in self.filters]))
         self._post_P = self.P
-        nu, S = gaussian_mixture(prior, np.array([r.nu for r in results]), np.array([r.S for r in results]))
+        nu, S = kalman.gaussian_mixture(prior, np.array([r.nu for r in results]), np.array([r.S for r in results]))
         L_inv = kalman.inverse_cholesky_factor(S)
         v = L_inv @ nu
         K = np.outer(self.x - x_prior, L_inv.T @ v) / max(float(v @ v), np.finfo(float).tiny)

@@ -42,6 +42,14 @@ def symmetrise(P: np.ndarray) -> np.ndarray:
     return 0.5 * (P + P.T)
 
 
+def gaussian_mixture(w: np.ndarray, xs: np.ndarray, Ps: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Mean and covariance of the mixture ``Σ wⱼ N(xⱼ, Pⱼ)`` (``w`` sums to 1)."""
+    x = w @ xs
+    d = xs - x
+    P = np.einsum("j,jab->ab", w, Ps) + np.einsum("j,ja,jb->ab", w, d, d)
+    return x, symmetrise(P)
+
+
 def predict(x: np.ndarray, P: np.ndarray, F: np.ndarray, Q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Linear(ised) time update ``x⁻ = F x``, ``P⁻ = F P Fᵀ + Q``."""
     return F @ x, symmetrise(F @ P @ F.T + Q)

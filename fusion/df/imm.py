@@ -28,7 +28,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from ..kalman import UpdateResult, gaussian_loglikelihood
+from ..kalman import UpdateResult, gaussian_loglikelihood, gaussian_mixture
 from .filters import bearing_step
 from .models import emitter_model
 
@@ -49,13 +49,6 @@ def transition_matrix(p: float, form: str = "symmetric") -> np.ndarray:
 def log_likelihood(res: UpdateResult) -> float:
     """``log N(ν; 0, S)`` of an update: the model likelihood, in the log domain."""
     return gaussian_loglikelihood(res.nu, res.S)
-
-
-def _moments(w: np.ndarray, xs: np.ndarray, Ps: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    x = w @ xs
-    d = xs - x
-    P = np.einsum("j,jab->ab", w, Ps) + np.einsum("j,ja,jb->ab", w, d, d)
-    return x, 0.5 * (P + P.T)
 
 
 class IMM:
@@ -81,7 +74,7 @@ class IMM:
             raise ValueError(f"IMM: initial mode probabilities must be > 0 and sum to 1, got {self.mu}")
         if np.any(self.Pi < 0) or np.any(np.abs(self.Pi.sum(axis=1) - 1.0) > 1e-12):
             raise ValueError("IMM: transition matrix rows must be probabilities summing to 1")
-        self.x, self.P = _moments(self.mu, self.xs, self.Ps)
+        self.x, self.P = gaussian_mixture(self.mu, self.xs, self.Ps)
 
     def step(self, model_steps: Sequence[Callable[[np.ndarray, np.ndarray], UpdateResult]]) -> list[UpdateResult]:
         """One IMM cycle; returns the model-matched update results."""
@@ -89,14 +82,14 @@ class IMM:
         mix = self.Pi * self.mu[:, None] / cbar[None, :]  # mix[i, j] = μ_{i|j}
         results = []
         for j, f in enumerate(model_steps):
-            x0, P0 = _moments(mix[:, j], self.xs, self.Ps)
+            x0, P0 = gaussian_mixture(mix[:, j], self.xs, self.Ps)
             results.append(f(x0, P0))
         logw = np.log(cbar) + np.array([log_likelihood(r) for r in results])
         w = np.exp(logw - logw.max())
         self.mu = w / w.sum()
         self.xs = np.array([r.x for r in results])
         self.Ps = np.array([r.P for r in results])
-        self.x, self.P = _moments(self.mu, self.xs, self.Ps)
+        self.x, self.P = gaussian_mixture(self.mu, self.xs, self.Ps)
         return results
 
 
