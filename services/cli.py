@@ -221,7 +221,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("plan", help="the processes of a run and the exact command to start each by hand")
     p.add_argument("--scenario", required=True, help="built-in scenario name or path to a .toml file")
-    p.add_argument("--topology", choices=TOPOLOGIES)
+    p.add_argument("--topology", choices=TOPOLOGIES, help="process layout (default: the method's)")
     p.add_argument("--method", help="estimation method (default: the scenario's)")
     p.add_argument("--seed", type=_seed, help="replace the scenario's seed (a non-negative integer)")
     p.add_argument("--connect", default="tcp/127.0.0.1:7447", metavar="ENDPOINT",
@@ -237,12 +237,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--listen", action="append", default=None, metavar="ENDPOINT",
                    help="endpoint to listen on (default: the config file's, else tcp/127.0.0.1:7447); repeatable")
     _zenoh_file_and_overrides(p)
-    p.add_argument("-v", "--verbose", action="store_true")
+    p.add_argument("-v", "--verbose", action="store_true", help="log at debug level; tracebacks for errors")
 
     p = sub.add_parser("sensor", help="one source process: a sensor, the truth clock or a jammer")
-    p.add_argument("--scenario", required=True)
+    p.add_argument("--scenario", required=True, help="built-in scenario name or path to a .toml file")
     p.add_argument("--id", required=True, help="sensor, jammer or 'truth'")
-    p.add_argument("--speed", type=_speed, default="1")
+    p.add_argument("--speed", type=_speed, default="1", help="scenario seconds per wall second, or 'max' (default 1)")
     p.add_argument("--start-at", type=float, help="wall-clock epoch of scenario time 0 (default: when ready)")
     p.add_argument("--wait-for", type=_ids, default=[], help="comma-separated processes to wait for")
     p.add_argument("--seed", type=_seed, help="replace the scenario's seed (a non-negative integer)")
@@ -260,8 +260,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="live: measurements up to S seconds older than the released time are re-filtered "
                         "(out of sequence); older ones are refused as stale (default %(default)s)")
     p.add_argument("--method", help="estimation method (default: the scenario's)")
-    p.add_argument("--fusion-rule", choices=FUSION_RULES)
-    p.add_argument("--id", default="fuser")
+    p.add_argument("--fusion-rule", choices=FUSION_RULES, help="track-to-track fusion rule of a track-fusion method")
+    p.add_argument("--id", default="fuser", help="process id (default: %(default)s)")
     p.add_argument("--source-timeout", type=float, default=5.0, help="seconds of silence before a source is dead")
     p.add_argument("--start-grace", type=float, default=30.0, help="seconds a never-heard source gets at start")
     p.add_argument("--seed", type=_seed, help="replace the scenario's seed (a non-negative integer)")
@@ -274,7 +274,7 @@ def build_parser() -> argparse.ArgumentParser:
     _site_or_scenario(p)
     p.add_argument("--sensor", required=True, help="the sensor this tracker runs beside")
     p.add_argument("--method", help="distributed method: HNV, PHHNV, DDHNV, KF+TR, MKF+TR (default: the scenario's)")
-    p.add_argument("--fusion-rule", choices=FUSION_RULES)
+    p.add_argument("--fusion-rule", choices=FUSION_RULES, help="track-to-track fusion rule of a track-fusion method")
     p.add_argument("--fuser", default="fuser", help="process id of the fuser whose feedback to take")
     p.add_argument("--feedback-timeout", type=float, default=5.0,
                    help="seconds without an answer from the fuser before running alone")
@@ -289,8 +289,8 @@ def build_parser() -> argparse.ArgumentParser:
     _fabric(p)
 
     p = sub.add_parser("record", help="the recorder process: everything into a Rerun .rrd file")
-    p.add_argument("--rrd", required=True)
-    p.add_argument("--id", default="recorder")
+    p.add_argument("--rrd", required=True, help="the recording file to write (with --rotate-s: <stem>.<k>.rrd)")
+    p.add_argument("--id", default="recorder", help="process id (default: %(default)s)")
     p.add_argument("--expect", type=_ids, default=[],
                    help="stop once these processes have reported done (default: run until signalled)")
     _site_or_scenario(p, required=False)

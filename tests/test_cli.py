@@ -35,3 +35,22 @@ def test_bad_arguments_are_refused_clearly():
     assert p.returncode != 0 and "no such recording" in p.stderr
     p = zf("eval", "--scenario", "thesis-fixed-c3", "--runs", "1", "--fusion-rule", "info")
     assert p.returncode != 0 and "track-fusion methods" in p.stderr
+
+
+def test_every_option_of_every_command_says_what_it_does():
+    import argparse
+
+    from services.cli import build_parser
+
+    silent = []
+
+    def walk(parser, path):
+        for action in parser._actions:
+            if isinstance(action, argparse._SubParsersAction):
+                for name, sub in action.choices.items():
+                    walk(sub, [*path, name])
+            elif action.option_strings and not action.help and action.dest != "help":
+                silent.append(f"zfusion {' '.join(path)} {action.option_strings[0]}")
+
+    walk(build_parser(), [])
+    assert not silent, silent
