@@ -167,6 +167,22 @@ def test_recorder_then_fuser_killed_centralised(tmp_path, deployment):
     assert tracks and rec["t_up"] - 1 <= min(tracks) and max(tracks) == 60.0
 
 
+def _client_config(tmp_path, ep: str):
+    """A Zenoh config file making a process a client of the router at ``ep`` only."""
+    config = tmp_path / "client.json5"
+    config.write_text(json.dumps({"mode": "client", "connect": {"endpoints": [ep]},
+                                  "scouting": {"multicast": {"enabled": False}}}))
+    return config
+
+
+def _router(ep: str) -> subprocess.Popen:
+    """``zfusion router`` listening on ``ep``, once it says so."""
+    r = subprocess.Popen([sys.executable, "-m", "services.cli", "router", "--listen", ep],
+                         stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+    assert "listening" in r.stdout.readline()
+    return r
+
+
 def test_router_restart_in_client_mode(tmp_path, deployment):
     """Every process a Zenoh client of one router; kill -9 of the router mid-run and a
     new one on the same port seconds later. The sessions reconnect by themselves (zenoh
@@ -174,17 +190,8 @@ def test_router_restart_in_client_mode(tmp_path, deployment):
     fuser declares every sensor dead (reported) but does not take that for the end of
     the scenario, and fuses the measurements sent after the reconnection."""
     ep = f"tcp/127.0.0.1:{free_port()}"
-    config = tmp_path / "client.json5"
-    config.write_text(json.dumps({"mode": "client", "connect": {"endpoints": [ep]},
-                                  "scouting": {"multicast": {"enabled": False}}}))
-
-    def router() -> subprocess.Popen:
-        r = subprocess.Popen([sys.executable, "-m", "services.cli", "router", "--listen", ep],
-                             stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
-        assert "listening" in r.stdout.readline()
-        return r
-
-    routers = [router()]
+    config = _client_config(tmp_path, ep)
+    routers = [_router(ep)]
     watch = FusedWatch(deployment, connect=ep)
     proc = subprocess.Popen(run_cmd(tmp_path, "patent-3d", deployment, "--speed", "2", "--zenoh-config", str(config)),
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
@@ -195,7 +202,7 @@ def test_router_restart_in_client_mode(tmp_path, deployment):
         routers[0].kill()
         routers[0].wait()
         time.sleep(2.0)
-        routers.append(router())
+        routers.append(_router(ep))
         _, err = proc.communicate(timeout=120)
     finally:
         if proc.poll() is None:
@@ -229,17 +236,8 @@ def test_router_restart_in_a_live_session_loses_nothing(tmp_path, deployment):
     sensor was cut off at once, so nothing was released meanwhile: the recovered scans
     come in order.)"""
     ep = f"tcp/127.0.0.1:{free_port()}"
-    config = tmp_path / "client.json5"
-    config.write_text(json.dumps({"mode": "client", "connect": {"endpoints": [ep]},
-                                  "scouting": {"multicast": {"enabled": False}}}))
-
-    def router() -> subprocess.Popen:
-        r = subprocess.Popen([sys.executable, "-m", "services.cli", "router", "--listen", ep],
-                             stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
-        assert "listening" in r.stdout.readline()
-        return r
-
-    routers = [router()]
+    config = _client_config(tmp_path, ep)
+    routers = [_router(ep)]
     watch = FusedWatch(deployment, connect=ep)
     proc = subprocess.Popen(run_cmd(tmp_path, "patent-3d", deployment, "--live", "--for", "30", "--oosm-window", "30",
                                     "--zenoh-config", str(config)),
@@ -250,7 +248,7 @@ def test_router_restart_in_a_live_session_loses_nothing(tmp_path, deployment):
         routers[0].kill()
         routers[0].wait()
         time.sleep(2.0)
-        routers.append(router())
+        routers.append(_router(ep))
         proc.wait(timeout=150)
     finally:
         if proc.poll() is None:
