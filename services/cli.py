@@ -544,7 +544,6 @@ def _check_overrides(scenario, methods: list[str], overrides: dict, command: str
 
 def _eval(args) -> int:
     from .evaluation import default_methods, evaluate, variants_for
-    from .node import load
     from .summary import format_table
 
     if args.runs < 1:

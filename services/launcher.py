@@ -3,8 +3,9 @@
 The launcher opens a Zenoh peer that listens on a free loopback port (the "hub"
 endpoint the children dial; they then find each other by gossip, no router involved),
 starts the fuser and the recorder, waits until they have announced themselves, starts
-every source (sensors, truth, jammers) with a common start time, collects the fused
-estimates, and when the fuser is done stops everything, scores the estimates against
+every source (sensors, truth, jammers) with a common start time (as far ahead as the
+fuser and recorder took to come up, so that the sources run by then even under load),
+collects the fused estimates, and when the fuser is done stops everything, scores the estimates against
 truth and writes the summary.
 
 It is also their supervisor. A child killed from outside (kill -9, the OOM killer: an
@@ -70,7 +71,7 @@ from fusion.methods import METHODS, TRACK_FUSION_METHODS, topology_default, trac
 from fusion.types import Estimate
 from schemas import KeySpace, SchemaError, decode, to_estimate, tracker_id
 
-from .node import Inbox, Node, ZenohOptions, load
+from .node import Inbox, Node, ZenohOptions
 from .resources import ProcessUsage, own_usage
 from .rotation import rotated_files
 from .scoring import GOSPA_CUTOFF, many_targets, score_tracks_of, truth_function
@@ -89,6 +90,7 @@ EXPORTERS = {"geojson": ("export-geojson", "--file"), "cot": ("export-cot", "--t
 # source that is silent is far more often starved of CPU (many processes, two cores) than
 # dead, and taking it for dead changes what is fused
 MAX_SPEED_TIMEOUT = 15.0
+START_LEAD_MAX = 15.0  # s: the most a paced run's sources are given to start (see main)
 LIVE_LEAD = 8.0  # s from starting the sources of a live run to its scenario time 0 (their start-up)
 
 
@@ -507,6 +509,7 @@ def run(args) -> int:
                 pass
 
         try:
+            up_since = time.monotonic()
             children.start(FUSER_ID, ["fuser", *given, "--method", method, "--id", FUSER_ID,
                                       "--source-timeout", str(timeout), *tracker_args, *(
                                           ["--max-delay", repr(args.max_delay), "--oosm-window", repr(args.oosm_window)] if live else []), *(
@@ -520,14 +523,18 @@ def run(args) -> int:
                 children.start(name, [*argv, *common])
             node.wait_for([FUSER_ID, RECORDER_ID, *exporters], timeout=60.0,
                           gone=lambda: children.exited([FUSER_ID, RECORDER_ID, *exporters]))
+            startup = time.monotonic() - up_since  # what starting processes takes on this machine now
             for sensor, tid in trackers.items():
                 children.start(tid, ["tracker", *given, "--sensor", sensor, "--method", method,
                                      "--fuser", FUSER_ID, "--feedback-timeout", str(timeout), *tracker_args, *(
                                          ["--fusion-rule", args.fusion_rule] if args.fusion_rule else []), *common])
             node.wait_for(trackers.values(), timeout=60.0, gone=lambda: children.exited(trackers.values()))
             sup.restartable = {FUSER_ID, RECORDER_ID, *trackers.values(), *exporters}
-            # live: scenario time 0 a little ahead, so that the sources' first scans are not late
-            start_at = time.time() + (0.0 if math.isinf(speed) else LIVE_LEAD if live else 0.5)
+            # Scenario time 0 as far ahead as the fuser and recorder took to come up, so that
+            # the sources are running by then (a source that starts late sends its first
+            # scans in a burst); live, a fixed lead, so that their first scans are not late.
+            lead = LIVE_LEAD if live else min(START_LEAD_MAX, max(0.5, startup))
+            start_at = time.time() + (0.0 if math.isinf(speed) else lead)
             started.append(start_at)
             for sid in sources:
                 # A source waits only for its consumers: the fuser may finish (and vanish)
