@@ -183,6 +183,26 @@ def _router(ep: str) -> subprocess.Popen:
     return r
 
 
+def _restarted(router: subprocess.Popen, ep: str) -> subprocess.Popen:
+    """kill -9 of ``router``, and a new one on the same endpoint 2 s later."""
+    router.kill()
+    router.wait()
+    time.sleep(2.0)
+    return _router(ep)
+
+
+def _stop(proc: subprocess.Popen, watch: FusedWatch, routers: list[subprocess.Popen]) -> None:
+    """Whatever is still running of a router test: the run (SIGINT), the watch, the routers."""
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGINT)
+        proc.wait(30)
+    watch.close()
+    for r in routers:
+        if r.poll() is None:
+            r.send_signal(signal.SIGINT)
+            r.wait(10)
+
+
 def test_router_restart_in_client_mode(tmp_path, deployment):
     """Every process a Zenoh client of one router; kill -9 of the router mid-run and a
     new one on the same port seconds later. The sessions reconnect by themselves (zenoh
@@ -199,20 +219,10 @@ def test_router_restart_in_client_mode(tmp_path, deployment):
         launcher = psutil.Process(proc.pid)
         assert "--zenoh-config" in child(launcher, "fuser", "fuser").cmdline()  # children are clients too
         watch.wait_until(7.0, proc)
-        routers[0].kill()
-        routers[0].wait()
-        time.sleep(2.0)
-        routers.append(_router(ep))
+        routers.append(_restarted(routers[0], ep))
         _, err = proc.communicate(timeout=120)
     finally:
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGINT)
-            proc.wait(30)
-        watch.close()
-        for r in routers:
-            if r.poll() is None:
-                r.send_signal(signal.SIGINT)
-                r.wait(10)
+        _stop(proc, watch, routers)
     assert proc.returncode == 0, err[-3000:]
     doc = json.loads((tmp_path / "out.json").read_text())
     assert doc["outages"] == {} and set(doc["exit_codes"].values()) == {0}
@@ -245,20 +255,10 @@ def test_router_restart_in_a_live_session_loses_nothing(tmp_path, deployment):
     try:
         watch.wait_until(1e9, proc, timeout=90)  # fusing (a UTC time)
         watch.wait_until(watch.t + 4.0, proc)
-        routers[0].kill()
-        routers[0].wait()
-        time.sleep(2.0)
-        routers.append(_router(ep))
+        routers.append(_restarted(routers[0], ep))
         proc.wait(timeout=150)
     finally:
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGINT)
-            proc.wait(30)
-        watch.close()
-        for r in routers:
-            if r.poll() is None:
-                r.send_signal(signal.SIGINT)
-                r.wait(10)
+        _stop(proc, watch, routers)
     err = (tmp_path / "run.log").read_text()
     assert proc.returncode == 0, err[-3000:]
     doc = json.loads((tmp_path / "out.json").read_text())
