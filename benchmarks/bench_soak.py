@@ -5,6 +5,15 @@ kernel's high-water mark). The bound: the long run's peak within 15 % (+5 MB) of
 short run's, for both.
 
     python benchmarks/bench_soak.py [--short 600] [--long 7200] [--json PATH]
+    python benchmarks/bench_soak.py --scoring 2 24
+    python benchmarks/bench_soak.py --scoring-many 1 4
+
+``--scoring H ...`` measures, in process and without Zenoh, what the launcher of a *live*
+run holds to score it (``services.summary.RunScorer``: Python heap by ``tracemalloc``)
+after H hours of one fused update a second, against a scenario run's, which keeps every
+estimate: a live run of hours cannot be played faster than real time. ``--scoring-many
+H ...`` does the same for a live many-target run (``air-picture-live``'s traffic, each
+aircraft followed by a track of its own and a clutter track 3 s in 10, one step a second).
 
 Each run is the command line a user types (printed), with ``--duration-s`` setting the
 scenario's length (the scenario file's copy with ``duration_s`` replaced, where this
@@ -62,14 +71,97 @@ def one_run(duration: float, tmp: Path, flag: bool, speed: str, extra: list[str]
             "rrd_mb": sum(f.stat().st_size for f in files if f.exists()) / 2**20}
 
 
+def scoring_memory(hours: list[float]) -> None:
+    """Peak Python heap of the launcher's scorer fed ``h`` hours of 1 Hz estimates, live
+    (settled as it goes, the default OOSM window and max delay) and kept (a scenario run)."""
+    import dataclasses
+    import tracemalloc
+
+    from sensors_sim import load_scenario
+    from services.evaluation import run_method
+    from services.summary import RunScorer
+
+    sc = dataclasses.replace(load_scenario(SCENARIO), duration=600.0)
+    base = run_method(sc, "SS")  # 601 real estimates, repeated with their times shifted
+    period = base[-1].t - base[0].t + 1.0
+    epoch = 1.7e9
+    rows = []
+    for h in hours:
+        n = int(h * 3600)
+        row = [f"{h:g}", str(n)]
+        for live in (True, False):
+            tracemalloc.start()
+            scorer = RunScorer(sc, epoch, 10.0 + 1.0 + 1.0) if live else RunScorer(sc)
+            for k in range(n):
+                e = base[k % len(base)]
+                scorer.add(dataclasses.replace(e, t=e.t + (k // len(base)) * period + (epoch if live else 0.0)))
+            doc = scorer.method_summary()
+            peak = tracemalloc.get_traced_memory()[1]
+            tracemalloc.stop()
+            row.append(f"{peak / 2**20:.1f}")
+            if live:
+                row.append(str(len(doc["series"]["t"])))
+        rows.append(row)
+    print(C.table(["hours", "updates", "live: peak heap MB", "series points", "kept (scenario run): MB"], rows))
+
+
+def scoring_memory_many(hours: list[float]) -> None:
+    """Peak Python heap of a live many-target run's scorer after ``h`` hours of a
+    synthetic air picture (a perfect track per aircraft, a clutter track 3 s in 10)."""
+    import dataclasses
+    import tracemalloc
+
+    import numpy as np
+
+    from fusion.types import Estimate
+    from sensors_sim import load_scenario
+    from sensors_sim.traffic import Traffic
+    from services.summary import RunScorer
+
+    sc = load_scenario("air-picture-live")
+    epoch, P = 1.7e9, np.eye(9)
+    rows = []
+    for h in hours:
+        n = int(h * 3600)
+        traffic = Traffic(sc.traffic, sc.seed, 0)
+        tracemalloc.start()
+        t0 = time.process_time()
+        scorer = RunScorer(sc, epoch, 10.0 + 1.0 + 1.0)
+        for k in range(n):
+            t = float(k)
+            for a in traffic.alive(t):
+                scorer.add(Estimate(t=epoch + t, x=np.concatenate([a.position(t), np.zeros(6)]), P=P,
+                                    method="SS", track=f"T{a.id}"))
+            if k % 10 < 3:
+                scorer.add(Estimate(t=epoch + t, x=np.zeros(9), P=P, method="SS", track=f"G{k // 10}"))
+        doc = scorer.method_summary(dataclasses.replace(sc, duration=scorer.played()))
+        peak = tracemalloc.get_traced_memory()[1]
+        tracemalloc.stop()
+        rows.append([f"{h:g}", str(scorer.n), str(doc["tracks"]), f"{peak / 2**20:.1f}", str(len(doc["series"]["t"])),
+                     f"{time.process_time() - t0:.0f}"])
+    print(C.table(["hours", "estimates", "tracks", "live: peak heap MB", "series points", "CPU s"], rows))
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--short", type=float, default=600.0, help="scenario seconds of the reference run")
     ap.add_argument("--long", type=float, default=7200.0, help="scenario seconds of the soak run")
     ap.add_argument("--speed", default="max", help="zfusion run --speed (default max)")
     ap.add_argument("--rotate-s", type=float, help="also rotate the recording every N scenario seconds")
+    ap.add_argument("--scoring", type=float, nargs="+", metavar="H",
+                    help="only measure the launcher's scoring memory after H hours (in process)")
+    ap.add_argument("--scoring-many", type=float, nargs="+", metavar="H",
+                    help="only measure a live many-target run's scoring memory after H hours (in process)")
     ap.add_argument("--json")
     args = ap.parse_args()
+    if args.scoring_many:
+        print(f"# Launcher scoring memory, air-picture-live, 1 step/s — {C.machine_line()}\n")
+        scoring_memory_many(args.scoring_many)
+        return
+    if args.scoring:
+        print(f"# Launcher scoring memory, {SCENARIO}, 1 Hz — {C.machine_line()}\n")
+        scoring_memory(args.scoring)
+        return
     print(f"# Soak: {SCENARIO} at --speed {args.speed}, {args.short:g} s vs {args.long:g} s — {C.machine_line()}\n")
     flag = has_duration_flag()
     extra = ["--rotate-s", f"{args.rotate_s:g}"] if args.rotate_s else []

@@ -9,6 +9,13 @@ give ``ν = z − h(x)`` (angles wrapped) and ``S = H P Hᵀ + R``; if the pair 
 with probability ``P_G``. ``H`` and ``S`` do not depend on ``z``, so :func:`mahalanobis2`
 scores a whole scan against a track at once.
 
+*Sequential gating.* The sensors of one frame are gated one after another: a track that
+took a plot of one sensor is gated for the next at its state updated with that plot
+(:func:`gating_update`). A track born or coasting with a broad covariance (an unknown
+velocity spreads a second's prediction over hundreds of metres) is narrowed by its
+first plot before the next sensor's plots compete for it, so a neighbour's plot that
+fits the broad prediction no longer fits.
+
 *Global nearest neighbour* (:func:`gnn`): the least-cost assignment with one "miss"
 column of cost ``G`` per track, ``linear_sum_assignment`` on ``[D | diag(G)]``.
 
@@ -33,6 +40,7 @@ from scipy.linalg import cho_factor, cho_solve
 from scipy.optimize import linear_sum_assignment
 from scipy.special import chdtri  # χ²⁻¹ without importing scipy.stats (0.3 s a process)
 
+from . import kalman
 from .angles import wrap_pi
 
 TENTATIVE, CONFIRMED, DELETED = "tentative", "confirmed", "deleted"
@@ -66,6 +74,14 @@ def mahalanobis2(model, x: np.ndarray, P: np.ndarray, Z: np.ndarray) -> np.ndarr
     S = H @ P @ H.T + model.R
     c = cho_factor(0.5 * (S + S.T), lower=True, check_finite=False)
     return np.einsum("ij,ji->i", nu, cho_solve(c, nu.T, check_finite=False))
+
+
+def gating_update(model, x: np.ndarray, P: np.ndarray, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(x, P)`` after the EKF update with one plot ``z`` of the sensor ``model``: the
+    state a frame's next sensor is gated against (sequential gating, module docstring)."""
+    nu, H = model.innovation_and_jacobian(np.asarray(z, dtype=float), x)
+    res = kalman.update(x, P, nu, H, model.R)
+    return res.x, res.P
 
 
 # Global nearest neighbour ---------------------------------------------------------------

@@ -3,15 +3,21 @@ r"""Interacting Multiple Model filter of one 3D track (Blom & Bar-Shalom 1988), 
 Models (:class:`ModelSet`) on one common state, the CA layout ``[p v a]`` (9 states), so
 that mixing adds like quantities: ``cv`` (:class:`fusion.motion.PaddedConstantVelocity`,
 acceleration held at zero), ``ct`` (:class:`fusion.motion.ConstantTurn`, ``ȧ = −ω² v``
-at a fixed rate ω, any direction and plane) and ``ca``. Every model is linear, so each
-model-matched filter is an ordinary track filter (EKF or UKF, ``filter``) and the
-IMM adds only the cycle below. ``Π[i, j] = P(model j at k | model i at k − 1)``.
+at a fixed rate ω, any direction and plane; one per rate of a grid), ``turn``
+(:class:`fusion.motion.CoordinatedTurn`, a coordinated turn at the rate the state's own
+``v`` and ``a`` imply, straight flight at ``a = 0``) and ``ca``. Each model-matched
+filter is an ordinary track filter (EKF or UKF, ``filter``) and the IMM adds only the
+cycle below, which predicts each model itself (:func:`fusion.sensors3d.motion_predict`:
+``F x``, or a state-dependent model's ``f(x)`` with its Jacobian, as an EKF).
+``Π[i, j] = P(model j at k | model i at k − 1)``: a fixed matrix, or from each model's expected sojourn time τᵢ the
+continuous-time Markov chain ``Π(dt) = exp(G dt)``, ``Gᵢᵢ = −1/τᵢ``, ``Gᵢⱼ = 1/(τᵢ (m − 1))``
+(a model is left at rate 1/τᵢ, to any other alike), so irregular updates switch alike.
 
 Predict to ``t`` (posterior mode probabilities μ, model states ``(xᵢ, Pᵢ)``)::
 
     c̄ⱼ = Σᵢ Π[i, j] μᵢ,        μᵢ|ⱼ = Π[i, j] μᵢ / c̄ⱼ                      (mixing)
     x₀ⱼ = Σᵢ μᵢ|ⱼ xᵢ,         P₀ⱼ = Σᵢ μᵢ|ⱼ (Pᵢ + (xᵢ − x₀ⱼ)(xᵢ − x₀ⱼ)ᵀ)
-    xⱼ⁻ = Fⱼ x₀ⱼ,             Pⱼ⁻ = Fⱼ P₀ⱼ Fⱼᵀ + Qⱼ                         (model j)
+    xⱼ⁻ = fⱼ(x₀ⱼ),            Pⱼ⁻ = Fⱼ P₀ⱼ Fⱼᵀ + Qⱼ,   Fⱼ = ∂fⱼ/∂x(x₀ⱼ)     (model j)
 
 and ``μ ← c̄``. Update with a measurement: each model's own update gives ``νⱼ, Sⱼ``
 and the likelihood ``Λⱼ = N(νⱼ; 0, Sⱼ)``; ``μⱼ ∝ Λⱼ c̄ⱼ``, in the log domain
@@ -33,11 +39,13 @@ from __future__ import annotations
 from typing import Callable, Sequence
 
 import numpy as np
+from scipy.linalg import expm
 
 from . import kalman
-from .motion import ConstantAcceleration, ConstantTurn, KinematicModel, PaddedConstantVelocity
+from .motion import ConstantAcceleration, ConstantTurn, CoordinatedTurn, KinematicModel, PaddedConstantVelocity
+from .sensors3d import motion_predict
 
-IMM_MODELS = ("cv", "ct", "ca")
+IMM_MODELS = ("cv", "ct", "turn", "ca")
 
 
 class ModelSet:
@@ -45,16 +53,29 @@ class ModelSet:
 
     Args:
         models: motion models on one state (``F(dt)``, ``Q(dt)``, ``n_x``, ``name``).
-        Pi: Markov transition matrix, rows "from", columns "to" (rows sum to 1).
+        Pi: Markov transition matrix per update, rows "from", columns "to" (rows sum to 1);
+            or None with ``sojourn``.
         mu0: initial mode probabilities (default equal).
+        sojourn: expected time in each model (s, > 0): ``Π(dt) = exp(G dt)`` (module docstring).
     """
 
-    def __init__(self, models: Sequence[KinematicModel], Pi, mu0=None):
+    def __init__(self, models: Sequence[KinematicModel], Pi=None, mu0=None, sojourn=None):
         self.models = tuple(models)
         m = len(self.models)
         if m == 0 or len({md.n_x for md in self.models}) != 1:
             raise ValueError("an IMM needs at least one model, all on one state")
         self.n_x = self.models[0].n_x
+        self.G = None
+        self._transitions: dict[float, np.ndarray] = {}
+        if (Pi is None) == (sojourn is None):
+            raise ValueError("an IMM needs a transition matrix or sojourn times, not both")
+        if sojourn is not None:
+            tau = np.array(sojourn, dtype=float)
+            if tau.shape != (m,) or not np.all(np.isfinite(tau) & (tau > 0.0)):
+                raise ValueError(f"IMM sojourn times must be {m} values > 0 s, got {sojourn}")
+            self.G = np.zeros((m, m)) if m == 1 else np.outer(1.0 / (tau * (m - 1)), np.ones(m))
+            np.fill_diagonal(self.G, -1.0 / tau if m > 1 else 0.0)
+            Pi = np.eye(m)
         self.Pi = np.array(Pi, dtype=float)
         self.mu0 = np.full(m, 1.0 / m) if mu0 is None else np.array(mu0, dtype=float)
         if self.Pi.shape != (m, m) or np.any(self.Pi < 0) or np.any(np.abs(self.Pi.sum(axis=1) - 1.0) > 1e-12):
@@ -68,6 +89,20 @@ class ModelSet:
     def __repr__(self) -> str:
         return f"ModelSet({list(self.models)!r})"
 
+    def transition(self, dt: float) -> np.ndarray:
+        """``Π`` for an update ``dt`` after the previous one (the fixed matrix, or ``exp(G dt)``)."""
+        if self.G is None:
+            return self.Pi
+        Pi = self._transitions.get(float(dt))
+        if Pi is None:  # updates repeat a few intervals: cache them (bounded, read-only)
+            Pi = np.clip(expm(self.G * float(dt)), 0.0, None)
+            Pi /= Pi.sum(axis=1, keepdims=True)
+            Pi.setflags(write=False)
+            if len(self._transitions) >= 64:
+                self._transitions.clear()
+            self._transitions[float(dt)] = Pi
+        return Pi
+
     def F(self, dt: float) -> np.ndarray:
         return self.prediction_model.F(dt)
 
@@ -78,25 +113,42 @@ class ModelSet:
         return self.models[0].check_state(x)
 
 
-def model_set(names: Sequence[str], q: dict[str, float], turn_rate: float, p_stay: float,
-              noise: str = "continuous") -> ModelSet:
-    """The ``[tracker]`` IMM: models by name (of :data:`IMM_MODELS`, each once), process
-    noise ``q[name]``, the CT model's rate, and ``Π`` with ``p_stay`` on the diagonal and
-    ``(1 − p_stay)/(m − 1)`` elsewhere."""
+def model_set(names: Sequence[str], q: dict[str, float], turn_rates: Sequence[float],
+              sojourn: dict[str, float], noise: str = "continuous") -> ModelSet:
+    """The ``[tracker]`` IMM: models by name (of :data:`IMM_MODELS`, each once; ``ct`` is
+    one CT model per rate of ``turn_rates``), process noise ``q[name]`` and expected
+    sojourn time ``sojourn[name]`` (s; every CT model has the ``ct`` one)."""
     names = tuple(names)
     if not names or len(set(names)) != len(names) or not set(names) <= set(IMM_MODELS):
         raise ValueError(f"IMM models must be distinct names among {IMM_MODELS}, got {names}")
-    build: dict[str, Callable[[], KinematicModel]] = {
-        "cv": lambda: PaddedConstantVelocity(q["cv"], noise),
-        "ct": lambda: ConstantTurn(q["ct"], turn_rate, noise),
-        "ca": lambda: ConstantAcceleration(q["ca"], noise),
+    rates = tuple(float(w) for w in turn_rates)
+    if "ct" in names and not rates:
+        raise ValueError("an IMM with a ct model needs at least one turn rate")
+    build: dict[str, Callable[[], list[KinematicModel]]] = {
+        "cv": lambda: [PaddedConstantVelocity(q["cv"], noise)],
+        "ct": lambda: [ConstantTurn(q["ct"], w, noise) for w in rates],
+        "turn": lambda: [CoordinatedTurn(q["turn"], noise)],
+        "ca": lambda: [ConstantAcceleration(q["ca"], noise)],
     }
-    m = len(names)
-    if not (0.0 < p_stay <= 1.0) or (m == 1 and p_stay != 1.0):
-        raise ValueError(f"IMM p_stay must lie in (0, 1] (1 for one model), got {p_stay}")
-    Pi = np.full((m, m), (1.0 - p_stay) / max(m - 1, 1))
-    np.fill_diagonal(Pi, p_stay)
-    return ModelSet([build[n]() for n in names], Pi)
+    models = [md for n in names for md in build[n]()]
+    return ModelSet(models, sojourn=[sojourn[md.name] for md in models])
+
+
+def mixed_predictions(models: ModelSet, mu: np.ndarray, xs: np.ndarray, Ps: np.ndarray, dt: float):
+    """The cycle's predict (module docstring): ``(xⱼ⁻, Pⱼ⁻)`` of every model and ``c̄``,
+    from the posterior mode probabilities ``mu`` and model states ``xs``, ``Ps``."""
+    Pi = models.transition(dt)
+    cbar = mu @ Pi
+    with np.errstate(divide="ignore", invalid="ignore"):
+        mix = Pi * mu[:, None] / cbar[None, :]  # mix[i, j] = μᵢ|ⱼ
+    out_x, out_P = [], []
+    for j, md in enumerate(models.models):
+        w = mix[:, j] if cbar[j] > 0.0 else mu  # a model of probability 0: any prior
+        x0, P0 = kalman.gaussian_mixture(w, xs, Ps)
+        xj, Pj = motion_predict(md, x0, P0, dt)
+        out_x.append(xj)
+        out_P.append(Pj)
+    return np.array(out_x), np.array(out_P), cbar
 
 
 class TrackIMM:
@@ -120,6 +172,26 @@ class TrackIMM:
         self.mu = np.array(models.mu0 if mu is None else mu, dtype=float)
         self.x, self.P, self.t = x, np.asarray(P, dtype=float), float(t)
         self._prior_P = self._post_P = None
+        self.last_update: dict | None = None  # the per-model terms of the last update (:meth:`update`)
+
+    def model_states(self) -> tuple[np.ndarray, np.ndarray]:
+        """Every model's ``(xⱼ, Pⱼ)`` at the filter's time, stacked ``(m, n)``, ``(m, n, n)``."""
+        return np.array([f.x for f in self.filters]), np.array([f.P for f in self.filters])
+
+    def set_model_states(self, xs, Ps, mu, t: float) -> None:
+        """Restart from per-model states and mode probabilities at ``t`` (a centre's
+        per-model fused estimate fed back); the track's Gaussian is their mixture."""
+        xs, Ps = np.asarray(xs, dtype=float), np.asarray(Ps, dtype=float)
+        mu = np.asarray(mu, dtype=float)
+        if xs.shape != (len(self.filters), self.models.n_x) or Ps.shape != xs.shape + (self.models.n_x,) \
+                or mu.shape != (len(self.filters),):
+            raise ValueError(f"IMM model states must be {len(self.filters)} states of {self.models.n_x} with their "
+                             f"covariances and probabilities, got {xs.shape}, {Ps.shape}, {mu.shape}")
+        for f, x, P in zip(self.filters, xs, Ps):
+            f.x, f.P, f.t = x, P, float(t)
+        self.mu = mu
+        self.x, self.P = kalman.gaussian_mixture(mu, xs, Ps)
+        self.t = float(t)
 
     def set_state(self, x: np.ndarray, P: np.ndarray, t: float) -> None:
         """Restart every model from ``(x, P)`` at ``t`` (a fed-back prior), keeping ``mu``."""
@@ -130,20 +202,8 @@ class TrackIMM:
         self.x, self.P, self.t = x, P, float(t)
 
     def _mixed_predictions(self, t: float):
-        dt = float(t) - self.t
-        cbar = self.mu @ self.models.Pi
-        xs = np.array([f.x for f in self.filters])
-        Ps = np.array([f.P for f in self.filters])
-        with np.errstate(divide="ignore", invalid="ignore"):
-            mix = self.models.Pi * self.mu[:, None] / cbar[None, :]  # mix[i, j] = μᵢ|ⱼ
-        out_x, out_P = [], []
-        for j, md in enumerate(self.models.models):
-            w = mix[:, j] if cbar[j] > 0.0 else self.mu  # a model of probability 0: any prior
-            x0, P0 = kalman.gaussian_mixture(w, xs, Ps)
-            xj, Pj = kalman.predict(x0, P0, md.F(dt), md.Q(dt))
-            out_x.append(xj)
-            out_P.append(Pj)
-        return np.array(out_x), np.array(out_P), cbar
+        return mixed_predictions(self.models, self.mu, np.array([f.x for f in self.filters]),
+                                 np.array([f.P for f in self.filters]), float(t) - self.t)
 
     def predicted(self, t: float) -> tuple[np.ndarray, np.ndarray]:
         """The mixture predicted to ``t`` (>= the filter's time), without changing the filter."""
@@ -171,15 +231,18 @@ class TrackIMM:
         mixture's x, P and ν, S, NIS (module docstring) and ``K`` with ``K ν = x⁺ − x⁻``
         for the mixture's mean ν (a least-squares gain; what fusion needs is :attr:`KH`)."""
         prior = self.mu
+        prior_xs, prior_Ps = self.model_states()
         results = [f.update(model, z) for f in self.filters]
+        loglik = np.array([kalman.gaussian_loglikelihood(r.nu, r.S) for r in results])
         with np.errstate(divide="ignore"):
-            ell = np.log(prior) + np.array([kalman.gaussian_loglikelihood(r.nu, r.S) for r in results])
+            ell = np.log(prior) + loglik
         w = np.exp(ell - ell.max())
         self.mu = w / w.sum()
         x_prior, self._prior_P = self.x, self.P
         self.x, self.P = kalman.gaussian_mixture(self.mu, np.array([f.x for f in self.filters]),
                                           np.array([f.P for f in self.filters]))
         self._post_P = self.P
+        self.last_update = {"prior_mu": prior, "prior_xs": prior_xs, "prior_Ps": prior_Ps, "loglik": loglik}
         nu, S = kalman.gaussian_mixture(prior, np.array([r.nu for r in results]), np.array([r.S for r in results]))
         L_inv = kalman.inverse_cholesky_factor(S)
         v = L_inv @ nu

@@ -15,10 +15,14 @@ are fair. Position is the spherical → Cartesian conversion ``p = s + t·u(az, 
 ``u = [cos el sin az, cos el cos az, sin el]`` (compass azimuth, ENU) and ``t`` the
 distance along the ray; its covariance is the converted one, ``J diag(σ_az², σ_el², σ_t²) Jᵀ``
 with ``J = ∂p/∂(az, el, range)`` analytic. When the range comes from a sensor at another
-site ``s_r``, ``t`` is where the ray meets the sphere ``|p − s_r| = r``
-(``t = −b + √(b² − c)``, ``b = u·(s − s_r)``, ``c = |s − s_r|² − r²``), and ``J`` includes
-``t``'s dependence on the angles and on r; if the ray misses that sphere the range
-measurement is not used (prior instead).
+site ``s_r``, ``t`` is where the ray meets the sphere ``|p − s_r| = r``:
+``t² + 2bt + c = 0``, ``t± = −b ± √(b² − c)``, ``b = u·(s − s_r)``, ``c = |s − s_r|² − r²``.
+Inside the sphere (c < 0) only ``t₊`` is ahead of the sensor; outside it (c > 0, b < 0)
+both are, the near ``t₋`` and the far ``t₊``, and the first scan alone cannot tell them
+apart: the far root is the default, a caller that can (a pair's azimuth consistency,
+:class:`fusion.mtt.Initiator`) names the root. ``J`` includes ``t``'s dependence on the
+angles and on r (singular at tangency, b² = c, which counts as a miss); if the ray misses
+that sphere the range measurement is not used (prior instead).
 
 Velocity and acceleration start at zero with prior standard deviations per axis
 (horizontal ``vel_std``/``acc_std``, vertical ``vel_std_up``/``acc_std_up``),
@@ -99,11 +103,15 @@ def _best(scan: Sequence[Measurement], name: str, site=None) -> tuple[Measuremen
     return best
 
 
-def spherical_to_position(site, az: float, el: float, rng: float, range_site=None):
+FAR, NEAR = 1, -1  # the root of the ray–sphere crossing: t = −b + root·√(b² − c)
+
+
+def spherical_to_position(site, az: float, el: float, rng: float, range_site=None, root: int = FAR):
     """``p = s + t·u(az, el)`` and ``J = ∂p/∂(az, el, range)`` (3 × 3); see the module docstring.
 
-    ``range_site`` (default: ``site``) is where ``rng`` is measured from. Returns
-    ``None`` if the ray from ``site`` misses the range sphere around ``range_site``.
+    ``range_site`` (default: ``site``) is where ``rng`` is measured from; ``root``
+    (:data:`FAR` or :data:`NEAR`) which crossing of its sphere. Returns ``None`` if the
+    ray from ``site`` misses or touches that sphere, or that root is not ahead (t ≤ 0).
     """
     s = np.asarray(site, dtype=float)
     ce, se, ca, sa = np.cos(el), np.sin(el), np.cos(az), np.sin(az)
@@ -117,7 +125,7 @@ def spherical_to_position(site, az: float, el: float, rng: float, range_site=Non
     disc = b * b - (float(w @ w) - rng * rng)
     if disc <= 0.0:
         return None
-    t = -b + np.sqrt(disc)
+    t = -b + root * np.sqrt(disc)
     if t <= 0.0:
         return None
     # From t² + 2bt + c = 0: (t + b) dt = r dr − t db, db = w·du.
@@ -132,10 +140,11 @@ def spherical_to_position(site, az: float, el: float, rng: float, range_site=Non
     return s + t * u, J
 
 
-def initial_state(scan: Sequence[Measurement], n_x: int, priors: InitPriors = InitPriors()):
+def initial_state(scan: Sequence[Measurement], n_x: int, priors: InitPriors = InitPriors(), root: int = FAR):
     """Initial ``(x, P)`` (n_x = 6 or 9) from the first scan: position from the best
-    azimuth (and elevation at its site) and the best range, else the ``priors``, with the
-    converted covariance; velocity and acceleration zero with their prior stds."""
+    azimuth (and elevation at its site) and the best range (at the ray–sphere ``root``
+    when measured from another site), else the ``priors``, with the converted
+    covariance; velocity and acceleration zero with their prior stds."""
     if n_x not in (6, 9):
         raise ValueError(f"3D track state length must be 6 (CV) or 9 (CA), got {n_x}")
     scan = list(scan)
@@ -153,7 +162,7 @@ def initial_state(scan: Sequence[Measurement], n_x: int, priors: InitPriors = In
     conv = None
     rng_src = _best(scan, "range")
     if rng_src is not None:
-        conv = spherical_to_position(site, az, el, rng_src[1], rng_src[0].site)
+        conv = spherical_to_position(site, az, el, rng_src[1], rng_src[0].site, root)
         s_r = rng_src[2]
     if conv is None:  # no range sensor, or its sphere misses the ray: prior range from the direction site
         conv = spherical_to_position(site, az, el, priors.range)

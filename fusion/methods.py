@@ -27,7 +27,7 @@ from .df.multi import MultiEmitterMethod
 from .mtt import AssociationConfig, MultiTargetMethod
 from .network import NetworkMethod, Split, station_split, track_split
 from .patent import KINDS_3D, TrackerConfig, centralised, pieces_hndd, pieces_lcdd, pieces_stacked
-from .topology import TOPOLOGIES
+from .topology import TOPOLOGIES, scheme_of
 
 FAMILIES = ("df", "3d")
 BEARING = frozenset({"bearing"})
@@ -78,8 +78,8 @@ def _centralised(name: str, pieces, kinds=KINDS_3D, **facts) -> MethodSpec:
     return MethodSpec(name, "3d", "centralised", frozenset(kinds), partial(centralised, name, pieces, kinds), **facts)
 
 
-def _track_split(name: str, topology: str, mode: str) -> MethodSpec:
-    split = track_split(name, mode)
+def _track_split(name: str, topology: str) -> MethodSpec:
+    split = track_split(name, scheme_of(topology))
     return MethodSpec(name, "3d", topology, KINDS_3D, partial(NetworkMethod, split), fuses_tracks=True, split=split)
 
 
@@ -104,9 +104,9 @@ METHODS: dict[str, MethodSpec] = {s.name: s for s in (
     _centralised("LCDD", pieces_lcdd, needs=_PAIR),
     _centralised("HNDD", pieces_hndd, needs=_PAIR, colocated=True),
     _centralised("SS", pieces_stacked),
-    _track_split("HNV", "distributed", "track"),
-    _track_split("PHHNV", "feedback", "feedback"),
-    _track_split("DDHNV", "two-stage", "predict"),
+    _track_split("HNV", "distributed"),
+    _track_split("PHHNV", "feedback"),
+    _track_split("DDHNV", "two-stage"),
 )}
 if set(DF_METHODS) != {n for n, s in METHODS.items() if s.family == "df"}:
     raise RuntimeError("fusion.df.methods.DF_METHODS and the registry disagree")

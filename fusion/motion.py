@@ -95,11 +95,16 @@ class KinematicModel:
         return np.array([[0.5 * dt * dt], [dt], [1.0]])
 
     def Q_axis(self, dt: float) -> np.ndarray:
-        """Per-axis process-noise covariance ``Q₁(dt)`` (m × m)."""
+        """Per-axis process-noise covariance ``Q₁(dt)`` (m × m): ``q Γ Γᵀ`` in the
+        discrete form, else :meth:`continuous_Q_axis`."""
         dt = self._check_dt(dt)
         G = self.noise_gain_axis(dt)
         if G is not None:
             return self.q * (G @ G.T)
+        return self.continuous_Q_axis(dt)
+
+    def continuous_Q_axis(self, dt: float) -> np.ndarray:
+        """``Q₁(dt)`` of continuous white noise of PSD ``q`` on the last derivative."""
         # Continuous white noise on derivative m−1: Q₁[i, j] = q dt^(p_i+p_j+1) /
         # ((p_i+p_j+1) p_i! p_j!) with p = m−1−i the power of dt in F₁'s last column.
         m = self.order
@@ -200,11 +205,7 @@ class PaddedConstantVelocity(KinematicModel):
         dt = self._check_dt(dt)
         return np.array([[0.5 * dt * dt], [dt], [0.0]])
 
-    def Q_axis(self, dt: float) -> np.ndarray:
-        dt = self._check_dt(dt)
-        G = self.noise_gain_axis(dt)
-        if G is not None:
-            return self.q * (G @ G.T)
+    def continuous_Q_axis(self, dt: float) -> np.ndarray:
         Q1 = np.zeros((3, 3))
         Q1[:2, :2] = self.q * np.array([[dt**3 / 3.0, dt**2 / 2.0], [dt**2 / 2.0, dt]])
         return Q1
@@ -250,11 +251,7 @@ class ConstantTurn(KinematicModel):
         s, c = np.sin(w * dt), np.cos(w * dt)
         return np.array([[1.0, s / w, (1.0 - c) / w**2], [0.0, c, s / w], [0.0, -w * s, c]])
 
-    def Q_axis(self, dt: float) -> np.ndarray:
-        dt = self._check_dt(dt)
-        G = self.noise_gain_axis(dt)
-        if G is not None:
-            return self.q * (G @ G.T)
+    def continuous_Q_axis(self, dt: float) -> np.ndarray:
         A = self.A_axis()
         M = np.zeros((6, 6))
         M[:3, :3] = -A
@@ -263,6 +260,96 @@ class ConstantTurn(KinematicModel):
         E = expm(M * dt)
         Q1 = E[3:, 3:].T @ E[:3, 3:]  # Van Loan: F₁ · (upper-right block)
         return 0.5 * (Q1 + Q1.T)
+
+
+class CoordinatedTurn(KinematicModel):
+    r"""Coordinated turn at the rate the state itself implies, on the CA state ``[p v a]``.
+
+    A coordinated turn (constant speed, acceleration across the velocity) turns at the rate
+    vector ``ω = v × a / |v|²``, and its acceleration rotates with it, ``ȧ = ω × a = −ω² v``.
+    Taking the squared rate from the state, ``u(x) = |v × a|² / |v|⁴``, every axis follows
+    :class:`ConstantTurn`'s system at that rate, ``A₁(u) = [[0, 1, 0], [0, 0, 1], [0, −u, 0]]``::
+
+        f(x) = (F₁(u(x)) ⊗ I₃) x,        F₁(u) = exp(A₁(u) dt)
+
+    exact for a coordinated turn at any rate and in any plane; at ``a = 0`` (``u = 0``) it is
+    :class:`ConstantAcceleration`, i.e. straight flight, with no rate to choose. ``F₁`` is an
+    even function of ω, so of ``u``, and ``u`` is smooth wherever ``v ≠ 0`` (quadratic in
+    ``a``): the Jacobian exists everywhere, also on straight flight where ``∂u/∂x = 0``::
+
+        ∂f/∂x = F₁(u) ⊗ I₃ + vec(∂F₁/∂u · X) (∂u/∂x)ᵀ,    X = x as (derivative × axis)
+        ∂u/∂v = 2 (a × c) / |v|⁴ − 4 |c|² v / |v|⁶,    ∂u/∂a = 2 (c × v) / |v|⁴,    c = v × a
+
+    with ``∂F₁/∂u`` the upper-right block of ``exp([[A₁, ∂A₁/∂u], [0, A₁]] dt)`` (Van Loan;
+    ``∂A₁/∂u`` has a single −1 at row 3, column 2). Process noise: white jerk of PSD ``q``
+    (m²/s⁵) through ``A₁(u)`` (:class:`ConstantTurn`'s Van Loan integral at the state's rate),
+    or the discrete form with CA's ``Γ``. :meth:`F` and :meth:`Q` without a state are the
+    straight-flight ones (``u = 0``); a filter predicts with :meth:`transition`.
+    """
+
+    order = 3
+    name = "turn"
+
+    @staticmethod
+    def rate2(x: np.ndarray) -> float:
+        """``u = |v × a|² / |v|⁴``, the squared turn rate of a coordinated turn through ``x``."""
+        v, a = x[3:6], x[6:9]
+        c = np.cross(v, a)
+        vv = float(v @ v)
+        return float(c @ c) / (vv * vv) if vv > 0.0 else 0.0
+
+    @staticmethod
+    def rate2_gradient(x: np.ndarray) -> np.ndarray:
+        """``∂u/∂x`` (9,), zero on the position block."""
+        v, a = x[3:6], x[6:9]
+        c = np.cross(v, a)
+        vv = float(v @ v)
+        g = np.zeros(9)
+        if vv > 0.0:
+            g[3:6] = 2.0 * np.cross(a, c) / vv**2 - 4.0 * float(c @ c) * v / vv**3
+            g[6:9] = 2.0 * np.cross(c, v) / vv**2
+        return g
+
+    @staticmethod
+    def _A(u: float) -> np.ndarray:
+        return np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [0.0, -u, 0.0]])
+
+    def _axis(self, u: float, dt: float) -> tuple[np.ndarray, np.ndarray]:
+        """``F₁(u)`` and ``∂F₁/∂u`` over ``dt``."""
+        M = np.zeros((6, 6))
+        M[:3, :3] = M[3:, 3:] = self._A(u)
+        M[2, 4] = -1.0  # ∂A₁/∂u in the upper-right block
+        E = expm(M * dt)
+        return E[:3, :3], E[:3, 3:]
+
+    def _Q_axis_at(self, u: float, dt: float) -> np.ndarray:
+        G = self.noise_gain_axis(dt)
+        if G is not None:
+            return self.q * (G @ G.T)
+        A = self._A(u)
+        M = np.zeros((6, 6))
+        M[:3, :3] = -A
+        M[:3, 3:] = np.diag([0.0, 0.0, self.q])
+        M[3:, 3:] = A.T
+        E = expm(M * dt)
+        Q1 = E[3:, 3:].T @ E[:3, 3:]
+        return 0.5 * (Q1 + Q1.T)
+
+    def F_axis(self, dt: float) -> np.ndarray:
+        return self._axis(0.0, self._check_dt(dt))[0]
+
+    def continuous_Q_axis(self, dt: float) -> np.ndarray:
+        return self._Q_axis_at(0.0, dt)
+
+    def transition(self, x: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(f(x), ∂f/∂x, Q)`` over ``dt`` at the state's own rate (class docstring)."""
+        x = self.check_state(x)
+        dt = self._check_dt(dt)
+        u = self.rate2(x)
+        F1, dF1 = self._axis(u, dt)
+        X = x.reshape(3, 3)
+        J = np.kron(F1, np.eye(3)) + np.outer((dF1 @ X).reshape(9), self.rate2_gradient(x))
+        return (F1 @ X).reshape(9), J, np.kron(self._Q_axis_at(u, dt), np.eye(3))
 
 
 MOTION_MODELS = {"cv": ConstantVelocity, "ca": ConstantAcceleration}

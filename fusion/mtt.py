@@ -3,47 +3,27 @@ around the per-track filters.
 
 :class:`MultiTargetMethod` wraps a centralised method of :mod:`fusion.patent` (``SS``,
 ``LCDD``, ``HNDD``, ``RADAR2D``, ``ANGLE``, ``RADAR3D``): every track is one instance of
-that method, which keeps doing what it does for one target — initialise from its first
-scan (:func:`fusion.init3d.initial_state`), predict, and update with its scan's pieces
-(SS stacking, LCDD selection, ...). The wrapper decides which plots form each track's
-scan. It is switched on by ``association = "gnn"`` in the scenario's ``[tracker]``
-table, so the method keeps its patent name. For HNV, PHHNV and DDHNV the same key
-switches the network's nodes and centre to many targets (:mod:`fusion.network`, "Many
-targets"); :class:`MultiTargetMethod` then only hands them the stream.
+that method, which keeps doing what it does for one target (initialise, predict, update
+with its scan's pieces); the wrapper decides which plots form each track's scan. It is
+switched on by ``association = "gnn"`` in ``[tracker]``, so the method keeps its patent
+name; for HNV, PHHNV and DDHNV the same key switches the network's nodes and centre to
+many targets (:mod:`fusion.network`) and this wrapper only hands them the stream.
 
-A *frame* is the group of plots within ``pair_tol`` of its first one, any number per
-sensor (:class:`fusion.grouping.TimeGrouper`). Per frame, at the time of its first plot:
-predict every track; associate sensor by sensor against the same predictions (χ² gate,
-GNN; confirmed tracks first, then tentative ones over the plots left); update each track
-with its plots through its method; initiate tentative tracks from the plots left, from
-pairs across sensors (an angle ray meets a 2D radar's range sphere and the radar's
-azimuth agrees) or from a lone plot that nothing in its frame could pair with; manage
-(M-of-N, K misses, ``max_pos_std``, duplicates); report the confirmed tracks in id order.
-The steps and the initiation rules in full: docs/algorithms.md, "Many targets".
-
-Configuration (keys of ``[tracker]`` read here; the rest goes to the wrapped method):
-
-================  ========  ===============================================================
-key               default   meaning
-================  ========  ===============================================================
-association       —         ``"gnn"``: many targets (absent: the one-target method)
-gate_prob         0.999     χ² gate probability P_G (per sensor plot, and pair consistency)
-confirm_m         3         M hits ...
-confirm_n         4         ... within the first N frames (birth included) confirm a track
-delete_misses     3         K consecutive missed frames delete a confirmed track
-max_pos_std       inf       m; a track whose √trace(P_pos) exceeds it is deleted
-local_max_pos_std max_pos_… the same for the local tracks of HNV nodes, which get no
-                            feedback (:mod:`fusion.network`): one deleted rejoins from the
-                            fused track
-merge_frames      3         F frames in which two tracks agree make the later one a
-                            duplicate, deleted (:class:`fusion.association.DuplicateWatch`;
-                            0: never)
-================  ========  ===============================================================
+A *frame* is the group of plots within ``pair_tol`` of its first one
+(:class:`fusion.grouping.TimeGrouper`). Per frame: predict every track; associate sensor
+by sensor, each gated against the tracks' states updated with the plots they took from
+the sensors before it (χ² gate ``d² ≤ χ²⁻¹(P_G; n_z)``, GNN; confirmed tracks first);
+update each track through its method; initiate tentative tracks from the plots left
+(:class:`Initiator`: angle-ray/range-sphere pairs at either crossing, those the most
+sensors agree with first); manage them (M-of-N, K misses, ``max_pos_std``, duplicates)
+and report the confirmed ones. The steps, the initiation rules and the keys
+(:class:`AssociationConfig`): docs/algorithms.md, "Many targets".
 """
 
 from __future__ import annotations
 
 import dataclasses
+import heapq
 import math
 from dataclasses import dataclass
 from typing import Callable, Sequence
@@ -51,9 +31,10 @@ from typing import Callable, Sequence
 import numpy as np
 
 from .angles import wrap_pi
-from .association import CONFIRMED, DELETED, DuplicateWatch, ManagementRule, TrackIds, TrackLogic, gate_threshold, gnn, mahalanobis2
+from .association import (CONFIRMED, DELETED, DuplicateWatch, ManagementRule, TrackIds, TrackLogic, gate_threshold,
+                          gating_update, gnn, mahalanobis2)
 from .config import config_values
-from .init3d import initial_state, spherical_to_position
+from .init3d import FAR, NEAR, initial_state, spherical_to_position
 from .grouping import TimeGrouper
 from .patent import CentralisedMethod, GroupedMethod
 from .sensors3d import SphericalModel
@@ -167,10 +148,11 @@ class MultiTargetMethod(GroupedMethod):
 
     def _group(self, frame: list[Measurement]) -> list[Estimate]:
         t = frame[0].t
-        predicted = [tr.method.filter.predicted(t) for tr in self.tracks]
+        state = [tr.method.filter.predicted(t) for tr in self.tracks]  # gating states
         taken: dict[int, list[Measurement]] = {}  # track index -> its plots
         left: list[Measurement] = []
-        for plots in _by_sensor(frame):
+        sensors = _by_sensor(frame)
+        for k, plots in enumerate(sensors):
             free = list(range(len(plots)))
             model = SphericalModel.from_measurement(plots[0], self.n_x)
             gate = self._gate(model.n_z)
@@ -179,10 +161,12 @@ class MultiTargetMethod(GroupedMethod):
                 rows = [i for i, tr in enumerate(self.tracks) if (tr.logic.status == CONFIRMED) == confirmed]
                 if not rows or not free:
                     continue
-                d2 = np.array([mahalanobis2(model, *predicted[i], Z[free]) for i in rows])
+                d2 = np.array([mahalanobis2(model, *state[i], Z[free]) for i in rows])
                 pairs = gnn(d2, gate)
                 for r, c in pairs:
                     taken.setdefault(rows[r], []).append(plots[free[c]])
+                    if k + 1 < len(sensors):  # the next sensor is gated against the updated state
+                        state[rows[r]] = gating_update(model, *state[rows[r]], Z[free[c]])
                 used = {free[c] for _, c in pairs}
                 free = [j for j in free if j not in used]
             left += [plots[j] for j in free]
@@ -199,8 +183,8 @@ class MultiTargetMethod(GroupedMethod):
         live = {tr.birth: tr for tr in self.tracks if tr.logic.status != DELETED}  # in priority order
         for birth in self._duplicates.duplicates([(b, tr.last.x, tr.last.P) for b, tr in live.items()]):
             live[birth].logic.status = DELETED
-        for first, more in self._initiator.groups(sorted(left, key=lambda m: m.order_key)):
-            self._start(first, more)
+        for first, more, x, P in self._initiator.groups(sorted(left, key=lambda m: m.order_key)):
+            self._start(first, more, x, P)
 
         for tr in self.tracks:
             if tr.logic.status == CONFIRMED and tr.method.track is None:
@@ -215,12 +199,12 @@ class MultiTargetMethod(GroupedMethod):
     def _id_key(tr: _Track) -> int:
         return int(tr.method.track[1:])
 
-    def _start(self, first: list[Measurement], more: list[Measurement] = ()) -> _Track:
-        """A tentative track from the plots ``first`` (the wrapped method's own
-        initialisation from a first scan), updated at once with ``more`` (same frame)."""
+    def _start(self, first: list[Measurement], more: list[Measurement], x: np.ndarray, P: np.ndarray) -> _Track:
+        """A tentative track started at ``(x, P)``, the initial state of the plots
+        ``first`` (:meth:`Initiator.groups`), updated at once with ``more`` (same frame)."""
         method = self._make_track()
         method.track = None  # no id until confirmed
-        last = method.process_scan(first)[-1]
+        last = method.start(x, P, first[0].t)
         if more:
             last = method.process_scan(list(more))[-1]
         self._births += 1
@@ -260,59 +244,112 @@ class Initiator:
     def _gate(self, dof: int) -> float:
         return gate_threshold(dof, self.gate_prob)
 
-    def groups(self, left: list[Measurement]) -> list[tuple[list[Measurement], list[Measurement]]]:
-        """``(first, more)`` per new track from the unclaimed plots: the plots it starts
-        from and those it gathers in the same frame (module docstring, "Initiation")."""
+    def groups(self, left: list[Measurement]) -> list[tuple[list[Measurement], list[Measurement], np.ndarray, np.ndarray]]:
+        """``(first, more, x, P)`` per new track from the unclaimed plots: the plots it
+        starts from, those it gathers in the same frame (module docstring, "Initiation")
+        and the initial state ``(x, P)`` it starts from (``first``'s).
+
+        Every consistent pair gathers first; pairs are then taken best first by their
+        *support* — most sensors in the group, then least total ``d²`` (pair and gathered
+        plots) — so a pair of one aircraft's ray with a neighbour's range sphere, which
+        only its own sensors agree with, loses to the pairs of either aircraft, which the
+        other sensors confirm. A pair whose gathered plots a better group took gathers
+        again from what is left and waits its turn with its new support. When the angle
+        sensor is outside the radar's range sphere its ray crosses it twice ahead of it:
+        each crossing in the gate is a candidate of its own (:meth:`pair_consistency`),
+        and the support decides between them as between any two pairs."""
         candidates = []
+        radars = [r for r in left if r.kind == "range_az"]
         for a in left:
             if "el" not in KIND_COMPONENTS[a.kind] or "range" in KIND_COMPONENTS[a.kind]:
                 continue  # the ray: an angle sensor's az/el
-            for r in left:
-                if r.kind != "range_az" or r.sensor == a.sensor:
-                    continue
-                d2 = self.pair_consistency(a, r)
-                if d2 is not None:
-                    candidates.append((d2, a.order_key, r.order_key, a, r))
-        candidates.sort(key=lambda c: c[:3])
+            for r, roots in _near_spheres(a, [r for r in radars if r.sensor != a.sensor],
+                                          _PAIR_PREFILTER * math.sqrt(self._gate(1))):
+                candidates += [(a, r, *pair) for pair in self.pair_consistency(a, r, roots)]
         used: set[tuple] = set()
+        queue = []
+        for a, r, root, d2, x, P in candidates:
+            more, d2_more = self._gather(a, r, x, P, left, used)
+            queue.append((-len(more), d2 + d2_more, a.order_key, r.order_key, root, d2, a, r, x, P, more))
+        heapq.heapify(queue)  # (ka, kr, root) is unique: the comparison never reaches the plots
         groups = []
-        for _, ka, kr, a, r in candidates:
+        while queue:
+            _, _, ka, kr, root, d2, a, r, x, P, more = heapq.heappop(queue)
             if ka in used or kr in used:
                 continue
-            first, more = sorted([a, r], key=lambda m: m.order_key), []
-            used |= {ka, kr}
-            x, P = initial_state(first, self.n_x, self._priors)
-            for plots in _by_sensor([m for m in left if m.order_key not in used and m.sensor not in (a.sensor, r.sensor)]):
-                model = SphericalModel.from_measurement(plots[0], self.n_x)
-                d2 = mahalanobis2(model, x, P, np.array([p.z for p in plots]))
-                j = int(np.argmin(d2))
-                if d2[j] <= self._gate(model.n_z):
-                    more.append(plots[j])
-                    used.add(plots[j].order_key)
-            groups.append((first, sorted(more, key=lambda m: m.order_key)))
+            if any(m.order_key in used for m in more):  # a better group took some: gather again
+                more, d2_more = self._gather(a, r, x, P, left, used)
+                heapq.heappush(queue, (-len(more), d2 + d2_more, ka, kr, root, d2, a, r, x, P, more))
+                continue
+            used |= {ka, kr, *(m.order_key for m in more)}
+            groups.append((sorted([a, r], key=lambda m: m.order_key), sorted(more, key=lambda m: m.order_key), x, P))
         # A plot starts a track alone only if nothing in the frame could pair with it
         # (lone 2D radar and angle plots attract clutter through their broad priors).
         kinds = {m.kind for m in left}
         alone = [m for m in left if m.order_key not in used and not (_PARTNER.get(m.kind) in kinds)]
         alone.sort(key=lambda m: ("range" not in KIND_COMPONENTS[m.kind], m.order_key))  # radars first
-        return groups + [([m], []) for m in alone]
+        return groups + [([m], [], *initial_state([m], self.n_x, self._priors)) for m in alone]
 
-    def pair_consistency(self, a: Measurement, r: Measurement) -> float | None:
-        """``d²`` of the radar's azimuth against the state from the angle ray and the
-        radar range, or None if the ray misses the range sphere."""
-        az, el = float(a.z[0]), float(a.z[1])
-        point = spherical_to_position(a.site, az, el, float(r.z[1]), r.site)
-        if point is None:
-            return None
-        d = point[0] - np.asarray(r.site, dtype=float)
-        misfit = abs(wrap_pi(r.z[0] - np.arctan2(d[0], d[1])))
-        if misfit > _PAIR_PREFILTER * math.sqrt(self._gate(1)) * float(r.std[0]):
-            return None  # far outside the gate: skip the full computation
-        x, P = initial_state(sorted([a, r], key=lambda m: m.order_key), self.n_x, self._priors)
+    def _gather(self, a: Measurement, r: Measurement, x: np.ndarray, P: np.ndarray, left: list[Measurement],
+                used: set):
+        """The nearest plot in the χ² gate of the pair's initial state ``(x, P)`` from
+        every other sensor, among the plots not ``used``; and the sum of their ``d²``."""
+        more, total = [], 0.0
+        for plots in _by_sensor([m for m in left if m.order_key not in used and m.sensor not in (a.sensor, r.sensor)]):
+            model = SphericalModel.from_measurement(plots[0], self.n_x)
+            d2 = mahalanobis2(model, x, P, np.array([p.z for p in plots]))
+            j = int(np.argmin(d2))
+            if d2[j] <= self._gate(model.n_z):
+                more.append(plots[j])
+                total += float(d2[j])
+        return more, total
+
+    def pair_consistency(self, a: Measurement, r: Measurement,
+                         roots: Sequence[int] = (FAR, NEAR)) -> list[tuple[int, float, np.ndarray, np.ndarray]]:
+        """``(root, d², x, P)`` per crossing (among ``roots``) of the angle plot's ray with
+        the radar plot's range sphere that is ahead of the angle sensor (``root``:
+        :data:`fusion.init3d.FAR` or ``NEAR``, module docstring of :mod:`fusion.init3d`)
+        and consistent with the radar's azimuth: ``(x, P)`` the pair's initial state at
+        that crossing, ``d²`` of the radar's azimuth against it inside the χ²(1) gate.
+        Empty if the ray misses or touches the sphere or no crossing is in the gate."""
+        pair = sorted([a, r], key=lambda m: m.order_key)
         model = SphericalModel(("az",), r.site, [r.std[0]], self.n_x)
-        d2 = float(mahalanobis2(model, x, P, np.array([[r.z[0]]]))[0])
-        return d2 if d2 <= self._gate(1) else None
+        out = []
+        for root in roots:
+            if spherical_to_position(a.site, float(a.z[0]), float(a.z[1]), float(r.z[1]), r.site, root) is None:
+                continue
+            x, P = initial_state(pair, self.n_x, self._priors, root)
+            d2 = float(mahalanobis2(model, x, P, np.array([[r.z[0]]]))[0])
+            if d2 <= self._gate(1) and not any(np.array_equal(x, o[2]) for o in out):  # one state: one candidate
+                out.append((root, d2, x, P))
+        return out
 
+
+def _near_spheres(a: Measurement, radars: list[Measurement], k: float) -> list[tuple[Measurement, tuple[int, ...]]]:
+    """The 2D radar plots whose range sphere the angle plot's ray crosses ahead of it at a
+    point within ``k`` azimuth σ of the radar's own azimuth, each with the roots that do —
+    a cheap screen, all radars at once, before :meth:`Initiator.pair_consistency` (``k`` ≫
+    the gate: a crossing it drops is far outside it). The ray-sphere points are
+    :func:`fusion.init3d.spherical_to_position`'s."""
+    if not radars:
+        return []
+    az, el = float(a.z[0]), float(a.z[1])
+    u = np.array([math.cos(el) * math.sin(az), math.cos(el) * math.cos(az), math.sin(el)])
+    sites = np.array([r.site for r in radars], dtype=float)
+    Z = np.array([r.z for r in radars], dtype=float)
+    std_az = np.array([r.std[0] for r in radars], dtype=float)
+    w = np.asarray(a.site, dtype=float) - sites
+    b = w @ u
+    disc = b * b - (np.sum(w * w, axis=1) - Z[:, 1] ** 2)
+    sq = np.sqrt(np.where(disc > 0.0, disc, 0.0))
+    keep = {}
+    for root in (FAR, NEAR):
+        t = -b + root * sq
+        d = w + t[:, None] * u  # the point from the radar's site
+        misfit = np.abs(wrap_pi(Z[:, 0] - np.arctan2(d[:, 0], d[:, 1])))
+        keep[root] = (disc > 0.0) & (t > 0.0) & (misfit <= k * std_az)
+    out = [(r, tuple(root for root in (FAR, NEAR) if keep[root][i])) for i, r in enumerate(radars)]
+    return [(r, roots) for r, roots in out if roots]
 
 
 def _by_sensor(plots: list[Measurement]) -> list[list[Measurement]]:

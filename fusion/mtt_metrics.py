@@ -17,17 +17,22 @@ GOSPA counts it as localising that target. Over the run:
 * **false tracks**: tracks on no target at any step of their life.
 
 GOSPA and OSPA are :func:`fusion.metrics.gospa` and :func:`fusion.metrics.ospa`.
+:class:`TrackScorer` folds the steps in one at a time and keeps only what the metrics
+need next (per live target and track, counters, a binned series), so a live run of days
+is scored in bounded memory; :func:`score_tracks`, a finished run, is that fold.
 """
 
 from __future__ import annotations
 
+import dataclasses
 from collections import Counter
 from dataclasses import dataclass, field
-from typing import Mapping, Sequence
+from typing import Iterable, Mapping, Sequence
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
+from .binning import BinnedSeries
 from .metrics import gospa, ospa
 
 
@@ -58,7 +63,13 @@ def assign(truths: Mapping[str, np.ndarray], tracks: Mapping[str, np.ndarray], c
 class TrackScore:
     """One run's many-target score: per step GOSPA, OSPA, missed and false counts, and
     the run's totals (truth-steps held, breaks and their chances, track purity, false
-    tracks, hold fractions, longest ghost, found at the end)."""
+    tracks, hold fractions, longest ghost, found at the end).
+
+    The series have a point per step, unless the score is a :class:`TrackScorer`'s with
+    ``series_max``: then ``bin`` consecutive steps a point, stamped with its last time,
+    with the mean GOSPA and OSPA and the missed and false counts of its steps, and no
+    ``assignments``. ``steps``, ``gospa_sum``, ``ospa_sum`` and ``missed_steps`` count
+    every step either way."""
 
     t: list[float] = field(default_factory=list)
     gospa: list[float] = field(default_factory=list)
@@ -74,19 +85,25 @@ class TrackScore:
     false_tracks: int = 0
     false_track_steps: int = 0
     n_tracks: int = 0
+    steps: int = 0
+    missed_steps: int = 0
+    gospa_sum: float = 0.0
+    ospa_sum: float = 0.0
+    bin: int = 1
     assignments: list[dict[str, str]] = field(default_factory=list)
     hold_fractions: list[float] = field(default_factory=list)
     longest_ghost: list[int] = field(default_factory=list)
     found_at_end: list[float] = field(default_factory=list)
 
     COUNTS = ("truth_steps", "held_steps", "breaks", "break_chances", "track_steps", "dominant_steps",
-              "false_tracks", "false_track_steps", "n_tracks")
+              "false_tracks", "false_track_steps", "n_tracks", "steps", "missed_steps", "gospa_sum", "ospa_sum")
 
     @classmethod
     def merged(cls, scores: Sequence["TrackScore"]) -> "TrackScore":
         """Several runs as one score: counts summed, per-step series concatenated, so the
         rates (held, break rate, purity, mean GOSPA) are over all of their steps."""
-        out = cls(**{k: sum(getattr(s, k) for s in scores) for k in cls.COUNTS})
+        out = cls(**{k: sum(getattr(s, k) for s in scores) for k in cls.COUNTS},
+                  bin=max((s.bin for s in scores), default=1))
         for s in scores:
             for series in ("t", "gospa", "ospa", "n_missed", "n_false", "assignments", "hold_fractions",
                            "longest_ghost", "found_at_end"):
@@ -119,66 +136,172 @@ class TrackScore:
     def worst_hold(self) -> float:
         return min(self.hold_fractions) if self.hold_fractions else float("nan")
 
+    def _mean(self, series: list[float], total: float) -> float:
+        """Over every step: NumPy's mean of the series when it has a point per step, else
+        the running sum over the count (equal to rounding)."""
+        if not self.steps:
+            return float("nan")
+        return float(np.mean(series)) if self.bin == 1 and len(series) == self.steps else total / self.steps
+
     @property
     def mean_gospa(self) -> float:
-        return float(np.mean(self.gospa)) if self.gospa else float("nan")
+        return self._mean(self.gospa, self.gospa_sum)
+
+    @property
+    def mean_ospa(self) -> float:
+        return self._mean(self.ospa, self.ospa_sum)
 
     def summary(self) -> dict:
-        return {"mean_gospa": self.mean_gospa, "mean_ospa": float(np.mean(self.ospa)) if self.ospa else None,
+        return {"mean_gospa": self.mean_gospa, "mean_ospa": self.mean_ospa if self.steps else None,
                 "held": self.held, "breaks": self.breaks, "break_rate": self.break_rate,
                 "purity": self.purity, "worst_hold": self.worst_hold, "tracks": self.n_tracks,
                 "longest_ghost": self.max_ghost, "all_found_runs": self.all_found_runs, "false_tracks": self.false_tracks,
                 "false_track_steps": self.false_track_steps,
-                "missed_steps": int(sum(self.n_missed)), "steps": len(self.t)}
+                "missed_steps": self.missed_steps, "steps": self.steps}
 
 
-def score_tracks(steps: Sequence[Step], c: float, p: float = 2.0) -> TrackScore:
-    """Score a run's steps (in time order); ``c`` is the cut-off distance, ``p`` the order."""
-    out = TrackScore()
-    last_on: dict[str, str | None] = {}  # truth -> track at its previous step (None: not held)
-    on_counts: dict[str, Counter] = {}  # track -> Counter of the truths it was on (None: nothing)
-    found: dict[str, list[int]] = {}  # truth -> [steps held, steps since first held]
-    ghost: dict[str, int] = {}  # track -> consecutive steps on no target, up to now
-    longest = 0
-    for s in steps:
+class TrackScorer:
+    """A run's :class:`TrackScore`, folded in step by step (steps in time order).
+
+    It keeps, per live target, the track it was on at its last step and its held and
+    since-first-held steps; per live track, the steps it spent on each target (and on
+    none) and its current ghost run; the run's counters; and the series. A target or track
+    absent from ``forget_after`` consecutive steps is closed — its hold fraction, purity
+    and false-track counts go into the totals — and forgotten, so with ``forget_after``
+    and ``series_max`` memory is bounded by the live targets and tracks and
+    ``series_max`` points, not by the run's length. Closing is exact for ids never used
+    again (track ids are never reused, traffic aircraft neither); of the forgotten
+    targets' hold fractions only the least is kept (``worst_hold``). Without
+    ``forget_after`` nothing is forgotten (a finished run: :func:`score_tracks`).
+
+    ``series_max``: at most that many series points; two neighbouring points are merged
+    whenever there would be more, so ``bin`` is a power of two. Without it, one point per
+    step and each step's ``assignments``.
+    """
+
+    def __init__(self, c: float, p: float = 2.0, forget_after: int | None = None, series_max: int | None = None):
+        self.c, self.p = c, p
+        self.forget_after, self.series_max = forget_after, series_max
+        self.out = TrackScore()  # counters, the closed targets' and tracks' totals, the series
+        self.last_on: dict[str, str | None] = {}  # truth -> track at its previous step (None: not held)
+        self.found: dict[str, list[int]] = {}  # truth -> [steps held, steps since first held]
+        self.on_counts: dict[str, Counter] = {}  # track -> Counter of the truths it was on (None: nothing)
+        self.ghost: dict[str, int] = {}  # track -> consecutive steps on no target, up to now
+        self.seen: dict[tuple[bool, str], int] = {}  # (is a track, id) -> index of its last step
+        self.longest = 0
+        self.closed = TrackScore()  # the forgotten tracks' and targets' totals
+        self.worst_forgotten: float | None = None  # the least hold fraction of the forgotten targets
+        self.found_last: float | None = None  # fraction of the last step's targets held there
+        self.binned = None if series_max is None else BinnedSeries(series_max, lambda: [0.0, 0.0, 0, 0], _add)
+        # (per point: Σgospa, Σospa, missed, false)
+
+    def add(self, s: Step) -> dict[str, str]:
+        """Score one step; returns its assignment (truth id -> track id)."""
+        out, c, p = self.out, self.c, self.p
         pairs = assign(s.truths, s.tracks, c, p)
         X = [np.asarray(s.truths[i], dtype=float) for i in s.truths]
         Y = [np.asarray(s.tracks[k], dtype=float) for k in s.tracks]
         g = gospa(Y, X, c, p)
-        out.t.append(float(s.t))
-        out.gospa.append(g.distance)
-        out.ospa.append(ospa(Y, X, c, p))
-        out.n_missed.append(g.n_missed)
-        out.n_false.append(g.n_false)
-        out.assignments.append(pairs)
+        o = ospa(Y, X, c, p)
+        self._series(float(s.t), g.distance, o, g.n_missed, g.n_false, pairs)
+        out.steps += 1
+        out.missed_steps += g.n_missed
+        out.gospa_sum += g.distance
+        out.ospa_sum += o
         out.truth_steps += len(s.truths)
         out.held_steps += len(pairs)
         for truth in s.truths:
-            before = last_on.get(truth)
+            before = self.last_on.get(truth)
             if before is not None:
                 out.break_chances += 1
                 out.breaks += int(pairs.get(truth) != before)
-            last_on[truth] = pairs.get(truth)
-            f = found.setdefault(truth, [0, 0])
+            self.last_on[truth] = pairs.get(truth)
+            f = self.found.setdefault(truth, [0, 0])
             if truth in pairs or f[1]:
                 f[0] += int(truth in pairs)
                 f[1] += 1
         by_track = {k: tr for tr, k in pairs.items()}
-        ghost = {k: ghost.get(k, 0) + 1 for k in s.tracks if k not in by_track}
-        longest = max(longest, *ghost.values(), 0)
+        self.ghost = {k: self.ghost.get(k, 0) + 1 for k in s.tracks if k not in by_track}
+        self.longest = max(self.longest, *self.ghost.values(), 0)
         for k in s.tracks:
-            on_counts.setdefault(k, Counter())[by_track.get(k)] += 1
-    for counts in on_counts.values():
-        life = sum(counts.values())
-        on_target = {truth: n for truth, n in counts.items() if truth is not None}
-        out.track_steps += life
-        out.dominant_steps += max(on_target.values(), default=0)
-        out.false_track_steps += counts.get(None, 0)
-        out.false_tracks += int(not on_target)
-    out.n_tracks = len(on_counts)
-    out.hold_fractions = [held / since if since else 0.0 for held, since in found.values()]
-    out.longest_ghost = [longest]
-    if steps:
-        last = steps[-1]
-        out.found_at_end = [len(assign(last.truths, last.tracks, c, p)) / len(last.truths) if last.truths else 1.0]
-    return out
+            self.on_counts.setdefault(k, Counter())[by_track.get(k)] += 1
+        self.found_last = len(pairs) / len(s.truths) if s.truths else 1.0
+        if self.forget_after is not None:
+            self._forget(s)
+        return pairs
+
+    def _series(self, t: float, g: float, o: float, missed: int, false: int, pairs: dict) -> None:
+        out = self.out
+        if self.binned is None:
+            out.t.append(t)
+            out.gospa.append(g)
+            out.ospa.append(o)
+            out.n_missed.append(missed)
+            out.n_false.append(false)
+            out.assignments.append(pairs)
+            return
+        point = self.binned.sample(t)
+        for i, v in enumerate((g, o, missed, false)):
+            point[i] += v
+
+    def _forget(self, s: Step) -> None:
+        n = self.out.steps
+        for truth in s.truths:
+            self.seen[(False, truth)] = n
+        for k in s.tracks:
+            self.seen[(True, k)] = n
+        gone = [key for key, last in self.seen.items() if n - last >= self.forget_after]
+        for is_track, name in gone:
+            del self.seen[(is_track, name)]
+            if is_track:
+                _close_track(self.closed, self.on_counts.pop(name))
+            else:
+                self.last_on.pop(name)
+                held, since = self.found.pop(name)
+                frac = held / since if since else 0.0
+                self.worst_forgotten = frac if self.worst_forgotten is None else min(self.worst_forgotten, frac)
+
+    def score(self) -> TrackScore:
+        """The run's score so far (the scorer goes on)."""
+        out = dataclasses.replace(self.out, **{k: getattr(self.out, k) + getattr(self.closed, k)
+                                              for k in ("track_steps", "dominant_steps", "false_tracks",
+                                                        "false_track_steps", "n_tracks")})
+        for counts in self.on_counts.values():
+            _close_track(out, counts)
+        if self.binned is not None:
+            out.bin, pts = self.binned.bin, self.binned.points
+            out.t = [t for t, _, _ in pts]
+            out.gospa = [v[0] / n for _, n, v in pts]
+            out.ospa = [v[1] / n for _, n, v in pts]
+            out.n_missed = [v[2] for _, _, v in pts]
+            out.n_false = [v[3] for _, _, v in pts]
+        else:
+            out.t, out.gospa, out.ospa = list(out.t), list(out.gospa), list(out.ospa)
+            out.n_missed, out.n_false, out.assignments = list(out.n_missed), list(out.n_false), list(out.assignments)
+        out.hold_fractions = ([] if self.worst_forgotten is None else [self.worst_forgotten]) + [
+            held / since if since else 0.0 for held, since in self.found.values()]
+        out.longest_ghost = [self.longest]
+        out.found_at_end = [] if self.found_last is None else [self.found_last]
+        return out
+
+
+def _add(a: list, b: list) -> None:
+    a[:] = [x + y for x, y in zip(a, b)]
+
+
+def _close_track(out: TrackScore, counts: Counter) -> None:
+    """Add one track's life (the steps it spent on each target, ``None``: none) to ``out``."""
+    on_target = {truth: n for truth, n in counts.items() if truth is not None}
+    out.track_steps += sum(counts.values())
+    out.dominant_steps += max(on_target.values(), default=0)
+    out.false_track_steps += counts.get(None, 0)
+    out.false_tracks += int(not on_target)
+    out.n_tracks += 1
+
+
+def score_tracks(steps: Iterable[Step], c: float, p: float = 2.0) -> TrackScore:
+    """Score a run's steps (in time order); ``c`` is the cut-off distance, ``p`` the order."""
+    scorer = TrackScorer(c, p)
+    for s in steps:
+        scorer.add(s)
+    return scorer.score()

@@ -49,10 +49,10 @@ from .grouping import TimeGrouper
 from .mtt import AssociationConfig, Initiator, scores_hit
 from .patent import KINDS_3D, LocalTracker, TrackerConfig
 from .sensors3d import SphericalModel
+from .topology import Scheme
 from .track_fusion import TrackFuser
 from .types import Estimate, Measurement
 
-MODES = ("track", "feedback", "predict")
 
 
 @dataclass(frozen=True)
@@ -175,17 +175,15 @@ class LocalNode:
 
 
 class TrackNode(LocalNode):
-    """The local tracker of HNV (``mode="track"``), PHHNV (``"feedback"``) and DDHNV
-    (``"predict"``) around a :class:`~fusion.patent.LocalTracker`."""
+    """The local tracker of HNV, PHHNV and DDHNV (their :class:`~fusion.topology.Scheme`)
+    around a :class:`~fusion.patent.LocalTracker`."""
 
     kinds = KINDS_3D
 
-    def __init__(self, sensor: str, config: TrackerConfig, method: str, mode: str, track: str = "T1"):
-        if mode not in MODES:
-            raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
+    def __init__(self, sensor: str, config: TrackerConfig, method: str, scheme: Scheme, track: str = "T1"):
         super().__init__(sensor, config.pair_tol)
         self.config = config
-        self.mode = mode
+        self.scheme = scheme
         motion = config.motion_model()
         self.tracker = LocalTracker(sensor, motion, method, track, config.new_filter(motion))
         self._requested = False
@@ -199,19 +197,19 @@ class TrackNode(LocalNode):
 
     def receive(self, d: Downlink) -> None:
         e = d.estimate
-        if d.init or self.mode != "track":
+        if d.init or self.scheme.feeds_back:
             if self.tracker.initialised and e.t < self.tracker.t:
                 return  # older than where this node already is (it ran alone meanwhile)
             if d.init:
                 self.tracker.initialise(e.x, e.P, e.t)
             else:
-                self.tracker.accept_prior(e.x, e.P, e.t)
+                self.tracker.accept_prior(e.x, e.P, e.t, e.extra)
             self._requested = False
 
     def _blocked(self, m):
         if not self.tracker.initialised:
             return "init" if self._requested else None
-        if self.mode != "track" and m.t - self.horizon > self.pair_tol:
+        if self.scheme.waits_for_horizon and m.t - self.horizon > self.pair_tol:
             return "feedback"
         return None
 
@@ -223,7 +221,7 @@ class TrackNode(LocalNode):
                 return []
             self._requested = True
             return [self._uplink(m.t, measurement=m)]
-        if self.mode == "predict":
+        if self.scheme.predicts:
             return [self._uplink(m.t, self.tracker.predict(m.t), m)]
         return [self._uplink(m.t, self.tracker.update(m))]
 
@@ -248,8 +246,6 @@ class Centre:
     """Streaming interface of a centre: uplinks in ``(t, node, seq)`` order in,
     estimates out (``process``/``advance``/``finish``, like every method), downlinks
     collected for :meth:`take_downlinks`, and the feedback :attr:`horizon`."""
-
-    feedback = False
 
     def __init__(self):
         self._down: list[Downlink] = []
@@ -303,12 +299,11 @@ class TrackCentre(GroupedCentre):
     """The centre of HNV / PHHNV / DDHNV: scans of uplinks, a
     :class:`~fusion.track_fusion.TrackFuser`, and the downlinks."""
 
-    def __init__(self, name: str, config: TrackerConfig, mode: str, track: str = "T1"):
+    def __init__(self, name: str, config: TrackerConfig, scheme: Scheme, track: str = "T1"):
         super().__init__()
         self.name = name
         self.config = config
-        self.mode = mode
-        self.feedback = mode != "track"
+        self.scheme = scheme
         self.track = track
         self.motion = config.motion_model()
         self._new_filter = config.new_filter(self.motion)
@@ -346,26 +341,28 @@ class TrackCentre(GroupedCentre):
         self._send(node, e, init=True)
 
     def _fuse(self, t: float, reports: list[Uplink]) -> Estimate:
-        centre, per_node = fuse_reports(self.fuser, self.mode, t, reports, self.track, self._new_filter)
-        if self.feedback:
+        centre, per_node = fuse_reports(self.fuser, self.scheme, t, reports, self.track, self._new_filter)
+        if self.scheme.feeds_back:
             for node in sorted(self.nodes):
-                self._send(node, _feedback(centre, per_node.get(node), self.track), False)
+                self._send(node, _feedback(centre, per_node.get(node), self.track, self.fuser.model_extra()), False)
         return centre
 
 
-def fuse_reports(fuser: TrackFuser, mode: str, t: float, reports: list[Uplink], track: str, new_filter):
+def fuse_reports(fuser: TrackFuser, scheme: Scheme, t: float, reports: list[Uplink], track: str, new_filter):
     """One fusion at the centre of the local reports of one track (all at ``t``):
-    ``(centre estimate, DDHNV's updates per node)``. ``predict`` mode: stage 1 fuses the
+    ``(centre estimate, DDHNV's updates per node)``. A scheme whose nodes predict: stage 1 fuses the
     local predictions, the centre updates that with each node's measurement (a filter
-    from ``new_filter``), stage 2 fuses those updates (module docstring)."""
+    from ``new_filter``, started from stage 1: for an IMM centre fusing per model, from
+    its per-model estimates and mode probabilities), stage 2 fuses those updates (module
+    docstring)."""
     local = [_at(u.estimate, t) for u in reports]
     per_node: dict[str, Estimate] = {}
-    if mode == "predict":
+    if scheme.predicts:
         stage1 = fuser.fuse(t, local)
         updates = []
         for u in reports:  # the centre's updates of the fused prediction
             c = LocalTracker(u.measurement.sensor, fuser.motion, fuser.method, track, new_filter)
-            c.accept_prior(stage1.x, stage1.P, t)
+            c.accept_prior(stage1.x, stage1.P, t, fuser.model_extra())
             per_node[u.node] = c.update(u.measurement, t)
             updates.append(per_node[u.node])
         fused = fuser.fuse(t, updates)
@@ -379,10 +376,11 @@ def fuse_reports(fuser: TrackFuser, mode: str, t: float, reports: list[Uplink], 
     return Estimate(t, fused.x, fused.P, fuser.method, "centre", track, nis, dof, extra), per_node
 
 
-def _feedback(centre: Estimate, update: Estimate | None, track: str) -> Estimate:
+def _feedback(centre: Estimate, update: Estimate | None, track: str, models: dict | None = None) -> Estimate:
     """The fused estimate sent down as a node's next prior (with the centre's update of
-    that node's measurement, DDHNV)."""
+    that node's measurement, DDHNV; with an IMM centre's per-model estimates, ``models``)."""
     extra = {"sensor_x": update.x, "sensor_P": update.P} if update else {}
+    extra.update(models or {})
     return Estimate(centre.t, centre.x, centre.P, centre.method, "centre", track, extra=extra)
 
 
@@ -457,12 +455,10 @@ class MultiTrackNode(FramedNode):
 
     kinds = KINDS_3D
 
-    def __init__(self, sensor: str, config: TrackerConfig, method: str, mode: str, association):
-        if mode not in MODES:
-            raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
+    def __init__(self, sensor: str, config: TrackerConfig, method: str, scheme: Scheme, association):
         super().__init__(sensor, config.pair_tol)
         self.config = config
-        self.mode = mode
+        self.scheme = scheme
         self.method = method
         self.association = association
         self.motion = config.motion_model()
@@ -476,7 +472,7 @@ class MultiTrackNode(FramedNode):
         # Without feedback (HNV) a local track drifts along what its sensor does not
         # measure; it rejoins from the fused track past its own limit. A fed-back track
         # is re-anchored every frame (and DDHNV's holds only predictions).
-        self._max_pos_std = association.local_pos_std_limit if mode == "track" else association.max_pos_std
+        self._max_pos_std = association.max_pos_std if scheme.anchored else association.local_pos_std_limit
 
     def centre_restarted(self) -> bool:
         super().centre_restarted()
@@ -491,13 +487,13 @@ class MultiTrackNode(FramedNode):
             self.misses.pop(e.track, None)
         elif d.init:  # a new local track on one of the centre's tracks, named by the centre
             self._start(e.track, e.x, e.P, e.t)
-        elif self.mode != "track" and e.track in self.tracks:
+        elif self.scheme.feeds_back and e.track in self.tracks:
             tr = self.tracks[e.track]
             if e.t >= tr.t:  # not older than where the track already is
-                tr.accept_prior(e.x, e.P, e.t)
+                tr.accept_prior(e.x, e.P, e.t, e.extra)
 
     def _blocked(self, frame):
-        # Every mode waits for the centre's answers to the earlier frames (inits, drops,
+        # Every scheme waits for the centre's answers to the earlier frames (inits, drops,
         # feedback): the local tracks then do not depend on message timing.
         return "centre" if frame[0].t - self.horizon > self.pair_tol else None
 
@@ -516,7 +512,7 @@ class MultiTrackNode(FramedNode):
             lid, m = ids[r], frame[c]
             taken[c] = lid
             tr = self.tracks[lid]
-            out.append(self._uplink(m.t, tr.predict(m.t), m) if self.mode == "predict" else self._uplink(m.t, tr.update(m)))
+            out.append(self._uplink(m.t, tr.predict(m.t), m) if self.scheme.predicts else self._uplink(m.t, tr.update(m)))
         hit = set(taken.values())
         for lid in ids:
             self.misses[lid] = 0 if lid in hit else self.misses[lid] + 1
@@ -600,12 +596,11 @@ class MultiTrackCentre(GroupedCentre):
     tracks with the fused tracks; one :class:`~fusion.track_fusion.TrackFuser` per
     fused track; initiation from the initialisation requests; M-of-N management."""
 
-    def __init__(self, name: str, config: TrackerConfig, mode: str, association):
+    def __init__(self, name: str, config: TrackerConfig, scheme: Scheme, association):
         super().__init__()
         self.name = name
         self.config = config
-        self.mode = mode
-        self.feedback = mode != "track"
+        self.scheme = scheme
         self.association = association
         self.rule = association.rule()
         self.motion = config.motion_model()
@@ -644,10 +639,10 @@ class MultiTrackCentre(GroupedCentre):
         evidence = min(2, len({u.node for u in frame}))
         for f in self.tracks:
             if reports[f.key]:
-                f.last, per_node = fuse_reports(f.fuser, self.mode, t, reports[f.key], f.key, self._new_filter)
-                if self.feedback:
+                f.last, per_node = fuse_reports(f.fuser, self.scheme, t, reports[f.key], f.key, self._new_filter)
+                if self.scheme.feeds_back:
                     for node, lid in sorted(f.members.items()):
-                        self._send(node, _feedback(f.last, per_node.get(node), lid), False)
+                        self._send(node, _feedback(f.last, per_node.get(node), lid, f.fuser.model_extra()), False)
             else:
                 x, P = predicted[f.key]
                 f.last = Estimate(t, x, P, self.name, "centre", f.key)
@@ -655,8 +650,7 @@ class MultiTrackCentre(GroupedCentre):
         live = {f.key: f for f in self.tracks if f.logic.status != DELETED}  # in priority order
         for key in self._duplicates.duplicates([(k, f.last.x, f.last.P) for k, f in live.items()]):
             live[key].logic.status = DELETED
-        for first, more in self._initiator.groups(sorted(left, key=lambda m: m.order_key)):
-            x, P = initial_state(first, self.motion.n_x, self.config.priors())
+        for first, more, x, P in self._initiator.groups(sorted(left, key=lambda m: m.order_key)):
             self._births += 1
             fuser = TrackFuser(self.config.fusion_rule, self.motion, self.config.ci_criterion, self.name, "")
             fuser.initialise(x, P, t)
@@ -778,23 +772,21 @@ class Split:
     centre: object  # (config) -> Centre
 
 
-def track_split(name: str, mode: str) -> Split:
-    """HNV / PHHNV / DDHNV (``mode`` of :class:`TrackNode`): one target, or many with
-    ``association`` in the table."""
-    if mode not in MODES:
-        raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
+def track_split(name: str, scheme: Scheme) -> Split:
+    """HNV / PHHNV / DDHNV (their :class:`~fusion.topology.Scheme`): one target, or many
+    with ``association`` in the table."""
 
     def node(sensor, config):
         association, rest = AssociationConfig.split(config)
         if association is None:
-            return TrackNode(sensor, TrackerConfig.from_dict(rest), name, mode)
-        return MultiTrackNode(sensor, TrackerConfig.from_dict(rest), name, mode, association)
+            return TrackNode(sensor, TrackerConfig.from_dict(rest), name, scheme)
+        return MultiTrackNode(sensor, TrackerConfig.from_dict(rest), name, scheme, association)
 
     def centre(config):
         association, rest = AssociationConfig.split(config)
         if association is None:
-            return TrackCentre(name, TrackerConfig.from_dict(rest), mode)
-        return MultiTrackCentre(name, TrackerConfig.from_dict(rest), mode, association)
+            return TrackCentre(name, TrackerConfig.from_dict(rest), scheme)
+        return MultiTrackCentre(name, TrackerConfig.from_dict(rest), scheme, association)
 
     return Split(name, node, centre)
 

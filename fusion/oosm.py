@@ -1,34 +1,23 @@
 r"""Out-of-sequence measurements by re-filtering from a short buffer.
 
-A live fuser cannot wait for its slowest source forever: after a bounded wait it
-releases the others, and a measurement of the laggard then arrives for a time the
-estimator has already passed (an *out-of-sequence measurement*, OOSM). Dropping it
-throws away the best sensor of a slow link; applying it as if it were new ("predict
-backwards") is wrong for any nonlinear or multi-sensor method. :class:`Refiltering`
-applies it exactly: it keeps checkpoints of the estimator and the measurements since
-the oldest one, and on an OOSM at time ``τ``
+A live fuser releases a lagging source's peers after a bounded wait, so the laggard's
+measurement may arrive for a time the estimator has passed (an *out-of-sequence
+measurement*, OOSM). :class:`Refiltering` applies it exactly. It keeps checkpoints of
+the estimator (deep copies of the method: filters, scans being grouped, track tables)
+and the measurements since the oldest one; on an OOSM at time ``τ`` it
 
-1. restores the latest checkpoint taken at a release time ``t_c < τ`` (a deep copy
-   of the method: its filters, scans being grouped, track tables);
-2. replays, in ``(t, sensor, seq)`` order, every measurement with ``t > t_c``
-   together with the OOSM, calling ``advance(t_k)`` at each later checkpoint time
-   ``t_k`` (and re-taking that checkpoint), then ``advance(t_now)``.
+1. restores the latest checkpoint taken at a release time ``t_c < τ``;
+2. replays, in ``(t, sensor, seq)`` order, every measurement with ``t > t_c`` together
+   with the OOSM, calling ``advance(t_k)`` at each later checkpoint time (and re-taking
+   that checkpoint), then ``advance(t_now)``.
 
-Every method here emits estimates that depend only on the measurement sequence, not on
-when ``advance`` is called, so after step 2 the estimator is in exactly the state it
-would be in had the OOSM arrived in order: for the EKF, ``x̂_{k|k}`` and ``P_{k|k}``
-are the in-order ones to round-off, with no approximation of the cross-covariance of
-the process noise between ``τ`` and ``t_now`` (what one-step retrodiction, e.g.
-Bar-Shalom's A1 algorithm, approximates). The cost is a replay of ``W`` seconds of
-data per OOSM and ``W·rate`` checkpoints of memory, where ``W`` (``window``) is the
-buffer length: a checkpoint is dropped once a later one is older than ``t_now − W``,
-so an OOSM with ``τ > t_now − W`` can always be applied, and anything older is
-*stale* (refused by the caller, which knows the bound from :attr:`oldest`).
-
-What the caller publishes: the replay's estimates, in time order, from the late
-data's time to the latest output time: the corrected history of the last ``t_now − τ``
-seconds, ending with the corrected current picture. A consumer that keeps the latest
-estimate per ``(track, t)`` then holds what an in-order run would have given.
+Every method's estimates depend only on the measurement sequence, not on when
+``advance`` is called, so the estimator ends exactly where the in-order run would be:
+no approximation of the process-noise cross-covariance between ``τ`` and ``t_now``, which
+one-step retrodiction (Bar-Shalom's A1) approximates for one filter only. The cost is a
+replay of ``W`` = ``window`` seconds per OOSM and ``W·rate`` checkpoints; anything older
+than :attr:`oldest` is *stale*. The replay's estimates, from ``τ`` on, are the corrected
+history the caller re-publishes (docs/live.md).
 """
 
 from __future__ import annotations

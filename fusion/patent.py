@@ -1,91 +1,24 @@
-r"""The patent's six 3D fusion methods (document 004, docs/algorithms.md) and single-sensor baselines.
+r"""The patent's six 3D fusion methods (document 004) and the single-sensor baselines.
 
-Sensors: 2D radars (kind ``range_az``: azimuth, slant range) and angle sensors (kind
-``azel``: azimuth, elevation); 3D radars (``az_el_range``) for the baseline. A
-sensor's role is decided by its measurement kind, never by its id. All methods share
-one motion model (:mod:`fusion.motion`), one measurement geometry
-(:mod:`fusion.sensors3d`), one EKF step, and one initialiser (:mod:`fusion.init3d`).
+Sensors: 2D radars (``range_az``), angle sensors (``azel``) and, for a baseline, 3D
+radars (``az_el_range``); a sensor's role is its measurement kind, never its id. Every
+method shares one motion model (:mod:`fusion.motion`), one measurement geometry
+(:mod:`fusion.sensors3d`), one filter step and one initialiser (:mod:`fusion.init3d`),
+so their differences are the methods' own:
 
-Methods (each a streaming :class:`Method`, registered in :mod:`fusion.methods`):
+* LCDD ``z = [az_i, el_i, range_r]``; HNDD ``z = [az_f, el_i, range_r]`` with ``az_f``
+  the inverse-variance fusion of the two azimuths; SS the stacked
+  ``z = [az_i, el_i, az_r, range_r]``, ``R = blkdiag(R_i, R_r)`` — one filter each;
+* HNV / PHHNV / DDHNV: a :class:`LocalTracker` per sensor and a
+  :class:`~fusion.track_fusion.TrackFuser` at the centre, split in :mod:`fusion.network`;
+* RADAR2D / ANGLE / RADAR3D: one filter on one kind of sensor.
 
-=========  ================================================================================
-LCDD       one EKF at the centre; per scan ``z = [az_i, el_i, range_r]`` (the angle
-           sensor's angles, the radar's range; the radar's azimuth is discarded)
-HNDD       one EKF; ``z = [az_f, el_i, range_r]``, ``az_f`` the inverse-variance fusion of
-           the two azimuths (``σ_f² = (σ_i⁻² + σ_r⁻²)⁻¹``). Needs co-located sensors.
-SS         one EKF; stacked ``z = [az_i, el_i, az_r, range_r]``, ``R = blkdiag(R_i, R_r)``
-HNV        a :class:`LocalTracker` (EKF) per sensor; a :class:`~fusion.track_fusion.TrackFuser`
-           at the centre fuses the local estimates
-PHHNV      HNV, and the fused estimate is fed back as every local tracker's next prior
-DDHNV      local trackers only predict (from the fed-back fused estimate); stage 1 fuses
-           the local predictions; the centre updates that fused prediction with each
-           sensor's measurement separately; stage 2 fuses those updated estimates
-RADAR2D,   one EKF on one kind of sensor only (``range_az``, ``azel``, ``az_el_range``);
-ANGLE,     measurements of other kinds are ignored
-RADAR3D
-=========  ================================================================================
-
-HNDD and SS are the same linearised update (inverse-variance pre-fusion of two
-measurements of one quantity equals stacking them), so from the same initial state
-they agree to round-off. With the ``info`` rule PHHNV and DDHNV equal SS (every local
-update starts from one shared prior, which the rule counts once).
-
-Streaming and scans. Measurements arrive in ``(t, sensor, seq)`` order. A *scan* is the
-group of measurements whose times lie within ``pair_tol`` of the scan's first
-measurement, at most one per sensor, cut by :class:`fusion.grouping.TimeGrouper` (the
-rule every method family shares), so the emitted estimates never depend on when
-``advance`` is called. A scan
-is processed at the time of its first measurement (time offsets within ``pair_tol``
-are neglected; keep ``pair_tol`` ≪ σ/speed). Sequential fallback: a scan holding only
-one sensor (asynchronous sensors, a dropped report) is processed with that sensor's
-measurement alone at its own time; measurements a method cannot pair (LCDD/HNDD given
-a second radar, a 3D radar, ...) are applied one after another, each with its own
-model, after the paired update. The first scan initialises the track
-(:func:`fusion.init3d.initial_state`) and is emitted as the first estimate (no NIS).
-
-Output: every method emits one estimate per scan with ``node="centre"`` (the one to
-score); HNV/PHHNV/DDHNV additionally emit each local node's report (``node`` = sensor
-id; DDHNV's local reports are predictions) before the centre estimate. ``nis`` is the
-sum of the scan's update NIS values, ``nis_dof`` the sum of their dimensions.
-
-Configuration (the scenario's ``[tracker]`` table, resolved for one method by
-:func:`fusion.methods.method_config`: common keys, then the method's
-``[tracker.methods.<M>]`` table over them; unknown keys are an error; keys a method
-does not use are accepted and ignored so one table serves every method):
-
-===============  =========================  =============================================
-key              default                    meaning
-===============  =========================  =============================================
-motion           ``"ca"``                   ``"ca"`` (9 states), ``"cv"`` (6 states) or ``"imm"``
-                                            (9 states, :mod:`fusion.imm`; the ``imm_*`` keys)
-q                0.01                       process-noise PSD (m²/s⁵ CA, m²/s³ CV; not the IMM's)
-process_noise    ``"continuous"``           ``"continuous"`` or ``"discrete"`` (motion.py)
-fusion_rule      ``"info"``                 ``naive``, ``bar-shalom-campo``, ``ci``, ``info``
-ci_criterion     ``"trace"``                ``trace`` or ``det`` (for ``ci``)
-pair_tol         0.001                      s, scan grouping tolerance
-init_range       10000.0                    m, slant range prior (no range sensor)
-init_range_std   5000.0                     m
-init_el          0.1                        rad, elevation prior (no elevation sensor)
-init_el_std      0.1                        rad
-init_vel_std     200.0                      m/s per horizontal axis, around zero
-init_vel_std_up  200.0                      m/s vertical, around zero
-init_acc_std     10.0                       m/s² per horizontal axis, around zero (CA)
-init_acc_std_up  10.0                       m/s² vertical, around zero (CA)
-ekf_iterations   1                          > 1: iterated EKF updates in the centralised
-                                            methods (:func:`fusion.sensors3d.iterated_ekf_update`)
-filter           ``"ekf"``                  the track filter, by name (:data:`fusion.filters.FILTERS`);
-                                            with ``imm``, each model's filter
-imm_models       ``"cv,ct,ca"``             the IMM's models, of ``cv``, ``ct``, ``ca``
-imm_q_cv         0.1                        CV white-acceleration PSD (m²/s³)
-imm_q_ct         1.0                        CT white-jerk PSD (m²/s⁵)
-imm_q_ca         10.0                       CA white-jerk PSD (m²/s⁵)
-imm_turn_rate    0.15                       rad/s, the CT model's turn rate ω
-imm_p_stay       0.95                       P(same model next update); the rest shared equally
-===============  =========================  =============================================
-
-HNV, PHHNV and DDHNV are split into local nodes and a centre in :mod:`fusion.network`,
-which the tracker and fuser processes run; the in-process methods registered here are
-those same nodes and centre wired back to back (:class:`fusion.network.NetworkMethod`).
+A centralised method takes measurements in ``(t, sensor, seq)`` order, groups them into
+scans (:class:`fusion.grouping.TimeGrouper`), processes a scan at its first
+measurement's time (a scan of one sensor alone, unpaired measurements one after
+another) and emits one estimate per scan. The methods, scans, outputs and the
+``[tracker]`` keys (:class:`TrackerConfig`): docs/algorithms.md, "The six methods",
+"Scans", "The ``[tracker]`` table of a 3D method".
 """
 
 from __future__ import annotations
@@ -101,7 +34,7 @@ from .init3d import InitPriors, initial_state
 from .motion import make_motion, NOISE_FORMS
 from .filters import FILTERS, Filter, NewFilter, filter_factory
 from .grouping import TimeGrouper
-from .imm import IMM_MODELS, model_set
+from .imm import IMM_MODELS, TrackIMM, model_set
 from .sensors3d import SphericalModel
 from .track_fusion import CI_CRITERIA, FUSION_RULES
 from .types import KIND_COMPONENTS, Estimate, Measurement
@@ -143,11 +76,15 @@ class TrackerConfig:
     ekf_iterations: int = 1
     filter: str = "ekf"
     imm_models: str = "cv,ct,ca"
-    imm_q_cv: float = 0.1
-    imm_q_ct: float = 1.0
-    imm_q_ca: float = 10.0
-    imm_turn_rate: float = 0.15
-    imm_p_stay: float = 0.95
+    imm_q_cv: float = 0.01
+    imm_q_ct: float = 10.0
+    imm_q_turn: float = 10.0
+    imm_q_ca: float = 900.0
+    imm_turn_rates: str = "0.157,0.235"
+    imm_sojourn_cv: float = 20.0
+    imm_sojourn_ct: float = 15.0
+    imm_sojourn_turn: float = 15.0
+    imm_sojourn_ca: float = 2.0
 
     @classmethod
     def from_dict(cls, config: dict | None) -> "TrackerConfig":
@@ -183,24 +120,35 @@ class TrackerConfig:
         if not names or len(set(names)) != len(names) or not set(names) <= set(IMM_MODELS):
             raise ValueError(f"tracker config 'imm_models' must be distinct names among {IMM_MODELS} "
                              f"separated by commas, got {self.imm_models!r}")
-        for key in ("imm_q_cv", "imm_q_ct", "imm_q_ca"):
+        for key in ("imm_q_cv", "imm_q_ct", "imm_q_turn", "imm_q_ca"):
             if getattr(self, key) < 0.0:
                 raise ValueError(f"tracker config {key!r} must be >= 0, got {getattr(self, key)}")
-        if self.imm_turn_rate <= 0.0:
-            raise ValueError(f"tracker config 'imm_turn_rate' must be > 0 rad/s, got {self.imm_turn_rate}")
-        if not 0.0 < self.imm_p_stay <= 1.0 or (len(names) == 1 and self.imm_p_stay != 1.0):
-            raise ValueError(f"tracker config 'imm_p_stay' must lie in (0, 1] (1 with one model), got {self.imm_p_stay}")
+        try:
+            rates = self.imm_turn_rate_values()
+        except ValueError:
+            rates = ()
+        if not rates or not all(np.isfinite(w) and w > 0.0 for w in rates):
+            raise ValueError(f"tracker config 'imm_turn_rates' must be rates > 0 rad/s separated by commas, "
+                             f"got {self.imm_turn_rates!r}")
+        for key in ("imm_sojourn_cv", "imm_sojourn_ct", "imm_sojourn_turn", "imm_sojourn_ca"):
+            if not getattr(self, key) > 0.0:
+                raise ValueError(f"tracker config {key!r} must be > 0 s, got {getattr(self, key)}")
         if abs(self.init_el) >= np.pi / 2:
             raise ValueError(f"tracker config 'init_el' must lie in (-π/2, π/2) rad, got {self.init_el}")
 
     def imm_model_names(self) -> tuple[str, ...]:
         return tuple(n.strip() for n in self.imm_models.split(",") if n.strip())
 
+    def imm_turn_rate_values(self) -> tuple[float, ...]:
+        return tuple(float(w) for w in self.imm_turn_rates.split(",") if w.strip())
+
     def motion_model(self):
         """The motion model, or for ``motion = "imm"`` the IMM's :class:`fusion.imm.ModelSet`."""
         if self.motion == "imm":
-            q = {"cv": self.imm_q_cv, "ct": self.imm_q_ct, "ca": self.imm_q_ca}
-            return model_set(self.imm_model_names(), q, self.imm_turn_rate, self.imm_p_stay, self.process_noise)
+            q = {"cv": self.imm_q_cv, "ct": self.imm_q_ct, "turn": self.imm_q_turn, "ca": self.imm_q_ca}
+            sojourn = {"cv": self.imm_sojourn_cv, "ct": self.imm_sojourn_ct, "turn": self.imm_sojourn_turn,
+                       "ca": self.imm_sojourn_ca}
+            return model_set(self.imm_model_names(), q, self.imm_turn_rate_values(), sojourn, self.process_noise)
         return make_motion(self.motion, self.q, self.process_noise)
 
     def new_filter(self, motion, centralised: bool = False) -> NewFilter:
@@ -367,15 +315,19 @@ class CentralisedMethod(ScanMethod):
     def process_scan(self, scan):
         t = scan[0].t
         if self.filter is None:
-            x, P = initial_state(scan, self.n_x, self.priors)
-            self.filter = self._new_filter(x, P, t)
-            return [Estimate(t, x, P, self.name, "centre", self.track)]
+            return [self.start(*initial_state(scan, self.n_x, self.priors), t)]
         self.filter.predict(t)
         nis, dof = 0.0, 0
         for model, z in self._pieces(scan, self.n_x):
             nis += self.filter.update(model, z).nis
             dof += model.n_z
         return [Estimate(t, self.filter.x, self.filter.P, self.name, "centre", self.track, nis, dof)]
+
+    def start(self, x: np.ndarray, P: np.ndarray, t: float) -> Estimate:
+        """Start the track's filter at ``(x, P)`` at ``t`` (what :meth:`process_scan` does
+        with a first scan's initial state; a many-target manager passes its own)."""
+        self.filter = self._new_filter(x, P, t)
+        return Estimate(t, x, P, self.name, "centre", self.track)
 
     def coast(self, t: float) -> Estimate:
         """Predict to ``t`` without a measurement (a missed frame); the estimate has no track id."""
@@ -397,8 +349,10 @@ class LocalTracker:
     ``extra`` fields every fusion rule needs (:mod:`fusion.track_fusion`): ``prior_x``,
     ``prior_P`` (the prediction the update started from), ``KH`` (``K·H``, zero for a
     prediction), ``feedback_t`` (time of the centre estimate it was restarted from since
-    its previous report, else ``None``) and ``prediction`` (bool). ``new_filter`` builds
-    the filter (:data:`fusion.filters.NewFilter`; default the EKF).
+    its previous report, else ``None``) and ``prediction`` (bool); an IMM's report also
+    carries its per-model terms (``imm_*``, :mod:`fusion.track_fusion`) for per-model
+    fusion. ``new_filter`` builds the filter (:data:`fusion.filters.NewFilter`; default
+    the EKF).
     """
 
     def __init__(self, sensor: str, motion, method: str = "HNV", track: str = "T1",
@@ -434,13 +388,20 @@ class LocalTracker:
         self.filter = self.new_filter(x, P, t)
         self._feedback_t = float(t)
 
-    def accept_prior(self, x: np.ndarray, P: np.ndarray, t: float) -> None:
+    def accept_prior(self, x: np.ndarray, P: np.ndarray, t: float, models: dict | None = None) -> None:
         """Feedback: the centre's estimate becomes the next prior (the filter restarts
-        from it, keeping what it holds beyond ``(x, P)``, e.g. an IMM's mode probabilities)."""
+        from it, keeping what it holds beyond ``(x, P)``, e.g. an IMM's mode probabilities).
+        ``models``: an IMM centre's per-model estimates (``imm_xs``, ``imm_Ps``, ``imm_mu``;
+        :meth:`fusion.track_fusion.TrackFuser.model_extra`), which an IMM restarts from instead."""
         if self.filter is None:
             self.initialise(x, P, t)
-            return
-        self.filter.set_state(x, P, t)
+        if models and "imm_xs" in models and isinstance(self.filter, TrackIMM):
+            xs = np.asarray(models["imm_xs"], dtype=float)
+            m, n = xs.shape
+            self.filter.set_model_states(xs, np.asarray(models["imm_Ps"], dtype=float).reshape(m, n, n),
+                                         models["imm_mu"], t)
+        else:
+            self.filter.set_state(x, P, t)
         self._feedback_t = float(t)
 
     def _report(self, prior_x, prior_P, KH, nis=None, dof=None) -> Estimate:
@@ -453,6 +414,14 @@ class LocalTracker:
         }
         self._feedback_t = None
         f = self.filter
+        if isinstance(f, TrackIMM):
+            xs, Ps = f.model_states()
+            last = f.last_update if nis is not None else None
+            m, n = xs.shape
+            extra.update({"imm_xs": xs, "imm_Ps": Ps.reshape(m * n, n),
+                          "imm_prior_xs": last["prior_xs"] if last else xs,
+                          "imm_prior_Ps": (last["prior_Ps"] if last else Ps).reshape(m * n, n),
+                          "imm_loglik": last["loglik"] if last else np.zeros(m)})
         return Estimate(f.t, f.x, f.P, self.method, self.sensor, self.track, nis, dof, extra)
 
     def _require(self):

@@ -295,11 +295,22 @@ def from_measurement(m: Measurement, n_x: int = 9) -> SphericalModel:
 
 
 # The EKF step ----------------------------------------------------------------------
+def motion_predict(motion, x: np.ndarray, P: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """Time update over ``dt`` with a motion model: ``F(dt) x``, ``F P Fᵀ + Q(dt)``; for a
+    state-dependent model (one with ``transition(x, dt) -> (f(x), ∂f/∂x, Q)``) its ``f(x)``
+    and ``J P Jᵀ + Q`` with the Jacobian at ``x``."""
+    step = getattr(motion, "transition", None)
+    if step is None:
+        return kalman.predict(x, P, motion.F(dt), motion.Q(dt))
+    fx, J, Q = step(x, dt)
+    return fx, kalman.symmetrise(J @ P @ J.T + Q)
+
+
 def ekf_predict(motion, x: np.ndarray, P: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
-    """Time update over ``dt`` with a motion model (``F(dt)``, ``Q(dt)``) via :func:`kalman.predict`."""
+    """:func:`motion_predict` over ``dt`` (``dt = 0``: unchanged)."""
     if dt == 0.0:
         return x, P
-    return kalman.predict(x, P, motion.F(dt), motion.Q(dt))
+    return motion_predict(motion, x, P, dt)
 
 
 def _ekf_update(model, x, P, z) -> tuple[kalman.UpdateResult, np.ndarray]:

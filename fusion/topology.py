@@ -8,9 +8,60 @@ tracker's next prior. ``two-stage``: the local trackers only predict (from the f
 fused track) and send the prediction with their measurement up; the centre fuses the
 predictions, updates that with each measurement, and fuses those updates.
 
-A leaf module (no imports), so a scenario loader can check a topology's name without
-loading the estimation methods; each method's topology is its registry record's
-(:mod:`fusion.methods`).
+A split topology's :class:`Scheme` says this as a value, which the nodes and centre of
+:mod:`fusion.network` read. A leaf module (no imports from the package), so a scenario
+loader can check a topology's name without loading the estimation methods; each
+method's topology is its registry record's (:mod:`fusion.methods`).
 """
 
+from __future__ import annotations
+
+from dataclasses import dataclass
+
 TOPOLOGIES = ("centralised", "distributed", "feedback", "two-stage")
+
+
+@dataclass(frozen=True)
+class Scheme:
+    """What flows between the local trackers of a track-fusion method and its centre.
+
+    Attributes:
+        predicts: a node sends its prediction and its measurement up, and the centre
+            runs the updates (``two-stage``); otherwise a node sends its own update.
+        feeds_back: the centre sends each fused estimate down as every member node's
+            next prior (``feedback``, ``two-stage``).
+    """
+
+    predicts: bool = False
+    feeds_back: bool = False
+
+    def __post_init__(self):
+        if self.predicts and not self.feeds_back:
+            raise ValueError("a node that only predicts needs the fused estimate fed back")
+
+    @property
+    def waits_for_horizon(self) -> bool:
+        """A one-target node waits for the centre's horizon before it processes a
+        measurement: its prior is the fused estimate the centre has still to send."""
+        return self.feeds_back
+
+    @property
+    def anchored(self) -> bool:
+        """Every local track is re-anchored to its fused track each frame (else it drifts
+        along what its sensor does not measure)."""
+        return self.feeds_back
+
+
+SCHEMES = {
+    "distributed": Scheme(),
+    "feedback": Scheme(feeds_back=True),
+    "two-stage": Scheme(predicts=True, feeds_back=True),
+}
+
+
+def scheme_of(topology: str) -> Scheme:
+    """The scheme of a split topology."""
+    try:
+        return SCHEMES[topology]
+    except KeyError:
+        raise ValueError(f"topology {topology!r} has no local trackers (split: {', '.join(SCHEMES)})") from None

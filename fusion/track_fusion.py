@@ -1,67 +1,25 @@
 r"""Track-to-track fusion rules, and the centre-side fuser that runs them.
 
-All rules fuse N ≥ 1 estimates ``(x_i, P_i)`` of the same state at the same time.
+Every rule fuses N ≥ 1 estimates ``(x_i, P_i)`` of one state at one time:
 
-``naive`` — the patent's "MMSE" rule, exact only for *independent* estimates::
+- ``naive``, the patent's rule, exact for independent estimates only:
+  ``P_f = (Σ P_i⁻¹)⁻¹``, ``x_f = P_f Σ P_i⁻¹ x_i``;
+- ``bar-shalom-campo``, best linear unbiased given the cross-covariances ``P_ij``
+  (``x_f = x_1 − C D⁺ d``, ``P_f = P_11 − C D⁺ Cᵀ``), which follow
+  ``P_ij ← A_i (F P_ij Fᵀ + Q) A_jᵀ`` with ``A_i = I − K_i H_i`` of each local update;
+- ``ci``, covariance intersection, consistent for any correlation:
+  ``P_f⁻¹ = Σ ω_i P_i⁻¹`` with ω on the simplex minimising ``tr P_f`` or ``det P_f``;
+- ``info``, subtracting the information each track shares with the centre's prior:
+  ``P_f⁻¹ = P_c⁻¹ + Σ (P_i⁻¹ − P̄_i⁻¹)`` (and the same for information vectors), exact
+  for linear(ised) updates from one prior; with local IMMs applied per model, the
+  centre rebuilding the centralised model likelihood from the locals' ones.
 
-    P_f = (Σ P_i⁻¹)⁻¹,   x_f = P_f Σ P_i⁻¹ x_i
-
-``bar-shalom-campo`` — best linear unbiased fusion given the cross-covariances
-``P_ij = Cov(e_i, e_j)``. With ``d_j = x_j − x_1`` (j ≥ 2), ``C = [P_1j − P_11]_j`` and
-``D = [P_jk − P_j1 − P_1k + P_11]_jk``::
-
-    x_f = x_1 − C D⁺ d,   P_f = P_11 − C D⁺ Cᵀ
-
-which for N = 2 is Bar-Shalom & Campo (1986)::
-
-    x_f = x_1 + (P_1 − P_12)(P_1 + P_2 − P_12 − P_21)⁻¹ (x_2 − x_1)
-    P_f = P_1 − (P_1 − P_12)(P_1 + P_2 − P_12 − P_21)⁻¹ (P_1 − P_21)
-
-``D⁺`` is a pseudo-inverse: D is singular when tracks share their prior (their
-difference lies in the span of the gains) and zero for identical tracks.
-The cross-covariance recursion for local EKFs driven by the same process noise, with
-``A_i = I − K_i H_i`` of each local update (``A_i = I`` for a prediction)::
-
-    P_ij ← A_i (F P_ij Fᵀ + Q) A_jᵀ
-
-``ci`` — covariance intersection, consistent for any unknown correlation::
-
-    P_f⁻¹ = Σ ω_i P_i⁻¹,   P_f⁻¹ x_f = Σ ω_i P_i⁻¹ x_i,   ω on the simplex
-
-with ω minimising ``tr P_f`` or ``det P_f`` (``criterion``). For N = 2 both objectives
-are scalar functions of ω through the generalised eigenproblem ``P_1⁻¹v = λ P_2⁻¹v``
-(convex; solved by a root search on the derivative); for N > 2 by SLSQP on the simplex.
-
-``info`` — subtract the information each track shares with the centre's prior.
-Each local track i carries the prior it was updated from, ``(x̄_i, P̄_i)``; the
-centre has its own prior ``(x_c, P_c)`` (its last fused estimate predicted to now)::
-
-    P_f⁻¹       = P_c⁻¹ + Σ (P_i⁻¹ − P̄_i⁻¹)
-    P_f⁻¹ x_f   = P_c⁻¹ x_c + Σ (P_i⁻¹ x_i − P̄_i⁻¹ x̄_i)
-
-With feedback or two-stage fusion every ``P̄_i = P_c``, and this is
-``P_f⁻¹ = Σ P_i⁻¹ − (N − 1) P_c⁻¹``: for linear(ised) updates from one prior it equals
-the centralised filter exactly. Without feedback (HNV) each increment
-``P_i⁻¹ − P̄_i⁻¹ = H_iᵀ R_i⁻¹ H_i`` is still the local measurement's information
-(Chong–Mori–Chang hierarchical fusion), exact for linear models; EKF linearisation
-at the local rather than the central prediction makes it approximate.
-
-Numerics: inverses are taken after equilibration (diagonal scaling), and information
-vectors are formed about a reference point, because positions of ~10⁴ m next to
-accelerations of ~10⁻² m/s² would otherwise cost many digits.
-
-What a local track (an :class:`~fusion.types.Estimate`) must carry in ``extra`` for
-:class:`TrackFuser`, per rule:
-
-=====================  ==============================================================
-naive, ci              nothing beyond ``x``, ``P``, ``t``
-info                   ``prior_x``, ``prior_P``: the prediction the local update started
-                       from (a prediction-only report: the prediction itself)
-bar-shalom-campo       ``KH``: ``K·H`` of the local update at ``t`` (zeros for a
-                       prediction); ``feedback_t``: time of the centre's fused estimate
-                       the track was (re)started from since its previous report
-                       (initialisation or feedback), else ``None``
-=====================  ==============================================================
+:class:`TrackFuser` keeps the centre's state between scans (its prediction, the
+cross-covariances, the IMM's per-model estimates). What each rule needs a local track to
+carry in ``extra`` (``prior_x``/``prior_P``; ``KH``/``feedback_t``; the ``imm_*`` terms),
+the N-track and per-model formulas, how ω is found and the numerics (equilibrated
+inverses, information vectors about a reference point): docs/algorithms.md,
+"Track-to-track fusion rules".
 """
 
 from __future__ import annotations
@@ -72,7 +30,8 @@ import numpy as np
 from scipy.linalg import eigh
 from scipy.optimize import brentq, minimize
 
-from .kalman import symmetrise
+from .imm import ModelSet, mixed_predictions
+from .kalman import gaussian_loglikelihood, gaussian_mixture, symmetrise
 from .types import Estimate
 
 FUSION_RULES = ("naive", "bar-shalom-campo", "ci", "info")
@@ -267,6 +226,38 @@ def fuse_info(xs, Ps, prior_xs, prior_Ps, x_c, P_c) -> tuple[np.ndarray, np.ndar
     return x_c + Pf @ y, Pf
 
 
+def fuse_info_model(xs, Ps, prior_xs, prior_Ps, logliks, x_c, P_c) -> tuple[np.ndarray, np.ndarray, float]:
+    """One model of the per-model information fusion of local IMMs (module docstring):
+    ``x_f``, ``P_f`` (:func:`fuse_info` on the coordinates where ``P_c`` has variance)
+    and the centralised log-likelihood ``log Λ_j`` of the model."""
+    x_c = np.asarray(x_c, dtype=float)
+    P_c = np.asarray(P_c, dtype=float)
+    keep = np.diag(P_c) > 0.0
+    sub = np.ix_(keep, keep)
+    xs, Ps = _check(xs, Ps)
+    prior_xs, prior_Ps = _check(prior_xs, prior_Ps)
+    for P in (*Ps, *prior_Ps):
+        if np.any(P[~keep, :]) or np.any(P[:, ~keep]):
+            raise ValueError("per-model info fusion: a local covariance has variance where the centre's prior has none")
+    xf_s, Pf_s = fuse_info([x[keep] for x in xs], [P[sub] for P in Ps], [x[keep] for x in prior_xs],
+                           [P[sub] for P in prior_Ps], x_c[keep], P_c[sub])
+    x_f = x_c.copy()
+    x_f[keep] = xf_s
+    P_f = np.zeros_like(P_c)
+    P_f[sub] = Pf_s
+
+    def log_n(mean, P):  # log N(x_f; mean, P) on the kept coordinates
+        return gaussian_loglikelihood(x_f[keep] - np.asarray(mean, float)[keep], P[sub])
+
+    ll = sum(float(l) + log_n(x, P) - log_n(xb, Pb) for l, x, P, xb, Pb in zip(logliks, xs, Ps, prior_xs, prior_Ps))
+    return x_f, P_f, ll + log_n(x_c, P_c) - log_n(x_f, P_f)
+
+
+def _model_rows(extra: dict, key: str, m: int, n: int, square: bool) -> np.ndarray:
+    a = np.asarray(extra[key], dtype=float)
+    return a.reshape(m, n, n) if square else a.reshape(m, n)
+
+
 # The centre-side fuser --------------------------------------------------------------
 class TrackFuser:
     """Centre-side fusion of local tracks with the bookkeeping each rule needs.
@@ -281,6 +272,11 @@ class TrackFuser:
     Every known node is assumed to report at every fusion time (a node with no
     measurement reports its prediction); a node that does not is propagated as a pure
     prediction (``A = I``) in the cross-covariance bookkeeping.
+
+    With ``info`` and an IMM's :class:`~fusion.imm.ModelSet` as ``motion`` the fuser is
+    an IMM centre: it keeps per-model estimates and mode probabilities, predicts them
+    with the IMM cycle and fuses per model (module docstring); :meth:`model_extra` is
+    what a fed-back node restarts from.
     """
 
     def __init__(self, rule: str, motion, ci_criterion: str = "trace", method: str = "HNV", track: str = "T1"):
@@ -288,6 +284,10 @@ class TrackFuser:
             raise ValueError(f"fusion rule must be one of {FUSION_RULES}, got {rule!r}")
         if ci_criterion not in CI_CRITERIA:
             raise ValueError(f"ci criterion must be one of {CI_CRITERIA}, got {ci_criterion!r}")
+        if rule == "bar-shalom-campo" and isinstance(motion, ModelSet):
+            raise ValueError("fusion rule 'bar-shalom-campo' needs local tracks of one linear(ised) model (its "
+                             "cross-covariances come from each update's K·H); with motion = \"imm\" use 'info' "
+                             "(exact, per model) or 'ci'")
         self.rule = rule
         self.motion = motion
         self.ci_criterion = ci_criterion
@@ -297,6 +297,8 @@ class TrackFuser:
         self._P_nodes: dict[str, np.ndarray] = {}  # Cov(e_a, e_a) at self.t
         self._cross: dict[tuple[str, str], np.ndarray] = {}  # Cov(e_a, e_b), a < b, at self.t
         self._cross_fused: dict[str, np.ndarray] = {}  # Cov(e_f, e_a) at self.t
+        self.per_model = rule == "info" and isinstance(motion, ModelSet)
+        self.model_xs = self.model_Ps = self.mu = None  # the IMM centre's state at self.t
 
     @property
     def initialised(self) -> bool:
@@ -305,6 +307,10 @@ class TrackFuser:
     def initialise(self, x: np.ndarray, P: np.ndarray, t: float) -> None:
         """Start from a shared initial estimate (every local tracker starts from it too)."""
         self.x, self.P, self.t = np.asarray(x, float), np.asarray(P, float), float(t)
+        if self.per_model:
+            m = len(self.motion.models)
+            self.model_xs, self.model_Ps = np.array([self.x] * m), np.array([self.P] * m)
+            self.mu = np.array(self.motion.mu0, dtype=float)
         self._P_nodes.clear()
         self._cross.clear()
         self._cross_fused.clear()
@@ -330,8 +336,20 @@ class TrackFuser:
             raise ValueError(f"cannot fuse at t={t}: the fuser is already at t={self.t}")
         if dt == 0.0:
             return self.x, self.P
+        if self.per_model:
+            xs, Ps, cbar = mixed_predictions(self.motion, self.mu, self.model_xs, self.model_Ps, dt)
+            return gaussian_mixture(cbar, xs, Ps)
         F = self.motion.F(dt)
         return F @ self.x, symmetrise(F @ self.P @ F.T + self.motion.Q(dt))
+
+    def model_extra(self) -> dict:
+        """The IMM centre's per-model estimates and mode probabilities at its time, as
+        ``extra`` fields (``imm_xs``, ``imm_Ps`` stacked as ``m·n`` rows, ``imm_mu``); empty
+        when the fuser does not fuse per model."""
+        if not self.per_model:
+            return {}
+        m, n = self.model_xs.shape
+        return {"imm_xs": self.model_xs, "imm_Ps": self.model_Ps.reshape(m * n, n), "imm_mu": self.mu}
 
     def cross_covariance(self, t: float, e: Estimate) -> np.ndarray | None:
         """``Cov(e_c, e_i)`` of the centre prior at ``t`` (:meth:`predicted`) and the local
@@ -372,6 +390,8 @@ class TrackFuser:
         elif self.rule == "ci":
             xf, Pf, w = fuse_ci(xs, Ps, self.ci_criterion)
             extra["omega"] = w
+        elif self.per_model:
+            xf, Pf = self._fuse_info_models(t, tracks)
         elif self.rule == "info":
             try:
                 pxs = [e.extra["prior_x"] for e in tracks]
@@ -383,6 +403,32 @@ class TrackFuser:
             xf, Pf = self._fuse_bsc(t, tracks, xs, Ps, P_c)
         self.x, self.P, self.t = xf, Pf, t
         return Estimate(t=t, x=xf, P=Pf, method=self.method, node="centre", track=self.track, extra=extra)
+
+    def _fuse_info_models(self, t, tracks):
+        dt = t - self.t
+        if dt == 0.0:  # a second fusion at one time (DDHNV's second stage): no switching
+            cxs, cPs, cbar = self.model_xs, self.model_Ps, self.mu
+        else:
+            cxs, cPs, cbar = mixed_predictions(self.motion, self.mu, self.model_xs, self.model_Ps, dt)
+        m, n = cxs.shape
+        try:
+            rep = [(_model_rows(e.extra, "imm_xs", m, n, False), _model_rows(e.extra, "imm_Ps", m, n, True),
+                    _model_rows(e.extra, "imm_prior_xs", m, n, False), _model_rows(e.extra, "imm_prior_Ps", m, n, True),
+                    np.asarray(e.extra["imm_loglik"], float).reshape(m)) for e in tracks]
+        except (KeyError, ValueError):
+            raise ValueError("info fusion with motion = imm needs every local track's per-model report "
+                             f"(imm_xs, imm_Ps, imm_prior_xs, imm_prior_Ps, imm_loglik for {m} models)") from None
+        xs, Ps, ll = [], [], np.empty(m)
+        for j in range(m):
+            x, P, ll[j] = fuse_info_model([r[0][j] for r in rep], [r[1][j] for r in rep], [r[2][j] for r in rep],
+                                          [r[3][j] for r in rep], [r[4][j] for r in rep], cxs[j], cPs[j])
+            xs.append(x)
+            Ps.append(P)
+        with np.errstate(divide="ignore"):
+            ell = np.log(cbar) + ll
+        w = np.exp(ell - ell.max())
+        self.model_xs, self.model_Ps, self.mu = np.array(xs), np.array(Ps), w / w.sum()
+        return gaussian_mixture(self.mu, self.model_xs, self.model_Ps)
 
     def _fuse_bsc(self, t, tracks, xs, Ps, P_c):
         dt = t - self.t

@@ -33,7 +33,7 @@ MAX_DIM = 64  # largest state / array dimension accepted
 TWO_PI = 2.0 * math.pi
 
 MEASUREMENT_KINDS = tuple(KIND_COMPONENTS)
-KINDS = MEASUREMENT_KINDS + ("watermark", "track", "prediction", "jam_state", "truth", "status")
+KINDS = MEASUREMENT_KINDS + ("watermark", "track", "uplink", "downlink", "jam_state", "truth", "status")
 
 
 class SchemaError(ValueError):
@@ -42,6 +42,7 @@ class SchemaError(ValueError):
     def __init__(self, cause: str, field: str | None, detail: str):
         self.cause = cause
         self.field = field
+        self.detail = detail
         where = f"field '{field}': " if field else ""
         super().__init__(f"{cause}: {where}{detail}")
 
@@ -133,8 +134,10 @@ def _bool(d: dict, f: str, *, default: bool | None = None) -> bool:
     return d[f]
 
 
-def _array(d: dict, f: str, shape: tuple[int | None, ...], *, optional: bool = False) -> np.ndarray | None:
-    """A finite float array of the given shape (``None`` = any size up to MAX_DIM)."""
+def _array(d: dict, f: str, shape: tuple[int | None, ...], *, optional: bool = False,
+           rows: int = MAX_DIM) -> np.ndarray | None:
+    """A finite float array of the given shape (``None`` = any size up to MAX_DIM; the
+    first dimension up to ``rows``)."""
     if f not in d or d[f] is None:
         if optional:
             return None
@@ -149,7 +152,7 @@ def _array(d: dict, f: str, shape: tuple[int | None, ...], *, optional: bool = F
     if raw and any(isinstance(v, bool) for v in (raw if a.ndim == 1 else ())):
         raise SchemaError("type", f, "booleans are not numbers")
     if a.ndim != len(shape) or any(s is not None and s != n for s, n in zip(shape, a.shape)) \
-            or any(n > MAX_DIM for n in a.shape) or a.size == 0:
+            or any(n > (rows if i == 0 else MAX_DIM) for i, n in enumerate(a.shape)) or a.size == 0:
         want = "×".join("n" if s is None else str(s) for s in shape)
         raise SchemaError("shape", f, f"expected shape {want}, got {'×'.join(map(str, a.shape)) or 'scalar'}")
     if not np.all(np.isfinite(a)):
@@ -173,14 +176,14 @@ _LIMITS = {"az": (0.0, TWO_PI, False, True), "el": (-math.pi / 2, math.pi / 2, F
            "range": (0.0, math.inf, True, False)}
 
 
-def _check_measurement(kind: str, d: dict) -> dict:
+def _check_measurement(kind: str, d: dict, envelope: frozenset | set = ENVELOPE) -> dict:
     comps = KIND_COMPONENTS[kind]
     body: dict[str, Any] = {"sensor": _str(d, "sensor", ident=True), "site": _array(d, "site", (3,))}
     for c in comps:
         lo, hi, lo_open, hi_open = _LIMITS[c]
         body[c] = _num(d, c, lo=lo, hi=hi, lo_open=lo_open, hi_open=hi_open)
         body[_STD[c]] = _num(d, _STD[c], lo=0.0, lo_open=True)
-    _no_extra(d, ENVELOPE | {"sensor", "site"} | set(comps) | {_STD[c] for c in comps})
+    _no_extra(d, envelope | {"sensor", "site"} | set(comps) | {_STD[c] for c in comps})
     return body
 
 
@@ -189,7 +192,9 @@ def _check_watermark(d: dict) -> dict:
     return {"final": _bool(d, "final", default=False)}
 
 
-def _check_track(d: dict) -> dict:
+def _estimate_fields(d: dict) -> dict:
+    """The fields every estimate has: ``track``, ``node``, ``method``, ``x``, a
+    symmetric ``P`` with non-negative variances, optional ``nis`` and ``nis_dof``."""
     x = _array(d, "x", (None,))
     P = _array(d, "P", (x.size, x.size))
     if not np.allclose(P, P.T, rtol=1e-9, atol=1e-9 * max(1.0, float(np.max(np.abs(P))))):
@@ -204,10 +209,18 @@ def _check_track(d: dict) -> dict:
         "P": P,
         "nis": _num(d, "nis", lo=0.0, optional=True),
         "nis_dof": None,
-        "extra": {},
     }
     if d.get("nis_dof") is not None:
         body["nis_dof"] = _int(d, "nis_dof", lo=1, hi=MAX_DIM)
+    return body
+
+
+_ESTIMATE_FIELDS = {"track", "node", "method", "x", "P", "nis", "nis_dof"}
+
+
+def _check_track(d: dict) -> dict:
+    body = _estimate_fields(d)
+    body["extra"] = {}
     extra = d.get("extra", {})
     if not isinstance(extra, dict):
         raise SchemaError("type", "extra", "expected a map")
@@ -216,7 +229,130 @@ def _check_track(d: dict) -> dict:
             raise SchemaError("type", "extra", "keys must be strings")
         body["extra"][k] = _array(extra, k, (None, None)) if isinstance(extra[k], list) and extra[k] \
             and isinstance(extra[k][0], list) else _array(extra, k, (None,))
-    _no_extra(d, ENVELOPE | {"track", "node", "method", "x", "P", "nis", "nis_dof", "extra"})
+    _no_extra(d, ENVELOPE | _ESTIMATE_FIELDS | {"extra"})
+    return body
+
+
+# Links of the distributed topologies (schemas/links.py has the mapping to fusion.network)
+_REPORT_FIELDS = ("prior_x", "prior_P", "KH", "prediction")  # a local tracker's report: all or none
+
+
+def _no_null(d: dict) -> None:
+    """In a link an optional field is absent, never null."""
+    for k, v in d.items():
+        if v is None:
+            raise SchemaError("type", str(k), "null: an optional field is left out")
+
+
+def _nested(d: dict, f: str, check: Callable[[dict], dict]) -> dict | None:
+    """An optional sub-map checked by ``check``; its errors name ``f.<field>``."""
+    if f not in d:
+        return None
+    sub = d[f]
+    if not isinstance(sub, dict):
+        raise SchemaError("type", f, f"expected a map, got {type(sub).__name__}")
+    try:
+        return check(sub)
+    except SchemaError as e:
+        raise SchemaError(e.cause, f"{f}.{e.field}" if e.field else f, e.detail) from None
+
+
+# An IMM's per-model terms (m models of the n states; covariances stacked as m·n rows)
+_IMM_REPORT = ("imm_xs", "imm_Ps", "imm_prior_xs", "imm_prior_Ps", "imm_loglik")  # a local IMM's report
+_IMM_PRIOR = ("imm_xs", "imm_Ps", "imm_mu")  # an IMM centre's per-model estimates, fed back
+
+
+def _imm_fields(d: dict, names: tuple[str, ...], n: int) -> dict:
+    """The per-model fields ``names`` (all or none; ``imm_xs`` gives m): ``*_xs`` m×n,
+    ``*_Ps`` m·n×n, ``imm_loglik`` m, ``imm_mu`` m probabilities."""
+    have = [f for f in names if f in d]
+    if not have:
+        return {}
+    if len(have) < len(names):
+        raise SchemaError("missing", next(f for f in names if f not in d), f"an IMM's terms are all of {', '.join(names)}")
+    m = _array(d, "imm_xs", (None, n)).shape[0]
+    out = {}
+    for f in names:
+        shape = (m, n) if f.endswith("_xs") else (m * n, n) if f.endswith("_Ps") else (m,)
+        out[f] = _array(d, f, shape, rows=MAX_DIM * MAX_DIM)
+    if "imm_mu" in out and (np.any(out["imm_mu"] < 0.0) or np.any(out["imm_mu"] > 1.0)):
+        raise SchemaError("range", "imm_mu", "mode probabilities must be in [0, 1]")
+    return out
+
+
+def _check_local_estimate(d: dict) -> dict:
+    """A node's estimate in an uplink: the estimate fields, and a local report's
+    ``prior_x``, ``prior_P``, ``KH`` (shapes of ``x``, ``P``, ``P``), ``prediction``
+    (bool) and optional ``feedback_t`` — all of them or none (a deletion notice) — and a
+    local IMM's per-model terms (:data:`_IMM_REPORT`)."""
+    _no_null(d)
+    body = _estimate_fields(d)
+    have = [f for f in _REPORT_FIELDS if f in d]
+    if have and len(have) < len(_REPORT_FIELDS):
+        missing = next(f for f in _REPORT_FIELDS if f not in d)
+        raise SchemaError("missing", missing, f"a local report has all of {', '.join(_REPORT_FIELDS)}")
+    if have:
+        n = body["x"].size
+        body["prior_x"] = _array(d, "prior_x", (n,))
+        body["prior_P"] = _array(d, "prior_P", (n, n))
+        body["KH"] = _array(d, "KH", (n, n))
+        body["prediction"] = _bool(d, "prediction")
+        body["feedback_t"] = _num(d, "feedback_t", optional=True)
+    elif "feedback_t" in d:
+        raise SchemaError("unknown-field", "feedback_t", "only a local report (with prior_x) has it")
+    body.update(_imm_fields(d, _IMM_REPORT, body["x"].size))
+    _no_extra(d, _ESTIMATE_FIELDS | set(_REPORT_FIELDS) | {"feedback_t"} | set(_IMM_REPORT))
+    return body
+
+
+def _check_uplink(d: dict) -> dict:
+    """Node -> centre: an ``estimate``, a ``measurement`` (a map with its ``kind``), or
+    both; ``drop`` (a deletion notice) has an estimate. The node is their ``node`` /
+    ``sensor``, which agree."""
+    _no_null(d)
+    est = _nested(d, "estimate", _check_local_estimate)
+    meas = _nested(d, "measurement", _check_uplinked_measurement)
+    if est is None and meas is None:
+        raise SchemaError("missing", "estimate", "an uplink has an estimate, a measurement or both")
+    drop = _bool(d, "drop", default=False)
+    if drop and est is None:
+        raise SchemaError("missing", "estimate", "a deletion notice names its track by an estimate")
+    if est is not None and meas is not None and est["node"] != meas["sensor"]:
+        raise SchemaError("value", "measurement.sensor", f"{meas['sensor']!r} is not the estimate's node "
+                                                         f"{est['node']!r}")
+    _no_extra(d, ENVELOPE | {"estimate", "measurement", "drop"})
+    return {"estimate": est, "measurement": meas, "drop": drop}
+
+
+def _check_uplinked_measurement(d: dict) -> dict:
+    kind = _str(d, "kind", choices=MEASUREMENT_KINDS)
+    return {"kind": kind, **_check_measurement(kind, d, envelope={"kind"})}
+
+
+def _check_centre_estimate(d: dict) -> dict:
+    _no_null(d)
+    body = _estimate_fields(d)
+    _no_extra(d, _ESTIMATE_FIELDS)
+    return body
+
+
+def _check_downlink(d: dict) -> dict:
+    """Centre -> node: an ``estimate`` the node takes as a prior, ``init`` (start a track
+    from it) and ``drop`` (delete the node's track ``estimate.track``), booleans; DDHNV's
+    ``sensor_x``/``sensor_P`` (the centre's update with this node's measurement), both
+    or neither; an IMM centre's per-model estimates (``imm_xs``, ``imm_Ps``, ``imm_mu``)."""
+    _no_null(d)
+    est = _nested(d, "estimate", _check_centre_estimate)
+    if est is None:
+        raise SchemaError("missing", "estimate", "required")
+    body = {"estimate": est, "init": _bool(d, "init"), "drop": _bool(d, "drop", default=False),
+            "sensor_x": None, "sensor_P": None}
+    n = est["x"].size
+    if "sensor_x" in d or "sensor_P" in d:
+        body["sensor_x"] = _array(d, "sensor_x", (n,))
+        body["sensor_P"] = _array(d, "sensor_P", (n, n))
+    body["models"] = _imm_fields(d, _IMM_PRIOR, n)
+    _no_extra(d, ENVELOPE | {"estimate", "init", "drop", "sensor_x", "sensor_P"} | set(_IMM_PRIOR))
     return body
 
 
@@ -286,7 +422,8 @@ _CHECKERS: dict[str, Callable[[dict], dict]] = {
     **{k: (lambda d, k=k: _check_measurement(k, d)) for k in MEASUREMENT_KINDS},
     "watermark": _check_watermark,
     "track": _check_track,
-    "prediction": _check_track,
+    "uplink": _check_uplink,
+    "downlink": _check_downlink,
     "truth": _check_truth,
     "jam_state": _check_jam_state,
     "status": _check_status,
@@ -327,7 +464,7 @@ def _validate_fast(d: Any) -> Message | None:
         if type(final) is not bool or not d.keys() <= _WATERMARK_FIELDS:
             return None
         return Message(kind=kind, src=src, seq=seq, t=t, body={"final": final})
-    if kind in ("track", "prediction"):
+    if kind == "track":
         body = _estimate_body_fast(d)
         return None if body is None else Message(kind=kind, src=src, seq=seq, t=t, body=body)
     fields = _MEASUREMENT_FIELDS.get(kind) if type(kind) is str else None
@@ -405,6 +542,8 @@ def decode(data: bytes) -> Message:
 
 
 def _plain(v: Any) -> Any:
+    if isinstance(v, dict):
+        return {k: _plain(vv) for k, vv in v.items()}
     if isinstance(v, np.ndarray):
         return v.tolist()
     if isinstance(v, np.generic):
@@ -416,10 +555,7 @@ def encode(kind: str, src: str, seq: int, t: float, **payload: Any) -> bytes:
     """Build, validate and pack a message."""
     d = {"v": SCHEMA_VERSION, "kind": kind, "src": src, "seq": int(seq), "t": float(t)}
     for k, v in payload.items():
-        if k == "extra" and isinstance(v, dict):
-            d[k] = {kk: _plain(vv) for kk, vv in v.items()}
-        else:
-            d[k] = _plain(v)
+        d[k] = _plain(v)
     validate(d)
     return msgpack.packb(d, use_bin_type=True)
 
@@ -427,32 +563,37 @@ def encode(kind: str, src: str, seq: int, t: float, **payload: Any) -> bytes:
 # ---------------------------------------------------------------- typed conversions
 
 
-def encode_measurement(m: Measurement, src: str) -> bytes:
-    comps = KIND_COMPONENTS[m.kind]
+def measurement_fields(m: Measurement) -> dict[str, Any]:
+    """A measurement's payload: ``sensor``, ``site``, its components and their stds."""
     payload: dict[str, Any] = {"sensor": m.sensor, "site": m.site}
-    for i, c in enumerate(comps):
+    for i, c in enumerate(KIND_COMPONENTS[m.kind]):
         payload[c] = float(m.z[i])
         payload[_STD[c]] = float(m.std[i])
-    return encode(m.kind, src, m.seq, m.t, **payload)
+    return payload
+
+
+def measurement_of(kind: str, b: dict, t: float, seq: int) -> Measurement:
+    """The :class:`Measurement` of a validated measurement payload."""
+    comps = KIND_COMPONENTS[kind]
+    return Measurement(t=t, sensor=b["sensor"], kind=kind, z=np.array([b[c] for c in comps]),
+                       std=np.array([b[_STD[c]] for c in comps]), site=b["site"], seq=seq)
+
+
+def encode_measurement(m: Measurement, src: str) -> bytes:
+    return encode(m.kind, src, m.seq, m.t, **measurement_fields(m))
 
 
 def to_measurement(msg: Message) -> Measurement:
-    comps = KIND_COMPONENTS[msg.kind]
-    b = msg.body
-    return Measurement(
-        t=msg.t, sensor=b["sensor"], kind=msg.kind,
-        z=np.array([b[c] for c in comps]), std=np.array([b[_STD[c]] for c in comps]),
-        site=b["site"], seq=msg.seq,
-    )
+    return measurement_of(msg.kind, msg.body, msg.t, msg.seq)
 
 
-def encode_estimate(e: Estimate, src: str, seq: int, kind: str = "track") -> bytes:
-    """An estimate as a message. ``extra`` travels as arrays: a number (or bool) becomes a
-    one-element list, None is left out; anything else non-numeric is an error."""
-    fast = _encode_estimate_fast(e, src, seq, kind)
+def encode_estimate(e: Estimate, src: str, seq: int) -> bytes:
+    """An estimate as a ``track`` message. ``extra`` travels as arrays: a number (or bool)
+    becomes a one-element list, None is left out; anything else non-numeric is an error."""
+    fast = _encode_estimate_fast(e, src, seq)
     if fast is not None:
         return fast
-    return encode(kind, src, seq, e.t, **_estimate_payload(e))
+    return encode("track", src, seq, e.t, **_estimate_payload(e))
 
 
 def _estimate_payload(e: Estimate) -> dict[str, Any]:
@@ -465,7 +606,7 @@ def _estimate_payload(e: Estimate) -> dict[str, Any]:
                 extra=extra)
 
 
-def _encode_estimate_fast(e: Estimate, src: str, seq: int, kind: str) -> bytes | None:
+def _encode_estimate_fast(e: Estimate, src: str, seq: int) -> bytes | None:
     """:func:`encode_estimate` of a plainly valid estimate without ``extra`` (what a fuser
     publishes), checking the numpy arrays themselves instead of re-parsing the lists made
     from them. The same bytes as the strict path; ``None`` leaves anything else to it.
@@ -474,7 +615,7 @@ def _encode_estimate_fast(e: Estimate, src: str, seq: int, kind: str) -> bytes |
     that is only symmetric within tolerance takes the strict path, which allows that.
     """
     x, P = e.x, e.P
-    if any(v is not None for v in e.extra.values()) or kind not in ("track", "prediction") \
+    if any(v is not None for v in e.extra.values()) \
             or type(x) is not np.ndarray or type(P) is not np.ndarray or x.dtype != np.float64 \
             or P.dtype != np.float64 or x.ndim != 1 or not 0 < x.size <= MAX_DIM or P.shape != (x.size, x.size):
         return None
@@ -487,7 +628,7 @@ def _encode_estimate_fast(e: Estimate, src: str, seq: int, kind: str) -> bytes |
             and (nis_dof is None or (type(nis_dof) is int and 1 <= nis_dof <= MAX_DIM))
             and type(e.method) is str and all(type(i) is str and i in _VALID_IDS for i in (src, e.track, e.node))):
         return None
-    return msgpack.packb({"v": SCHEMA_VERSION, "kind": kind, "src": src, "seq": seq, "t": t, "track": e.track,
+    return msgpack.packb({"v": SCHEMA_VERSION, "kind": "track", "src": src, "seq": seq, "t": t, "track": e.track,
                           "node": e.node, "method": e.method, "x": x.tolist(), "P": P.tolist(), "nis": nis,
                           "nis_dof": nis_dof, "extra": {}}, use_bin_type=True)
 

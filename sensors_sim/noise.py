@@ -1,35 +1,24 @@
 r"""Every random law the emulators draw from, in one place.
 
-Random streams
---------------
-Each process (a sensor, a jammer, the truth) draws only from its own generator::
+Each process (a sensor, a jammer, the truth) draws only from its own generator,
+``process_rng(seed, process_id, run) = Generator(PCG64(SeedSequence([seed, run,
+crc32(process_id)])))``, so a distributed run (each process seeds itself; run 0) and an
+in-process Monte Carlo run (``run = r``) draw the same numbers. The laws:
 
-    process_rng(seed, process_id, run) = Generator(PCG64(SeedSequence([seed, run, crc32(process_id)])))
+* white-noise jerk (the truth's process noise), per axis on ``[p, v, a]``:
+  ``x_{k+1} = F x_k + w_k``, ``w_k ~ N(0, q·Q₁(dt))``, with
+  ``F = [[1, dt, dt²/2], [0, 1, dt], [0, 0, 1]]`` and
+  ``Q₁ = [[dt⁵/20, dt⁴/8, dt³/6], [dt⁴/8, dt³/3, dt²/2], [dt³/6, dt²/2, dt]]``
+  (``fusion.motion.ConstantAcceleration``'s). ``q`` is the jerk's PSD (m²/s⁵), and
+  ``q·Q₁(dt)`` is the exact discretisation: every n-th node of a grid of step ``dt`` has
+  the law of a grid of step ``n·dt``;
+* Gaussian measurement noise ``σ·n``, ``n ~ N(0, 1)``;
+* outliers (jamming) of standard deviation ``σ₂``, from one ``u ~ U(0, 1)`` per component
+  by the inverse CDF: ``laplacian`` with scale ``b = σ₂/√2``,
+  ``x = −b·sgn(u − ½)·ln(1 − 2|u − ½|)``; ``uniform``, ``x = √3·σ₂·(2u − 1)``.
 
-so a distributed run (each process seeds itself) and an in-process Monte Carlo run
-(``run = r``) draw the same numbers. Run 0 is the distributed run.
-
-Laws
-----
-* White-noise jerk (the truth's process noise), per axis on state ``[p, v, a]``::
-
-      x_{k+1} = F x_k + w_k,   w_k ~ N(0, q·Q₁(dt))
-      F  = [[1, dt, dt²/2], [0, 1, dt], [0, 0, 1]]
-      Q₁ = [[dt⁵/20, dt⁴/8, dt³/6], [dt⁴/8, dt³/3, dt²/2], [dt³/6, dt²/2, dt]]
-
-  (``fusion.motion.ConstantAcceleration``'s per-axis F₁ and continuous-noise Q₁).
-  ``q`` is the power spectral density of the jerk (m²/s⁵). ``q·Q₁(dt)`` is the *exact*
-  discretisation of continuous white jerk, so sampling the process on a grid of step
-  ``dt`` and keeping every n-th node has exactly the law of sampling it at ``n·dt``.
-* Gaussian measurement noise: ``σ·n`` with ``n ~ N(0, 1)``.
-* Outliers (the IMM thesis's jamming noise, document 001, appendix C), from one uniform
-  ``u ~ U(0, 1)`` per component by the inverse CDF, with standard deviation ``σ₂``:
-
-  - ``laplacian``: scale ``b = σ₂/√2``, ``x = −b·sgn(u − ½)·ln(1 − 2|u − ½|)``;
-  - ``uniform``:  ``x = √3·σ₂·(2u − 1)``, i.e. uniform on ``[−√3σ₂, √3σ₂]``.
-
-Drawing outliers from uniforms (rather than with ``Generator.laplace``) lets an emulator
-consume the same variates every scan whichever law applies, which keeps streams aligned.
+Drawing outliers from uniforms (rather than ``Generator.laplace``) consumes the same
+variates every scan whichever law applies, which keeps the streams aligned.
 """
 
 from __future__ import annotations

@@ -423,7 +423,7 @@ def _command(args) -> int:
     if args.command == "export":
         return _export(args, keys)
     if args.command == "record":
-        from .recorder import run as record
+        from .recording.recorder import run as record
 
         Path(args.rrd).parent.mkdir(parents=True, exist_ok=True)
         return record(args.id, keys, _zopts(args), args.rrd, args.expect,
@@ -571,28 +571,20 @@ def _eval(args) -> int:
     show = sys.stderr.isatty() if args.progress is None else args.progress
     rule = args.fusion_rule or track_fusion_rule(scenario.tracker, methods)
 
-    import time
+    from tqdm import tqdm
 
-    began = time.monotonic()
-
-    def progress(done: int, total: int) -> None:
-        bar = "#" * (30 * done // total)
-        spent = time.monotonic() - began
-        eta = f", {spent * (total - done) / done:.0f} s left" if 0 < done < total else f", {spent:.0f} s" if done else ""
-        sys.stderr.write(f"\r{scenario.name}: run {done}/{total} [{bar:<30}]{eta}   ")
-        if done == total:
-            sys.stderr.write("\n")
-        sys.stderr.flush()
-
-    if show:  # at once, not after the first run
-        progress(0, args.runs)
-
+    # Shown at once (before the first run ends), with the time left from the runs so far.
+    bar = tqdm(total=args.runs, desc=f"{scenario.name}: run", file=sys.stderr, disable=not show, ascii=" #",
+               bar_format="{desc} {n}/{total} [{bar:30}] {elapsed} spent, {remaining} left", mininterval=0.0)
+    bar.refresh()
     try:
         doc = evaluate(scenario, variants_for(methods, overrides), args.runs, jobs=args.jobs,
-                       progress=progress if show else None,
+                       progress=(lambda done, total: bar.update(done - bar.n)) if show else None,
                        fusion_rule=rule)
     except ValueError as exc:
         raise SystemExit(f"zfusion eval: {exc}") from None
+    finally:
+        bar.close()
     print(format_table(doc))
     if args.json:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)

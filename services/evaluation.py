@@ -39,7 +39,7 @@ from fusion.methods import METHODS, make_method, method_config
 from fusion.types import Estimate, Measurement
 
 from .scoring import GOSPA_CUTOFF, many_targets, pair_tol_of, scan_groups, score_run, score_tracks_of, truth_function
-from .summary import aggregate, method_summary, summary, tracks_summary
+from .summary import aggregate, summary, tracks_summary
 
 def merged_measurements(scenario, run: int = 0, sensors: Iterable[str] | None = None) -> list[Measurement]:
     from sensors_sim import sensor_events
@@ -458,18 +458,6 @@ def _crb_moving_emitter(scenario, target: str, groups, cfg) -> dict:
 def with_sensors(scenario, sensors: dict, name: str | None = None):
     """A copy of ``scenario`` with another sensor table (for baseline variants)."""
     return dataclasses.replace(scenario, sensors=dict(sensors), name=name or scenario.name)
-
-
-def run_summary(scenario, topology: str, method: str, fusion_rule: str | None, estimates: Sequence[Estimate],
-                sources: dict) -> dict:
-    """The summary of one distributed run from its fused estimates (what ``zfusion run``
-    prints, and ``zfusion fuser --json`` writes for a deployment started by hand)."""
-    scored = (tracks_summary([score_tracks_of(scenario, estimates)]) if many_targets(scenario)
-              else method_summary([estimates], truth_function(scenario)))
-    doc = summary(scenario, topology, fusion_rule, scenario.seed, 1, {method: scored}, sources=sources)
-    if many_targets(scenario):
-        doc["gospa_cutoff"] = GOSPA_CUTOFF
-    return doc
 
 
 def score_tracks_run(scenario, method_name: str, run: int = 0, c: float = GOSPA_CUTOFF, p: float = 2.0,

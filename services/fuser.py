@@ -1,49 +1,32 @@
 """The command-centre fuser process.
 
 Centralised topology: subscribes to every sensor's ``meas/<sensor>`` and runs one
-estimation method of ``fusion/`` on the time-ordered measurements. Distributed,
-feedback and two-stage topologies: subscribes to every local tracker's
-``local/<node>`` and runs the method's centre (:mod:`fusion.network`) on the
-time-ordered uplinks, sending priors down on ``feedback/<node>``. Either way it
-validates and orders its input (:class:`~services.ordering.WatermarkMerger`) and
-publishes its estimates on ``fused``.
+estimation method of ``fusion/`` on the time-ordered measurements. Distributed, feedback
+and two-stage topologies: subscribes to every local tracker's ``local/<node>`` and runs
+the method's centre (:mod:`fusion.network`) on the time-ordered uplinks, sending priors
+down on ``feedback/<node>``. Either way it validates and orders its input
+(:class:`~services.ordering.WatermarkMerger`) and publishes its estimates on ``fused``.
 
-**Restart** (after kill -9; the launcher restarts it). A fuser keeps no state on disk:
-a restarted one joins mid-stream and starts at the first scan its sources release (it
-waits for no t = 0 data; a source not heard within ``--start-grace`` is declared dead).
-
-* Centralised: the method initialises from the measurements of that first scan, as at
-  t = 0.
-* Distributed, feedback, two-stage: the centre starts uninitialised and the network
-  re-runs the start-up handshake: each local tracker sees the liveliness token of a new
-  incarnation of the fuser, drops its track and sends its next measurement up as an
-  initialisation request (:mod:`services.tracker`). The alternative — restarting the centre from the
-  trackers' latest tracks — would leave the ``info`` and ``bar-shalom-campo`` rules
-  without the common prior and cross-covariances they need (the centre sent them and
-  forgot them); the handshake rebuilds them exactly, with the code that runs at t = 0,
-  at the cost of one initialisation transient. Until a node has been answered, its
-  reports (sent before it noticed the restart) are dropped and counted as ``not-joined``.
-
-**Live** (``--site``, docs/live.md): time is UTC and nothing ends; stamps from the
-future are refused (:class:`services.live.ClockGuard`), a lagging source is waited for
-at most ``--max-delay`` seconds, and what it then sends for released times is applied
-by re-filtering (:class:`fusion.oosm.Refiltering`), the corrected estimates re-published.
-
-The fuser says in its status events where it joined. It finishes when every source is
-final or dead *and at least one is final*: sources that are all dead at once (a
-network outage, a router restart) are not the end of the scenario.
+It keeps no state on disk: restarted after kill -9, it joins mid-stream at the first scan
+its sources release, and in the distributed topologies the nodes re-run the start-up
+handshake, which rebuilds the common prior and cross-covariances the fusion rules need
+(docs/reliability.md, "Faults", says why and what is counted). It finishes when every
+source is final or dead and at least one is final: sources all dead at once (a router
+restart) are not the end. Live (``--site``, docs/live.md): UTC time, no end, stamps from
+the future refused, a lagging source waited for at most ``--max-delay`` s, late data
+applied by re-filtering (:class:`fusion.oosm.Refiltering`).
 
 :class:`FuserCore` is the whole behaviour without Zenoh: bytes in, estimates out. The
-process around it only moves bytes, so tests (and the fuzzer) can drive the core and
-the real process with the same inputs.
+process around it only moves bytes, so tests (and the fuzzer) drive the core and the real
+process with the same inputs.
 """
 
 from __future__ import annotations
 
+import functools
 import math
 import queue
 import time
-from collections import deque
 from typing import Any, Mapping
 
 from fusion.methods import METHODS, make_method, method_config, split, track_fusion_rule
@@ -55,9 +38,10 @@ from schemas import (MEASUREMENT_KINDS, KeySpace, Message, SchemaError, decode, 
 from schemas.links import encode_downlink, horizon_message, uplink
 
 from .live import ClockGuard, LiveOptions
-from .node import Inbox, Node, RejectLog, load, load_site
+from .node import Inbox, Node, Recovery, RejectLog, load, load_site
 from .ordering import DEFAULT_MAX_HELD, HORIZON_SLACK_S, WatermarkMerger
 from .picture import Picture
+from .source import recovery_cache
 
 
 class MeasurementIntake:
@@ -92,35 +76,24 @@ class MeasurementIntake:
 
 
 class UplinkIntake:
-    """Uplinks on ``local/<node>`` (fuser of the distributed topologies).
-
-    ``nodes`` maps tracker id to its sensor. DDHNV's uplink is two messages (estimate,
-    then measurement, same ``t``): the estimate waits here for its measurement.
-    """
+    """Uplinks on ``local/<node>`` (fuser of the distributed topologies); ``nodes`` maps
+    tracker id to its sensor, which an uplink must be of."""
 
     family = "local"
 
     def __init__(self, nodes: dict[str, str]):
         self.nodes = nodes
-        self._held: dict[str, Message] = {}
 
     def item(self, key_id: str, msg: Message):
         sensor = self.nodes.get(key_id)
         if sensor is None:
             return None, "unknown-source"
-        held = self._held.pop(key_id, None)
-        if msg.kind in MEASUREMENT_KINDS:
-            if msg.body["sensor"] != sensor:
-                return None, f"spoofed-src:measurement of sensor {msg.body['sensor']!r} sent by {key_id!r}"
-            if held is not None and held.t == msg.t:
-                return "item", uplink(sensor, held, msg)
-            return "item", uplink(sensor, msg)
-        if msg.kind in ("track", "prediction"):
-            if msg.kind == "prediction":  # its measurement follows
-                self._held[key_id] = msg
-                return "held", None
-            return "item", uplink(sensor, msg)
-        return None, "kind"
+        if msg.kind != "uplink":
+            return None, "kind"
+        u = uplink(msg)
+        if u.node != sensor:
+            return None, f"spoofed-src:uplink of node {u.node!r} sent by {key_id!r}"
+        return "item", u
 
 
 class JoinGate:
@@ -201,24 +174,25 @@ class FuserCore:
             raise ValueError("a re-filtering core's estimator is restored from its checkpoints")
         self._method = method
 
-    def offer(self, key: str, data: bytes, now: float, utc: float | None = None) -> None:
+    def offer(self, key: str, data: bytes, now: float, utc: float | None = None) -> Message | None:
         """One sample off the wire (``now``: monotonic clock; ``utc``: this host's UTC
-        clock, live). Bad input is counted and dropped; never raises."""
+        clock, live). Bad input is counted and dropped; never raises. Returns the decoded
+        message (whether or not it was then accepted), None if it did not decode."""
         self.received += 1
         try:
             family, key_id = self.keys.family_and_id(key)
         except ValueError as e:
             self.reject("?", "key", str(e))
-            return
+            return None
         hint = key_id or "?"
         try:
             msg = decode(data)
         except SchemaError as e:
             self.reject(hint, e.cause, str(e))
-            return
+            return None
         if family != self.intake.family or msg.src != key_id:
             self.reject(hint, "spoofed-src", f"message says src={msg.src!r} but came on {key}")
-            return
+            return msg
         st = self.merger.sources.get(msg.src)
         if self.clock is not None and utc is not None and st is not None and st.dead:
             # Heard again after it was declared dead: what it sent while cut off comes now, given
@@ -231,7 +205,7 @@ class FuserCore:
                                    self.periods.get(msg.src, 0.0) if msg.kind == "watermark" else None)
             if rej is not None:
                 self.reject(rej.src, rej.cause, rej.detail)
-                return
+                return msg
         if msg.kind == "watermark":
             rej = self.merger.watermark(msg.src, msg.t, msg.body["final"], now, self.events)
         else:
@@ -239,12 +213,11 @@ class FuserCore:
             if what is None:
                 cause, _, detail = item.partition(":")
                 self.reject(hint, cause, detail or f"{msg.kind!r} is not expected on {key}")
-                return
-            if what == "held":
-                return
+                return msg
             rej = self.merger.add(msg.src, msg.t, msg.seq, item, now, self.events)
         if rej is not None:
             self.reject(rej.src, rej.cause, rej.detail)
+        return msg
 
     def step(self, now: float) -> list[Estimate]:
         """Release what the watermarks allow and run the method on it."""
@@ -341,16 +314,19 @@ def run(process_id: str, scenario_ref: str, method_name: str, overrides: dict, k
                          intake=intake, max_held=max_held_for(scenario, None if live is None else timeout),
                          live=live, refilter=not feedback, periods=periods)
         utc = time.time if live is not None else lambda: None
-        misses: deque[tuple[str, int]] = deque(maxlen=1024)  # (publisher's session, samples it could not give back)
-        if live is not None and intake.family == "meas":  # live sensors' publishers give back what a cut-off missed
-            sessions = node.processes_by_session()
-            node.recovering_subscriber(keys.all(intake.family), inbox, lambda zid, n: misses.append((zid, n)))
+        recovery = Recovery(node.processes_by_session()) if live is not None else None
+        if recovery is not None:  # live sensors' and trackers' publishers give back what a cut-off missed
+            node.recovering_subscriber(keys.all(intake.family), inbox, recovery.on_miss)
+            # Its own streams too: a release is at most one estimate per measurement (or uplink) taken.
+            cache = sum(recovery_cache(scenario, s) for s in scenario.sensors)
+            publisher = functools.partial(node.recoverable_publisher, cache=cache)
         else:
             node.subscribe(keys.all(intake.family), inbox)
-        pub = node.publisher(keys.fused())
+            publisher = node.publisher
+        pub = publisher(keys.fused())
         picture = Picture(process_id, _delete_misses(scenario))
         node.keep(picture.serve(node.session, keys))
-        down = {tid: node.publisher(keys.feedback(tid)) for tid in (intake.nodes if distributed else ())}
+        down = {tid: publisher(keys.feedback(tid)) for tid in (intake.nodes if distributed else ())}
         node.announce()
         node.publish_status("ready")
         seq = down_seq = 0
@@ -386,9 +362,7 @@ def run(process_id: str, scenario_ref: str, method_name: str, overrides: dict, k
                     down_seq += 1
                     for p in down.values():
                         p.put(horizon_message(process_id, down_seq, horizon))
-            while misses:
-                zid, n = misses.popleft()
-                src = sessions.get(zid)
+            for src, n in recovery.take_misses() if recovery is not None else ():
                 if src in core.merger.sources:
                     core.merger.sources[src].missed += n
                     core.events.append(f"source {src}: {n} samples lost (beyond its publisher's cache)")
@@ -418,14 +392,16 @@ def _write_result(path: str, scenario, method: str, config: Mapping, estimates: 
     import json
     from pathlib import Path
 
-    from .evaluation import run_summary
-    from .summary import format_table
+    from .summary import RunScorer, format_table, run_summary
 
     rule = (config.get("fusion_rule") if METHODS[method].fuses_tracks else None) or track_fusion_rule(
         scenario.tracker, [method])
     for sid in scenario.process_ids():  # processes the fuser does not consume (truth, jammers) too
         sources.setdefault(sid, {"dead_intervals": [], "rejected": 0})
-    doc = run_summary(scenario, METHODS[method].topology, method, rule, estimates, sources)
+    scorer = RunScorer(scenario)
+    for e in estimates:
+        scorer.add(e)
+    doc = run_summary(scenario, METHODS[method].topology, method, rule, scorer.method_summary(), sources)
     Path(path).parent.mkdir(parents=True, exist_ok=True)
     Path(path).write_text(json.dumps(doc, indent=1))
     print(format_table(doc), flush=True)

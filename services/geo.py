@@ -69,7 +69,11 @@ def ring_enu(center: np.ndarray, P2: np.ndarray, p: float = CONFIDENCE, n: int =
 def ring(frame: LocalFrame, center: np.ndarray, P2: np.ndarray, p: float = CONFIDENCE,
          n: int = RING_POINTS) -> np.ndarray:
     """(n + 1, 3) ``[lat, lon, alt]`` of the ``p`` ellipse: closed, counter-clockwise in (lon, lat)."""
-    g = lat_lon_alt(frame, ring_enu(center, P2, p, n))
+    return closed_ring(lat_lon_alt(frame, ring_enu(center, P2, p, n)))
+
+
+def closed_ring(g: np.ndarray) -> np.ndarray:
+    """The vertices ``g`` (``[lat, lon, ...]`` rows) of a ring, closed and counter-clockwise in (lon, lat)."""
     lon, lat = g[:, 1], g[:, 0]
     if np.dot(lon, np.roll(lat, -1)) - np.dot(np.roll(lon, -1), lat) < 0:  # shoelace: twice the signed area
         g = g[::-1]

@@ -1,48 +1,23 @@
-"""``zfusion run``: one scenario as separate OS processes over Zenoh.
+"""``zfusion run``: one scenario as separate OS processes over Zenoh, and their supervisor.
 
-The launcher opens a Zenoh peer that listens on a free loopback port (the "hub"
-endpoint the children dial; they then find each other by gossip, no router involved),
-starts the fuser and the recorder, waits until they have announced themselves, starts
-every source (sensors, truth, jammers) with a common start time (as far ahead as the
-fuser and recorder took to come up, so that the sources run by then even under load),
-collects the fused estimates, and when the fuser is done stops everything, scores the estimates against
-truth and writes the summary.
+The launcher opens a Zenoh peer on a free loopback port (the "hub" the children dial;
+they then find each other by gossip, no router), starts the fuser and the recorder,
+waits until they have announced themselves, and starts every source (sensors, truth,
+jammers) with a common start time as far ahead as the fuser and recorder took to come
+up, so that the sources are running by then even under load. It collects the fused
+estimates, and when the fuser is done stops everything, scores them against truth
+(:class:`services.summary.RunScorer`: as they settle in a live run, so an endless run
+holds a window of them) and writes the summary.
 
-It is also their supervisor. A child killed from outside (kill -9, the OOM killer: an
-exit by a signal the launcher did not send) is an *outage*, not the end of the run:
-
-* with ``--restart`` (the default) the fuser, the local trackers and the recorder are
-  started again, with the same command line, :data:`RESTART_DELAY` seconds later (at
-  most :data:`MAX_RESTARTS` times each). A restarted fuser gets ``--start-grace`` equal
-  to the source timeout (its sources are already running) and re-initialises from what
-  it receives (see :mod:`services.fuser`); a restarted recorder writes the rest of the
-  run to a new file beside the first, ``<stem>.<n>.rrd`` (``n`` = 2, 3, ...: a killed
-  recorder's file is whole up to its last flush and is never overwritten).
-* sources are never restarted: they stand for the sensors themselves, whose outages the
-  fuser rides through (it declares them dead and takes them back when they speak again).
-* with ``--no-restart``, or once the restarts are used up, a killed fuser may still be
-  restarted by hand (same command line): the run then ends when a fuser reports done,
-  or :data:`END_GRACE` seconds after the last source has finished.
-
-A child that fails on its own (positive exit code) is an error, not an outage: it is not
-restarted, ``run`` stops every process at once and exits 1 with the child's last line on
-stderr (children's stderr is relayed through the launcher). The run ends when the fuser
-finishes. The summary's
-``outages`` lists, per process, every death the launcher saw (scenario time down and
-back up, the exit code) and ``exit_codes`` the first non-zero code of any incarnation.
-
-Children are started with ``PR_SET_PDEATHSIG`` so that even a launcher killed with
-SIGKILL leaves none behind; on SIGINT/SIGTERM the launcher stops them in order (SIGTERM,
-then SIGKILL after a grace period) and exits.
-
-``--live`` (:func:`services.live.live_argv` and docs/live.md): the same processes as a
-live session on UTC time. The fuser, trackers and recorder are started with ``--site``
-(the scenario taken as its site: no end), the sources with ``--live`` and the common
-start time as scenario time 0 (``epoch_utc`` in the summary), at speed 1. The run
-ends at ``--for``, on Ctrl-C, or when every source has played its duration; then the
-sources are stopped, the fuser gets ``--max-delay`` + 1 s to release what they sent,
-the fuser and trackers are stopped, the recorder ends once it has their last status,
-and the summary is written as for a scenario run, with UTC times.
+As supervisor: a child killed from outside (a signal the launcher did not send) is an
+*outage*. The fuser, trackers and recorder are restarted with the same command line
+(``--restart``, at most :data:`MAX_RESTARTS` times each, :data:`RESTART_DELAY` s later),
+sources never (they stand for the sensors). A child that fails on its own (positive
+exit code) ends the run at once, exit 1, with its last line. Children get
+``PR_SET_PDEATHSIG``, so even a launcher killed with SIGKILL leaves none behind; on
+SIGINT/SIGTERM it stops them in order. ``--live`` runs the same processes on UTC time
+(:func:`services.live.live_argv`). What each outage does and what the summary reports:
+docs/reliability.md ("Faults"); live runs: docs/live.md.
 """
 
 from __future__ import annotations
@@ -68,14 +43,12 @@ from typing import Iterable
 import zenoh
 
 from fusion.methods import METHODS, TRACK_FUSION_METHODS, topology_default, track_fusion_rule
-from fusion.types import Estimate
 from schemas import KeySpace, SchemaError, decode, to_estimate, tracker_id
 
 from .node import Inbox, Node, ZenohOptions
 from .resources import ProcessUsage, own_usage
 from .rotation import rotated_files
-from .scoring import GOSPA_CUTOFF, many_targets, score_tracks_of, truth_function
-from .summary import format_table, method_summary, on_time_base, scenario_times, summary, tracks_summary
+from .summary import RunScorer, format_table, run_summary
 
 log = logging.getLogger("zfusion")
 
@@ -91,6 +64,8 @@ EXPORTERS = {"geojson": ("export-geojson", "--file"), "cot": ("export-cot", "--t
 # dead, and taking it for dead changes what is fused
 MAX_SPEED_TIMEOUT = 15.0
 START_LEAD_MAX = 15.0  # s: the most a paced run's sources are given to start (see main)
+RECORDER_STALL = 30.0  # s: at the end, the recorder is stopped once it has recorded nothing new this long
+SETTLE_MARGIN = 1.0  # s beyond the OOSM window and max delay before a live estimate is scored for good
 LIVE_LEAD = 8.0  # s from starting the sources of a live run to its scenario time 0 (their start-up)
 
 
@@ -450,7 +425,7 @@ def run(args) -> int:
     max_period = max([getattr(s, "period", 1.0) for s in scenario.sensors.values()] + [1.0])
     timeout = MAX_SPEED_TIMEOUT if math.isinf(speed) else max(3.0, 3.0 * max_period / speed)
 
-    estimates: list[Estimate] = []
+    scorer = RunScorer(scenario)  # live: replaced once scenario time 0 is known
     statuses: dict[str, dict] = {}
     heard_at: dict[str, float] = {}  # monotonic time of each process's latest status
     usage: dict[str, ProcessUsage] = {}  # each process's CPU time and peak memory, from its statuses
@@ -464,7 +439,7 @@ def run(args) -> int:
         if not started:
             return None
         if math.isinf(speed):
-            return estimates[-1].t if estimates else 0.0
+            return scorer.last_t if scorer.n else 0.0
         return round((time.time() - started[0]) * speed, 3)
 
     node = Node(LAUNCHER_ID, "launcher", keys, mine)
@@ -499,7 +474,7 @@ def run(args) -> int:
                         node.reject(key.rsplit("/", 1)[-1], e.cause, str(e))
                         continue
                     if msg.kind == "track" and key == keys.fused():
-                        estimates.append(to_estimate(msg))
+                        scorer.add(to_estimate(msg))
                     elif msg.kind == "status":
                         statuses[msg.src] = msg.body
                         heard_at[msg.src] = time.monotonic()
@@ -536,6 +511,8 @@ def run(args) -> int:
             lead = LIVE_LEAD if live else min(START_LEAD_MAX, max(0.5, startup))
             start_at = time.time() + (0.0 if math.isinf(speed) else lead)
             started.append(start_at)
+            if live:  # settles what no re-filtering can correct any more (docs/bounds.md)
+                scorer = RunScorer(scenario, start_at, args.oosm_window + args.max_delay + SETTLE_MARGIN)
             for sid in sources:
                 # A source waits only for its consumers: the fuser may finish (and vanish)
                 # before a truth or jammer process discovers it, so they must not wait for it.
@@ -558,7 +535,7 @@ def run(args) -> int:
                 sup.poll()
                 if show and time.monotonic() - shown >= 1.0:
                     shown = time.monotonic()
-                    progress_line(scenario, clock(), len(estimates), statuses.get(FUSER_ID, {}).get("sources", {}))
+                    progress_line(scenario, clock(), scorer.n, statuses.get(FUSER_ID, {}).get("sources", {}))
                 failure = children.failed()
                 if failure:  # a child's own error: the run cannot give what was asked
                     break
@@ -580,18 +557,20 @@ def run(args) -> int:
                 for sid in [*sources, *trackers.values()]:
                     children.wait(sid, 10.0)
                 never_back = [n for n, outs in sup.outages.items() if outs[-1]["t_up"] is None]
-                if sup.restarts.get(RECORDER_ID) or never_back:
-                    # It may have missed the "done" of processes that ended before it came
-                    # up, and a process killed and not restarted (--no-restart) sends none:
-                    # once it reports an empty backlog it has everything; stop it.
-                    since, deadline = time.monotonic(), time.monotonic() + 30.0
-                    while children.procs[RECORDER_ID].poll() is None and time.monotonic() < deadline:
-                        drain(0.1)
-                        if heard_at.get(RECORDER_ID, 0.0) > since + 0.2 and \
-                                statuses[RECORDER_ID].get("counters", {}).get("backlog") == 0:
-                            break
-                else:
-                    children.wait(RECORDER_ID, 30.0)
+                # It may have missed the "done" of processes that ended before it came up, and
+                # a process killed and not restarted (--no-restart) sends none: once it
+                # reports an empty backlog it has everything; stop it. Otherwise it ends by
+                # itself once it has drawn its backlog (at --speed max, seconds of it).
+                since, stalled = time.monotonic(), time.monotonic()
+                progress = None
+                while children.procs[RECORDER_ID].poll() is None and time.monotonic() - stalled < RECORDER_STALL:
+                    drain(0.1)
+                    counters = statuses.get(RECORDER_ID, {}).get("counters", {})
+                    if (counters.get("recorded"), counters.get("backlog")) != progress:
+                        progress, stalled = (counters.get("recorded"), counters.get("backlog")), time.monotonic()
+                    if (sup.restarts.get(RECORDER_ID) or never_back) and heard_at.get(RECORDER_ID, 0.0) > since + 0.2 \
+                            and counters.get("backlog") == 0:
+                        break
                 drain(0.2)
         except TimeoutError as e:  # a process did not come up (or Ctrl-C while waiting)
             interrupted = node.stop.is_set()
@@ -619,22 +598,15 @@ def run(args) -> int:
     src_report = dict(fuser_status.get("sources", {}))
     for sid in sources:  # processes the fuser does not consume (truth, jammers) are reported too
         src_report.setdefault(sid, {"dead_intervals": [], "rejected": 0})
-    truth = truth_function(scenario)
     epoch = started[0] if live else 0.0
-    if live:  # the latest estimate per (node, track, t): a re-filtering re-publishes corrected ones
-        estimates = scenario_times(estimates, epoch)
     played = scenario  # live: scored over the time the sources played (--for, Ctrl-C), not the whole duration
     if live:
         played = dataclasses.replace(scenario, duration=min(math.inf if endless else scenario.duration,
-                                                             max((e.t for e in estimates), default=0.0)))
-    scored = (tracks_summary([score_tracks_of(played, estimates)]) if many_targets(scenario)
-              else method_summary([estimates], truth))
-    doc = summary(scenario, topology, args.fusion_rule or track_fusion_rule(scenario.tracker, [method]), scenario.seed, 1,
-                  {method: on_time_base(scored, epoch) if live else scored}, sources=src_report)
+                                                             scorer.played()))
+    doc = run_summary(scenario, topology, method, args.fusion_rule or track_fusion_rule(scenario.tracker, [method]),
+                      scorer.method_summary(played), src_report)
     if live:
         doc["epoch_utc"] = epoch
-    if many_targets(scenario):
-        doc["gospa_cutoff"] = GOSPA_CUTOFF
     doc["recording"] = rrd
     doc["recordings"] = sup.recordings or [rrd]
     if getattr(args, "rotate_s", None):  # each recorder's files, in order

@@ -12,10 +12,13 @@ import json
 import logging
 import queue
 import signal
+import struct
 import sys
+import tempfile
 import threading
 import time
-from collections import Counter
+import math
+from collections import Counter, deque
 from dataclasses import dataclass, field
 from typing import Any, Callable, Iterable
 
@@ -30,6 +33,10 @@ log = logging.getLogger("zfusion")
 
 LOOPBACK_LISTEN = "tcp/127.0.0.1:0"
 HEARTBEAT_S = 0.5  # a recoverable publisher's heartbeat: how soon a subscriber sees what it missed
+RECOVERED_LAG_S = 1.5  # a sample this much later than its source's usual lag was given back after a cut-off
+KEYS_MAX = 4096  # distinct keys a ListenerInbox shares one string for (then it starts again)
+SPILL_READ = 256  # samples a ListenerInbox reads back from its file at a time (held in memory meanwhile)
+SPILL_HEADER = struct.Struct("<HI")  # a spilled sample: key length, payload length, then both
 
 
 @dataclass
@@ -134,34 +141,144 @@ class ListenerInbox:
     """The hand-over from Zenoh's callbacks to a listener's loop (recorder, exporters):
     ``(key, bytes)``, at most ``maxsize`` queued. Unlike :class:`Inbox` it never waits:
     when full, a sample is dropped and counted in :attr:`dropped`, so a listener that
-    falls behind never slows a publisher."""
+    falls behind never slows a publisher.
 
-    def __init__(self, maxsize: int):
-        self._queue: queue.Queue[tuple[str, bytes]] = queue.Queue(maxsize)
+    With ``in_memory``, at most that many samples are held in memory: the rest of the
+    backlog waits in an unnamed temporary file (:func:`tempfile.TemporaryFile`), in
+    arrival order, and is read back ``SPILL_READ`` samples at a time. A listener far
+    behind (a recorder at ``--speed max``) then holds its backlog on disk, not in its
+    resident memory, and still loses nothing up to ``maxsize``. Order: the samples in
+    memory are older than the spilled ones (a sample is spilled only once memory is full,
+    and every later one too until the file is read to its end).
+    """
+
+    def __init__(self, maxsize: int, in_memory: int | None = None):
+        self._queue: queue.Queue[tuple[str, bytes]] = queue.Queue(in_memory or maxsize)
         self._lock = threading.Lock()
+        self._keys: dict[str, str] = {}  # one string per key: a backlog holds a key per sample
+        self.maxsize = maxsize
+        self.in_memory = in_memory
+        self._spill: Any = None  # the temporary file, opened on the first spill
+        self._spilled = 0  # samples in the file not read back yet
+        self._wpos = self._rpos = 0
+        self._out: deque[tuple[str, bytes]] = deque()  # read back from the file, not handed out yet
         self.dropped = 0
 
     def put(self, item: tuple[str, bytes]) -> None:  # Zenoh's thread: never blocks, never raises
-        try:
-            self._queue.put_nowait(item)
-        except queue.Full:
-            with self._lock:
+        with self._lock:
+            if not self._spilled:
+                try:
+                    self._queue.put_nowait(item)
+                    return
+                except queue.Full:
+                    pass
+            if self.in_memory is None or self.qsize() >= self.maxsize:
+                self.dropped += 1
+                return
+            try:
+                key = item[0].encode()
+                if self._spill is None:
+                    self._spill = tempfile.TemporaryFile()
+                self._spill.seek(self._wpos)
+                self._spill.write(SPILL_HEADER.pack(len(key), len(item[1])) + key + item[1])
+                self._wpos = self._spill.tell()
+                self._spilled += 1
+            except OSError:  # no room on disk: counted as dropped, like a full inbox
                 self.dropped += 1
 
+    def _read_back(self) -> None:
+        with self._lock:
+            if not self._spilled:
+                return
+            self._spill.seek(self._rpos)
+            for _ in range(min(SPILL_READ, self._spilled)):
+                nk, nd = SPILL_HEADER.unpack(self._spill.read(SPILL_HEADER.size))
+                body = self._spill.read(nk + nd)
+                key = body[:nk].decode()
+                self._out.append((self._keys.setdefault(key, key), body[nk:]))
+                self._spilled -= 1
+            self._rpos = self._spill.tell()
+            if not self._spilled:  # read to its end: the file starts again (and gives its blocks back)
+                self._rpos = self._wpos = 0
+                self._spill.truncate(0)
+
     def __call__(self, sample: zenoh.Sample) -> None:
-        self.put((str(sample.key_expr), sample.payload.to_bytes()))
+        key = str(sample.key_expr)
+        if len(self._keys) >= KEYS_MAX:
+            self._keys.clear()
+        self.put((self._keys.setdefault(key, key), sample.payload.to_bytes()))
 
     def get(self, timeout: float) -> tuple[str, bytes]:
-        return self._queue.get(timeout=timeout)
+        if self._out:  # (older than anything in memory now: see the class docstring)
+            return self._out.popleft()
+        try:
+            return self._queue.get(timeout=0.0 if self._spilled else timeout)
+        except queue.Empty:
+            self._read_back()
+            if not self._out:
+                raise
+            return self._out.popleft()
 
     def get_nowait(self) -> tuple[str, bytes]:
-        return self._queue.get_nowait()
+        return self.get(0.0)
 
     def empty(self) -> bool:
-        return self._queue.empty()
+        return self.qsize() == 0
 
     def qsize(self) -> int:
-        return self._queue.qsize()
+        return self._queue.qsize() + self._spilled + len(self._out)
+
+    def close(self) -> None:
+        if self._spill is not None:
+            self._spill.close()
+
+
+class Recovery:
+    """Per source, what a :meth:`Node.recovering_subscriber` got back after a cut-off
+    (``recovered``) and what the publisher's cache no longer held (``missed``, told by
+    Zenoh through :meth:`on_miss`). A sample is taken for recovered when it arrives
+    more than ``RECOVERED_LAG_S`` later than the least lag (``utc`` of arrival minus
+    its time of validity) of its source so far: given back on reconnection, it was held
+    for the outage. ``sessions``: Zenoh session id -> process id (liveliness), to name
+    the source of a miss. Bounded: one entry per source, at most 1,024 misses queued."""
+
+    def __init__(self, sessions: dict[str, str], margin: float = RECOVERED_LAG_S):
+        self.sessions = sessions
+        self.margin = margin
+        self._misses: deque[tuple[str, int]] = deque(maxlen=1024)
+        self._least: dict[str, float] = {}
+        self.recovered: Counter[str] = Counter()
+        self.missed: Counter[str] = Counter()
+
+    def on_miss(self, zid: str, n: int) -> None:  # Zenoh's thread
+        self._misses.append((zid, n))
+
+    def arrived(self, src: str, t: float, utc: float) -> None:
+        lag = utc - t
+        least = self._least.get(src, math.inf)
+        if lag > least + self.margin:
+            self.recovered[src] += 1
+        self._least[src] = min(least, lag)
+
+    def take_misses(self) -> list[tuple[str, int]]:
+        """The misses told since the last call, as (source, samples), counted in ``missed``;
+        a source is named by its process id, or its session id if liveliness has not
+        named it yet."""
+        out = []
+        while self._misses:
+            zid, n = self._misses.popleft()
+            src = self.sessions.get(zid, zid)
+            self.missed[src] += n
+            out.append((src, n))
+        return out
+
+    def counters(self) -> dict[str, float]:
+        """``recovered``, ``missed`` and the same per source (``recovered.<src>``), for a status."""
+        self.take_misses()
+        out: dict[str, float] = {"recovered": sum(self.recovered.values()), "missed": sum(self.missed.values())}
+        out.update({f"recovered.{s}": n for s, n in self.recovered.items()})
+        out.update({f"missed.{s}": n for s, n in self.missed.items()})
+        return out
 
 
 class RejectLog:

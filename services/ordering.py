@@ -1,70 +1,22 @@
 """Time ordering of many sources by watermarks, and the input gate in front of it.
 
 Each source stamps its measurements with their time of validity and then publishes a
-watermark "everything up to and including t has been sent". :class:`WatermarkMerger` holds
-measurements until every *live* source's watermark has passed them, then releases them
-in ``(t, sensor, seq)`` order — the same total order the in-process evaluation uses, so a
-distributed run feeds the estimator the same sequence at any speed.
+watermark "everything up to and including t has been sent". :class:`WatermarkMerger`
+holds measurements until every *live* source's watermark has passed them, then releases
+them in ``(t, sensor, seq)`` order — the total order the in-process evaluation uses, so
+a distributed run feeds the estimator the same sequence at any speed. A source silent
+for longer than its timeout is declared dead and no longer waited for; it rejoins when
+it speaks again.
 
-A source silent for longer than its timeout is declared dead and no longer waited for;
-it rejoins when it speaks again.
-
-Bad input is dropped and counted by cause, and leaves the released sequence exactly as
-if it had never arrived:
-
-``unknown-source``
-    a source that is not part of the scenario.
-``future`` / ``past``
-    a measurement stamped after the scenario's end (``horizon``) or before its start
-    (``earliest``); a watermark after the end (it would make the source's real data
-    look stale).
-``out-of-order``
-    a measurement at or before its source's own watermark, or a watermark that goes
-    back. A replay of anything the source has already closed lands here.
-``duplicate``
-    a measurement whose ``seq`` is already held: a replay or a network duplicate of
-    data not yet released.
-``late``
-    fresh data from a source that was skipped as dead, for a time already released
-    (scenario runs; a live merger takes it as an out-of-sequence measurement).
-``stale``
-    live only: data for a time already released and older than the out-of-sequence
-    window (``oosm_window``): too old to re-filter.
-
-Live sessions (``max_delay`` finite): the merger waits at most ``max_delay`` seconds of
-wall time for a lagging source. Each time the leading watermark (the highest of the
-live sources') rises, the merger notes the wall time; ``max_delay`` later, the release
-front is at least that watermark, whatever the laggards have said. With ``oosm_window``
-> 0 a measurement that then arrives for a released time ``t > released − window`` is
-not rejected: it is held apart as an *out-of-sequence* measurement (counted ``oosm``
-per source), which :meth:`WatermarkMerger.take_oosm` hands to the estimator to
-re-filter (:mod:`fusion.oosm`). A source's duplicates of such data are recognised by
-``seq`` until its own watermark passes them (or they leave the window); at most
-``max_held`` of them per source, beyond which they are shed.
-
-Duplicates are recognised by ``seq`` among the measurements still held, not by a
-high-water mark of ``seq``: a forged message with a huge ``seq`` must not make every later
-message of the real source look like a duplicate. Anything already released is rejected
-by time instead (its source's watermark has passed it), so the bookkeeping is exactly
-the held data and needs no memory of its own.
-
-Load: ``shed``. Each source may have at most ``max_held`` measurements held awaiting the
-merged watermark. Beyond that the held measurement with the *latest* time of validity
-(possibly the one arriving) is dropped and counted as ``shed``:
-
-- the oldest held data is what the estimator needs next; the latest is the data that
-  would sit longest before the slowest live source lets it out, so shedding it costs
-  the least and never opens a gap at the release front;
-- what is released stays a time-ordered subset of the input: the estimator sees that
-  source miss detections, never data out of order;
-- a measurement its source has already closed with a watermark is never shed in favour
-  of a later arrival (a later arrival is always after that watermark), and a flood of
-  far-ahead data on a source's key cannot lock out its real, earlier data.
-
-There is no separate total cap: only configured sources are ever held, so the total is
-bounded by ``max_held`` times their number, and a total cap would let one flooding source
-crowd out the well-behaved ones. :func:`hold_cap` derives ``max_held`` from a scenario's
-nominal rate.
+Bad input (``unknown-source``, ``future``, ``past``, ``out-of-order``, ``duplicate``,
+``late``, ``stale``) is dropped and counted by cause and leaves the released sequence as
+if it had never arrived; duplicates are judged by ``seq`` among the held data only, so a
+forged huge ``seq`` cannot silence a source. Each source holds at most ``max_held``
+measurements (:func:`hold_cap`); beyond that the latest is ``shed``. Live sessions wait
+at most ``max_delay`` for a lagging source and hand data that then arrives for a
+released time to the estimator to re-filter (:meth:`WatermarkMerger.take_oosm`,
+:mod:`fusion.oosm`). The causes, the shedding policy and why: docs/reliability.md ("Bad
+input", "Load"); live operation: docs/live.md.
 
 Pure logic: the caller passes wall-clock ``now`` in; nothing here sleeps or reads a clock.
 """

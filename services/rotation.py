@@ -5,7 +5,7 @@ With ``--rotate-s N`` the recorder writes ``<stem>.<k>.rrd`` (k = 0, 1, ...) ins
 window ``[a, a + N)`` of the session's time base (scenario seconds, or UTC seconds in a
 live session), windows aligned to multiples of N (``a = N·⌊t/N⌋``: hourly files start on
 the hour); a window without data makes no file. The clock is the time of the fused
-output (:attr:`services.recorder.Recorder.clock`): at ``--speed max`` the sources run
+output (:attr:`services.recording.recorder.Recorder.clock`): at ``--speed max`` the sources run
 far ahead of it, and what they sent is recorded beside the picture of its time. When
 the clock leaves the current window, the file is
 closed — its queued rows before the boundary sent, flushed, its footer written, so that

@@ -16,18 +16,20 @@ GOSPA (cut-off :data:`GOSPA_CUTOFF`, order 2), track breaks, purity and false tr
 
 from __future__ import annotations
 
+import heapq
 import math
-from typing import Callable, Sequence
+from typing import Callable, Iterator, Sequence
 
 import numpy as np
 
 from fusion.mtt_metrics import Step, score_tracks
 from fusion.patent import TrackerConfig
 from fusion.types import Estimate
-from sensors_sim import scan_times, truth_trajectory
+from sensors_sim import truth_trajectory
+from sensors_sim.trajectories import iter_times
 from sensors_sim.traffic import Traffic
 
-from .recorder_draw import TRUTH_INDEX
+from .recording.draw import TRUTH_INDEX
 
 
 TruthFn = Callable[[int, str, float], np.ndarray]  # (run, track, t) -> true state
@@ -90,15 +92,28 @@ def scan_groups(scenario, sensor_ids: Sequence[str], tol: float) -> list[tuple[f
     """Scan times of the sensors grouped as the methods group them: ``(first time, last
     time, sensors)`` per group (3D methods stamp a scan with its first time, DF methods
     an epoch with its last)."""
+    return list(iter_scan_groups(scenario, sensor_ids, tol))
 
-    events = sorted((float(t), s) for s in sensor_ids for t in scan_times(scenario, s))
-    groups: list[tuple[float, float, list[str]]] = []
-    for t, s in events:
-        if groups and t - groups[-1][0] <= tol and s not in groups[-1][2]:
-            groups[-1] = (groups[-1][0], t, groups[-1][2] + [s])
+
+def iter_scan_groups(scenario, sensor_ids: Sequence[str], tol: float,
+                     end: float | None = None) -> Iterator[tuple[float, float, list[str]]]:
+    """:func:`scan_groups` lazily, up to ``end`` (default: the scenario's duration; may be
+    infinite): a group is yielded once the next scan time is past its tolerance."""
+    end = scenario.duration if end is None else end
+    def scans(s: str) -> Iterator[tuple[float, str]]:
+        sensor = scenario.sensor(s)
+        return ((t, s) for t in iter_times(sensor.start, sensor.period, end))
+
+    group: tuple[float, float, list[str]] | None = None
+    for t, s in heapq.merge(*map(scans, sensor_ids)):
+        if group and t - group[0] <= tol and s not in group[2]:
+            group = (group[0], t, group[2] + [s])
         else:
-            groups.append((t, t, [s]))
-    return groups
+            if group:
+                yield group
+            group = (t, t, [s])
+    if group:
+        yield group
 
 
 def pair_tol_of(scenario, default: float) -> float:
@@ -108,27 +123,90 @@ def pair_tol_of(scenario, default: float) -> float:
 
 
 # Many targets ------------------------------------------------------------------------
-def track_steps(scenario, estimates: Sequence[Estimate], run: int = 0, node: str = "centre"):
+def track_steps(scenario, estimates: Sequence[Estimate], run: int = 0, node: str = "centre") -> list[Step]:
     """The run as :class:`fusion.mtt_metrics.Step` s: one per scan group of the scenario's
     sensors (as the methods group them, ``pair_tol`` of ``[tracker]``), with every
     target's (and alive ``[traffic]`` aircraft's) true position and every track's estimate
-    of that group. Emitter fixes are horizontal (``[px, py]``): they are scored against the
-    truth's horizontal position."""
-    tol = pair_tol_of(scenario, TrackerConfig.pair_tol)
-    starts = [g[0] for g in scan_groups(scenario, list(scenario.sensors), tol)]
-    trajs = {tid: truth_trajectory(scenario, tid, run) for tid in scenario.targets}
-    traffic = Traffic(scenario.traffic, scenario.seed, run) if scenario.traffic is not None else None
-    tracks: list[dict[str, np.ndarray]] = [{} for _ in starts]
+    of that group (a track's last, in ``estimates``' order). Emitter fixes are horizontal
+    (``[px, py]``): they are scored against the truth's horizontal position."""
+    steps = TrackSteps(scenario, run, node)
+    groups: dict[int, list[Estimate]] = {}
     for e in estimates:
-        if e.node != node:
-            continue
-        k = int(np.searchsorted(starts, e.t + 1e-12, side="right")) - 1
-        if k >= 0 and e.t - starts[k] <= tol:  # estimates of that scan group
-            tracks[k][e.track] = np.asarray(e.x[:3], dtype=float)
-    dim = min((len(p) for tk in tracks for p in tk.values()), default=3)
-    return [Step(t, {tid: tr.position(t)[:dim]
-                     for tid, tr in (*trajs.items(), *((a.id, a) for a in (traffic.alive(t) if traffic else ())))}, tk)
-            for t, tk in zip(starts, tracks)]
+        k = steps.group_of(e)
+        if k is not None:
+            groups.setdefault(k, []).append(e)
+    return steps.close(scenario.duration, groups)
+
+
+class TrackSteps:
+    """The steps of a run (:func:`track_steps`), also as a stream: :meth:`add` takes
+    estimates in time order and returns the steps they complete (a scan group is complete
+    once an estimate of a later one arrives), :meth:`close` the rest up to a time. The
+    stream holds one group's estimates, the groups' start times from it up to the first
+    after the newest estimate, and a cursor on the traffic."""
+
+    def __init__(self, scenario, run: int = 0, node: str = "centre", end: float | None = None):
+        self.node = node
+        self.tol = pair_tol_of(scenario, TrackerConfig.pair_tol)
+        self._groups = iter_scan_groups(scenario, list(scenario.sensors), self.tol, end)
+        self._done = False
+        self.starts: list[float] = []  # group start times read, from the current group's on
+        self.first = 0  # the current group's index: starts[0]'s
+        self.pending: list[Estimate] = []  # the current group's estimates (stream)
+        self.trajs = {tid: truth_trajectory(scenario, tid, run) for tid in scenario.targets}
+        self.traffic = Traffic(scenario.traffic, scenario.seed, run) if scenario.traffic is not None else None
+        self.dim: int | None = None  # the tracks' position dimension (emitter fixes: 2)
+        self.late = 0  # stream: estimates of a group already complete (dropped)
+
+    def _read_to(self, t: float) -> None:
+        """Read group starts until one is after ``t`` (or there are no more)."""
+        while not self._done and (not self.starts or self.starts[-1] <= t):
+            g = next(self._groups, None)
+            if g is None:
+                self._done = True
+            else:
+                self.starts.append(g[0])
+
+    def group_of(self, e: Estimate) -> int | None:
+        """The index of the scan group ``e`` is an estimate of (None: of none)."""
+        if e.node != self.node:
+            return None
+        self._read_to(e.t + 1e-12)
+        k = int(np.searchsorted(self.starts, e.t + 1e-12, side="right")) - 1
+        if k < 0:
+            self.late += int(self.first > 0)
+            return None
+        return k + self.first if e.t - self.starts[k] <= self.tol else None
+
+    def add(self, e: Estimate) -> list[Step]:
+        """Take the next estimate (in time order); the steps it completes."""
+        k = self.group_of(e)
+        if k is None:
+            return []
+        out = [self._next() for _ in range(k - self.first)]
+        self.pending.append(e)
+        return out
+
+    def close(self, until: float, groups: dict[int, list[Estimate]] | None = None) -> list[Step]:
+        """The steps of the groups left that start by ``until``; ``groups``: their
+        estimates by group index (else the stream's)."""
+        self._read_to(until)
+        out = []
+        while self.starts and self.starts[0] <= until:
+            if groups is not None:
+                self.pending = groups.get(self.first, [])
+            out.append(self._next())
+        return out
+
+    def _next(self) -> Step:
+        """The current group's step; the next group becomes current."""
+        tracks = {e.track: np.asarray(e.x[:3], dtype=float) for e in self.pending}
+        self.dim = min([len(p) for p in tracks.values()] + ([self.dim] if self.dim else []), default=None)
+        t, dim = self.starts.pop(0), self.dim or 3
+        self.first += 1
+        self.pending = []
+        aircraft = ((a.id, a) for a in self.traffic.alive(t)) if self.traffic else ()
+        return Step(t, {tid: tr.position(t)[:dim] for tid, tr in (*self.trajs.items(), *aircraft)}, tracks)
 
 
 GOSPA_CUTOFF = 1000.0  # m: GOSPA's c, order p = 2, for every many-target score

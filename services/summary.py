@@ -23,20 +23,29 @@ every run; ``cep50``: the median horizontal miss of the final fixes; ``anees``: 
 
 ``series`` has at most ``SERIES_MAX`` points: a longer run's output times are binned
 (:func:`_series`; the bin size is then given as ``series.bin``).
+
+One run (``zfusion run``, ``zfusion fuser --json``) is scored by :class:`RunScorer`, in
+one place: a scenario run by the batch above; a live run, open-ended, by settling its
+estimates as they age into a :class:`Running` (the same sums, folded in), so the launcher
+holds a window of estimates and ``SERIES_MAX`` points however long it runs.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections import defaultdict
 from typing import Sequence
 
 import numpy as np
 
+from fusion.binning import BinnedSeries
 from fusion.metrics import chi2_bounds, median_point_distance
+from fusion.mtt_metrics import TrackScorer
 from fusion.types import Estimate
 
-from .scoring import TruthFn, score_run
+from .scoring import GOSPA_CUTOFF, TrackSteps, TruthFn, many_targets, score_run, score_tracks_of, truth_function
+
 
 def _rms(values: Sequence[float | None]) -> float | None:
     vals = [v for v in values if v is not None]
@@ -51,6 +60,7 @@ def _mean(values) -> float | None:
 
 
 SERIES_MAX = 3600  # points of a summary series; a longer run's are binned (see _series)
+FORGET_STEPS = 600  # a live many-target score forgets a target or track absent from this many steps
 
 
 def _series(per_t: dict[float, list[dict]], ts: list[float]) -> dict:
@@ -93,8 +103,7 @@ def aggregate(runs: Sequence[Sequence[dict]]) -> dict:
         "rmse_pos": _rms([e["pos2"] for e in all_err]),
         "rmse_vel": _rms([e["vel2"] for e in all_err]),
         "rmse_acc": _rms([e["acc2"] for e in all_err]),
-        # CEP50 of the final fixes (median horizontal miss distance), for emitter fixes only.
-        "cep50": float(np.median([math.hypot(*f["eh"]) for f in finals])) if is_fix and finals else None,
+        "cep50": None,
         "anees": _mean([e["nees"] for e in all_err]),
         "n_updates": len(all_err),
         "series": _series(per_t, ts),
@@ -102,13 +111,7 @@ def aggregate(runs: Sequence[Sequence[dict]]) -> dict:
         "anees_bounds": list(chi2_bounds(dof, len(runs))) if dof else None,
         "anis_per_dof": float(sum(n for n, _ in nis_pairs) / sum(d for _, d in nis_pairs)) if nis_pairs else None,
         "median_point_distance": None,
-        "final": {
-            "t": _mean([f["t"] for f in finals]),
-            "rmse_pos": _rms([f["pos2"] for f in finals]),
-            "rmse_vel": _rms([f["vel2"] for f in finals]),
-            "rmse_acc": _rms([f["acc2"] for f in finals]),
-            "n_runs": len(finals),
-        },
+        "final": None,
     }
     if ts:
         # the second half of the run's output times: the filters' steady state, free of the
@@ -119,6 +122,21 @@ def aggregate(runs: Sequence[Sequence[dict]]) -> dict:
                               "rmse_vel": _rms([e["vel2"] for e in late]),
                               "rmse_acc": _rms([e["acc2"] for e in late]),
                               "anees": _mean([e["nees"] for e in late])}
+    _finals(out, finals, is_fix)
+    return out
+
+
+def _finals(out: dict, finals: list[dict], is_fix: bool) -> None:
+    """The fields of a method summary ``out`` read from each run's last record: ``final``,
+    and for emitter fixes ``cep50`` (median horizontal miss) and the fixes' spread."""
+    out["cep50"] = float(np.median([math.hypot(*f["eh"]) for f in finals])) if is_fix and finals else None
+    out["final"] = {
+        "t": _mean([f["t"] for f in finals]),
+        "rmse_pos": _rms([f["pos2"] for f in finals]),
+        "rmse_vel": _rms([f["vel2"] for f in finals]),
+        "rmse_acc": _rms([f["acc2"] for f in finals]),
+        "n_runs": len(finals),
+    }
     if is_fix and finals:
         err = np.array([f["eh"] for f in finals])
         out["median_point_distance"] = median_point_distance(err, np.zeros(2))
@@ -126,7 +144,124 @@ def aggregate(runs: Sequence[Sequence[dict]]) -> dict:
         out["final"]["err"] = err.tolist()
         out["final"]["P_mean"] = [[Ph[0], Ph[1]], [Ph[1], Ph[2]]]
         out["final"]["mse_pos"] = float(np.mean(np.sum(err**2, axis=1)))
-    return out
+
+
+_KEYS = ("pos2", "vel2", "acc2", "nees", "nis", "nis_dof")
+_MEANS = ("nees", "nis", "nis_dof")  # averaged (a non-finite value voids the average); the rest are RMS'd
+
+
+class _Sums:
+    """Sum and count of each field of a set of error records, as :func:`_rms` and
+    :func:`_mean` read them (``None`` skipped; for a mean, a non-finite value voids it)."""
+
+    __slots__ = ("n", "s", "c", "bad")
+
+    def __init__(self) -> None:
+        self.n = 0
+        self.s = dict.fromkeys(_KEYS, 0.0)
+        self.c = dict.fromkeys(_KEYS, 0)
+        self.bad = dict.fromkeys(_MEANS, 0)
+
+    def add(self, er: dict) -> None:
+        self.n += 1
+        for key in _KEYS:
+            v = er[key]
+            if v is None or (key == "nis_dof" and not v):
+                continue
+            self.c[key] += 1
+            if key in self.bad and not math.isfinite(v):
+                self.bad[key] += 1
+            else:
+                self.s[key] += v
+
+    def merge(self, other: "_Sums") -> None:
+        self.n += other.n
+        for key in _KEYS:
+            self.s[key] += other.s[key]
+            self.c[key] += other.c[key]
+        for key in _MEANS:
+            self.bad[key] += other.bad[key]
+
+    def rms(self, key: str) -> float | None:
+        return float(math.sqrt(self.s[key] / self.c[key])) if self.c[key] else None
+
+    def mean(self, key: str) -> float | None:
+        return None if self.bad[key] or not self.c[key] else float(self.s[key] / self.c[key])
+
+
+class Running:
+    """One run's :func:`aggregate`, folded in record by record (records in time order), in
+    memory bounded by ``SERIES_MAX`` whatever the run's length: running sums for the
+    overall figures, and per series point the sums of its output times.
+
+    A sum is accumulated in the order the batch takes its records, so ``rmse_*``,
+    ``anis_per_dof``, ``n_updates`` and ``final`` are :func:`aggregate`'s to the bit. A
+    mean (``anees``) is the sequential sum over the count, where :func:`aggregate` takes
+    NumPy's pairwise mean: equal up to rounding. The series: with at most ``SERIES_MAX``
+    output times, one point a time as in :func:`aggregate`; beyond, two neighbouring
+    points are merged whenever there would be more, so ``series.bin`` is a power of two
+    (:func:`aggregate` bins ``⌈n / SERIES_MAX⌉`` times, knowing ``n``). ``second_half``
+    is summed over the points stamped at or after its ``from_t``: exact with one point a
+    time, to within one point otherwise.
+    """
+
+    def __init__(self) -> None:
+        self.total = _Sums()
+        self.series: BinnedSeries[_Sums] = BinnedSeries(SERIES_MAX, _Sums, _Sums.merge)  # a point: output times
+        self.t_first: float | None = None
+        self.last: dict | None = None  # the latest record: the run's final
+        self._nis = 0.0  # ΣNIS and Σdof over the records that give both
+        self._dof = 0
+
+    def add(self, er: dict) -> None:
+        t = er["t"]
+        self.total.add(er)
+        if self.t_first is None:
+            self.t_first = t
+        new_time = not self.series or t > self.series.last_t
+        (self.series.sample(t) if new_time else self.series.last).add(er)
+        if er["nis"] is not None and er["nis_dof"]:
+            self._nis += er["nis"]
+            self._dof += er["nis_dof"]
+        self.last = er
+
+    def summary(self) -> dict:
+        """The method summary, as :func:`aggregate` gives it for this one run."""
+        tot, last = self.total, self.last
+        dof = last["n"] if last else None
+        pts = self.series.points
+        out = {
+            "rmse_pos": tot.rms("pos2"), "rmse_vel": tot.rms("vel2"), "rmse_acc": tot.rms("acc2"),
+            "cep50": None,
+            "anees": tot.mean("nees"),
+            "n_updates": tot.n,
+            "series": {
+                "t": [p[0] for p in pts],
+                "rmse_pos": [p[2].rms("pos2") for p in pts],
+                "rmse_vel": [p[2].rms("vel2") for p in pts],
+                "rmse_acc": [p[2].rms("acc2") for p in pts],
+                "anees": [p[2].mean("nees") for p in pts],
+                "anis": [p[2].mean("nis") for p in pts],
+                "nis_dof": [p[2].mean("nis_dof") for p in pts],
+                "n": [p[2].n for p in pts],
+                **({"bin": self.series.bin} if self.series.bin > 1 else {}),
+            },
+            "nees_dof": dof,
+            "anees_bounds": list(chi2_bounds(dof, 1)) if dof else None,
+            "anis_per_dof": float(self._nis / self._dof) if self._dof else None,
+            "median_point_distance": None,
+            "final": None,
+        }
+        if pts:
+            t_half = 0.5 * (self.t_first + pts[-1][0])
+            late = _Sums()
+            for p in pts:
+                if p[0] >= t_half:
+                    late.merge(p[2])
+            out["second_half"] = {"from_t": t_half, "rmse_pos": late.rms("pos2"), "rmse_vel": late.rms("vel2"),
+                                  "rmse_acc": late.rms("acc2"), "anees": late.mean("nees")}
+        _finals(out, [last] if last else [], last is not None and last["n"] < 6)
+        return out
 
 
 def method_summary(runs: Sequence[Sequence[Estimate]], truth: TruthFn, node: str = "centre") -> dict:
@@ -146,7 +281,8 @@ def tracks_summary(scores: Sequence) -> dict:
     return {
         "rmse_pos": None, "rmse_vel": None, "rmse_acc": None, "cep50": None, "anees": None,
         "n_updates": run.track_steps,
-        "series": {"t": list(scores[0].t), "gospa": [float(g) for g in gospa]},
+        "series": {"t": list(scores[0].t), "gospa": [float(g) for g in gospa],
+                   **({"bin": run.bin} if run.bin > 1 else {})},
         "gospa": finite(run.mean_gospa),
         "held": finite(run.held),
         "breaks": run.breaks,
@@ -159,7 +295,7 @@ def tracks_summary(scores: Sequence) -> dict:
         "found_at_end_per_run": [float(f) for f in run.found_at_end],
         "tracks": run.n_tracks,
         "false_tracks": run.false_tracks,
-        "steps": len(run.t),
+        "steps": run.steps,
     }
 
 
@@ -167,8 +303,6 @@ def scenario_times(estimates: Sequence[Estimate], epoch: float) -> list[Estimate
     """A live run's fused estimates (UTC ``t``) on scenario time (``t − epoch``), the
     latest of each ``(node, track, t)`` only: after a re-filtering the fuser re-publishes
     corrected estimates of times it has published already (docs/live.md)."""
-    import dataclasses
-
     latest: dict[tuple, Estimate] = {}
     for e in estimates:
         latest.pop((e.node, e.track, e.t), None)
@@ -187,6 +321,107 @@ def on_time_base(method: dict, epoch: float) -> dict:
     if "second_half" in out:
         out["second_half"] = {**out["second_half"], "from_t": epoch + out["second_half"]["from_t"]}
     return out
+
+
+class RunScorer:
+    """One run's fused estimates, scored against truth into its method summary as they
+    arrive: what ``zfusion run`` and ``zfusion fuser --json`` report (:func:`run_summary`).
+
+    A scenario run is finite: its estimates are kept, and scored at its end by
+    :func:`method_summary` (or, many targets, :func:`tracks_summary`), in the order they came.
+
+    A live run (``epoch``: its UTC time of scenario time 0) is open-ended. A re-filtering
+    re-publishes corrected estimates of times already published (docs/live.md), so an
+    estimate is *pending* — the latest of its ``(node, track, t)`` replaces it — until it
+    is ``settle_s`` older than the newest one (the OOSM window plus the fuser's maximum
+    delay: nothing older is re-published). Then it *settles*: the pending estimates older
+    than that, in time order, are scored on scenario time and folded into a
+    :class:`Running` (one target), or cut into steps (:class:`services.scoring.TrackSteps`)
+    folded into a :class:`fusion.mtt_metrics.TrackScorer` (many targets; a target or
+    track absent from ``FORGET_STEPS`` steps is closed and forgotten). So a live run holds
+    at most ``settle_s`` of estimates, ``SERIES_MAX`` series points and, many targets, the
+    recent targets and tracks, and its summary is the batch's on :func:`scenario_times` of
+    the same estimates (one target: the sums to the bit, means to rounding,
+    :class:`Running`; many: the same, but for the forgotten targets' hold fractions, of
+    which only the least is kept).
+    """
+
+    def __init__(self, scenario, epoch: float | None = None, settle_s: float = math.inf, node: str = "centre"):
+        self.scenario = scenario
+        self.epoch = epoch
+        self.settle_s = settle_s
+        self.node = node
+        self.many = many_targets(scenario)
+        self.truth = truth_function(scenario)
+        self.n = 0  # estimates received
+        self.latest: float | None = None  # the newest estimate's t (on the wire's time base)
+        self.last_t: float | None = None  # the last one's
+        self.kept: list[Estimate] = []  # a scenario run's estimates
+        self.pending: dict[tuple, Estimate] = {}  # live: the latest estimate of each (node, track, t), unsettled
+        self.running = Running()
+        self.steps = TrackSteps(scenario, node=node, end=math.inf) if self.many and epoch is not None else None
+        self.tracks = TrackScorer(GOSPA_CUTOFF, forget_after=FORGET_STEPS, series_max=SERIES_MAX)
+        self.settled_before = -math.inf  # live: what is older than this has settled
+        self.late = 0  # live: estimates that came after their time had settled (scored as they come)
+
+    def add(self, e: Estimate) -> None:
+        self.n += 1
+        self.last_t = e.t
+        self.latest = e.t if self.latest is None else max(self.latest, e.t)
+        if self.epoch is None:
+            self.kept.append(e)
+            return
+        key = (e.node, e.track, e.t)
+        self.pending.pop(key, None)
+        self.pending[key] = e
+        if e.t < self.settled_before:
+            self.late += 1
+        if self.latest - self.settle_s > self.settled_before + 1.0:  # settle about once a second of data
+            self.settle(self.latest - self.settle_s)
+
+    def settle(self, before: float = math.inf) -> None:
+        """Score and fold in the pending estimates older than ``before`` (all: the run's end)."""
+        old = [e for key, e in self.pending.items() if e.t < before or e.t < self.settled_before]
+        for e in old:
+            del self.pending[(e.node, e.track, e.t)]
+        self.settled_before = max(self.settled_before, before)
+        for e in sorted((dataclasses.replace(e, t=e.t - self.epoch) for e in old), key=lambda e: e.t):
+            if e.node != self.node:
+                continue
+            if self.many:
+                for step in self.steps.add(e):
+                    self.tracks.add(step)
+            else:
+                self.running.add(score_run([e], self.truth, 0, self.node)[0])
+
+    def played(self) -> float:
+        """The scenario time of the newest estimate (0 before any)."""
+        return 0.0 if self.latest is None else self.latest - (self.epoch or 0.0)
+
+    def method_summary(self, scenario=None) -> dict:
+        """The run's method summary (live: on the UTC time base). ``scenario``: the one to
+        score many targets on (live: cut to the time played), if not the run's."""
+        scenario = scenario or self.scenario
+        if self.epoch is None:
+            return (tracks_summary([score_tracks_of(scenario, self.kept)]) if self.many
+                    else method_summary([self.kept], self.truth, self.node))
+        self.settle()
+        if self.many:
+            for step in self.steps.close(scenario.duration):
+                self.tracks.add(step)
+        scored = tracks_summary([self.tracks.score()]) if self.many else self.running.summary()
+        return on_time_base(scored, self.epoch)
+
+
+
+def run_summary(scenario, topology: str, method: str, fusion_rule: str | None, scored: dict,
+                sources: dict) -> dict:
+    """The summary of one run (``zfusion run``, ``zfusion fuser --json``) from its method
+    summary (:meth:`RunScorer.method_summary`)."""
+    doc = summary(scenario, topology, fusion_rule, scenario.seed, 1, {method: scored}, sources=sources)
+    if many_targets(scenario):
+        doc["gospa_cutoff"] = GOSPA_CUTOFF
+    return doc
 
 
 def summary(scenario, topology: str, fusion_rule: str | None, seed: int, runs: int,

@@ -26,12 +26,13 @@ import time
 
 import zenoh
 from fusion.methods import method_config, split
-from schemas import KeySpace, SchemaError, decode, encode, tracker_id
+from schemas import KeySpace, Message, SchemaError, decode, encode, tracker_id
 from schemas.links import downlink, encode_uplink
 
 from .fuser import FuserCore, MeasurementIntake
 from .live import LiveOptions
-from .node import Inbox, Node, load, load_site
+from .node import Inbox, Node, Recovery, load, load_site
+from .source import recovery_cache
 
 
 class _Feed:
@@ -81,9 +82,17 @@ def run(sensor: str, scenario_ref: str, method_name: str, overrides: dict, keys:
                          intake=MeasurementIntake(scenario.sensors), live=live, refilter=False,
                          periods={sensor: scenario.sensor(sensor).period})
         utc = time.time if live is not None else lambda: None
-        node.subscribe(keys.meas(sensor), inbox)
-        node.subscribe(keys.feedback(me), inbox)
-        pub = node.publisher(keys.local(me))
+        recovery = None
+        if live is not None:  # live: its sensor's and the fuser's publishers give back what a cut-off missed
+            recovery = Recovery(node.processes_by_session())
+            for key in (keys.meas(sensor), keys.feedback(me)):
+                node.recovering_subscriber(key, inbox, recovery.on_miss)
+            # Its uplinks: at most one per measurement of its sensor, and a watermark per scan.
+            pub = node.recoverable_publisher(keys.local(me), recovery_cache(scenario, sensor))
+        else:
+            node.subscribe(keys.meas(sensor), inbox)
+            node.subscribe(keys.feedback(me), inbox)
+            pub = node.publisher(keys.local(me))
         watch = node.session.liveliness().declare_subscriber(
             keys.alive(fuser_id),
             lambda s: s.kind == zenoh.SampleKind.PUT and fuser_token.put(keys.alive_process(str(s.key_expr))[1]),
@@ -101,27 +110,29 @@ def run(sensor: str, scenario_ref: str, method_name: str, overrides: dict, keys:
         last_status = 0.0
         down_key = keys.feedback(me)
 
-        def on_downlink(data: bytes) -> None:
+        def on_downlink(data: bytes) -> Message | None:
+            """The fuser's downlink or horizon, applied; the message, if it was one."""
             nonlocal alone, waiting_since
             try:
                 msg = decode(data)
             except SchemaError as e:
                 node.reject(fuser_id, e.cause, str(e))
-                return
+                return None
             if msg.src != fuser_id:
                 node.reject(msg.src, "spoofed-src", f"feedback for {me} from {msg.src!r}, not {fuser_id!r}")
-                return
+                return None
             if msg.kind == "watermark":
                 local.set_horizon(msg.t)
-            elif msg.kind == "track":
+            elif msg.kind == "downlink":
                 local.receive(downlink(sensor, msg))
             else:
                 node.reject(fuser_id, "kind", f"{msg.kind!r} is not expected on {down_key}")
-                return
+                return None
             waiting_since = None
             if alone:
                 alone = False
                 node.event("downlink from the fuser restored")
+            return msg
 
         fuser_incarnation: str | None = None  # the one this node's track comes from
 
@@ -143,9 +154,11 @@ def run(sensor: str, scenario_ref: str, method_name: str, overrides: dict, keys:
                 key, data = inbox.get(timeout=0.05)
                 while True:
                     if key == down_key:
-                        on_downlink(data)
+                        msg = on_downlink(data)
                     else:
-                        core.offer(key, data, time.monotonic(), utc())
+                        msg = core.offer(key, data, time.monotonic(), utc())
+                    if recovery is not None and msg is not None:
+                        recovery.arrived(msg.src, msg.t, utc())
                     key, data = inbox.get_nowait()
             except queue.Empty:
                 pass
@@ -163,9 +176,8 @@ def run(sensor: str, scenario_ref: str, method_name: str, overrides: dict, keys:
                 alone = True
                 node.event(f"no {blocked} from {fuser_id} for {feedback_timeout:g} s: running alone")
             for u in local.step(alone=alone):
-                for data in encode_uplink(u, me, seq + 1):
-                    seq += 1
-                    pub.put(data)
+                seq += 1
+                pub.put(encode_uplink(u, me, seq))
             final = feed.finished and not local.pending
             wm = local.upstream_watermark(feed.watermark)
             if math.isfinite(wm) and (wm > sent_wm or final):
@@ -174,6 +186,8 @@ def run(sensor: str, scenario_ref: str, method_name: str, overrides: dict, keys:
                 sent_wm = wm
             node.counters.update(received=core.received, processed=core.processed, published=seq,
                                  pending=len(local.pending), alone=int(alone))
+            if recovery is not None:
+                node.counters.update(recovery.counters())
             if final:
                 break
             if now - last_status >= 1.0:

@@ -13,9 +13,12 @@ import numpy as np
 import pyarrow as pa
 
 from fusion.types import Estimate, Measurement
-from schemas import KeySpace, encode, encode_estimate, encode_measurement
+from fusion.network import Downlink, Uplink
+from schemas import KeySpace, encode, encode_estimate, encode_measurement, tracker_id
+from schemas.links import encode_downlink, encode_uplink
 from services.node import RejectLog
-from services.recorder import Recorder, open_recording
+from services.recording.recorder import Recorder
+from services.recording.stream import open_recording
 
 
 KEYS = KeySpace("rtest")
@@ -87,10 +90,27 @@ def meas_msg(sensor: str, kind: str, z, std, t: float, seq: int, site=(0.0, 0.0,
     return encode_measurement(m, sensor)
 
 
-def est_msg(t: float, x, P, method="SS", node="centre", track="T1", nis=None, dof=None, seq=1, kind="track",
-         src="fuser") -> bytes:
+def est_msg(t: float, x, P, method="SS", node="centre", track="T1", nis=None, dof=None, seq=1,
+            src="fuser") -> bytes:
     return encode_estimate(Estimate(t, np.asarray(x, float), np.asarray(P, float), method, node, track, nis, dof),
-                           src, seq, kind)
+                           src, seq)
+
+
+def uplink_msg(t: float, x, P, method="HNV", node="radar2d", track="T1", nis=None, dof=None, seq=1,
+               prediction: bool | None = None, measurement: Measurement | None = None) -> bytes:
+    """A local tracker's uplink on ``local/trk-<node>``: its estimate (a local report, a
+    prediction if ``prediction``, when that is given) and/or ``measurement``."""
+    x, P = np.asarray(x, float), np.asarray(P, float)
+    extra = {} if prediction is None else {"prior_x": x, "prior_P": P, "KH": np.zeros_like(P), "feedback_t": None,
+                                           "prediction": prediction}
+    e = None if x.size == 0 else Estimate(t, x, P, method, node, track, nis, dof, extra)
+    return encode_uplink(Uplink(t, node, seq, e, measurement), tracker_id(node), seq)
+
+
+def downlink_msg(t: float, x, P, method="HNV", node="radar2d", track="T1", seq=1, init=False) -> bytes:
+    """The fuser's downlink to ``node``'s tracker on ``feedback/trk-<node>``."""
+    e = Estimate(t, np.asarray(x, float), np.asarray(P, float), method, "centre", track)
+    return encode_downlink(Downlink(node, e, init), "fuser", seq)
 
 
 def status_msg(src: str, seq: int, t: float, state="running", role="sensor", counters=None, events=None) -> bytes:

@@ -46,10 +46,12 @@ def same_series(got: dict, ref: dict) -> None:
         np.testing.assert_allclose(got["series"][key], ref["series"][key], rtol=0, atol=1e-9)
 
 
-def child(launcher: psutil.Process, command: str, ident: str, timeout: float = 30,
+def child(launcher: psutil.Process, command: str, ident: str, timeout: float = 120,
           exclude: tuple[int, ...] = ()) -> psutil.Process:
     """The launcher's child ``zfusion COMMAND`` for process ``ident`` (``--id``, or a
-    tracker's ``--sensor``); ``exclude`` skips pids (a killed incarnation)."""
+    tracker's ``--sensor``); ``exclude`` skips pids (a killed incarnation). A loaded
+    machine can take over 30 s to bring a run's processes up (the launcher starts the
+    recorder and the fuser before the sources)."""
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
         for c in launcher.children(recursive=True):

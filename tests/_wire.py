@@ -4,6 +4,7 @@ for, and a scenario's messages as its sensors publish them."""
 
 from __future__ import annotations
 
+import copy
 import math
 from functools import lru_cache
 
@@ -20,6 +21,13 @@ def pack(d: dict) -> bytes:
     return msgpack.packb(d, use_bin_type=True)
 
 
+_LOCAL = {"track": "T1", "node": "s1", "method": "PHHNV", "x": [1.0, 2.0], "P": [[2.0, 0.1], [0.1, 3.0]],
+          "nis": 0.5, "nis_dof": 2}
+# An uplink's measurement (a map of the uplink, with its kind)
+UPLINKED = {"kind": "range_az", "sensor": "s1", "site": SITE, "az": 3.0, "std_az": 0.02, "range": 1e4,
+            "std_range": 20.0}
+
+
 def good(kind: str) -> dict:
     env = {"v": 1, "kind": kind, "src": "s1", "seq": 3, "t": 2.0}
     body = {
@@ -31,7 +39,12 @@ def good(kind: str) -> dict:
         "watermark": {"final": False},
         "track": {"track": "T1", "node": "centre", "method": "SS", "x": [1.0, 2.0], "P": [[2.0, 0.1], [0.1, 3.0]],
                   "nis": 1.5, "nis_dof": 2},
-        "prediction": {"track": "T1", "node": "radar2d", "method": "DDHNV", "x": [1.0], "P": [[1.0]]},
+        "uplink": {"estimate": {**_LOCAL, "prior_x": [0.5, 1.5], "prior_P": [[3.0, 0.0], [0.0, 4.0]],
+                               "KH": [[0.2, 0.0], [0.0, 0.1]], "prediction": False, "feedback_t": 1.0}},
+        "downlink": {"estimate": {**_LOCAL, "node": "centre"}, "init": True,
+                     "sensor_x": [1.0, 2.0], "sensor_P": [[1.0, 0.0], [0.0, 1.0]],
+                     "imm_xs": [[1.0, 2.0], [1.5, 2.0]], "imm_Ps": [[1.0, 0.0], [0.0, 1.0], [2.0, 0.0], [0.0, 2.0]],
+                     "imm_mu": [0.75, 0.25]},
         "truth": {"target": "T1", "x": [1.0, 2.0, 3.0]},
         "jam_state": {"pos": SITE, "on": True, "mode": "barrage", "power": 100.0, "law": "uniform",
                       "affects": ["s1"]},
@@ -40,8 +53,26 @@ def good(kind: str) -> dict:
     return {**env, **body}
 
 
-ALL_KINDS = ["bearing", "azel", "range_az", "az_el_range", "watermark", "track", "prediction", "truth",
-             "jam_state", "status"]
+ALL_KINDS = ["bearing", "azel", "range_az", "az_el_range", "watermark", "track", "uplink",
+             "downlink", "truth", "jam_state", "status"]
+
+
+def with_field(d: dict, field: str, value) -> dict:
+    """A deep copy of message ``d`` with ``field`` (``a.b`` inside the map ``a``) set to
+    ``value``; a ``value`` of :data:`ABSENT` removes it."""
+    out = copy.deepcopy(d)
+    *path, last = field.split(".")
+    inner = out
+    for p in path:
+        inner = inner[p]
+    if value is ABSENT:
+        inner.pop(last, None)
+    else:
+        inner[last] = value
+    return out
+
+
+ABSENT = object()
 
 
 # (field, bad value, expected cause) for each kind; every field of every kind is covered.
@@ -65,7 +96,35 @@ BAD_FIELDS = {
               ("P", [[1.0]], "shape"), ("P", [[-1.0, 0.0], [0.0, 1.0]], "value"), ("nis", -1.0, "range"),
               ("nis_dof", 0, "range"), ("track", "", "value"), ("node", None, "missing"), ("method", 1, "type"),
               ("x", [1.0] * 100, "shape"), ("extra", [1], "type")],
-    "prediction": [("x", [math.inf], "non-finite")],
+    "uplink": [("estimate", [1.0], "type"), ("estimate", None, "type"), ("estimate", ABSENT, "missing"),
+               ("estimate.x", [1.0, math.nan], "non-finite"), ("estimate.P", [[1.0, 0.0], [5.0, 1.0]], "value"),
+               ("estimate.P", [[1.0]], "shape"), ("estimate.track", "a/b", "value"), ("estimate.node", 3, "type"),
+               ("estimate.method", None, "type"), ("estimate.nis", -1.0, "range"), ("estimate.nis_dof", 0, "range"),
+               ("estimate.prior_x", [1.0], "shape"), ("estimate.prior_x", ABSENT, "missing"),
+               ("estimate.prior_P", [[1.0, 2.0]], "shape"), ("estimate.prior_P", [[1.0, math.inf], [0.0, 1.0]], "non-finite"),
+               ("estimate.KH", [[0.0, 0.0], [0.0]], "type"), ("estimate.KH", ABSENT, "missing"),
+               ("estimate.prediction", 1.0, "type"), ("estimate.prediction", [1.0], "type"),
+               ("estimate.prediction", ABSENT, "missing"), ("estimate.feedback_t", [1.0], "type"),
+               ("estimate.feedback_t", None, "type"), ("estimate.feedback_t", math.nan, "non-finite"),
+               ("estimate.extra", {}, "unknown-field"), ("estimate.drop", True, "unknown-field"),
+               ("drop", 1.0, "type"), ("drop", [1.0], "type"), ("measurement", "x", "type"),
+               ("measurement", {**UPLINKED, "kind": "sonar"}, "value"),
+               ("measurement", {**UPLINKED, "sensor": "s2"}, "value"),
+               ("measurement", {**UPLINKED, "az": 7.0}, "range"),
+               ("measurement", {**UPLINKED, "el": 0.1}, "unknown-field"),
+               ("measurement", {k: v for k, v in UPLINKED.items() if k != "std_az"}, "missing"),
+               ("measurement", {**UPLINKED, "seq": 3}, "unknown-field"),
+               ("init", True, "unknown-field")],
+    "downlink": [("init", 1.0, "type"), ("init", [1.0], "type"), ("init", ABSENT, "missing"), ("drop", 0, "type"),
+                 ("drop", None, "type"), ("estimate", ABSENT, "missing"), ("estimate", 5, "type"),
+                 ("estimate.x", [1.0, math.inf], "non-finite"), ("estimate.P", [[-1.0, 0.0], [0.0, 1.0]], "value"),
+                 ("estimate.prior_x", [1.0, 2.0], "unknown-field"), ("estimate.track", None, "type"),
+                 ("sensor_x", [1.0], "shape"), ("sensor_x", ABSENT, "missing"), ("sensor_P", [[1.0]], "shape"),
+                 ("sensor_P", [[1.0, 0.0], [0.0, math.nan]], "non-finite"), ("sensor_P", ABSENT, "missing"),
+                 ("imm_xs", [[1.0, 2.0, 3.0]], "shape"), ("imm_xs", ABSENT, "missing"),
+                 ("imm_Ps", [[1.0, 0.0], [0.0, 1.0]], "shape"), ("imm_mu", [0.5], "shape"),
+                 ("imm_mu", [1.5, -0.5], "range"), ("imm_mu", ABSENT, "missing"), ("imm_loglik", [0.0], "unknown-field"),
+                 ("extra", {}, "unknown-field")],
     "truth": [("x", [math.nan], "non-finite"), ("target", "*", "value")],
     "jam_state": [("on", 1, "type"), ("mode", "sweep", "value"), ("law", "gauss", "value"),
                   ("power", -1.0, "range"), ("affects", "s1", "type"), ("pos", [0.0], "shape")],
@@ -81,8 +140,9 @@ CASES = [(k, f, v, c) for k in ALL_KINDS for f, v, c in BAD_ENVELOPE if not (f =
 KEYS = KeySpace("unit")
 
 
-def wire_stream(scenario):
-    """(key, bytes) per sensor in publication order: measurements then a watermark per scan."""
+def wire_stream(scenario, lag: dict[str, float] | None = None):
+    """(key, bytes) per sensor in publication order: measurements then a watermark per scan;
+    ``lag`` delays a sensor's arrivals by that many seconds of its data."""
     out = []
     for sid in scenario.sensors:
         wm = 0
@@ -93,7 +153,7 @@ def wire_stream(scenario):
             wm += 1
             out.append((ev.t, sid, KEYS.meas(sid), encode("watermark", sid, wm, ev.t, final=i == len(evs) - 1)))
     # interleave sources by time, as a network would (stable within a source)
-    out.sort(key=lambda r: r[0])
+    out.sort(key=lambda r: r[0] + (lag or {}).get(r[1], 0.0))
     return [(k, b) for _, _, k, b in out]
 
 

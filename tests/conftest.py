@@ -10,6 +10,7 @@ from pathlib import Path
 
 import pytest
 
+ROOT = Path(__file__).resolve().parents[1]  # the repository
 DATA = Path(__file__).resolve().parent / "data"
 CROSSING = DATA / "crossing.toml"  # three aircraft crossing in clutter: the many-target scenario
 

@@ -10,7 +10,7 @@ all at once (vectorised over runs). ``x0`` may also be one initial state per run
 trackers' zero-mean velocity/acceleration prior: see docs/consistency.md for what that
 means for NEES.
 
-Also here, for the consistency tests (tests/test_patent_consistency.py):
+Also here, for the consistency tests (tests/fusion/test_patent_consistency.py):
 
 * :func:`scenario_runs`: Monte Carlo runs of a built-in scenario from its own generators
   (``sensors_sim``: truth with its process noise, sensor emulators), i.e. the runs

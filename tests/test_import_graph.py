@@ -162,9 +162,9 @@ def test_no_test_module_imports_another():
     fixtures twice, and a helper would be found only by knowing which test holds it."""
     tests = ROOT / "tests"
     offenders = []
-    for path in sorted(tests.glob("test_*.py")):
+    for path in sorted(tests.rglob("test_*.py")):
         for node in ast.walk(ast.parse(path.read_text())):
             names = [a.name for a in node.names] if isinstance(node, ast.Import) else \
                 [node.module or ""] if isinstance(node, ast.ImportFrom) and not node.level else []
-            offenders += [f"{path.name}: {n}" for n in names if n.split(".")[0].startswith("test_")]
+            offenders += [f"{path.name}: {n}" for n in names if any(part.startswith("test_") for part in n.split("."))]
     assert not offenders, offenders

@@ -1,44 +1,22 @@
 """The bearings-only localisation methods as streaming Methods.
 
-Every method follows the library's streaming interface::
-
-    process(m) -> list[Estimate]   # bearings, in (t, sensor, seq) order
-    advance(t) -> list[Estimate]   # watermark: nothing with time <= t will come
-    finish()   -> list[Estimate]   # end of stream
+Every method follows the library's streaming interface: ``process(m)`` takes bearings in
+``(t, sensor, seq)`` order, ``advance(t)`` a watermark (nothing with time ≤ t will
+come), ``finish()`` the end of the stream; each returns the estimates it can release.
 
 **Epochs.** Bearings within ``pair_tol`` of the first bearing of a group form one epoch
 (one scan of the DF network; one bearing for a single moving observer), cut by
 :class:`fusion.grouping.TimeGrouper` like every method's groups, so the output depends
-on the bearings alone. Its bearings are processed
-in arrival order and one :class:`~fusion.types.Estimate` of ``[px, py]`` (ENU m) is
-emitted, stamped with the epoch's latest bearing time, from the first epoch with a fix.
-An incomplete epoch is processed as it is (KF+TR reuses the missing stations' latest
-smoothed bearings).
+on the bearings alone. An epoch's bearings are processed in arrival order and one
+:class:`~fusion.types.Estimate` (``[px, py]``, or ``[px, py, vx, vy]`` with
+``motion = "cv"``) is emitted, stamped with its latest bearing's time, from the first
+epoch with a fix; an incomplete epoch is processed as it is.
 
-**Methods** (``DF_METHODS[name](config)``):
-
-========== ===========================================================================
-EKF        EKFT on raw bearings, one predict(+Q)/scalar update per bearing
-MEKF1..5   two cross-fed filters (EKFT/SKF, EKFT/EKFS, EKFT/EKFT, EKFS/EKFS, EKFS/EKFT)
-IMM        two EKFTs (clean σ, outlier σ₂) with Bar-Shalom mixing
-TORRIERI   batch: Torrieri's weighted LS on *all* bearings so far, at every epoch
-KF+TR      per-station scalar KF bearing smoothers; Torrieri on their latest outputs
-MKF+TR     as KF+TR with two cross-fed KFs per station
-========== ===========================================================================
-
-**Motion.** ``motion = "static"`` (default) is the theses' fixed emitter, estimate
-``[px, py]``; ``motion = "cv"`` a moving one at nearly constant velocity, estimate
-``[px, py, vx, vy]`` (:class:`fusion.df.models.ConstantVelocityEmitter`, PSD ``q``), for
-EKF, MEKF1..5 and IMM: each bearing is predicted to from the filter's last time. The
-batch and smoothed-bearing methods (TORRIERI, KF+TR, MKF+TR) fit one position to all
-bearings so far and refuse ``"cv"``.
-
-The recursive filters start from ``init = "ipu"`` (the crossing of the first usable pair
-of bearings, consumed; earlier bearings replayed after it) or ``"robust"`` (the pair of
-the first ``init_epochs`` epochs that best explains all of them, :mod:`fusion.df.init`);
-the IMM starts both models with the fix's covariance moment-matched over its clean and
-outlier hypotheses. docs/algorithms.md ("Bearings-only emitter localisation") has the
-maths and the decisions; :class:`DFConfig` the keys.
+**Methods** (``DF_METHODS[name](config)``): EKF, MEKF1..5 (two cross-fed filters), IMM
+(clean and outlier bearing models), TORRIERI (weighted least squares on all bearings),
+KF+TR and MKF+TR (per-station bearing smoothers, then Torrieri). The table of what each
+does, the motion models, the initialisation and the maths: docs/algorithms.md
+("Bearings-only emitter localisation", "The methods"); :class:`DFConfig` the keys.
 """
 
 from __future__ import annotations

@@ -2,7 +2,7 @@
 
 One CoT 2.0 event per fused update and per sensor (pure: :func:`track_event`,
 :func:`sensor_event` return the XML bytes), sent by :class:`UdpSender` or
-:class:`TcpSender` (the transport)::
+:class:`TcpSender`::
 
     <event version="2.0" uid=… type=… time=… start=… stale=… how=…>
       <point lat=… lon=… hae=… ce=… le=…/>
@@ -10,26 +10,15 @@ One CoT 2.0 event per fused update and per sensor (pure: :func:`track_event`,
               <zfusion kind=… method=… node=… t=… position_std=…/></detail>
     </event>
 
-Types (the CoT type tree is MIL-STD-2525's: ``a`` atom, affiliation ``u`` unknown /
-``f`` friend, battle dimension ``A`` air / ``G`` ground, then function): a 3D track is
-``a-u-A`` (an air track of unknown affiliation: what a radar picture holds until it is
-identified); an emitter fix ``a-u-G-E`` (ground equipment, unknown: a transmitter
-located by DF; the tree has no "emitter" leaf, and ``G-E-S`` is a sensor, which it is
-not); a sensor ``a-f-G-E-S`` (friendly ground sensor), ``a-f-G-E-S-R`` for a radar,
-``a-f-A`` for an airborne DF. Each is an option of ``zfusion export cot``.
-
-Times are UTC: ``time`` is when the event is made; ``start`` the estimate's time of
-validity in a live session, else (scenario seconds have no date) also now, with the
-scenario time in ``<zfusion t=…>``; ``stale`` is ``start + stale_s``. ``how`` is
-``m-f`` (machine, fused) for estimates and ``h-e`` (entered: from the site file) for
-sensors. ``ce`` and ``le`` are 1σ (metres, :func:`services.geo.ce_le`); an unknown
-one is CoT's 9999999.
-
-TCP: events go out on one connection, each whole; a failed send closes it and the
-sender reconnects with exponential backoff (``BACKOFF_MIN_S`` doubling to
-``BACKOFF_MAX_S``), re-sending on reconnection the latest event of every uid (at most
-``MAX_PENDING``) so a TAK server that comes back gets the picture, not just what
-changes next. UDP (one datagram per event) needs no connection.
+Types are MIL-STD-2525's tree: ``a-u-A`` a 3D track (air, unknown affiliation),
+``a-u-G-E`` an emitter fix (ground equipment; the tree has no emitter leaf),
+``a-f-G-E-S`` a sensor (``-R`` a radar, ``a-f-A`` an airborne DF). ``start`` is the
+estimate's UTC time in a live session, else now (scenario seconds have no date; the
+scenario time is in ``<zfusion t=…>``); ``ce``/``le`` are 1σ metres
+(:func:`services.geo.ce_le`). Over TCP a failed send closes the connection and the
+sender reconnects with exponential backoff (``BACKOFF_MIN_S`` to ``BACKOFF_MAX_S``),
+then re-sends the latest event of every uid (at most ``MAX_PENDING``), so a TAK server
+that comes back gets the picture. Field by field: docs/viewing.md.
 """
 
 from __future__ import annotations

@@ -22,7 +22,7 @@ from fusion.mtt import AssociationConfig
 from schemas import KeySpace
 
 from ..geo import frame_of
-from ..node import ListenerInbox, Node, ZenohOptions
+from ..node import ListenerInbox, Node, Recovery, ZenohOptions
 from ..picture import Request
 from . import cot, geojson
 from .tracks import MAX_SKEW_S, TrackTable, sensor_sites
@@ -131,12 +131,20 @@ def run(process_id: str, keys: KeySpace, zopts: ZenohOptions, site, make_sink, l
                            clock=time.time if live else None, max_skew=max_skew)
         sink = make_sink()
         try:
-            node.subscribe(keys.fused(), inbox)
+            recovery = None
+            if live:  # the live fuser's estimates sent while this exporter was cut off from it come back
+                recovery = Recovery(node.processes_by_session())
+                node.recovering_subscriber(keys.fused(), inbox, recovery.on_miss)
+            else:
+                node.subscribe(keys.fused(), inbox)
             late_join = Request(node.session, keys, lambda data: inbox.put((keys.fused(), data)))
             node.announce()
             node.publish_status("ready")
             last_status = time.monotonic()
             t = 0.0
+
+            def recovered() -> dict[str, float]:
+                return recovery.counters() if recovery is not None else {}
 
             def handle(key: str, data: bytes) -> None:
                 nonlocal t
@@ -144,6 +152,8 @@ def run(process_id: str, keys: KeySpace, zopts: ZenohOptions, site, make_sink, l
                 e = table.offer(key, data)
                 if e is not None:
                     t = max(t, e.t)
+                    if recovery is not None:
+                        recovery.arrived(table.src, e.t, time.time())
                     node.count("updates")
                     sink.update(table, e)
 
@@ -158,7 +168,7 @@ def run(process_id: str, keys: KeySpace, zopts: ZenohOptions, site, make_sink, l
                 sink.tick(table)
                 if time.monotonic() - last_status >= 1.0:
                     node.publish_status("running", t, extra={**sink.counters(), "dropped": inbox.dropped,
-                                                             "backlog": inbox.qsize()})
+                                                             "backlog": inbox.qsize(), **recovered()})
                     last_status = time.monotonic()
             while True:  # stopping: what is queued is still part of the picture
                 try:
@@ -166,7 +176,7 @@ def run(process_id: str, keys: KeySpace, zopts: ZenohOptions, site, make_sink, l
                 except queue.Empty:
                     break
             sink.tick(table, final=True)
-            node.publish_status("stopped", t, extra={**sink.counters(), "dropped": inbox.dropped})
+            node.publish_status("stopped", t, extra={**sink.counters(), "dropped": inbox.dropped, **recovered()})
         finally:
             sink.close()
     return 0

@@ -54,6 +54,7 @@ class TrackTable:
         self.keys = keys
         self.reject = reject
         self.horizon = math.inf if duration is None else float(duration) + HORIZON_SLACK_S
+        self.src: str | None = None  # the sender of the last estimate taken
         self.clock, self.max_skew = clock, max_skew
         self.delete_misses = delete_misses
         self.tracks: OrderedDict[str, Estimate] = OrderedDict()  # by track id, oldest update first
@@ -97,6 +98,7 @@ class TrackTable:
             self.tracks.pop(gone, None)
         self.tracks[e.track] = e
         self.tracks.move_to_end(e.track)
+        self.src = msg.src  # who sent the estimate just taken
         while len(self.tracks) > MAX_TRACKS:
             old, _ = self.tracks.popitem(last=False)
             self._reports.forget(old)

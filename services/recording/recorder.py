@@ -1,0 +1,810 @@
+"""The recorder process: everything on the deployment's keys into one Rerun recording.
+
+Timeline ``sim_time`` (scenario seconds); in a live session (``--site``) timeline
+``utc``, a timestamp timeline (``t`` is UTC there), and stamps more than ``--max-skew``
+ahead of this host's clock are refused. Entities live under ``world/`` (sites,
+measurements as points or rays, truth, tracks per node with their 3σ ellipsoids or
+ellipses, predictions, uplinks, feedback, jammers), ``metrics/`` (position error, NEES
+and NIS against their χ² bounds, a many-target picture's GOSPA, missed and false
+tracks) and ``status/`` (events and counters); ``map/`` holds sites, bearings, truth
+and tracks in lat/lon for the map view (:mod:`services.recording.map`). docs/design.md
+("Recording") lists them and docs/viewing.md says what each shows. A blueprint lays out
+the panels.
+
+Many targets: each track is an entity keyed by (node, id) and is cleared (``rr.Clear``,
+recursively) once its stream has reported ``delete_misses`` frames without it, or at
+once when the centre tells its node to ``drop`` it; a cleared track's path and frame
+bookkeeping are forgotten, so state is held for the live tracks only. The fused picture
+is scored per frame as ``zfusion eval`` scores it (GOSPA, cut-off ``GOSPA_CUTOFF``),
+against the targets that have a truth sample at that time. Targets come and go too
+(``[traffic]``): a target missing from one truth frame is cleared from the drawing, and
+one missing from ``TRUTH_GONE_FRAMES`` frames is forgotten (its truth samples, path and
+duplicate bookkeeping), so truth is held for the targets alive of late only.
+
+Bounded work per row: a path gets a point at most every ``TRAIL_STEP_S`` of scenario
+time and keeps ``PATH_MAX`` points; a 3D path is logged only with the row that adds a
+point; :class:`Recording` queues rows and sends each entity's in one ``send_columns``
+call at least every ``SEND_PERIOD_S``. The recorder only listens: its subscription
+feeds a bounded queue (overflow counted and dropped, never pushed back to a publisher;
+beyond ``BACKLOG_IN_MEMORY`` samples it waits in a temporary file, not in memory),
+and every sample that fails to decode, arrives on the wrong key, repeats, or lies
+beyond the scenario's end is counted by cause and dropped
+(:class:`~services.node.RejectLog`). docs/notes.md ("Recorder paths") says why paths
+are thinned.
+"""
+
+from __future__ import annotations
+
+import functools
+import logging
+import math
+import queue
+import time
+from collections import OrderedDict, deque
+from functools import lru_cache
+from typing import Callable
+
+import numpy as np
+import rerun as rr
+
+from fusion.metrics import gospa
+from fusion.mtt import AssociationConfig
+from fusion.types import KIND_COMPONENTS, Estimate, Measurement
+from schemas import MEASUREMENT_KINDS, KeySpace, Message, SchemaError, decode, to_estimate, to_measurement
+from schemas.links import downlink, uplink
+
+from .. import picture
+from . import draw
+from . import map as recorder_map
+from ..scoring import GOSPA_CUTOFF, many_targets
+from ..node import ListenerInbox, Node, Recovery, RejectLog
+from ..ordering import HORIZON_SLACK_S, SEQ_WINDOW
+from ..picture import Reports
+from ..rotation import Rotation
+from .draw import TRAIL_STEP_S, Trail
+from .stream import Part, Recording, open_recording, part, safe_flush, ui_points
+
+log = logging.getLogger("zfusion")
+
+DEFAULT_RAY_M = 20_000.0
+TRUTH_CACHE = 4096  # truth samples kept per target, to score estimates against
+TRUTH_GONE_FRAMES = 30  # truth frames a target may miss before its samples are forgotten (it has left)
+PENDING_MAX = 4096  # estimates waiting for the truth sample of their time
+BACKLOG_MAX = 50_000  # queued samples before the recorder starts dropping (and counting): seconds of traffic
+BACKLOG_IN_MEMORY = 2_048  # ... of which in memory; the rest waits in a temporary file (ListenerInbox)
+SEND_PERIOD_S = 0.2  # queued rows go out at least this often (wall clock)
+SEND_ROWS_MAX = 2_000  # ... or once this many are queued (rows hold arrays: this bounds their memory)
+CONTAMINATION = ("jammed", "outliers")  # sensor counters plotted under jamming/<sensor>/
+
+FUSED_NODE = "centre"
+
+
+@lru_cache(maxsize=4096)  # a run draws a few hundred entities, row after row
+def _p(*parts: object) -> str:
+    """An entity path from unescaped parts (ids may hold '+', '.', ...)."""
+    return rr.new_entity_path([str(p) for p in parts])
+
+
+def _level(text: str) -> str:
+    t = text.lower()
+    if any(w in t for w in ("error", "fail", "crash")):
+        return "ERROR"
+    if any(w in t for w in ("dead", "timeout", "timed out", "gave up", "silent", "lost", "alone", "stopped",
+                                "jammer on")):
+        return "WARN"
+    return "INFO"
+
+
+class Recorder:
+    """Turns samples off the wire into Rerun log calls on one recording stream.
+
+    :meth:`offer` is the whole behaviour without Zenoh (key + bytes in, rows out), so tests
+    can feed it encoded messages and read the file back.
+
+    Args:
+        rec: the recording stream (its sinks already set; see :func:`open_recording`).
+        keys: the deployment's key space.
+        reject: where rejected samples are counted (a fresh :class:`RejectLog` if omitted).
+        scenario: the scenario, if known: sites are drawn from the start, DF sensors are
+            known in advance, and data beyond its end is rejected as "future" (a site,
+            live: no end; sites drawn with their first report).
+        clock_guard: live: the guard that refuses stamps from the future
+            (:class:`services.live.ClockGuard`; :meth:`offer` then takes ``utc``).
+    """
+
+    def __init__(self, rec: Recording, keys: KeySpace, reject: RejectLog | None = None, scenario=None,
+                 clock_guard=None):
+        self.rec = rec
+        self.keys = keys
+        self.reject = reject if reject is not None else RejectLog("recorder")
+        self.now = 0.0  # latest time of validity seen in data: the time of undated status
+        self.started = False  # whether any data has been seen (then ``now`` is on the session's time base)
+        self.fused_t = -math.inf  # latest time of the fused output
+        self.scenario_run = scenario is not None
+        self.finished: set[str] = set()  # processes that reported done/stopped
+        self.uplinked = 0  # measurements local trackers sent up on local/* (drawn as the node's)
+        self.unscored = 0  # estimates older than the truth kept of their target: drawn, never scored
+        self.horizon = math.inf
+        self.df_sensors: set[str] = set()
+        self.default_ray = DEFAULT_RAY_M
+        # per-entity state
+        self._styled: set[str] = set()
+        self._seqs: dict[tuple[str, ...], OrderedDict[int, int]] = {}  # stream -> seq -> hash of the bytes
+        self._sites: dict[str, np.ndarray] = {}
+        self._site_paths: dict[str, Trail] = {}
+        self._scan: dict[str, tuple[float, dict[str, list[np.ndarray]]]] = {}  # by entity path
+        self._bearings: deque[tuple[np.ndarray, np.ndarray]] = deque(maxlen=32)
+        self._ref_pos: np.ndarray | None = None  # latest fused (else any) estimate: scales rays
+        self._truth: dict[str, OrderedDict[float, np.ndarray]] = {}
+        self._truth_paths: dict[str, Trail] = {}
+        self._truth_t = -math.inf  # the latest truth frame's time
+        self._truth_drawn = Reports()  # truth frames: a target missing from one is no longer drawn
+        self._truth_kept = Reports()  # ... one missing from TRUTH_GONE_FRAMES is forgotten
+        self._track_paths: dict[str, Trail] = {}
+        self.delete_misses = AssociationConfig.delete_misses  # the trackers' default; the scenario may set it
+        self._reports: dict[tuple[str, str], Reports] = {}  # by stream (family, key id)
+        self._node_of: dict[str, str] = {}  # local/<id> -> the node its estimates name
+        self._pending: OrderedDict[float, list[tuple[Estimate, tuple[str, ...]]]] = OrderedDict()
+        self._n_pending = 0
+        self.many: bool | None = None  # many targets (from the scenario; else: more than one truth seen)
+        # many targets: per method, its frames not scored yet (time -> fused positions) and its state size
+        self._pictures: dict[str, OrderedDict[float, list[np.ndarray]]] = {}
+        self._picture_size: dict[str, int] = {}
+        self._states: dict[str, str] = {}
+        self._jam: dict[str, tuple] = {}
+        self._jam_victims: dict[str, set[str]] = {}
+        self.geo: recorder_map.MapLayer | None = None  # the map, where the session has a geodetic origin
+        self.clock_guard = clock_guard  # live: no end, and the scenario (if any) is only its site
+        self.clock_events: list[str] = []
+        rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+        if scenario is not None:
+            self._from_scenario(scenario)
+
+    # -- input ---------------------------------------------------------------------------------
+
+    def offer(self, key: str, data: bytes, utc: float | None = None) -> Message | None:
+        """One sample off the wire (``utc``: this host's clock, live). Bad input is counted
+        and dropped; never raises."""
+        try:
+            family, ident = self.keys.family_and_id(key)
+        except ValueError as e:
+            self.reject("?", "key", str(e))
+            return None
+        hint = ident or family
+        try:
+            msg = decode(data)
+        except SchemaError as e:
+            self.reject(hint, e.cause, str(e))
+            return None
+        if self.clock_guard is not None and utc is not None and msg.kind != "status":
+            rej = self.clock_guard.check(msg.src, msg.t, utc, self.clock_events)
+            if rej is not None:
+                self.reject(hint, rej.cause, rej.detail)
+                return None
+        handler, why = self._route(family, ident, msg, hash(data))
+        if handler is None:
+            self.reject(hint, why[0], why[1])
+            return None
+        try:
+            handler(family, ident, msg)
+        except Exception as e:  # the schema let it through but it cannot be drawn: count, go on
+            self.reject(hint, "unrecordable", f"{msg.kind} from {msg.src}: {type(e).__name__}: {e}")
+            return None
+        if msg.kind == "status" and msg.body["state"] in ("done", "stopped"):
+            self.finished.add(msg.src)
+        return msg
+
+    def _route(self, family: str, ident: str | None, msg: Message,
+               digest: int) -> tuple[Callable | None, tuple[str, str]]:
+        kind = msg.kind
+        if kind != "status" and msg.t > self.horizon:
+            return None, ("future", f"t = {msg.t:g} s is beyond the scenario's end ({self.horizon:g} s)")
+        # Scenario time starts at 0; rows must fit the timeline. A watermark just before 0
+        # (a node holding a plot at t = 0 promises nothing earlier) is no row, and no error.
+        if kind not in ("status", "watermark") and msg.t < 0.0:
+            return None, ("past", f"t = {msg.t:g} s is before the scenario's start")
+        handler, why = self._route_kind(family, ident, msg)
+        if handler is not None and kind not in ("watermark", "status"):
+            # one row per message: a repeated message (src, seq and bytes) is dropped.
+            # Measurements and estimates are told apart: a process may count them separately.
+            stream = (family, ident or "", msg.src, "meas" if kind in MEASUREMENT_KINDS else kind)
+            if self._repeated(stream, msg.seq, digest):
+                return None, ("duplicate", f"{kind} seq {msg.seq} from {msg.src} already recorded")
+        return handler, why
+
+    def _route_kind(self, family: str, ident: str | None, msg: Message) -> tuple[Callable | None, tuple[str, str]]:
+        kind = msg.kind
+        wrong = (None, ("kind", f"{kind!r} is not expected on {family}/{ident or ''}"))
+        if family == "meas":
+            if kind not in MEASUREMENT_KINDS and kind != "watermark":
+                return wrong
+            if msg.src != ident or (kind != "watermark" and msg.body["sensor"] != ident):
+                return None, ("spoofed-src", f"{kind} of {msg.body.get('sensor', msg.src)!r} from "
+                                             f"{msg.src!r} came on meas/{ident}")
+            if kind == "watermark":
+                return self._on_watermark, ("", "")
+            return self._on_measurement, ("", "")
+        if family == "fused":
+            return (self._on_estimate, ("", "")) if kind == "track" else wrong
+        if family == "local":
+            if kind == "watermark":
+                return self._on_watermark, ("", "")
+            return (self._on_uplink, ("", "")) if kind == "uplink" else wrong
+        if family == "feedback":
+            if kind == "watermark":  # the fuser's feedback horizon: nothing to draw
+                return self._on_watermark, ("", "")
+            return (self._on_feedback, ("", "")) if kind == "downlink" else wrong
+        if family == "truth":
+            if kind != "truth":
+                return wrong
+            if msg.body["target"] != ident:
+                return None, ("spoofed-src", f"truth of {msg.body['target']!r} came on truth/{ident}")
+            return self._on_truth, ("", "")
+        if family == "jam":
+            if kind != "jam_state":
+                return wrong
+            if msg.src != ident:
+                return None, ("spoofed-src", f"jam_state from {msg.src!r} came on jam/{ident}")
+            return self._on_jam_state, ("", "")
+        if family == "status":
+            if kind != "status":
+                return wrong
+            if msg.src != ident:
+                return None, ("spoofed-src", f"status of {msg.src!r} came on status/{ident}")
+            return self._on_status, ("", "")
+        return None, ("key", f"no such family {family!r}")
+
+    def _repeated(self, stream: tuple[str, ...], seq: int, digest: int) -> bool:
+        """Whether this message (its ``seq`` on ``stream``, ``digest`` the hash of its bytes)
+        was recorded already. A restarted process numbers its messages from 1 again, and
+        its "ready" status, published as its session opens, may reach no one: a reused
+        seq with other bytes is a new message, not a repeat."""
+        seen = self._seqs.setdefault(stream, OrderedDict())
+        if seen.get(seq) == digest:
+            return True
+        seen[seq] = digest
+        seen.move_to_end(seq)
+        if len(seen) > SEQ_WINDOW:
+            seen.popitem(last=False)
+        return False
+
+    # -- logging ---------------------------------------------------------------------------------
+
+    def _log(self, path: str, t: float, *parts: Part) -> None:
+        self.rec.row(path, t, parts)  # one row per call
+
+    def _style(self, path: str, *parts: Part) -> None:
+        """Static properties of an entity, logged once (built only then)."""
+        if path not in self._styled:
+            self._styled.add(path)
+            self.rec.log(path, *[archetype(**components) for archetype, components in parts], static=True)
+
+    def _advance(self, t: float) -> None:
+        self.started = True
+        if t > self.now:
+            self.now = t
+
+    @property
+    def clock(self) -> float:
+        """The recording's time: the fused output's (sources may run far ahead of it at
+        ``--speed max``); without one yet, the latest time seen, unless a scenario's run,
+        which has a fuser, is being recorded (-inf: not started)."""
+        if math.isfinite(self.fused_t):
+            return self.fused_t
+        return -math.inf if self.scenario_run else self.now
+
+    def reopen(self, rec: Recording, t: float) -> None:
+        """Rotation: go on in ``rec``, whose window starts at ``t``; the sites are drawn
+        again there, so the file shows them on its own."""
+        self.rec = rec
+        for sensor, pos in list(self._sites.items()):
+            del self._sites[sensor]
+            self._site(sensor, pos, t, "")
+
+    @staticmethod
+    def _trail(store: dict[str, Trail], key: str) -> Trail:
+        trail = store.get(key)
+        if trail is None:
+            trail = store[key] = Trail()
+        return trail
+
+    def _path(self, store: dict[str, Trail], key: str, t: float, pos: np.ndarray) -> tuple[np.ndarray, bool]:
+        """The path so far, and whether it gained a point: it does once ``TRAIL_STEP_S`` has
+        passed since its last one, and at most ``PATH_MAX`` points are kept."""
+        trail = self._trail(store, key)
+        if t < trail.t + TRAIL_STEP_S - 1e-9:  # (scenario times are sums of float steps)
+            return trail.points, False
+        trail.t = t
+        return trail.add(pos), True
+
+    # -- scenario --------------------------------------------------------------------------------
+
+    def _from_scenario(self, sc) -> None:
+        from sensors_sim.spec import DF_KINDS
+
+        duration = getattr(sc, "duration", None) if self.clock_guard is None else None  # a site (live): no end
+        if duration is not None:
+            self.horizon = float(duration) + HORIZON_SLACK_S
+        association, _ = AssociationConfig.split(sc.tracker)
+        if association is not None:
+            self.delete_misses = association.delete_misses
+        self.df_sensors = {sid for sid, s in sc.sensors.items() if s.kind in DF_KINDS}
+        self.many = many_targets(sc) if hasattr(sc, "targets") else None  # a site: judged from the truth seen
+        self.geo = recorder_map.MapLayer.at(sc.origin, self._log)
+        # The scenario's scale, from where its sensors and jammers are during the run (not its targets).
+        times = np.linspace(0.0, float(duration or 0.0), 9)
+        pts = [site.position(float(t)) for site in [s.site for s in sc.sensors.values() if s.site is not None]
+               + [j.site for j in getattr(sc, "jammers", {}).values()] for t in (times if not site.fixed else [0.0])]
+        if len(pts) > 1:
+            span = max(float(np.linalg.norm(a[:2] - b[:2])) for a in pts for b in pts)
+            self.default_ray = draw.clamp_ray(max(DEFAULT_RAY_M, 1.5 * span))
+        if duration is not None:  # live: drawn with their first report, on the UTC timeline
+            for sid, s in sc.sensors.items():
+                self._site(sid, s.site.position(float(s.start)), float(s.start), s.kind)
+        self.rec.send_recording_name(f"{sc.name}")
+
+    # -- measurements ------------------------------------------------------------------------------
+
+    def _site(self, sensor: str, pos: np.ndarray, t: float, kind: str) -> np.ndarray:
+        """Draw a sensor's site the first time and whenever it has moved; returns where it is drawn."""
+        pos = np.asarray(pos, dtype=float).copy()
+        if sensor in self.df_sensors or kind == "bearing":
+            pos[2] = 0.0  # DF lives on the map plane
+        prev = self._sites.get(sensor)
+        if prev is not None and np.linalg.norm(prev - pos) <= 1.0:
+            return prev
+        self._sites[sensor] = pos
+        path = self._trail(self._site_paths, sensor).add(pos)
+        c = draw.color_of(sensor)
+        parts = [part(rr.Points3D, positions=[pos], labels=[sensor], colors=[c], radii=ui_points(7.0), show_labels=[True])]
+        if len(path) > 1:
+            parts.append(part(rr.LineStrips3D, strips=[path], colors=[draw.dim(c)], radii=ui_points(1.5)))
+        self._log(_p("world", "sites", sensor), t, *parts)
+        if self.geo is not None:
+            self.geo.site(_p("world", "sites", sensor), t, pos, self._site_paths[sensor], c)
+        return pos
+
+    def _ray_length(self, site: np.ndarray, u: np.ndarray, planar: bool) -> float:
+        """How far to draw an angle-only report: past the latest estimate, else past where
+        it crosses recent bearings from elsewhere, else the scenario's scale. Never truth."""
+        if self._ref_pos is not None:
+            d = self._ref_pos - site
+            dist = float(np.linalg.norm(d[:2] if planar else d))
+            if dist > draw.MIN_RAY_M / 2:
+                return draw.clamp_ray(1.5 * dist)
+        if planar:
+            hits = [h for p, v in self._bearings if (h := draw.ray_hit(site, u, p, v)) is not None]
+            if hits:
+                return draw.clamp_ray(1.3 * float(np.median(hits)))
+        return self.default_ray
+
+    def _on_measurement(self, family: str, ident: str | None, msg: Message) -> None:
+        m = to_measurement(msg)
+        self._advance(m.t)
+        site = self._site(m.sensor, m.site, m.t, m.kind)
+        self._draw_measurement(_p("world", "meas", m.sensor), m, site, draw.color_of(m.sensor), learn=True)
+
+    def _on_uplink(self, family: str, ident: str | None, msg: Message) -> None:
+        """A local tracker's uplink: its estimate (a prediction in two-stage) and/or the
+        measurement it sent up."""
+        u = uplink(msg)
+        if u.estimate is not None:
+            self._estimate(family, ident, u.estimate, bool(u.estimate.extra.get("prediction")))
+        if u.measurement is not None:
+            self._uplinked(u.measurement)
+
+    def _uplinked(self, m: Measurement) -> None:
+        """A measurement a local tracker sent up (raw in two-stage, a smoothed bearing in
+        KF+TR): drawn as the node's, never again as the sensor's."""
+        self.uplinked += 1
+        self._advance(m.t)
+        site = self._sites.get(m.sensor)
+        if site is None:
+            site = self._site(m.sensor, m.site, m.t, m.kind)
+        self._draw_measurement(_p("world", "tracks", m.sensor, "uplink"), m, site, draw.dim(draw.color_of(m.sensor),
+                                                                                        0.8), learn=False)
+
+    def _draw_measurement(self, path: str, m, site: np.ndarray, c: tuple[int, int, int], learn: bool) -> None:
+        """One row: every report of this scan so far (a scan may see several targets)."""
+        z = dict(zip(KIND_COMPONENTS[m.kind], (float(v) for v in m.z)))
+        u = draw.unit(z["az"], z.get("el", 0.0))
+        t0, scan = self._scan.get(path, (None, None))
+        if t0 != m.t or scan is None:
+            scan = {"points": [], "rays": [], "arcs": []}
+            self._scan[path] = (m.t, scan)
+        points, rays, arcs = scan["points"], scan["rays"], scan["arcs"]
+        if "range" in z:
+            points.append(site + z["range"] * u)
+            if m.kind == "range_az":  # no elevation: the target is anywhere on this arc
+                arcs.append(draw.vertical_arc(site, z["az"], z["range"]))
+        else:
+            planar = m.kind == "bearing"
+            rays.append(np.array([site, site + self._ray_length(site, u, planar) * u]))
+            if planar and learn:
+                self._bearings.append((site, u))
+        parts = []
+        if points:
+            parts.append(part(rr.Points3D, positions=list(points), colors=[c], radii=ui_points(4.0)))
+        if rays or arcs:
+            strips = rays + arcs
+            colors = [c] * len(rays) + [draw.dim(c)] * len(arcs)
+            parts.append(part(rr.LineStrips3D, strips=strips, colors=colors, radii=ui_points(1.0)))
+        self._log(path, m.t, *parts)
+        if self.geo is not None and m.kind == "bearing":
+            self.geo.bearings(path, m.t, rays, c)
+
+    def _on_watermark(self, family: str, ident: str | None, msg: Message) -> None:
+        self._advance(msg.t)
+
+    # -- truth, tracks, metrics ------------------------------------------------------------------
+
+    def _on_truth(self, family: str, ident: str | None, msg: Message) -> None:
+        tgt, x = msg.body["target"], np.asarray(msg.body["x"], dtype=float)
+        self._advance(msg.t)
+        self._truth_t = max(self._truth_t, msg.t)
+        missed = self._truth_drawn.t  # the frame a target gone at this one is missing from: cleared there
+        for gone in self._truth_drawn.report(tgt, msg.t, 1):
+            self._log(_p("world", "truth", gone), missed, part(rr.Clear, is_recursive=[True]))
+            if self.geo is not None:
+                self.geo.clear(_p("world", "truth", gone), missed)
+        for gone in self._truth_kept.report(tgt, msg.t, TRUTH_GONE_FRAMES):
+            self._forget_truth(gone)
+        cache = self._truth.setdefault(tgt, OrderedDict())
+        cache[msg.t] = x
+        while len(cache) > TRUTH_CACHE:
+            cache.popitem(last=False)
+        waiting = self._pending.get(msg.t)
+        if waiting:
+            keep = []
+            for e, prefix in waiting:
+                if e.track == tgt or (e.track not in self._truth and len(self._truth) == 1):
+                    self._score(e, prefix, x)
+                    self._n_pending -= 1
+                else:
+                    keep.append((e, prefix))
+            if keep:
+                self._pending[msg.t] = keep
+            else:
+                del self._pending[msg.t]
+        if self._pictures:
+            self._score_pictures()
+        pos = x[:3] if x.size >= 3 else np.array([x[0], x[1], 0.0])
+        parts = [part(rr.Points3D, positions=[pos], labels=[tgt], colors=[draw.TRUTH_COLOR], radii=ui_points(5.0))]
+        path, grew = self._path(self._truth_paths, tgt, msg.t, pos)
+        if grew:  # else the path drawn last still shows
+            parts.append(part(rr.LineStrips3D, strips=[path], colors=[draw.TRUTH_COLOR], radii=ui_points(1.0)))
+        self._log(_p("world", "truth", tgt), msg.t, *parts)
+        if self.geo is not None:
+            self.geo.truth(_p("world", "truth", tgt), msg.t, pos, self._truth_paths[tgt], grew, draw.TRUTH_COLOR)
+
+    def _forget_truth(self, tgt: str) -> None:
+        """``tgt`` has left: its truth samples, path and duplicate bookkeeping go."""
+        self._truth.pop(tgt, None)
+        self._truth_paths.pop(tgt, None)
+        for stream in [s for s in self._seqs if s[0] == "truth" and s[1] == tgt]:
+            del self._seqs[stream]
+
+    def _truth_at(self, t: float) -> list[np.ndarray] | None:
+        """The truth of every target present at ``t`` (one whose samples start after ``t`` or
+        end before it is not), or None if a target whose samples span ``t`` lacks it (lost)."""
+        out = []
+        for cache in self._truth.values():
+            x = cache.get(t)
+            if x is not None:
+                out.append(x)
+            elif cache and next(iter(cache)) < t < next(reversed(cache)):
+                return None
+        return out
+
+    def _draw_estimate(self, path: str, e: Estimate, color: tuple[int, int, int], label: str) -> np.ndarray | None:
+        """Point + 3σ ellipsoid / ellipse + path so far; a smoothed bearing as a ray with its
+        ±3σ wedge from the node's site. Returns the drawn position (None for a bearing)."""
+        layout = draw.state_layout(e.x.size)
+        radius = ui_points(5.0)
+        line = ui_points(1.0)
+        if layout == "bearing":
+            site = self._sites.get(e.node)
+            if site is None:
+                return None
+            az, s = float(e.x[0]) % (2 * math.pi), draw.N_SIGMA * math.sqrt(max(float(e.P[0, 0]), 0.0))
+            L = self._ray_length(site, draw.unit(az), True)
+            strips = [[site, site + L * draw.unit(a)] for a in (az, az - s, az + s)]
+            self._log(path, e.t, part(rr.LineStrips3D, strips=strips, colors=[color, draw.dim(color), draw.dim(color)],
+                                      radii=line, labels=[label, "", ""]))
+            return None
+        if layout is None:
+            return None
+        pos = draw.position3(e.x)
+        trail, grew = self._path(self._track_paths, path, e.t, pos)
+        parts = [part(rr.Points3D, positions=[pos], labels=[label], colors=[color], radii=radius)]
+        if layout == "3d":
+            half, quat = draw.ellipsoid(e.P[:3, :3])
+            parts.append(part(rr.Ellipsoids3D, centers=[pos], half_sizes=[half], quaternions=[quat], colors=[color],
+                              line_radii=ui_points(0.75)))
+            if grew:  # else the path drawn last still shows
+                parts.append(part(rr.LineStrips3D, strips=[trail], colors=[draw.dim(color)], radii=line))
+        else:  # the ellipse shares the component with the path: both, every row (map-plane fixes are slow)
+            ring = draw.ellipse(pos, e.P[:2, :2])
+            parts.append(part(rr.LineStrips3D, strips=[ring, trail], colors=[color, draw.dim(color)], radii=line))
+        self._log(path, e.t, *parts)
+        if self.geo is not None:
+            self.geo.estimate(path, e.t, e, color, self._track_paths[path], grew)
+        return pos
+
+    def _on_estimate(self, family: str, ident: str | None, msg: Message) -> None:
+        self._estimate(family, ident, to_estimate(msg), False)
+
+    def _estimate(self, family: str, ident: str | None, e: Estimate, prediction: bool) -> None:
+        self._advance(e.t)
+        fused = e.node == FUSED_NODE
+        if fused and family == "fused":
+            self.fused_t = max(self.fused_t, e.t)
+        if family == "local" and ident:
+            self._node_of[ident] = e.node  # drops on feedback/<ident> name this node's tracks
+        track = _p("world", "tracks", e.node, e.track)
+        self._reported((family, ident or ""), track, e.t)
+        color = draw.CENTRE_COLOR if fused else draw.color_of(e.node)
+        if prediction:
+            self._draw_estimate(_p("world", "tracks", e.node, e.track, "prediction"), e, draw.dim(color),
+                                f"{e.node} {e.track} (pred.)")
+            return
+        label = f"{e.method} {e.track}" if fused else f"{e.node} {e.track}"
+        pos = self._draw_estimate(track, e, color, label)
+        if pos is not None and (fused or self._ref_pos is None):
+            self._ref_pos = pos
+        prefix = (e.method,) if fused else (e.method, e.node)
+        if e.nis is not None and e.nis_dof:
+            self._series("nis", prefix, e.t, float(e.nis), int(e.nis_dof))
+        if draw.TRUTH_INDEX.get(e.x.size) is None:
+            return
+        if self.many or (self.many is None and len(self._truth) > 1):
+            if fused:
+                self._picture(e)
+            return
+        truth = self._truth.get(e.track)
+        if truth is None and len(self._truth) == 1:
+            truth = next(iter(self._truth.values()))
+        if truth is not None and e.t in truth:
+            self._score(e, prefix, truth[e.t])
+            return
+        if truth is not None and len(truth) >= TRUTH_CACHE and e.t < next(iter(truth)):
+            self.unscored += 1  # its truth came and was forgotten (the truth far ahead, at --speed max)
+            return
+        self._pending.setdefault(e.t, []).append((e, prefix))
+        self._n_pending += 1
+        while self._n_pending > PENDING_MAX:
+            _, dropped = self._pending.popitem(last=False)
+            self._n_pending -= len(dropped)
+
+    def _on_feedback(self, family: str, ident: str | None, msg: Message) -> None:
+        d = downlink(ident or "", msg)
+        e = d.estimate
+        self._advance(e.t)
+        if d.drop:  # the node deletes its local track e.track: so does the picture
+            node = self._node_of.get(ident or "")
+            reports = self._reports.get(("local", ident or ""))
+            track = _p("world", "tracks", node, e.track) if node is not None else None
+            if reports is not None and track is not None and reports.forget(track):
+                self._clear(track, e.t)
+            return
+        path = _p("world", "feedback", ident or e.node, e.track)
+        self._reported((family, ident or ""), path, e.t)
+        self._draw_estimate(path, e, draw.FEEDBACK_COLOR, f"{e.track} to {ident}" + (" (init)" if d.init else ""))
+
+    def _reported(self, stream: tuple[str, str], track: str, t: float) -> None:
+        """A report of a track's entity on its stream: clears the tracks the stream has stopped reporting."""
+        reports = self._reports.get(stream)
+        if reports is None:
+            reports = self._reports[stream] = Reports()
+        for gone in reports.report(track, t, self.delete_misses):
+            self._clear(gone, t)
+
+    def _clear(self, track: str, t: float) -> None:
+        """The track is gone: from ``t`` on it is not drawn (nor its prediction), and its paths are forgotten."""
+        self._log(track, t, part(rr.Clear, is_recursive=[True]))
+        if self.geo is not None:
+            self.geo.clear(track, t)
+        for path in [p for p in self._track_paths if p == track or p.startswith(track + "/")]:
+            del self._track_paths[path]
+
+    def _score(self, e: Estimate, prefix: tuple[str, ...], x_truth: np.ndarray) -> None:
+        ref = draw.truth_part(x_truth, e.x.size)
+        if ref is None:
+            return
+        err = e.x - ref
+        d = draw.position_dims(e.x.size)
+        path = _p("metrics", "error_pos", *prefix)
+        self._style(path, part(rr.SeriesLines, names=["/".join(prefix)]))
+        self._log(path, e.t, part(rr.Scalars, scalars=[float(np.linalg.norm(err[:d]))]))
+        try:
+            nees = float(err @ np.linalg.solve(e.P, err))
+        except np.linalg.LinAlgError:
+            return
+        if math.isfinite(nees):
+            self._series("nees", prefix, e.t, nees, e.x.size)
+
+    def _picture(self, e: Estimate) -> None:
+        """A confirmed fused track of a many-target method: into its frame (module docstring)."""
+        frames = self._pictures.setdefault(e.method, OrderedDict())
+        self._picture_size[e.method] = e.x.size
+        frames.setdefault(e.t, []).append(e.x[:draw.position_dims(e.x.size)].astype(float))
+        while len(frames) > PENDING_MAX:  # no truth is coming
+            frames.popitem(last=False)
+        self._score_pictures()
+
+    def _score_pictures(self, final: bool = False) -> None:
+        """Score every complete frame whose truth is in; drop one whose time the truth has
+        passed without a sample."""
+        for method, frames in self._pictures.items():
+            n = self._picture_size[method]
+            while len(frames) > (0 if final else 1) and self._truth:
+                t = next(iter(frames))
+                if not final and self._truth_t <= t:
+                    break  # the truth of this time is still to come (a later truth frame closes it)
+                truths = self._truth_at(t)
+                if not truths:  # a sample lost, or no truth of that time: not scored
+                    frames.popitem(last=False)
+                    continue
+                refs = [draw.truth_part(x, n) for x in truths]
+                d = draw.position_dims(n)
+                g = gospa(frames.popitem(last=False)[1], [r[:d] for r in refs if r is not None], GOSPA_CUTOFF, 2.0)
+                self._style(_p("metrics", "gospa", method), part(rr.SeriesLines, names=[method]))
+                self._log(_p("metrics", "gospa", method), t, part(rr.Scalars, scalars=[g.distance]))
+                for name, count in (("missed", g.n_missed), ("false", g.n_false)):
+                    path = _p("metrics", "picture", method, name)
+                    self._style(path, part(rr.SeriesLines, names=[f"{method} {name}"]))
+                    self._log(path, t, part(rr.Scalars, scalars=[float(count)]))
+
+    def finish(self) -> None:
+        """The recording ends: score the frames still open."""
+        self._score_pictures(final=True)
+
+    def _series(self, metric: str, prefix: tuple[str, ...], t: float, value: float, dof: int) -> None:
+        lo, hi = draw.chi2_bounds(dof)
+        base = ("metrics", metric, *prefix)
+        name = "/".join(prefix)
+        self._style(_p(*base), part(rr.SeriesLines, names=[name]))
+        self._style(_p(*base, "lo"), part(rr.SeriesLines, colors=[draw.BOUND_COLOR], widths=[1.0],
+                                          names=[f"{name} χ²({dof}) 2.5%"]))
+        self._style(_p(*base, "hi"), part(rr.SeriesLines, colors=[draw.BOUND_COLOR], widths=[1.0],
+                                          names=[f"{name} χ²({dof}) 97.5%"]))
+        self._log(_p(*base), t, part(rr.Scalars, scalars=[value]))
+        self._log(_p(*base, "lo"), t, part(rr.Scalars, scalars=[lo]))
+        self._log(_p(*base, "hi"), t, part(rr.Scalars, scalars=[hi]))
+
+    # -- jamming and status ------------------------------------------------------------------------
+
+    def _on_jam_state(self, family: str, ident: str | None, msg: Message) -> None:
+        b, jid, t = msg.body, msg.src, msg.t
+        self._advance(t)
+        on = bool(b["on"])
+        pos = np.asarray(b["pos"], dtype=float)
+        affects = [s for s in b["affects"]]
+        color = draw.JAM_ON_COLOR if on else draw.JAM_OFF_COLOR
+        parts = [part(rr.Points3D, positions=[pos], labels=[f"{jid} ({b['mode']}, {'ON' if on else 'off'})"],
+                      colors=[color], radii=ui_points(8.0), show_labels=[True])]
+        victims = [self._sites[s] for s in affects if s in self._sites] if on else []
+        # always log the strips component, so "no one jammed" clears the previous lines
+        parts.append(part(rr.LineStrips3D, strips=[[pos, v] for v in victims], colors=[draw.JAM_ON_COLOR],
+                          radii=ui_points(0.75)))
+        self._log(_p("world", "jam", jid), t, *parts)
+        self._style(_p("jamming", jid, "on"), part(rr.SeriesLines, colors=[draw.JAM_ON_COLOR], names=[f"{jid} on"]))
+        self._log(_p("jamming", jid, "on"), t, part(rr.Scalars, scalars=[1.0 if on else 0.0]))
+        known = self._jam_victims.setdefault(jid, set())
+        known.update(affects)
+        known.update(self._sites)
+        for s in sorted(known):
+            self._log(_p("jamming", jid, "affects", s), t, part(rr.Scalars, scalars=[1.0 if (on and s in affects) else 0.0]))
+        state = (on, b["mode"], b["law"], b["power"], tuple(affects))
+        if self._jam.get(jid) != state:
+            self._jam[jid] = state
+            text = (f"jammer {jid} on: {b['mode']}, {b['law']} outliers, power {b['power']:g}; "
+                    f"jams {', '.join(affects) if affects else 'no sensor'}") if on else f"jammer {jid} off"
+            self._log(_p("status", jid, "events"), t, part(rr.TextLog, text=[text], level=["WARN" if on else "INFO"]))
+
+    def _on_status(self, family: str, ident: str | None, msg: Message) -> None:
+        b, src = msg.body, msg.src
+        # Processes stamp status with their scenario time when they have one; else it is "now".
+        t = msg.t if msg.t > 0 else self.now
+        t = min(t, self.horizon)
+        events = _p("status", src, "events")
+        if self._states.get(src) != b["state"]:
+            self._states[src] = b["state"]
+            self._log(events, t, part(rr.TextLog, text=[f"{b['role']} {src}: {b['state']}"],
+                                      level=["WARN" if b["state"] == "stopped" else "INFO"]))
+        for ev in b["events"]:
+            self._log(events, t, part(rr.TextLog, text=[f"{src}: {ev}"], level=[_level(ev)]))
+        for name, v in b["counters"].items():
+            if name in CONTAMINATION:
+                self._log(_p("jamming", src, name), t, part(rr.Scalars, scalars=[float(v)]))
+            else:
+                self._log(_p("status", src, "counters", name), t, part(rr.Scalars, scalars=[float(v)]))
+
+
+# -- the process ----------------------------------------------------------------------------------
+
+
+def run(process_id: str, keys: KeySpace, zopts, rrd_path: str, expect: list[str], app: str = "zfusion", *,
+        spawn: bool = False, scenario: str | None = None, seed: int | None = None,
+        rotate_s: float | None = None, live=None, duration: float | None = None) -> int:
+    """``live`` (:class:`services.live.LiveOptions`): a live session; ``scenario`` is then
+    a site (or a scenario taken as its site), optional."""
+    sc = None
+    if scenario is not None:
+        from ..node import load, load_site
+
+        sc = load(scenario, seed, duration) if live is None else load_site(scenario)
+    from sensors_sim.spec import DF_KINDS
+
+    df = sc is not None and bool(sc.sensors) and all(s.kind in DF_KINDS for s in sc.sensors.values())
+    inbox = ListenerInbox(BACKLOG_MAX, BACKLOG_IN_MEMORY)
+
+    with Node(process_id, "recorder", keys, zopts) as node:
+        # The file is opened once SIGTERM/SIGINT are handled, so a stop at any time leaves a whole file.
+        rotation = Rotation(rrd_path, rotate_s) if rotate_s else None
+        opener = functools.partial(open_recording, app=app, spawn=spawn, df=df,
+                                   many=hasattr(sc, "targets") and many_targets(sc), geo=sc is not None,
+                                   live=live is not None)
+        rec, _ = opener(str(rotation.first()) if rotation else rrd_path)
+        guard = None
+        if live is not None:
+            from ..live import ClockGuard
+
+            guard = ClockGuard(live.max_skew)
+        recorder = Recorder(rec, keys, node.reject, sc, clock_guard=guard)
+        utc = time.time if live is not None else lambda: None
+        recovery = None
+        if live is not None:  # live: what the recoverable publishers (sensors, trackers, fuser) sent while cut off
+            recovery = Recovery(node.processes_by_session())
+            node.recovering_subscriber(keys.all(), inbox, recovery.on_miss)
+        else:
+            node.subscribe(keys.all(), inbox)
+        # Started mid-session: begin with the fuser's current tracks (none answers at a run's start).
+        late_join = picture.Request(node.session, keys, lambda data: inbox.put((keys.fused(), data)))
+        node.announce()
+        node.publish_status("ready")
+        last_status = last_send = time.monotonic()
+        while not node.stop.is_set():
+            try:
+                key, data = inbox.get(timeout=0.1)
+            except queue.Empty:
+                pass
+            else:
+                msg = recorder.offer(key, data, utc())
+                if msg is not None:
+                    node.count("recorded")
+                    if recovery is not None and msg.kind != "status":
+                        recovery.arrived(msg.src, msg.t, utc())
+                if key == keys.fused():
+                    late_join.cancel()  # the fuser's own stream: its picture is coming anyway
+                at = rotation.due(recorder.clock) if rotation and recorder.started else None
+                if at is not None:
+                    new, _ = opener(str(rotation.next()), recording_id=rec.get_recording_id())
+                    rec.hand_over(new, at)
+                    rec = new
+                    recorder.reopen(rec, at)
+                for ev in recorder.clock_events:
+                    node.event(ev)
+                recorder.clock_events.clear()
+            late_join.poll()
+            if rec.queued >= SEND_ROWS_MAX or time.monotonic() - last_send >= SEND_PERIOD_S:
+                rec.send_rows()
+                last_send = time.monotonic()
+            if expect and set(expect) <= recorder.finished and inbox.empty():
+                break
+            if time.monotonic() - last_status >= 1.0:
+                node.counters.update(dropped=inbox.dropped, uplinked=recorder.uplinked, unscored=recorder.unscored,
+                                     backlog=inbox.qsize(),
+                                     **(recovery.counters() if recovery is not None else {}))
+                node.publish_status("running", recorder.now)
+                safe_flush(rec, 0.0)  # keep the file current: a killed recorder loses little
+                last_status = time.monotonic()
+        recorder.finish()
+        safe_flush(rec, 10.0)
+        node.counters.update(dropped=inbox.dropped, uplinked=recorder.uplinked, unscored=recorder.unscored,
+                             backlog=inbox.qsize(), **(recovery.counters() if recovery is not None else {}))
+        node.publish_status("done" if not node.stop.is_set() else "stopped", recorder.now)
+    safe_flush(rec, 10.0)
+    inbox.close()
+    rec.disconnect()  # writes the file's footer; gives an unreachable viewer at most a few seconds
+    return 0

@@ -1,0 +1,101 @@
+"""The streaming many-target score (fusion.mtt_metrics.TrackScorer) against the batch
+(score_tracks, every step kept) and closed forms: the same totals, a binned series, and
+memory bounded by the live targets and tracks however long the stream."""
+
+from __future__ import annotations
+
+import tracemalloc
+
+import numpy as np
+import pytest
+
+from fusion.mtt_metrics import Step, TrackScorer, score_tracks
+
+C = 100.0  # GOSPA cut-off of these streams (m)
+
+
+def traffic(n_steps: int, life: int = 40, every: int = 5, seed: int = 0):
+    """Steps of endless traffic: a target born every ``every`` steps lives ``life`` steps,
+    followed by its own track (an id never reused) that is born two steps late, drops it
+    for 3 steps mid-life (a break; the target is then held by a second track), and a
+    clutter track now and then lives 4 steps on nothing."""
+    rng = np.random.default_rng(seed)
+    for k in range(n_steps):
+        truths, tracks = {}, {}
+        for b in range(max(0, (k - life) // every + 1), k // every + 1):
+            age = k - b * every
+            if not 0 <= age < life:
+                continue
+            x = np.array([50.0 * age, 1000.0 * b, 0.0])
+            truths[f"A{b}"] = x
+            if 2 <= age < 20:
+                tracks[f"T{b}"] = x + rng.normal(0.0, 5.0, 3)
+            elif age >= 23:
+                tracks[f"U{b}"] = x + rng.normal(0.0, 5.0, 3)
+        if k % 7 < 4:
+            tracks[f"G{k // 7}"] = np.array([-5000.0, 0.0, 0.0])
+        yield Step(float(k), truths, tracks)
+
+
+def test_streaming_is_the_batch_with_forgetting_and_binning():
+    """Forgetting what is 3 steps gone and binning to 8 points: every total is the batch's,
+    the least hold fraction too, the mean GOSPA to rounding; each point is the mean of
+    its ``bin`` steps of the batch's series (the last one of what is left)."""
+    steps = list(traffic(300))
+    ref = score_tracks(steps, C)
+    s = TrackScorer(C, forget_after=3, series_max=8)
+    for step in steps:
+        s.add(step)
+    got = s.score()
+    for k in ("truth_steps", "held_steps", "breaks", "break_chances", "track_steps", "dominant_steps",
+              "false_tracks", "false_track_steps", "n_tracks", "steps", "missed_steps"):
+        assert getattr(got, k) == getattr(ref, k), k
+    assert ref.breaks > 0 and ref.false_tracks > 0 and ref.n_tracks > 100  # the stream exercises them
+    assert got.worst_hold == ref.worst_hold < 1.0 and got.found_at_end == ref.found_at_end
+    assert got.longest_ghost == ref.longest_ghost == [4]
+    assert got.mean_gospa == pytest.approx(ref.mean_gospa, rel=1e-12)
+    assert got.bin == 64 and len(got.t) == 5  # 300 steps: 4 points of 64, one of 44
+    k = got.bin
+    assert got.t == [ref.t[min(i + k, 300) - 1] for i in range(0, 300, k)]
+    np.testing.assert_allclose(got.gospa, [np.mean(ref.gospa[i:i + k]) for i in range(0, 300, k)], rtol=1e-12)
+    assert got.n_missed == [sum(ref.n_missed[i:i + k]) for i in range(0, 300, k)]
+    assert not got.assignments
+    # what is held: the targets and tracks of the last 3 steps
+    assert len(s.on_counts) <= 3 * 12 and len(s.found) <= 3 * 9 and len(s.binned) <= 8
+
+
+def test_batch_is_the_fold_without_forgetting():
+    """No ``forget_after``, no ``series_max``: the scorer is the batch, series and
+    assignments included; scoring goes on after :meth:`score`."""
+    steps = list(traffic(60))
+    s = TrackScorer(C)
+    for step in steps[:30]:
+        s.add(step)
+    assert s.score() == score_tracks(steps[:30], C)
+    for step in steps[30:]:
+        s.add(step)
+    assert s.score() == score_tracks(steps, C)
+    assert len(s.score().assignments) == 60
+
+
+def _growth(forget_after: int | None, at: tuple[int, int]) -> int:
+    """Traced heap a scorer gains from step ``at[0]`` to step ``at[1]`` of traffic (made
+    lazily; 4 targets at once)."""
+    tracemalloc.start()
+    try:
+        s = TrackScorer(C, forget_after=forget_after, series_max=64)
+        for k, step in enumerate(traffic(at[1], every=10), 1):
+            s.add(step)
+            if k == at[0]:
+                base = tracemalloc.get_traced_memory()[0]
+        return tracemalloc.get_traced_memory()[0] - base
+    finally:
+        tracemalloc.stop()
+
+
+def test_memory_is_bounded_by_the_live_targets_and_tracks():
+    """From step 400 to step 2,000 the scorer's heap stays the same (the live targets'
+    and tracks' state and 64 points), where keeping the gone ones' state grows with the
+    stream (about 0.14 kB a step)."""
+    assert _growth(10, (400, 2_000)) < 8_000
+    assert _growth(None, (400, 1_000)) > 40_000

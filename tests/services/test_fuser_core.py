@@ -1,0 +1,143 @@
+"""The fuser's core, without Zenoh: bad input of every kind, interleaved with a real
+scenario's stream, is counted by cause and changes nothing in the fused output."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import msgpack
+import numpy as np
+import pytest
+
+from fusion.methods import make_method, method_config
+from schemas import encode_measurement
+from sensors_sim import load_scenario, sensor_events
+from services.evaluation import run_method
+from services.fuser import FuserCore, MeasurementIntake
+from services.node import RejectLog
+
+from _wire import CASES, KEYS, good, wire_stream, with_field
+
+def _garbage(sid: str) -> list[bytes]:
+    bad = []
+    for kind, field, value, _cause in CASES:
+        d = good(kind)
+        d["src"] = sid
+        if "sensor" in d:
+            d["sensor"] = sid
+        d = with_field(d, field, value)
+        bad.append(msgpack.packb(d, use_bin_type=True))
+    valid_but_wrong_kind = msgpack.packb({**good("truth"), "src": sid})  # truth has no business on meas/
+    return bad + [b"\xc1", b"", msgpack.packb("str"), valid_but_wrong_kind]
+
+
+def _forged(scenario) -> list[bytes]:
+    """Well-formed measurements on meas/radar2d that contradict the scenario: the angle
+    sensor's kind, or a radar plot claiming an absurdly small noise std."""
+    radar = [ev.measurement for ev in sensor_events(scenario, "radar2d") if ev.measurement is not None]
+    angle = [ev.measurement for ev in sensor_events(scenario, "angle") if ev.measurement is not None]
+    out = []
+    for i, (r, a) in enumerate(zip(radar, angle)):
+        out.append(encode_measurement(dataclasses.replace(a, sensor="radar2d", seq=10_000 + i), "radar2d"))
+        out.append(encode_measurement(dataclasses.replace(r, std=r.std * 1e-300, seq=20_000 + i), "radar2d"))
+    return out
+
+
+def _run(scenario, noisy: bool, garbage: list[bytes] | None = None, intake=None):
+    reject = RejectLog("test")
+    core = FuserCore(make_method("SS", method_config(scenario.tracker, "SS")), list(scenario.sensors), KEYS, reject,
+                     timeout=1e9, intake=intake)
+    garbage = _garbage("radar2d") if garbage is None else garbage
+    out = []
+    for i, (key, data) in enumerate(wire_stream(scenario)):
+        if noisy and i % 3 == 0:
+            for g in garbage[i % 7:: 7]:
+                core.offer(KEYS.meas("radar2d"), g, 0.0)
+            core.offer(key, data, 0.0)  # a replayed copy: duplicate or out of order
+            core.offer(KEYS.meas("angle"), data if "radar2d" in key else data, 0.0)  # wrong key for half of them
+        core.offer(key, data, 0.0)
+        out.extend(core.step(0.0))
+    assert core.finished
+    return out, reject
+
+
+def test_bad_input_of_every_kind_changes_nothing():
+    sc = load_scenario("patent-3d")
+    clean, r0 = _run(sc, noisy=False)
+    noisy, r1 = _run(sc, noisy=True)
+    assert r0.total == 0
+    assert len(clean) == len(noisy) == 31
+    for a, b in zip(clean, noisy):
+        assert a.t == b.t and np.array_equal(a.x, b.x) and np.array_equal(a.P, b.P)
+    assert {"malformed", "not-a-map", "version", "kind", "type", "non-finite", "range", "shape", "value",
+            "unknown-field", "missing", "duplicate", "spoofed-src"} <= set(r1.by_cause), dict(r1.by_cause)
+
+
+def test_measurements_contradicting_the_scenario_are_refused():
+    sc = load_scenario("patent-3d")
+    clean, _ = _run(sc, noisy=False, intake=MeasurementIntake(sc.sensors))
+    forged, reject = _run(sc, noisy=True, garbage=_forged(sc), intake=MeasurementIntake(sc.sensors))
+    assert reject.by_cause["kind-mismatch"] > 0 and reject.by_cause["std-mismatch"] > 0, dict(reject.by_cause)
+    assert len(clean) == len(forged)
+    for a, b in zip(clean, forged):
+        assert a.t == b.t and np.array_equal(a.x, b.x) and np.array_equal(a.P, b.P)
+    # without the scenario's sensors the same messages get in and change the track
+    fused, unchecked = _run(sc, noisy=True, garbage=_forged(sc))
+    assert "kind-mismatch" not in unchecked.by_cause and "std-mismatch" not in unchecked.by_cause
+    assert any(not np.allclose(a.x, b.x) for a, b in zip(clean, fused))
+
+
+def test_core_equals_in_process_evaluation():
+    sc = load_scenario("patent-3d")
+    core_out, _ = _run(sc, noisy=False)
+    ref = run_method(sc, "SS")
+    assert len(core_out) == len(ref)
+    for a, b in zip(core_out, ref):
+        assert a.t == b.t and np.array_equal(a.x, b.x) and np.array_equal(a.P, b.P)
+
+
+DF_CENTRALISED = [(sc, m) for sc in ("thesis-fixed-c3", "jammed-df")
+                  for m in ("EKF", "MEKF1", "MEKF2", "MEKF3", "MEKF4", "MEKF5", "IMM", "TORRIERI")]
+
+
+@pytest.mark.parametrize("scenario,method", DF_CENTRALISED)
+def test_df_methods_through_the_core_equal_in_process(scenario, method):
+    """Every centralised DF method, its stations' messages arriving out of step (each
+    station a few epochs behind the one before), gives exactly the in-process estimates:
+    the fuser's ordering and streaming, without the transport (a subset also runs over
+    Zenoh, tests/services/test_topologies.py)."""
+    sc = load_scenario(scenario)
+    core = FuserCore(make_method(method, method_config(sc.tracker, method)), list(sc.sensors), KEYS,
+                     RejectLog("test"), timeout=1e9)
+    out = []
+    for key, data in wire_stream(sc, lag={s: 3.5 * i for i, s in enumerate(sc.sensors)}):
+        core.offer(key, data, 0.0)
+        out.extend(core.step(0.0))
+    ref = run_method(sc, method)
+    assert core.finished and core.reject.total == 0 and len(out) == len(ref) == 40
+    for a, b in zip(out, ref):
+        assert a.t == b.t and np.array_equal(a.x, b.x) and np.array_equal(a.P, b.P)
+
+
+def test_offer_returns_what_it_decoded():
+    """A node that needs the message too (a tracker's recovery count) takes it from
+    ``offer`` rather than decoding every sample twice: the message, accepted or refused
+    after decoding; None for bytes that do not decode."""
+    sc = load_scenario("patent-3d")
+    core = FuserCore(make_method("SS", method_config(sc.tracker, "SS")), list(sc.sensors), KEYS, RejectLog("test"),
+                     timeout=1e9)
+    key, data = wire_stream(sc)[0]
+    msg = core.offer(key, data, 0.0)
+    assert msg is not None and (msg.src, msg.t) == (KEYS.family_and_id(key)[1], 0.0) and core.reject.total == 0
+    again = core.offer(key, data, 0.0)  # a duplicate: refused, but it did decode
+    assert again is not None and again.seq == msg.seq and core.reject.by_cause["duplicate"] == 1
+    assert core.offer(key, b"\xc1", 0.0) is None and core.reject.by_cause["malformed"] == 1
+
+
+def test_reject_log_memory_is_bounded_by_invented_source_names():
+    reject = RejectLog("test", max_sources=3)
+    for i in range(1000):  # every garbage message on a key of its own
+        reject(f"mallory-{i}", "unknown-source", "nobody")
+    reject("mallory-1", "msgpack", "bad bytes")  # a known name keeps its own entry
+    assert reject.total == 1001 and len(reject.by_pair) == 5
+    assert reject.rejected_by_source() == {"mallory-0": 1, "mallory-1": 2, "mallory-2": 1, RejectLog.OTHER: 997}
