@@ -114,6 +114,7 @@ class Request:
         self.every, self.clock = every, clock
         self.deadline = clock() + patience
         self.answered = False
+        self.tracks = 0  # tracks taken from the picture (a status counter: a late joiner shows it has begun)
         self._next = -math.inf
 
     def cancel(self) -> None:
@@ -134,6 +135,7 @@ class Request:
                 self.answered = True
             elif msg.kind == "track":
                 self.on_track(reply.ok.payload.to_bytes())
+                self.tracks += 1
 
         self.session.get(self.keys.picture(), on_reply, timeout=self.every,
                          consolidation=zenoh.ConsolidationMode.NONE)

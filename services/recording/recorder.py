@@ -794,7 +794,7 @@ def run(process_id: str, keys: KeySpace, zopts, rrd_path: str, expect: list[str]
                 break
             if time.monotonic() - last_status >= 1.0:
                 node.counters.update(dropped=inbox.dropped, uplinked=recorder.uplinked, unscored=recorder.unscored,
-                                     backlog=inbox.qsize(),
+                                     backlog=inbox.qsize(), picture=late_join.tracks,
                                      **(recovery.counters() if recovery is not None else {}))
                 node.publish_status("running", recorder.now)
                 safe_flush(rec, 0.0)  # keep the file current: a killed recorder loses little

@@ -38,6 +38,7 @@ class Feed:
         self.fused: dict[str, bytes] = {}  # track -> its last fused message
         self.t = -1.0
         self.ready: set[str] = set()
+        self.counters: dict[str, tuple[float, dict]] = {}  # process -> (when heard, its last status counters)
         self._subs = [self.session.declare_subscriber(self.keys.fused(), self._on_fused),
                       self.session.declare_subscriber(self.keys.all("status"), self._on_status)]
         sc = load_scenario("patent-3d")
@@ -56,6 +57,13 @@ class Feed:
         msg = decode(sample.payload.to_bytes())
         if msg.body["state"] in ("ready", "running"):
             self.ready.add(msg.src)
+        self.counters[msg.src] = (time.monotonic(), msg.body["counters"])
+
+    def caught_up(self, src: str, since: float) -> bool:
+        """``src`` said, in a status sent after ``since`` (plus a margin for delivery), that
+        nothing waits in its inbox."""
+        heard, counters = self.counters.get(src, (-math.inf, {}))
+        return heard > since + 0.3 and counters.get("backlog") == 0
 
     def wait(self, cond, what: str, timeout: float = 30.0) -> None:
         deadline = time.monotonic() + timeout
@@ -118,10 +126,11 @@ def test_picture_is_the_last_fused_message_and_a_late_recorder_starts_from_it(tm
         # A recorder started now: its first fused row is the picture's, before any new data.
         path = tmp_path / "late.rrd"
         rec = zfusion("record", "--rrd", str(path), *fabric, stderr=subprocess.DEVNULL)
-        feed.wait(lambda: "recorder" in feed.ready, "the recorder came up")
-        time.sleep(1.0)
+        feed.wait(lambda: feed.counters.get("recorder", (0, {}))[1].get("picture", 0) >= 1,
+                  "the recorder took the picture")
         feed.play(10.5, 15.0)
-        time.sleep(1.5)
+        played = time.monotonic()
+        feed.wait(lambda: feed.caught_up("recorder", played), "the recorder recorded what was played")
         _stop(rec)
         assert rec.returncode == 0
         verify(path)

@@ -108,6 +108,17 @@ class Session:
                 assert p.returncode == 0 and "Traceback" not in errs[name], (name, errs[name][-3000:])
 
 
+def released_all(cap: Capture, timeout: float = 30.0) -> bool:
+    """Wait until the fuser's last fix is as late as the last bearing published: every
+    epoch has been released (after the gateways' heartbeats and the fuser's bounded wait)."""
+
+    def done() -> bool:
+        fixes, bearings = cap.of("track", "fuser"), cap.of("bearing")
+        return bool(fixes and bearings) and fixes[-1].t >= max(m.t for m in bearings)
+
+    return cap.wait(done, timeout=timeout)
+
+
 def check_fix(cap: Capture) -> dict:
     """The fuser's last fix against 3× the CRB of the bearings up to its time."""
     fixes = [to_estimate(m) for m in cap.of("track", "fuser")]
@@ -156,7 +167,7 @@ def test_three_polled_stations_fix_the_emitter_within_3_crb(deployment, tmp_path
         feed(FRAMES, publish)
         # The first frames may go by while a gateway backs off from the 404 page before them.
         assert s.cap.wait(lambda: len(s.cap.of("bearing")) >= 3 * (FRAMES - 4), timeout=20), s.report()
-        time.sleep(4.0)  # heartbeat lag + the fuser's bounded wait
+        assert released_all(s.cap), s.report()
         result = check_fix(s.cap)
     assert result["bearings"] >= 3 * (FRAMES - 4)
 
@@ -183,7 +194,7 @@ def test_three_posting_stations_fix_the_emitter_within_3_crb(deployment, tmp_pat
 
         feed(FRAMES, publish)
         assert s.cap.wait(lambda: len(s.cap.of("bearing")) == 3 * FRAMES, timeout=20), s.report()
-        time.sleep(4.0)
+        assert released_all(s.cap), s.report()
         check_fix(s.cap)
 
 
@@ -212,7 +223,7 @@ def test_a_mobile_station_moves_and_turns_in_its_messages(deployment, tmp_path):
 
         feed(FRAMES, publish)
         assert s.cap.wait(lambda: len(s.cap.of("bearing", "m1")) >= FRAMES - 2, timeout=20), s.report()
-        time.sleep(4.0)
+        assert released_all(s.cap), s.report()
         check_fix(s.cap)
     got = {m.t: m for m in map(to_measurement, s.cap.of("bearing", "m1"))}
     matched = [(got[t], site, az) for t, site, az in sent if t in got]
