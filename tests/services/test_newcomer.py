@@ -200,6 +200,32 @@ def test_ctrl_c_in_the_first_seconds_prints_no_traceback(tmp_path, delay):
     assert p.returncode in (130, 0), err[-2000:]
 
 
+@pytest.mark.parametrize("delay", [0.3, 1.5])
+def test_sigint_stops_a_run_that_inherited_it_ignored(delay):
+    """A shell script's background job starts with SIGINT ignored: ``kill -INT`` still stops
+    the installed ``zfusion`` command, sent while it is importing (0.3 s) or starting up,
+    with 130 or 0 and no traceback. The run is endless: ignoring the signal fails here."""
+    import os
+    import signal
+    import time
+    from pathlib import Path
+
+    zfusion_cmd = Path(sys.executable).with_name("zfusion")
+    p = subprocess.Popen([str(zfusion_cmd), "run", "--scenario", "patent-3d-orbit", "--live"],
+                         stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN))
+    try:
+        time.sleep(delay)
+        os.kill(p.pid, signal.SIGINT)
+        _, err = p.communicate(timeout=60)
+    finally:
+        if p.poll() is None:
+            p.terminate()
+            p.communicate(timeout=60)
+    assert p.returncode in (130, 0), err[-2000:]
+    assert "Traceback" not in err, err[-3000:]
+
+
 def test_eval_progress_shows_at_once_with_a_time_estimate():
     p = zf("eval", "--scenario", "thesis-fixed-c1", "--runs", "3", "--methods", "EKF", "--progress")
     steps = [s.strip() for s in p.stderr.split("\r") if s.strip()]
