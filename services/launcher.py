@@ -30,6 +30,7 @@ import json
 import logging
 import math
 import queue
+import random
 import signal
 import socket
 import subprocess
@@ -69,10 +70,35 @@ SETTLE_MARGIN = 1.0  # s beyond the OOSM window and max delay before a live esti
 LIVE_LEAD = 8.0  # s from starting the sources of a live run to its scenario time 0 (their start-up)
 
 
+PORTS_FROM = 10000  # free_port's lowest pick (below it: well-known and registered services)
+
+
 def free_port() -> int:
+    """A loopback TCP port free now, for a listener that binds it a moment later. It is
+    drawn at random below the kernel's ephemeral range, so that no outgoing connection
+    (the kernel takes those ports for them) and no other caller picking at the same time
+    is likely to take it in between; where that range leaves no room, the kernel picks."""
+    low = _ephemeral_low()
+    rng = random.SystemRandom()
+    for _ in range(64 if low - PORTS_FROM >= 1000 else 0):
+        port = rng.randrange(PORTS_FROM, low)
+        with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+            try:
+                s.bind(("127.0.0.1", port))
+            except OSError:
+                continue
+            return port
     with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
+
+
+def _ephemeral_low() -> int:
+    """The first port of the kernel's ephemeral range (Linux; 32768 where it cannot be read)."""
+    try:
+        return int(Path("/proc/sys/net/ipv4/ip_local_port_range").read_text().split()[0])
+    except (OSError, ValueError, IndexError):
+        return 32768
 
 
 def zenoh_reason(e: Exception) -> str:
