@@ -12,7 +12,7 @@ import sys
 
 signal.signal(signal.SIGINT, signal.default_int_handler)
 
-INTERRUPTED = 130  # services.errors.INTERRUPTED, which is not imported yet
+from services.errors import INTERRUPTED  # noqa: E402  (after the handler; it imports only re)
 
 
 def main() -> int:

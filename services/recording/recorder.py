@@ -761,6 +761,13 @@ def run(process_id: str, keys: KeySpace, zopts, rrd_path: str, expect: list[str]
             node.subscribe(keys.all(), inbox)
         # Started mid-session: begin with the fuser's current tracks (none answers at a run's start).
         late_join = picture.Request(node.session, keys, lambda data: inbox.put((keys.fused(), data)))
+
+        def count_status() -> None:
+            """The counters each status carries, beside the node's own."""
+            node.counters.update(dropped=inbox.dropped, uplinked=recorder.uplinked, unscored=recorder.unscored,
+                                 backlog=inbox.qsize(), picture=late_join.tracks,
+                                 **(recovery.counters() if recovery is not None else {}))
+
         node.announce()
         node.publish_status("ready")
         last_status = last_send = time.monotonic()
@@ -793,16 +800,13 @@ def run(process_id: str, keys: KeySpace, zopts, rrd_path: str, expect: list[str]
             if expect and set(expect) <= recorder.finished and inbox.empty():
                 break
             if time.monotonic() - last_status >= 1.0:
-                node.counters.update(dropped=inbox.dropped, uplinked=recorder.uplinked, unscored=recorder.unscored,
-                                     backlog=inbox.qsize(), picture=late_join.tracks,
-                                     **(recovery.counters() if recovery is not None else {}))
+                count_status()
                 node.publish_status("running", recorder.now)
                 safe_flush(rec, 0.0)  # keep the file current: a killed recorder loses little
                 last_status = time.monotonic()
         recorder.finish()
         safe_flush(rec, 10.0)
-        node.counters.update(dropped=inbox.dropped, uplinked=recorder.uplinked, unscored=recorder.unscored,
-                             backlog=inbox.qsize(), **(recovery.counters() if recovery is not None else {}))
+        count_status()
         node.publish_status("done" if not node.stop.is_set() else "stopped", recorder.now)
     safe_flush(rec, 10.0)
     inbox.close()

@@ -59,11 +59,14 @@ class Feed:
             self.ready.add(msg.src)
         self.counters[msg.src] = (time.monotonic(), msg.body["counters"])
 
+    def counter(self, src: str, name: str) -> float | None:
+        """``name`` in ``src``'s last status (None before it has one)."""
+        return self.counters.get(src, (-math.inf, {}))[1].get(name)
+
     def caught_up(self, src: str, since: float) -> bool:
         """``src`` said, in a status sent after ``since`` (plus a margin for delivery), that
         nothing waits in its inbox."""
-        heard, counters = self.counters.get(src, (-math.inf, {}))
-        return heard > since + 0.3 and counters.get("backlog") == 0
+        return self.counters.get(src, (-math.inf, {}))[0] > since + 0.3 and self.counter(src, "backlog") == 0
 
     def wait(self, cond, what: str, timeout: float = 30.0) -> None:
         deadline = time.monotonic() + timeout
@@ -126,8 +129,7 @@ def test_picture_is_the_last_fused_message_and_a_late_recorder_starts_from_it(tm
         # A recorder started now: its first fused row is the picture's, before any new data.
         path = tmp_path / "late.rrd"
         rec = zfusion("record", "--rrd", str(path), *fabric, stderr=subprocess.DEVNULL)
-        feed.wait(lambda: feed.counters.get("recorder", (0, {}))[1].get("picture", 0) >= 1,
-                  "the recorder took the picture")
+        feed.wait(lambda: (feed.counter("recorder", "picture") or 0) >= 1, "the recorder took the picture")
         feed.play(10.5, 15.0)
         played = time.monotonic()
         feed.wait(lambda: feed.caught_up("recorder", played), "the recorder recorded what was played")
