@@ -414,11 +414,10 @@ class SbsClock:
         if self.zone == "UTC":
             return 0.0
         if self.zone == "auto":
-            off = round((logged - now) / _AUTO_STEP_S) * _AUTO_STEP_S
-            if abs(off) > 14 * 3600:
-                raise ParseError("time", f"the receiver's clock is {logged - now:+.0f} s from this one: "
-                                         f"not a time zone")
-            return off
+            gap = logged - now
+            if not abs(gap) <= 14 * 3600 + _AUTO_STEP_S / 2:  # also NaN
+                raise ParseError("time", f"the receiver's clock is {gap:+.3g} s from this one: not a time zone")
+            return round(gap / _AUTO_STEP_S) * _AUTO_STEP_S
         wall = datetime.fromtimestamp(local, timezone.utc).replace(tzinfo=None)
         return wall.replace(tzinfo=ZoneInfo(self.zone)).utcoffset().total_seconds()
 

@@ -394,6 +394,8 @@ def test_sbs_auto_zone_refuses_a_clock_far_off():
     line = "MSG,3,1,1,0101DE,1,2021/10/07,12:12:53.1,2021/10/07,12:12:53.1,,1000,,,48.5,2.5,,,,,,0"
     assert parse_sbs_line(line, T_SCENE + 20 * 3600).cause == "time"
     assert isinstance(parse_sbs_line(line, T_SCENE + 5.5 * 3600), SbsPosition)  # UTC−05:30
+    for now in (math.nan, math.inf, -math.inf, 1e300):
+        assert parse_sbs_line(line, now).cause == "time"
 
 
 def test_sbs_messages_are_typed():
