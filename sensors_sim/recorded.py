@@ -180,7 +180,10 @@ def read_traffic_json(path: str | Path) -> Records:
     raw = Path(path).read_bytes()
     if raw[:2] == b"\x1f\x8b":
         raw = gzip.decompress(raw)
-    items = json.loads(raw)
+    try:
+        items = json.loads(raw)
+    except (ValueError, RecursionError) as e:
+        raise ValueError(f"{path}: not JSON ({type(e).__name__})") from None
     if not isinstance(items, list):
         raise ValueError(f"{path}: expected a JSON list of records")
     return records_from_dicts(items, "traffic")

@@ -175,6 +175,14 @@ def test_malformed_records_are_counted_by_cause(tmp_path):
     assert r.rejected == {"json": 2, "record": 1, "unknown-field": 1, "missing": 2, "value": 4, "range": 3}
 
 
+@pytest.mark.parametrize("body", [b"{}", b"[" * 100_000, b"\xff\xfe", b"not json"])
+def test_a_traffic_file_that_is_not_a_list_is_a_value_error(tmp_path, body):
+    path = tmp_path / "x.json"
+    path.write_bytes(body)
+    with pytest.raises(ValueError, match="x.json"):
+        read_traffic_json(path)
+
+
 def test_traffic_sample_without_traffic(monkeypatch):
     def missing(name):
         raise importlib.metadata.PackageNotFoundError(name)
