@@ -19,7 +19,8 @@ import math
 from dataclasses import dataclass
 
 from .framing import (
-    Category, Compound, Explicit, Extended, Fixed, Repetitive, icao_bytes, icao_chars, quantise, sint, uint, wrap,
+    Category, Compound, Explicit, Extended, Fixed, Repetitive, icao_bytes, icao_chars, quantise, sint, time_of_day,
+    uint, wrap,
 )
 from .units import FT, NM, TOD_LSB, TURN
 
@@ -176,9 +177,9 @@ def encode(r: AdsbReport) -> bytes:
     if r.track_number is not None:
         items["161"] = quantise(r.track_number, 1, 12, False, "I021/161 track number").to_bytes(2, "big")
     if r.tod_position is not None:
-        items["071"] = wrap(r.tod_position, TOD_LSB, 24).to_bytes(3, "big")
+        items["071"] = time_of_day(r.tod_position)
     if r.tod_reception is not None:
-        items["073"] = wrap(r.tod_reception, TOD_LSB, 24).to_bytes(3, "big")
+        items["073"] = time_of_day(r.tod_reception)
     if r.reception_fraction is not None:
         frac = quantise(r.reception_fraction, FRACTION_LSB, 30, False, "I021/074 fraction", saturate=True)
         items["074"] = ((r.reception_fsi << 30) | frac).to_bytes(4, "big")

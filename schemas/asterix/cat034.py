@@ -13,7 +13,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from .framing import Category, Compound, Explicit, Fixed, Repetitive, quantise, sint, uint, wrap
+from .framing import Category, Compound, Explicit, Fixed, Repetitive, quantise, sint, time_of_day, uint, wrap
 from .units import TOD_LSB, TURN
 
 _STATUS = (("COM", Fixed(1)), None, None, ("PSR", Fixed(1)), ("SSR", Fixed(1)))
@@ -69,7 +69,7 @@ def decode(items: dict[str, bytes]) -> ServiceMessage:
 def encode(m: ServiceMessage) -> bytes:
     items: dict[str, bytes] = {"010": bytes((m.sac, m.sic)), "000": bytes((m.message_type,))}
     if m.tod is not None:
-        items["030"] = wrap(m.tod, TOD_LSB, 24).to_bytes(3, "big")
+        items["030"] = time_of_day(m.tod)
     if m.sector is not None:
         items["020"] = bytes((wrap(m.sector, SECTOR_LSB, 8),))
     if m.rotation_period is not None:

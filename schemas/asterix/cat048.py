@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 from .framing import (
     Category, Compound, Explicit, Extended, Fixed, Repetitive, RepetitiveFX, icao_bytes, icao_chars, quantise,
-    sint, uint, wrap,
+    sint, time_of_day, uint, wrap,
 )
 from .units import FT, NM, TOD_LSB, TURN
 
@@ -144,7 +144,7 @@ def encode(r: TargetReport) -> bytes:
     cannot hold)."""
     items: dict[str, bytes | None] = {"010": bytes((r.sac, r.sic))}
     if r.tod is not None:
-        items["140"] = wrap(r.tod, TOD_LSB, 24).to_bytes(3, "big")
+        items["140"] = time_of_day(r.tod)
     if r.typ is not None:
         first = (r.typ << 5) | (r.sim << 4) | (r.rdp << 3) | (r.spi << 2) | (r.rab << 1)
         items["020"] = Extended.join([bytes((first,)), bytes((r.tst << 7,))])

@@ -23,7 +23,7 @@ import numpy as np
 
 from .framing import (
     Category, Compound, Explicit, Extended, Fixed, Repetitive, RepetitiveFX, icao_bytes, icao_chars, quantise,
-    sint, uint, wrap,
+    sint, time_of_day, uint,
 )
 from .units import FT, FT_PER_MIN, TOD_LSB
 
@@ -223,7 +223,7 @@ def encode(t: SystemTrack) -> bytes:
     s = t.status
     items: dict[str, bytes | None] = {
         "010": bytes((t.sac, t.sic)),
-        "070": wrap(t.tod, TOD_LSB, 24).to_bytes(3, "big"),
+        "070": time_of_day(t.tod),
         "040": quantise(t.track_number, 1, 16, False, "I062/040 track number").to_bytes(2, "big"),
         "080": Extended.join([
             bytes(((s.mon << 7) | (s.spi << 6) | (s.mrh << 5) | (s.src << 2) | (s.cnf << 1),)),

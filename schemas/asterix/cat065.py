@@ -13,7 +13,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from .framing import Category, Explicit, Fixed, uint, wrap
+from .framing import Category, Explicit, Fixed, time_of_day, uint
 from .units import TOD_LSB
 
 CATEGORY = Category(65, "1.6", (
@@ -62,7 +62,7 @@ def decode(items: dict[str, bytes]) -> SdpsStatus:
 
 def encode(m: SdpsStatus) -> bytes:
     items: dict[str, bytes] = {"010": bytes((m.sac, m.sic)), "000": bytes((m.message_type,)),
-                               "015": bytes((m.service,)), "030": wrap(m.tod, TOD_LSB, 24).to_bytes(3, "big")}
+                               "015": bytes((m.service,)), "030": time_of_day(m.tod)}
     if m.batch is not None:
         items["020"] = bytes((m.batch & 0xFF,))
     if m.nogo is not None:

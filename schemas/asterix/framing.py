@@ -26,6 +26,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Iterator, Mapping, Union
 
+from .units import DAY, TOD_LSB
+
 PLAN_CACHE = 256  # distinct FSPECs remembered per category
 MAX_BLOCK = 0xFFFF  # LEN is two octets
 
@@ -342,8 +344,14 @@ def quantise(x: float, lsb: float, bits: int, signed: bool, what: str, *, satura
     return n & ((1 << bits) - 1)
 
 
+def time_of_day(t: float) -> bytes:
+    """A time of day (s) -> its three octets of 1/128 s, wrapped at midnight: a time of
+    the next day (``t`` ≥ 86 400) is sent as what it is, a time of that day."""
+    return (round(t / TOD_LSB) % round(DAY / TOD_LSB)).to_bytes(3, "big")
+
+
 def wrap(x: float, lsb: float, bits: int) -> int:
-    """A circular quantity (azimuth, time of day) -> ``bits`` bits, modulo a full turn."""
+    """A circular quantity (an azimuth) -> ``bits`` bits, modulo a full turn."""
     return round(x / lsb) % (1 << bits)
 
 
