@@ -1,0 +1,355 @@
+"""ASTERIX feeds, sans I/O: datagrams in, radar measurements, scan watermarks and ADS-B
+position reports out.
+
+Everything that decides what an ASTERIX record means to zfusion lives here; sockets and
+Zenoh live in the process. :class:`AsterixFeed` turns a datagram (any mix of categories
+and radars) into events: a CAT048 plot of a radar the site file names by ``sac_sic``
+becomes a :class:`~services.ingest.gateway.Reading` of that sensor; a CAT034 north
+marker or sector crossing becomes a :class:`ScanMark`, a promise that the radar's plots
+older than the crossing ``sector_lag`` crossings ago have all been sent (radars send a
+sector's plots after its crossing message, so one sector of slack by default); a CAT021
+ADS-B report becomes a :class:`PositionReport`. Times of day are placed on the UTC time
+line next to the receiver's clock (:func:`schemas.asterix.utc_of_tod`). What cannot be
+used is a :class:`~services.ingest.gateway.Rejected` with a stable cause (the codec's
+``truncated``, ``malformed``, ``unknown-category``, ``missing-item``; ``unknown-source``,
+``no-time``, ``no-position``, ``no-height``, ``geometry``, ``no-address``,
+``no-accuracy``). :class:`AsterixIngest` hands the events to the
+:class:`~services.ingest.gateway.Gateway`, which checks and publishes.
+
+A plot is ``(θ, ρ)`` at the radar: azimuth from the radar's own north, slant range. The
+site's ENU frame is tangent at its origin, so a radar away from the origin sees north
+turned by the meridian convergence γ (≈ Δλ·sin φ: about 1° at 100 km east, 52° N).
+With ``R`` the rotation from the radar's ENU to the site's (both from ECEF, WGS-84)::
+
+    sin ε = ((r + h)² − (r + h_r)² − ρ²) / (2 (r + h_r) ρ)     (elevation at the radar, on
+            a sphere of radius r, the Gaussian radius there; h from I048/110, else the
+            validated Mode C flight level as pressure altitude, FL·100 ft; a 2D radar's
+            plot without either: ε = 0)
+    d = R · ρ (cos ε sin θ, cos ε cos θ, sin ε);   az, el of d;   range = ρ
+
+so a 2D plot's azimuth turns by about γ = atan2(R[0,1], R[1,1]). :meth:`Radar.from_site`
+inverts it exactly (an emitter's side). An ADS-B position's
+horizontal σ per axis is its 95 % accuracy bound over √(−2 ln 0.05) = 2.448 (a circular
+Gaussian holds 95 % within 2.448 σ): the bound is NACp's (MOPS version 1 and later) or
+NUCp's (version 0), and the vertical σ of a geometric height is GVA's bound over 1.96.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass, field
+from typing import Callable, Mapping
+
+import numpy as np
+
+from fusion.geodetic import LocalFrame
+from schemas import asterix as ax
+
+from .gateway import Gateway, Reading, Rejected
+from .krakensdr import Skipped
+
+FT = 0.3048
+NM = 1852.0
+WGS84_A, WGS84_E2 = 6378137.0, 6.69437999014e-3
+RADAR_KINDS = ("range_az", "az_el_range")
+K95_2D = math.sqrt(-2.0 * math.log(0.05))  # 2.448: 95 % radius of a circular Gaussian, in σ
+K95_1D = 1.959964
+
+# Horizontal 95 % accuracy bounds (m): NACp (DO-260A/B), NUCp (DO-260, its μ); 0 = unknown.
+NACP_95 = {1: 10 * NM, 2: 4 * NM, 3: 2 * NM, 4: 1 * NM, 5: 0.5 * NM, 6: 0.3 * NM, 7: 0.1 * NM, 8: 0.05 * NM,
+           9: 30.0, 10: 10.0, 11: 3.0}
+NUCP_95 = {1: 10 * NM, 2: 5 * NM, 3: 1 * NM, 4: 0.5 * NM, 5: 0.25 * NM, 6: 0.1 * NM, 7: 0.05 * NM, 8: 10.0, 9: 3.0}
+GVA_95 = {1: 150.0, 2: 45.0}  # m; 0 unknown, 3 reserved
+
+
+def enu_rotation(lat_deg: float, lon_deg: float) -> np.ndarray:
+    """ECEF -> the ENU axes at a point (rows e, n, u)."""
+    p, lam = math.radians(lat_deg), math.radians(lon_deg)
+    sp, cp, sl, cl = math.sin(p), math.cos(p), math.sin(lam), math.cos(lam)
+    return np.array([[-sl, cl, 0.0], [-sp * cl, -sp * sl, cp], [cp * cl, cp * sl, sp]])
+
+
+def gaussian_radius(lat_deg: float) -> float:
+    """√(M N), the Earth's mean radius of curvature at a latitude (WGS-84)."""
+    s2 = math.sin(math.radians(lat_deg)) ** 2
+    return WGS84_A * math.sqrt(1 - WGS84_E2) / (1 - WGS84_E2 * s2)
+
+
+@dataclass(frozen=True, eq=False)
+class Radar:
+    """A site-file radar fed by ASTERIX and the geometry of its plots in the site's frame
+    (module docstring): ``rotation`` its ENU axes -> the site's, ``gamma`` the azimuth of
+    its north there, ``radius`` and ``height`` its Earth radius and height above it."""
+
+    sensor: str
+    sac_sic: tuple[int, int]
+    kind: str
+    site: np.ndarray
+    rotation: np.ndarray
+    gamma: float
+    radius: float
+    height: float
+
+    @classmethod
+    def at(cls, sensor: str, sac_sic: tuple[int, int], kind: str, site: np.ndarray, frame: LocalFrame) -> "Radar":
+        if kind not in RADAR_KINDS:
+            raise ValueError(f"sensor {sensor!r} measures {kind}: ASTERIX plots are {' or '.join(RADAR_KINDS)} "
+                             f"(a radar2d or radar3d sensor)")
+        lat, lon, h = (float(v) for v in frame.to_geodetic(np.asarray(site, dtype=float)))
+        if not frame.deg:
+            lat, lon = math.degrees(lat), math.degrees(lon)
+        lat0, lon0 = (frame.lat0, frame.lon0) if frame.deg else (math.degrees(frame.lat0), math.degrees(frame.lon0))
+        rot = enu_rotation(lat0, lon0) @ enu_rotation(lat, lon).T
+        return cls(sensor, tuple(sac_sic), kind, np.asarray(site, dtype=float), rot,
+                   math.atan2(rot[0, 1], rot[1, 1]), gaussian_radius(lat), h)
+
+    def elevation(self, rho: float, height: float) -> float:
+        """The elevation at the radar of a point at slant range ``rho`` and ``height``."""
+        a, b = self.radius + self.height, self.radius + height
+        s = (b * b - a * a - rho * rho) / (2.0 * a * rho)
+        if not -1.0 <= s <= 1.0:
+            raise ValueError(f"height {height:.0f} m cannot be seen at slant range {rho:.0f} m")
+        return math.asin(s)
+
+    def to_site(self, theta: float, rho: float, height: float | None = None) -> np.ndarray:
+        """A plot -> the measurement vector of this radar's kind in the site's frame. A 2D
+        radar's plot without a height is taken on the radar's horizon (ε = 0)."""
+        if height is None:
+            if self.kind == "az_el_range":
+                raise ValueError("a 3D plot needs a height")
+            el = 0.0
+        else:
+            el = self.elevation(rho, height)
+        ce = math.cos(el)
+        d = self.rotation @ np.array([rho * ce * math.sin(theta), rho * ce * math.cos(theta), rho * math.sin(el)])
+        az = math.atan2(d[0], d[1]) % (2 * math.pi)
+        if self.kind == "range_az":
+            return np.array([az, rho])
+        return np.array([az, math.atan2(d[2], math.hypot(d[0], d[1])), rho])
+
+    def from_site(self, z: np.ndarray, height: float | None = None) -> tuple[float, float, float | None]:
+        """The inverse of :meth:`to_site`: ``(θ, ρ, height)``; a 2D measurement needs the
+        height it was converted with (None: the horizon), a 3D one carries it."""
+        rho = float(z[-1])
+        if self.kind == "range_az":
+            # the direction of azimuth az in the site frame at elevation ε above the radar's
+            # horizon: v = cos β h + sin β ẑ with v·u = sin ε (u: the radar's up)
+            az = float(z[0])
+            sin_e = 0.0 if height is None else math.sin(self.elevation(rho, height))
+            h = np.array([math.sin(az), math.cos(az), 0.0])
+            u = self.rotation[:, 2]
+            a, b = float(h @ u), float(u[2])
+            beta = math.atan2(b, a) - math.acos(max(-1.0, min(1.0, sin_e / math.hypot(a, b))))
+            d = self.rotation.T @ (math.cos(beta) * h + np.array([0.0, 0.0, math.sin(beta)]))
+            return math.atan2(d[0], d[1]) % (2 * math.pi), rho, height
+        az, el = float(z[0]), float(z[1])
+        d = self.rotation.T @ np.array([rho * math.cos(el) * math.sin(az), rho * math.cos(el) * math.cos(az),
+                                        rho * math.sin(el)])
+        a = self.radius + self.height
+        height = math.sqrt(a * a + rho * rho + 2.0 * a * d[2]) - self.radius
+        return math.atan2(d[0], d[1]) % (2 * math.pi), rho, height
+
+
+def radars(site, frame: LocalFrame) -> dict[tuple[int, int], Radar]:
+    """The site's sensors with a ``sac_sic``, by SAC/SIC; ValueError for a shared one, a
+    kind that is not a radar's, or a mobile site."""
+    out: dict[tuple[int, int], Radar] = {}
+    for sid, spec in site.sensors.items():
+        if spec.sac_sic is None:
+            continue
+        if spec.sac_sic in out:
+            raise ValueError(f"sensors {out[spec.sac_sic].sensor!r} and {sid!r} share sac_sic "
+                             f"{list(spec.sac_sic)}: each radar needs its own")
+        if spec.site is None or not spec.site.fixed:
+            raise ValueError(f"sensor {sid!r} has sac_sic but no fixed position: a radar's plots are relative to it")
+        out[spec.sac_sic] = Radar.at(sid, spec.sac_sic, spec.measurement_kind, spec.site.points[0], frame)
+    if not out:
+        raise ValueError("no sensor of the site file has sac_sic = [SAC, SIC]: nothing to publish")
+    return out
+
+
+@dataclass(frozen=True)
+class ScanMark:
+    """A radar's promise: none of its plots at or before ``t`` will follow."""
+
+    sensor: str
+    t: float
+
+
+@dataclass(frozen=True)
+class PositionReport:
+    """A CAT021 ADS-B report as a plain record (what the ``position`` kind will take):
+    UTC ``t``, WGS-84 ``lat``/``lon`` (°), ``height`` (m: above the ellipsoid if
+    ``geometric``, else pressure altitude from the flight level), ``std_h`` (m, per
+    horizontal axis), ``std_v`` (m, None: no stated accuracy), the 24-bit ``address``
+    as the aircraft's identity, and the ground station's SAC/SIC as ``source``."""
+
+    source: tuple[int, int]
+    address: int
+    t: float
+    lat: float
+    lon: float
+    height: float | None
+    geometric: bool
+    std_h: float
+    std_v: float | None
+    callsign: str | None = None
+
+    def enu(self, frame: LocalFrame) -> np.ndarray:
+        """Its position in the site's frame (height 0 if none was sent)."""
+        return frame.to_enu(self.lat, self.lon, 0.0 if self.height is None else self.height)
+
+
+def horizontal_std(q: ax.Quality | None, mops: int | None) -> float | None:
+    """σ per horizontal axis (m) from the quality indicators, None if unknown: NACp for
+    MOPS version 1 and later (and when the NACp extension was sent without a version),
+    NUCp for version 0."""
+    if q is None:
+        return None
+    use_nacp = q.nacp is not None if mops is None else mops >= 1
+    bound = NACP_95.get(q.nacp) if use_nacp else NUCP_95.get(q.nucp_nic)
+    return None if bound is None else bound / K95_2D
+
+
+def vertical_std(q: ax.Quality | None) -> float | None:
+    """σ (m) of a geometric height from GVA, None if unknown."""
+    bound = None if q is None or q.gva is None else GVA_95.get(q.gva)
+    return None if bound is None else bound / K95_1D
+
+
+class AsterixFeed:
+    """Datagrams -> events (module docstring). State: per radar, the times of its last
+    ``sector_lag + 1`` crossings."""
+
+    def __init__(self, radars: Mapping[tuple[int, int], Radar], sector_lag: int = 1):
+        if sector_lag < 0:
+            raise ValueError(f"sector lag must be 0 or more crossings, not {sector_lag}")
+        self.radars = dict(radars)
+        self.sector_lag = sector_lag
+        self._crossings: dict[str, deque] = {r.sensor: deque(maxlen=sector_lag + 1) for r in self.radars.values()}
+        self.counters = {"datagrams": 0, "records.cat048": 0, "records.cat034": 0, "records.cat021": 0}
+
+    def receive(self, data: bytes, now: float) -> list:
+        """One datagram, read at ``now`` (UTC s) -> Reading, ScanMark, PositionReport,
+        Rejected and Skipped events, in the datagram's order."""
+        self.counters["datagrams"] += 1
+        out = []
+        for r in ax.decode(data):
+            if isinstance(r, ax.TargetReport):
+                self.counters["records.cat048"] += 1
+                out.append(self._plot(r, now))
+            elif isinstance(r, ax.ServiceMessage):
+                self.counters["records.cat034"] += 1
+                ev = self._service(r, now)
+                if ev is not None:
+                    out.append(ev)
+            elif isinstance(r, ax.AdsbReport):
+                self.counters["records.cat021"] += 1
+                out.append(self._adsb(r, now))
+            elif isinstance(r, ax.Undecodable):
+                out.append(Rejected(r.cause, r.detail))
+            else:  # CAT062/065: read, but not a measurement
+                out.append(Skipped(f"cat{r.category:03d}"))
+        return out
+
+    def _radar(self, sac: int, sic: int) -> Radar | Rejected:
+        radar = self.radars.get((sac, sic))
+        if radar is None:
+            return Rejected("unknown-source", f"SAC/SIC {sac}/{sic} is no sensor of the site file (it names "
+                                              f"{', '.join(f'{s}/{c}' for s, c in self.radars)})")
+        return radar
+
+    def _plot(self, r: ax.TargetReport, now: float) -> Reading | Rejected:
+        radar = self._radar(r.sac, r.sic)
+        if isinstance(radar, Rejected):
+            return radar
+        if r.tod is None:
+            return Rejected("no-time", f"{radar.sensor}: a plot without I048/140 (time of day)")
+        if r.rho is None:
+            return Rejected("no-position", f"{radar.sensor}: a plot without I048/040 (measured position)")
+        height = r.height_3d
+        if height is None and r.flight_level is not None and r.fl_validated and not r.fl_garbled:
+            height = r.flight_level * 100.0 * FT
+        if radar.kind == "az_el_range" and height is None:
+            return Rejected("no-height", f"{radar.sensor} is a 3D radar: a plot needs I048/110 or a valid Mode C")
+        try:
+            z = radar.to_site(r.theta, r.rho, height)
+        except ValueError as e:
+            if radar.kind == "az_el_range":
+                return Rejected("geometry", f"{radar.sensor}: {e}")
+            z = radar.to_site(r.theta, r.rho)  # a 2D radar's impossible Mode C: on its horizon
+        return Reading(sensor=radar.sensor, t=ax.utc_of_tod(r.tod, now), kind=radar.kind, z=z)
+
+    def _service(self, m: ax.ServiceMessage, now: float) -> ScanMark | Rejected | Skipped | None:
+        radar = self._radar(m.sac, m.sic)
+        if isinstance(radar, Rejected):
+            return radar
+        if m.message_type not in (ax.NORTH_MARKER, ax.SECTOR_CROSSING):
+            return Skipped("service-message")
+        if m.tod is None:
+            return Rejected("no-time", f"{radar.sensor}: a CAT034 message without I034/030 (time of day)")
+        t = ax.utc_of_tod(m.tod, now)
+        marks = self._crossings[radar.sensor]
+        if marks and t <= marks[-1]:  # the north marker beside sector 0's crossing; or a restart
+            if t < marks[-1]:
+                marks.clear()
+                marks.append(t)
+            return None
+        marks.append(t)
+        if len(marks) <= self.sector_lag:
+            return None
+        return ScanMark(radar.sensor, math.nextafter(marks[0], -math.inf))
+
+    def _adsb(self, r: ax.AdsbReport, now: float) -> PositionReport | Rejected:
+        who = f"ADS-B {r.sac}/{r.sic}" + ("" if r.address is None else f" {r.address:06X}")
+        tod = r.time()
+        if tod is None:
+            return Rejected("no-time", f"{who}: neither I021/071 nor I021/073 (time of position)")
+        if r.lat is None:
+            return Rejected("no-position", f"{who}: neither I021/131 nor I021/130 (position)")
+        if r.address is None:
+            return Rejected("no-address", f"{who}: no I021/080 (target address)")
+        std_h = horizontal_std(r.quality, r.mops)
+        if std_h is None:
+            return Rejected("no-accuracy", f"{who}: NACp/NUCp unknown (0 or no I021/090)")
+        geometric = r.geometric_height is not None
+        height = r.geometric_height if geometric else (
+            None if r.flight_level is None else r.flight_level * 100.0 * FT)
+        return PositionReport(source=(r.sac, r.sic), address=r.address, t=ax.utc_of_tod(tod, now), lat=r.lat,
+                              lon=r.lon, height=height, geometric=geometric, std_h=std_h,
+                              std_v=vertical_std(r.quality) if geometric else None, callsign=r.callsign)
+
+
+@dataclass
+class AsterixIngest:
+    """The whole decision, sans I/O: datagrams -> the ``(key, bytes)`` messages to
+    publish. ``reject(src, cause, detail)`` counts and logs refusals; ``skipped`` counts
+    what is deliberately not published, by cause (``position-pending``: an ADS-B report,
+    until the ``position`` measurement kind exists)."""
+
+    feed: AsterixFeed
+    gateway: Gateway
+    reject: Callable[[str, str, str], None]
+    src: str = "asterix"
+    skipped: dict[str, int] = field(default_factory=dict)
+    t_last: float = 0.0
+
+    def receive(self, data: bytes, now: float) -> list[tuple[str, bytes]]:
+        out: list[tuple[str, bytes]] = []
+        for ev in self.feed.receive(data, now):
+            if isinstance(ev, Reading):
+                out.extend(self.gateway.offer(ev, now))
+                self.t_last = max(self.t_last, ev.t)
+            elif isinstance(ev, ScanMark):
+                out.extend(self.gateway.promise(ev.sensor, ev.t))
+            elif isinstance(ev, Rejected):
+                self.reject(self.src, ev.cause, ev.detail)
+            else:
+                cause = ev.cause if isinstance(ev, Skipped) else "position-pending"
+                self.skipped[cause] = self.skipped.get(cause, 0) + 1
+        return out
+
+    def counters(self) -> dict[str, float]:
+        return {**self.gateway.counters, **self.feed.counters,
+                **{f"skipped.{c}": n for c, n in self.skipped.items()}}
