@@ -90,6 +90,10 @@ class Radar:
     gamma: float
     radius: float
     height: float
+    _rows: tuple = field(init=False, repr=False)
+
+    def __post_init__(self):
+        object.__setattr__(self, "_rows", tuple(tuple(float(x) for x in row) for row in self.rotation))
 
     @classmethod
     def at(cls, sensor: str, sac_sic: tuple[int, int], kind: str, site: np.ndarray, frame: LocalFrame) -> "Radar":
@@ -122,11 +126,12 @@ class Radar:
         else:
             el = self.elevation(rho, height)
         ce = math.cos(el)
-        d = self.rotation @ np.array([rho * ce * math.sin(theta), rho * ce * math.cos(theta), rho * math.sin(el)])
-        az = math.atan2(d[0], d[1]) % (2 * math.pi)
+        v = (rho * ce * math.sin(theta), rho * ce * math.cos(theta), rho * math.sin(el))
+        e, n, u = (r[0] * v[0] + r[1] * v[1] + r[2] * v[2] for r in self._rows)  # R · v, in floats: fast
+        az = math.atan2(e, n) % (2 * math.pi)
         if self.kind == "range_az":
             return np.array([az, rho])
-        return np.array([az, math.atan2(d[2], math.hypot(d[0], d[1])), rho])
+        return np.array([az, math.atan2(u, math.hypot(e, n)), rho])
 
     def from_site(self, z: np.ndarray, height: float | None = None) -> tuple[float, float, float | None]:
         """The inverse of :meth:`to_site`: ``(θ, ρ, height)``; a 2D measurement needs the
