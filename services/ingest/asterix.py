@@ -37,9 +37,10 @@ NUCp's (version 0), and the vertical σ of a geometric height is GVA's bound ove
 from __future__ import annotations
 
 import math
+import struct
 from collections import deque
 from dataclasses import dataclass, field
-from typing import Callable, Mapping
+from typing import Callable, Iterable, Iterator, Mapping
 
 import numpy as np
 
@@ -358,3 +359,76 @@ class AsterixIngest:
     def counters(self) -> dict[str, float]:
         return {**self.gateway.counters, **self.feed.counters,
                 **{f"skipped.{c}": n for c, n in self.skipped.items()}}
+
+
+# ------------------------------------------------------------------ captures
+
+PCAP_MAGIC = {b"\xd4\xc3\xb2\xa1": ("<", 1e-6), b"\xa1\xb2\xc3\xd4": (">", 1e-6),
+              b"\x4d\x3c\xb2\xa1": ("<", 1e-9), b"\xa1\xb2\x3c\x4d": (">", 1e-9)}
+# link type -> octets before the IP header
+PCAP_LINKS = {1: 14, 101: 0, 12: 0, 113: 16, 276: 20, 0: 4}
+
+
+class CaptureError(ValueError):
+    """A file that is not a classic pcap capture this reader knows."""
+
+
+def pcap_datagrams(data: bytes) -> Iterator[tuple[float, bytes]]:
+    """``(capture time, UDP payload)`` of every UDP/IPv4 or IPv6 packet of a classic
+    libpcap capture (Ethernet with or without VLAN tags, raw IP, Linux cooked v1/v2, BSD
+    loopback). Other packets, IP fragments and a truncated last record are skipped."""
+    if len(data) < 24 or data[:4] not in PCAP_MAGIC:
+        raise CaptureError("not a pcap capture (pcapng is not read: convert it with editcap -F pcap)")
+    end, unit = PCAP_MAGIC[data[:4]]
+    link = struct.unpack(end + "I", data[20:24])[0]
+    if link not in PCAP_LINKS:
+        raise CaptureError(f"link type {link} is not read (Ethernet, raw IP, Linux cooked or loopback)")
+    rec = struct.Struct(end + "IIII")
+    pos = 24
+    while pos + 16 <= len(data):
+        sec, frac, incl, _ = rec.unpack_from(data, pos)
+        pkt = data[pos + 16:pos + 16 + incl]
+        pos += 16 + incl
+        if len(pkt) < incl:
+            return
+        payload = _udp_payload(pkt, link)
+        if payload is not None:
+            yield sec + frac * unit, payload
+
+
+def _udp_payload(pkt: bytes, link: int) -> bytes | None:
+    off = PCAP_LINKS[link]
+    if link == 1:
+        while len(pkt) >= off + 4 and pkt[off - 2:off] in (b"\x81\x00", b"\x88\xa8"):  # VLAN tags
+            off += 4
+    if len(pkt) < off + 20:
+        return None
+    version = pkt[off] >> 4
+    if version == 4:
+        ihl = (pkt[off] & 0x0F) * 4
+        frag = struct.unpack_from(">H", pkt, off + 6)[0]
+        if pkt[off + 9] != 17 or frag & 0x3FFF:  # not UDP, or a fragment
+            return None
+        udp = off + ihl
+    elif version == 6 and len(pkt) >= off + 48 and pkt[off + 6] == 17:
+        udp = off + 40
+    else:
+        return None
+    if len(pkt) < udp + 8:
+        return None
+    length = struct.unpack_from(">H", pkt, udp + 4)[0]
+    return pkt[udp + 8:udp + max(8, length)]
+
+
+def pcap_file(packets: Iterable[tuple[float, bytes]], port: int = 8600) -> bytes:
+    """A classic pcap capture (raw IPv4, µs) of UDP datagrams to 127.0.0.1:``port`` at
+    the given times: what :func:`pcap_datagrams` reads back (an emitter's recording)."""
+    out = bytearray(struct.pack("<IHHiIII", 0xA1B2C3D4, 2, 4, 0, 0, 65535, 101))
+    for t, payload in packets:
+        sec = math.floor(t)
+        usec = min(999_999, round((t - sec) * 1e6))
+        udp = struct.pack(">HHHH", port, port, 8 + len(payload), 0) + payload
+        ip = struct.pack(">BBHHHBBH4s4s", 0x45, 0, 20 + len(udp), 0, 0x4000, 64, 17, 0, bytes((127, 0, 0, 1)),
+                         bytes((127, 0, 0, 1))) + udp
+        out += struct.pack("<IIII", sec, usec, len(ip), len(ip)) + ip
+    return bytes(out)
