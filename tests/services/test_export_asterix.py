@@ -5,18 +5,27 @@ covariance; the sink's per-update and periodic sending with CAT065."""
 from __future__ import annotations
 
 import math
+import signal
+import socket
+import subprocess
+import time
 from types import SimpleNamespace
 
 import asterix.generated as lib
 import numpy as np
 import pymap3d
 import pytest
+import zenoh
 from asterix.base import Bits, RawDatablock
+from conftest import zfusion
 
 from fusion.geodetic import LocalFrame
 from fusion.types import Estimate
+from schemas import KeySpace, encode_estimate
 from schemas import asterix as ax
 from services.export.asterix import AsterixSink, TrackNumbers, system_track
+from services.launcher import free_port
+from services.node import ZenohOptions
 
 FRAME = LocalFrame(52.0, 4.0, 10.0, deg=True)
 FT = 0.3048
@@ -132,3 +141,47 @@ def test_the_sink_sends_per_update_or_as_a_periodic_picture():
     assert kinds == [(62, None)] * 3 + [(65, 2), (65, 1), (65, 1)] + [(62, None)] * 3 + [(65, 2), (65, 1)]
     assert [r.status.tsb for r in got if r.category == 62] == [True] * 3 + [False] * 3
     assert [r.batch for r in got if r.category == 65 and r.message_type == 2] == [1, 2]
+
+
+@pytest.mark.slow
+def test_the_exporter_process_sends_what_it_is_fed(deployment):
+    """Fused estimates on Zenoh in, CAT062 datagrams on a loopback UDP port out, read back
+    by libasterix; SIGINT stops it with exit 0."""
+    keys = KeySpace(deployment)
+    ep = f"tcp/127.0.0.1:{free_port()}"
+    hub = zenoh.open(ZenohOptions(listen=[ep]).to_config())
+    rx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    rx.bind(("127.0.0.1", 0))
+    rx.settimeout(0.2)
+    pub = hub.declare_publisher(keys.fused())
+    proc = zfusion("export", "asterix", "--udp", f"127.0.0.1:{rx.getsockname()[1]}", "--sac", "25", "--sic", "7",
+                   "--scenario", "patent-3d", "--deployment", deployment, "--connect", ep,
+                   stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    tracks, seq = {}, 0
+    try:
+        deadline = time.monotonic() + 30
+        while len(tracks) < 2 and time.monotonic() < deadline:
+            seq += 1
+            x = np.array([1000.0 + seq, 2000.0, 3000.0, 50.0, 60.0, 1.0])
+            pub.put(encode_estimate(Estimate(float(seq), x, np.eye(6) * 100.0, "SS", "centre", f"T{seq % 2}"),
+                                    "fuser", seq))
+            try:
+                while True:
+                    for cat, r in lib_records(rx.recv(65535)):
+                        if cat == 62:
+                            tracks[r.get_item("040").variation.content.as_uint()] = r
+            except (TimeoutError, socket.timeout):
+                pass
+        assert len(tracks) == 2, proc.stderr
+        r = next(iter(tracks.values()))
+        assert r.get_item("010").variation.get_item("SIC").as_uint() == 7
+        assert q(r, "100", "Y", "m") == 2000.0 and q(r, "185", "VY", "m/s") == 60.0
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=30)
+        assert proc.returncode == 0 and "Traceback" not in err, err[-2000:]
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        pub.undeclare()
+        hub.close()
+        rx.close()
