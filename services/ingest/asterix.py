@@ -8,9 +8,10 @@ becomes a :class:`~services.ingest.gateway.Reading` of that sensor; a CAT034 nor
 marker or sector crossing becomes a :class:`ScanMark`, a promise that the radar's plots
 older than the crossing ``sector_lag`` crossings ago have all been sent (radars send a
 sector's plots after its crossing message, so one sector of slack by default); a CAT021
-ADS-B report becomes a :class:`PositionReport`. Times of day are placed on the UTC time
-line next to the receiver's clock (:func:`schemas.asterix.utc_of_tod`). What cannot be
-used is a :class:`~services.ingest.gateway.Rejected` with a stable cause (the codec's
+ADS-B report becomes a :class:`StationReport`: the ADS-B gateways' position report
+(:class:`services.ingest.adsb.PositionReport`) and the ground station's SAC/SIC. Times
+of day are placed on the UTC time line next to the receiver's clock
+(:func:`schemas.asterix.utc_of_tod`). What cannot be used is a :class:`~services.ingest.gateway.Rejected` with a stable cause (the codec's
 ``truncated``, ``malformed``, ``unknown-category``, ``missing-item``; ``unknown-source``,
 ``no-time``, ``no-position``, ``no-height``, ``geometry``, ``no-address``,
 ``no-accuracy``). :class:`AsterixIngest` hands the events to the
@@ -29,9 +30,9 @@ With ``R`` the rotation from the radar's ENU to the site's (both from ECEF, WGS-
 
 so a 2D plot's azimuth turns by about γ = atan2(R[0,1], R[1,1]). :meth:`Radar.from_site`
 inverts it exactly (an emitter's side). An ADS-B position's
-horizontal σ per axis is its 95 % accuracy bound over √(−2 ln 0.05) = 2.448 (a circular
-Gaussian holds 95 % within 2.448 σ): the bound is NACp's (MOPS version 1 and later) or
-NUCp's (version 0), and the vertical σ of a geometric height is GVA's bound over 1.96.
+σ follows the ADS-B gateways' rules (:mod:`services.ingest.adsb`: NACp's 95 % bound over
+2.448 per horizontal axis, GVA's over 1.96 vertically), with NUCp's bound for MOPS
+version 0 reports.
 """
 
 from __future__ import annotations
@@ -47,21 +48,17 @@ import numpy as np
 from fusion.geodetic import LocalFrame
 from schemas import asterix as ax
 
+from . import adsb
+from .adsb import PositionReport
 from .gateway import Gateway, Reading, Rejected
 from .krakensdr import Skipped
 
-FT = 0.3048
-NM = 1852.0
+FT, NM = adsb.FT, adsb.NM
 WGS84_A, WGS84_E2 = 6378137.0, 6.69437999014e-3
 RADAR_KINDS = ("range_az", "az_el_range")
-K95_2D = math.sqrt(-2.0 * math.log(0.05))  # 2.448: 95 % radius of a circular Gaussian, in σ
-K95_1D = 1.959964
-
-# Horizontal 95 % accuracy bounds (m): NACp (DO-260A/B), NUCp (DO-260, its μ); 0 = unknown.
-NACP_95 = {1: 10 * NM, 2: 4 * NM, 3: 2 * NM, 4: 1 * NM, 5: 0.5 * NM, 6: 0.3 * NM, 7: 0.1 * NM, 8: 0.05 * NM,
-           9: 30.0, 10: 10.0, 11: 3.0}
-NUCP_95 = {1: 10 * NM, 2: 5 * NM, 3: 1 * NM, 4: 0.5 * NM, 5: 0.25 * NM, 6: 0.1 * NM, 7: 0.05 * NM, 8: 10.0, 9: 3.0}
-GVA_95 = {1: 150.0, 2: 45.0}  # m; 0 unknown, 3 reserved
+# DO-260 (MOPS version 0) NUCp: the 95 % horizontal containment μ, metres; 0 = unknown.
+NUCP_95_M = {1: 10 * NM, 2: 5 * NM, 3: 1 * NM, 4: 0.5 * NM, 5: 0.25 * NM, 6: 0.1 * NM, 7: 0.05 * NM, 8: 10.0,
+             9: 3.0}
 
 
 def enu_rotation(lat_deg: float, lon_deg: float) -> np.ndarray:
@@ -184,44 +181,25 @@ class ScanMark:
 
 
 @dataclass(frozen=True)
-class PositionReport:
-    """A CAT021 ADS-B report as a plain record (what the ``position`` kind will take):
-    UTC ``t``, WGS-84 ``lat``/``lon`` (°), ``height`` (m: above the ellipsoid if
-    ``geometric``, else pressure altitude from the flight level), ``std_h`` (m, per
-    horizontal axis), ``std_v`` (m, None: no stated accuracy), the 24-bit ``address``
-    as the aircraft's identity, and the ground station's SAC/SIC as ``source``."""
+class StationReport:
+    """A CAT021 report as the ADS-B gateways give theirs (:class:`adsb.PositionReport`,
+    ``fmt = "asterix"``: what the ``position`` kind will take), with the SAC/SIC of the
+    ground station that sent it."""
 
-    source: tuple[int, int]
-    address: int
-    t: float
-    lat: float
-    lon: float
-    height: float | None
-    geometric: bool
-    std_h: float
-    std_v: float | None
-    callsign: str | None = None
-
-    def enu(self, frame: LocalFrame) -> np.ndarray:
-        """Its position in the site's frame (height 0 if none was sent)."""
-        return frame.to_enu(self.lat, self.lon, 0.0 if self.height is None else self.height)
+    sac_sic: tuple[int, int]
+    report: PositionReport
 
 
 def horizontal_std(q: ax.Quality | None, mops: int | None) -> float | None:
-    """σ per horizontal axis (m) from the quality indicators, None if unknown: NACp for
-    MOPS version 1 and later (and when the NACp extension was sent without a version),
-    NUCp for version 0."""
-    if q is None:
-        return None
-    use_nacp = q.nacp is not None if mops is None else mops >= 1
-    bound = NACP_95.get(q.nacp) if use_nacp else NUCP_95.get(q.nucp_nic)
-    return None if bound is None else bound / K95_2D
-
-
-def vertical_std(q: ax.Quality | None) -> float | None:
-    """σ (m) of a geometric height from GVA, None if unknown."""
-    bound = None if q is None or q.gva is None else GVA_95.get(q.gva)
-    return None if bound is None else bound / K95_1D
+    """σ per horizontal axis (m) from the quality indicators, None if unknown: NACp (the
+    ADS-B gateways' rule, :func:`adsb.horizontal_std`) for MOPS version 1 and later, or
+    when the NACp extension came without a version; NUCp for version 0, its 95 % bound
+    treated alike (EPU/2.448 with the CPR cell added)."""
+    if q is not None and (mops == 0 or (mops is None and q.nacp is None)):
+        if q.nucp_nic not in NUCP_95_M:
+            return None
+        return math.hypot(NUCP_95_M[q.nucp_nic] / adsb.K95_2D, adsb.CPR_CELL_M / math.sqrt(12.0))
+    return adsb.horizontal_std("adsb", None if q is None else q.nacp)
 
 
 class AsterixFeed:
@@ -237,7 +215,7 @@ class AsterixFeed:
         self.counters = {"datagrams": 0, "records.cat048": 0, "records.cat034": 0, "records.cat021": 0}
 
     def receive(self, data: bytes, now: float) -> list:
-        """One datagram, read at ``now`` (UTC s) -> Reading, ScanMark, PositionReport,
+        """One datagram, read at ``now`` (UTC s) -> Reading, ScanMark, StationReport,
         Rejected and Skipped events, in the datagram's order."""
         self.counters["datagrams"] += 1
         out = []
@@ -307,7 +285,7 @@ class AsterixFeed:
             return None
         return ScanMark(radar.sensor, math.nextafter(marks[0], -math.inf))
 
-    def _adsb(self, r: ax.AdsbReport, now: float) -> PositionReport | Rejected:
+    def _adsb(self, r: ax.AdsbReport, now: float) -> StationReport | Rejected:
         who = f"ADS-B {r.sac}/{r.sic}" + ("" if r.address is None else f" {r.address:06X}")
         tod = r.time()
         if tod is None:
@@ -318,13 +296,22 @@ class AsterixFeed:
             return Rejected("no-address", f"{who}: no I021/080 (target address)")
         std_h = horizontal_std(r.quality, r.mops)
         if std_h is None:
-            return Rejected("no-accuracy", f"{who}: NACp/NUCp unknown (0 or no I021/090)")
-        geometric = r.geometric_height is not None
-        height = r.geometric_height if geometric else (
-            None if r.flight_level is None else r.flight_level * 100.0 * FT)
-        return PositionReport(source=(r.sac, r.sic), address=r.address, t=ax.utc_of_tod(tod, now), lat=r.lat,
-                              lon=r.lon, height=height, geometric=geometric, std_h=std_h,
-                              std_v=vertical_std(r.quality) if geometric else None, callsign=r.callsign)
+            return Rejected("no-accuracy", f"{who}: NACp/NUCp 0 (unknown accuracy)")
+        if r.geometric_height is not None:
+            alt, ref = r.geometric_height, "geometric"
+        elif r.flight_level is not None:
+            alt, ref = r.flight_level * 100.0 * FT, "barometric"
+        else:
+            alt, ref = None, "ground" if r.gbs else "none"
+        q = r.quality
+        velocity = None if r.ground_speed is None else (r.ground_speed * math.sin(r.track_angle),
+                                                        r.ground_speed * math.cos(r.track_angle))
+        report = PositionReport(
+            t=ax.utc_of_tod(tod, now), address=("" if r.atp in (0, None) else "~") + f"{r.address:06x}",
+            lat_deg=r.lat, lon_deg=r.lon, alt_m=alt, alt_ref=ref, source="adsb", std_h_m=std_h,
+            std_v_m=adsb.vertical_std(ref, None if q is None else q.gva, None if q is None else q.nacp),
+            callsign=r.callsign or None, velocity_m_s=velocity, nac_p=None if q is None else q.nacp, fmt="asterix")
+        return StationReport((r.sac, r.sic), report)
 
 
 @dataclass

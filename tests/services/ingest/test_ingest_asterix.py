@@ -18,9 +18,8 @@ import pytest
 from schemas import KeySpace, decode, to_measurement
 from schemas import asterix as ax
 from sensors_sim import ScenarioError, load_site
-from services.ingest.asterix import (
-    K95_2D, AsterixFeed, AsterixIngest, PositionReport, Radar, ScanMark, horizontal_std, radars, vertical_std,
-)
+from services.ingest.adsb import CPR_CELL_M, K95_2D
+from services.ingest.asterix import AsterixFeed, AsterixIngest, Radar, ScanMark, StationReport, horizontal_std, radars
 from services.ingest.gateway import Gateway, Reading, Rejected, local_frame, sensor_sites
 from services.ingest.krakensdr import Skipped
 from services.node import RejectLog
@@ -241,29 +240,38 @@ def test_sector_crossings_promise_what_is_a_sector_behind(rig):
 # ------------------------------------------------------------------ ADS-B
 
 
+def _cpr(bound_m: float) -> float:
+    """The ADS-B gateways' σ for a 95 % bound: bound/2.448 and the CPR cell in quadrature."""
+    return math.hypot(bound_m / K95_2D, CPR_CELL_M / math.sqrt(12.0))
+
+
 def test_an_adsb_report_becomes_a_position_report():
     rep = ax.AdsbReport(sac=30, sic=4, tod_position=35_999.5, lat=52.1, lon=4.2, address=0x484C53,
                         geometric_height=11_000 * FT, quality=ax.Quality(nucp_nic=8, nacp=9, gva=2), mops=2,
-                        callsign="KLM1023")
+                        callsign="KLM1023", ground_speed=0.125 * NM, track_angle=math.pi / 2)
     (ev,) = AsterixFeed({}).receive(datagram(rep), NOW)
-    assert isinstance(ev, PositionReport)
-    assert (ev.source, ev.address, ev.t, ev.callsign, ev.geometric) == ((30, 4), 0x484C53, NOW - 0.5, "KLM1023",
-                                                                       True)
-    assert (ev.lat, ev.lon) == (pytest.approx(52.1, abs=1e-7), pytest.approx(4.2, abs=1e-7))
-    assert ev.height == pytest.approx(11_000 * FT)
-    assert ev.std_h == pytest.approx(30.0 / 2.4477, rel=1e-4)  # NACp 9: 95 % within 30 m
-    assert ev.std_v == pytest.approx(45.0 / 1.96, rel=1e-3)    # GVA 2: 95 % within 45 m
-    # a circular Gaussian of that σ per axis holds 95 % within the bound
-    assert 1 - math.exp(-0.5 * (30.0 / ev.std_h) ** 2) == pytest.approx(0.95, abs=1e-9)
+    assert isinstance(ev, StationReport) and ev.sac_sic == (30, 4)
+    p = ev.report
+    assert (p.address, p.t, p.callsign, p.alt_ref, p.source, p.fmt, p.nac_p) == (
+        "484c53", NOW - 0.5, "KLM1023", "geometric", "adsb", "asterix", 9)
+    assert (p.lat_deg, p.lon_deg) == (pytest.approx(52.1, abs=1e-7), pytest.approx(4.2, abs=1e-7))
+    assert p.alt_m == pytest.approx(11_000 * FT)
+    assert p.std_h_m == pytest.approx(_cpr(30.0))  # NACp 9: 95 % within 30 m
+    assert p.std_v_m == pytest.approx(math.hypot(45.0 / 1.959964, 25 * FT / math.sqrt(12)), rel=1e-6)  # GVA 2
+    assert p.velocity_m_s == pytest.approx((0.125 * NM, 0.0), abs=1e-9)  # due east
+    anonymous = ax.AdsbReport(**{**{f: getattr(rep, f) for f in rep.__dataclass_fields__}, "atp": 3})
+    (ev,) = AsterixFeed({}).receive(datagram(anonymous), NOW)
+    assert ev.report.address == "~484c53"  # not an ICAO address: an identity, not a proof of one
 
 
 def test_position_accuracy_follows_the_mops_version():
     q = ax.Quality(nucp_nic=7, nacp=10)
-    assert horizontal_std(q, 2) == pytest.approx(10.0 / K95_2D)          # NACp 10: 10 m
-    assert horizontal_std(q, 0) == pytest.approx(0.05 * NM / K95_2D)     # NUCp 7: 0.05 NM
-    assert horizontal_std(ax.Quality(nucp_nic=9), None) == pytest.approx(3.0 / K95_2D)  # no NACp sent: NUCp
-    assert horizontal_std(ax.Quality(nucp_nic=7, nacp=0), 2) is None      # NACp 0: unknown
-    assert horizontal_std(None, 2) is None and vertical_std(ax.Quality(gva=0)) is None
+    assert horizontal_std(q, 2) == pytest.approx(_cpr(10.0))          # NACp 10: 10 m
+    assert horizontal_std(q, 0) == pytest.approx(_cpr(0.05 * NM))     # NUCp 7: 0.05 NM
+    assert horizontal_std(ax.Quality(nucp_nic=9), None) == pytest.approx(_cpr(3.0))  # no NACp sent: NUCp
+    assert horizontal_std(ax.Quality(nucp_nic=7, nacp=0), 2) is None   # NACp 0: unknown
+    assert horizontal_std(ax.Quality(nucp_nic=0), 0) is None           # NUCp 0: unknown
+    assert horizontal_std(None, 2) == pytest.approx(_cpr(0.1 * NM))    # no I021/090: the gateways' default, NACp 7
 
 
 def test_adsb_reports_that_cannot_be_used():
@@ -274,7 +282,7 @@ def test_adsb_reports_that_cannot_be_used():
         (ev,) = AsterixFeed({}).receive(datagram(ax.AdsbReport(**{**base, **change})), NOW)
         assert isinstance(ev, Rejected) and ev.cause == cause, change
     (ev,) = AsterixFeed({}).receive(datagram(ax.AdsbReport(**base, flight_level=300.0)), NOW)
-    assert (ev.height, ev.geometric, ev.std_v) == (pytest.approx(30_000 * FT), False, None)
+    assert (ev.report.alt_m, ev.report.alt_ref) == (pytest.approx(30_000 * FT), "barometric")
 
 
 # ------------------------------------------------------------------ to the wire
