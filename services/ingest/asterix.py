@@ -109,6 +109,8 @@ class Radar:
     def elevation(self, rho: float, height: float) -> float:
         """The elevation at the radar of a point at slant range ``rho`` and ``height``."""
         a, b = self.radius + self.height, self.radius + height
+        if not rho > 0.0:
+            raise ValueError(f"a slant range of {rho:g} m has no elevation")
         s = (b * b - a * a - rho * rho) / (2.0 * a * rho)
         if not -1.0 <= s <= 1.0:
             raise ValueError(f"height {height:.0f} m cannot be seen at slant range {rho:.0f} m")

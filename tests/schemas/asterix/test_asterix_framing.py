@@ -5,6 +5,8 @@ Byte strings are written from the layouts' definitions in the category specifica
 
 from __future__ import annotations
 
+import random
+
 import pytest
 
 from schemas import asterix as ax
@@ -205,3 +207,30 @@ def test_time_of_day_wraps_at_midnight_on_the_wire():
     assert ax.decode(ax.encode([r])[0])[0].tod == 1.5
     raw = cat048.encode(ax.TargetReport(sac=1, sic=2, tod=DAY - 1 / 128))
     assert raw[-3:] == bytes.fromhex("a8bfff")  # 86400·128 − 1 = 0xA8BFFF, the largest time of day
+
+
+def test_mangled_datagrams_never_raise():
+    good = ax.encode([ax.TargetReport(sac=1, sic=2, tod=5.0, typ=5, rho=1e4, theta=1.0, mode3a=0o1234,
+                                      flight_level=100.0, address=0xABCDEF, callsign="AB12",
+                                      track_status=ax.cat048.TrackStatus(rad=2)),
+                      ax.ServiceMessage(sac=1, sic=2, message_type=2, tod=5.0, sector=0.5, position=(1.0, 2.0, 3.0)),
+                      ax.AdsbReport(sac=3, sic=4, tod_position=5.0, lat=1.0, lon=2.0, address=7,
+                                    quality=ax.Quality(nacp=9, gva=1, pic=3), mops=2, callsign="X"),
+                      ax.SystemTrack(sac=5, sic=6, track_number=9, tod=5.0, x=1.0, y=2.0, address=5,
+                                     accuracy=ax.Accuracy(apc_x=1.0, apc_y=2.0)),
+                      ax.SdpsStatus(sac=5, sic=6, message_type=1, service=1, tod=5.0, nogo=0)])[0]
+    rng = random.Random(11)
+    causes = set()
+    for k in range(5000):
+        data = bytearray(good)
+        if k % 4 == 0:
+            data = data[:rng.randrange(len(data))]
+        for _ in range(rng.randrange(1, 5)):
+            if data:
+                data[rng.randrange(len(data))] = rng.randrange(256)
+        for r in ax.decode(bytes(data)):
+            assert isinstance(r, (ax.Undecodable, ax.TargetReport, ax.ServiceMessage, ax.AdsbReport, ax.SystemTrack,
+                                  ax.SdpsStatus))
+            if isinstance(r, ax.Undecodable):
+                causes.add(r.cause)
+    assert causes == {"truncated", "malformed", "unknown-category", "missing-item"}

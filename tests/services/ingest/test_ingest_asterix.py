@@ -201,6 +201,11 @@ def test_what_cannot_be_used_is_refused_by_cause(rig):
                ax.TargetReport(sac=25, sic=2, tod=1.0, rho=1e3, theta=0.0, height_3d=50e3)]  # geometry
     got = [ev.cause for ev in ingest.feed.receive(datagram(*records), NOW)]
     assert got == ["unknown-source", "no-time", "no-position", "geometry"]
+    # a range of 0 has no elevation: a 3D plot is refused, a 2D one goes on to the range check
+    zero = [ax.TargetReport(sac=25, sic=k, tod=35_999.0, rho=0.0, theta=0.0, flight_level=50.0) for k in (2, 1)]
+    three_d, two_d = ingest.feed.receive(datagram(*zero), NOW)
+    assert three_d.cause == "geometry" and two_d.z[1] == 0.0
+    assert ingest.receive(datagram(zero[1]), NOW) == [] and rig[3].by_cause == {"range": 1}
 
 
 def test_several_categories_and_radars_in_one_datagram(rig):
