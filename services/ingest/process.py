@@ -587,8 +587,8 @@ def add_parser(sub, fabric: Callable[[argparse.ArgumentParser], None]) -> None:
     p = sub.add_parser("ingest", help="a gateway for real sensors: KrakenSDR, JSON lines, ASTERIX")
     gw = p.add_subparsers(dest="gateway", required=True, metavar="GATEWAY")
 
-    def common(q: argparse.ArgumentParser) -> None:
-        q.add_argument("--id", required=True, help="the sensor id (a [sensors.<id>] of the site file)")
+    def common(q: argparse.ArgumentParser, id_help: str = "the sensor id (a [sensors.<id>] of the site file)") -> None:
+        q.add_argument("--id", required=True, help=id_help)
         q.add_argument("--site", required=True, metavar="FILE", help="the site file (or any scenario file)")
         q.add_argument("--max-skew", type=float, default=5.0,
                        help="seconds a time stamp may be ahead of this clock (default %(default)s)")
@@ -630,7 +630,7 @@ def add_parser(sub, fabric: Callable[[argparse.ArgumentParser], None]) -> None:
     a.add_argument("--sector-lag", type=int, default=1,
                    help="a CAT034 crossing promises the plots older than this many crossings back (default "
                         "%(default)s: radars send a sector's plots after its crossing)")
-    common(a)
+    common(a, "this gateway's process id (its radars: the site file's sensors with sac_sic)")
 
     j = gw.add_parser("jsonl", help="one JSON measurement per line (docs/ingest.md)")
     j.add_argument("--input", default="-", help="-, udp://HOST:PORT or tcp://HOST:PORT (default: stdin)")
