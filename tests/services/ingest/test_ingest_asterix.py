@@ -17,7 +17,7 @@ import pytest
 
 from schemas import KeySpace, decode, to_measurement
 from schemas import asterix as ax
-from sensors_sim import ScenarioError, load_site
+from sensors_sim import ScenarioError, load_scenario, load_site, sensor_events
 from services.ingest.adsb import CPR_CELL_M, K95_2D
 from services.ingest.asterix import AsterixFeed, AsterixIngest, Radar, ScanMark, StationReport, horizontal_std, radars
 from services.ingest.gateway import Gateway, Reading, Rejected, local_frame, sensor_sites
@@ -339,3 +339,43 @@ def test_garbage_never_raises_and_is_counted(rig):
                                  "no-time", "no-position", "geometry", "late", "future", "stale", "range",
                                  "no-accuracy", "no-address"}
     assert sum(log.by_cause.values()) > 1000
+
+
+# ------------------------------------------------------------------ a scenario through ASTERIX
+
+
+@pytest.mark.parametrize("name", ["air-picture", "patent-3d-radar3d"])
+def test_a_scenarios_radar_measurements_through_cat048_and_back(name):
+    """Every radar measurement of a built-in scenario, written as the CAT048 plot a radar
+    at that site would send (Radar.from_site; a 3D plot's height in I048/110, a 2D plot
+    without a height: on the horizon) and read back by the gateway core, equals itself to
+    the items' resolution: θ 360°/2¹⁶, ρ 1/256 NM, height 25 ft, time 1/128 s."""
+    sc = load_scenario(name)
+    frame = local_frame(sc)
+    rs = {(25, k): Radar.at(sid, (25, k), spec.measurement_kind, spec.site.points[0], frame)
+          for k, (sid, spec) in enumerate(sc.sensors.items(), 1) if spec.kind in ("radar2d", "radar3d")}
+    assert rs
+    feed = AsterixFeed(rs)
+    checked = 0
+    for radar in rs.values():
+        for ev in sensor_events(sc, radar.sensor):
+            m = ev.measurement
+            if m is None:
+                continue
+            theta, rho, height = radar.from_site(m.z)
+            plot = ax.TargetReport(sac=radar.sac_sic[0], sic=radar.sac_sic[1], tod=m.t, rho=rho, theta=theta,
+                                   height_3d=height)
+            try:
+                (r,) = feed.receive(datagram(plot), MIDNIGHT + m.t + 1.0)
+            except ValueError:  # beyond what the items hold (I048/110: ±204,800 ft)
+                continue
+            assert isinstance(r, Reading) and r.sensor == radar.sensor and r.kind == m.kind
+            assert r.t - MIDNIGHT == pytest.approx(m.t, abs=1 / 256 + 1e-9)
+            rho_tol = NM / 512
+            assert r.z[-1] == pytest.approx(m.z[-1], abs=rho_tol + 1e-9)
+            az_tol = math.pi / 65536 * 1.01 + (0.0 if height is None else 12.5 * FT / rho)
+            assert abs(math.remainder(r.z[0] - m.z[0], 2 * math.pi)) <= az_tol
+            if m.kind == "az_el_range":
+                assert r.z[1] == pytest.approx(m.z[1], abs=12.5 * FT / rho * 1.01 + rho_tol / rho + 1e-12)
+            checked += 1
+    assert checked >= 31  # patent-3d-radar3d: 31 scans of one aircraft
