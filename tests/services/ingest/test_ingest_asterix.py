@@ -19,7 +19,9 @@ from schemas import KeySpace, decode, to_measurement
 from schemas import asterix as ax
 from sensors_sim import ScenarioError, load_scenario, load_site, sensor_events
 from services.ingest.adsb import CPR_CELL_M, K95_2D
-from services.ingest.asterix import AsterixFeed, AsterixIngest, Radar, ScanMark, StationReport, horizontal_std, radars
+from services.ingest.asterix import (
+    AsterixFeed, AsterixIngest, CaptureError, Radar, ScanMark, StationReport, horizontal_std, pcap_datagrams, radars,
+)
 from services.ingest.gateway import Gateway, Reading, Rejected, local_frame, sensor_sites
 from services.ingest.krakensdr import Skipped
 from services.node import RejectLog
@@ -379,3 +381,44 @@ def test_a_scenarios_radar_measurements_through_cat048_and_back(name):
                 assert r.z[1] == pytest.approx(m.z[1], abs=12.5 * FT / rho * 1.01 + rho_tol / rho + 1e-12)
             checked += 1
     assert checked >= 31  # patent-3d-radar3d: 31 scans of one aircraft
+
+
+# ------------------------------------------------------------------ captures
+
+
+def _pcap(link: int, frames: list[bytes], magic: str = "d4c3b2a1") -> bytes:
+    """A classic pcap file by hand: the global header (little-endian µs magic, v2.4,
+    snaplen 65535, this link type), then one record header per frame at t = 10 + k s."""
+    out = bytes.fromhex(magic) + (2).to_bytes(2, "little") + (4).to_bytes(2, "little") + bytes(8) \
+        + (65535).to_bytes(4, "little") + link.to_bytes(4, "little")
+    for k, f in enumerate(frames):
+        out += (10 + k).to_bytes(4, "little") + (500_000).to_bytes(4, "little") + len(f).to_bytes(4, "little") * 2 + f
+    return out
+
+
+def _ipv4_udp(payload: bytes, flags_frag: int = 0x4000, proto: int = 17) -> bytes:
+    udp = (8600).to_bytes(2, "big") * 2 + (8 + len(payload)).to_bytes(2, "big") + b"\x00\x00" + payload
+    return (bytes((0x45, 0)) + (20 + len(udp)).to_bytes(2, "big") + b"\x00\x01" + flags_frag.to_bytes(2, "big")
+            + bytes((64, proto)) + b"\x00\x00" + bytes((10, 0, 0, 1, 239, 1, 2, 3)) + udp)
+
+
+def test_pcap_link_types_and_what_is_skipped():
+    ether = bytes(12) + b"\x08\x00"                       # destination, source, IPv4
+    vlan = bytes(12) + b"\x81\x00\x00\x05" + b"\x08\x00"   # one 802.1Q tag
+    frames = [ether + _ipv4_udp(b"one"), vlan + _ipv4_udp(b"two"),
+              ether + _ipv4_udp(b"frag", flags_frag=0x2000),  # more fragments follow: skipped
+              ether + _ipv4_udp(b"tcp", proto=6),             # not UDP: skipped
+              ether + _ipv4_udp(b"cut")[:30],                 # cut by the snap length: what there is
+              ether + _ipv4_udp(b"")[:25]]                    # cut inside the UDP header: nothing
+    # (a cut datagram goes on as it is: the codec counts it as truncated)
+    assert list(pcap_datagrams(_pcap(1, frames))) == [(10.5, b"one"), (11.5, b"two"), (14.5, b"cu")]
+    ipv6 = bytes.fromhex("60000000") + (8 + 3).to_bytes(2, "big") + bytes((17, 64)) + bytes(32) \
+        + (1).to_bytes(2, "big") * 2 + (11).to_bytes(2, "big") + b"\x00\x00" + b"six"
+    cooked = bytes(14) + b"\x08\x00"
+    assert list(pcap_datagrams(_pcap(101, [ipv6]))) == [(10.5, b"six")]
+    assert list(pcap_datagrams(_pcap(113, [cooked + _ipv4_udp(b"sll")]))) == [(10.5, b"sll")]
+    truncated = _pcap(101, [_ipv4_udp(b"whole"), _ipv4_udp(b"last")])[:-2]
+    assert list(pcap_datagrams(truncated)) == [(10.5, b"whole")]  # a capture cut short: its last record goes
+    for bad in (b"\x0a\x0d\x0d\x0a" + bytes(40), _pcap(147, [])):  # pcapng; a user link type
+        with pytest.raises(CaptureError):
+            list(pcap_datagrams(bad))
