@@ -366,6 +366,10 @@ def _sensor(r: Reader, origin, targets: dict | None) -> tuple[SensorSpec, str]:
         # false alarms are spread uniformly over the coverage: its range must be finite
         raise r.error("clutter needs a finite coverage: give max_range_m or max_range_km", "clutter_rate")
     latency = r.quantity("latency", TIME, default=0.0, ge=0) if targets is not None else 0.0
+    sac_sic = r.raw("sac_sic", None)
+    if sac_sic is not None and (not isinstance(sac_sic, list) or len(sac_sic) != 2 or not all(
+            isinstance(x, int) and not isinstance(x, bool) and 0 <= x <= 255 for x in sac_sic)):
+        raise r.error("must be [SAC, SIC], two integers 0-255 (the ASTERIX data source identifier)", "sac_sic")
     refs = r.raw("targets", None) if targets is not None else None
     if refs is not None and (not isinstance(refs, list) or not refs or not all(isinstance(x, str) for x in refs)
                              or len(set(refs)) != len(refs)):
@@ -375,7 +379,7 @@ def _sensor(r: Reader, origin, targets: dict | None) -> tuple[SensorSpec, str]:
         id=r.path[-1], kind=kind, site=site, period=period, start=start, std=std, p_detect=p_detect,
         fov_az=fov_az, fov_el=fov_el, max_range=max_range, band=band, signal_power=signal_power,
         targets=tuple(refs) if refs is not None else tuple(targets or ()), clutter_rate=clutter_rate,
-        latency=latency,
+        latency=latency, sac_sic=None if sac_sic is None else tuple(sac_sic),
     )
     return spec, pos_key
 

@@ -121,6 +121,8 @@ class SensorSpec:
             :mod:`sensors_sim.emulators`); 0: none.
         latency: the emulated link delay (s): each measurement is published this long
             after its time of validity; 0: at once.
+        sac_sic: its ASTERIX data source identifier (SAC, SIC), for a radar whose
+            plots come as ASTERIX (``zfusion ingest asterix``); None: none.
     """
 
     id: str
@@ -138,6 +140,7 @@ class SensorSpec:
     targets: tuple[str, ...] = ()
     clutter_rate: float = 0.0
     latency: float = 0.0
+    sac_sic: tuple[int, int] | None = None
 
     @property
     def measurement_kind(self) -> str:

@@ -309,10 +309,18 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("export", help="the fused picture out: a GeoJSON file, Cursor-on-Target for TAK")
     exporters = p.add_subparsers(dest="exporter", required=True, metavar="FORMAT")
     for name, what in (("geojson", "rewrite an RFC 7946 GeoJSON file after every update"),
-                       ("cot", "send Cursor-on-Target events for every update and the sensors")):
+                       ("cot", "send Cursor-on-Target events for every update and the sensors"),
+                       ("asterix", "send ASTERIX CAT062 system tracks and CAT065 status over UDP (docs/asterix.md)")):
         q = exporters.add_parser(name, help=what)
         if name == "geojson":
             q.add_argument("--file", required=True, metavar="PATH", help="the GeoJSON file (replaced atomically)")
+        elif name == "asterix":
+            q.add_argument("--udp", required=True, metavar="HOST:PORT", help="where the datagrams go")
+            q.add_argument("--sac", type=int, default=0, help="SAC of this tracker, 0-255 (default %(default)s)")
+            q.add_argument("--sic", type=int, default=0, help="SIC of this tracker, 0-255 (default %(default)s)")
+            q.add_argument("--period-s", type=float, default=0.0,
+                           help="send the whole picture this often (then a CAT065 end of batch); 0: every update "
+                                "as it comes (default)")
         else:
             from .export.cot import STALE_S, TYPE_EMITTER, TYPE_TRACK
 
@@ -470,6 +478,17 @@ def _export(args, keys: KeySpace) -> int:
     except ScenarioError as e:
         print(f"{command}: {e}; give a site or scenario file", file=sys.stderr)
         return 2
+    if args.exporter == "asterix":
+        from .export import asterix
+
+        host, _, port = args.udp.rpartition(":")
+        if not host or not port.isdigit() or not (0 <= args.sac <= 255 and 0 <= args.sic <= 255) \
+                or not (args.period_s >= 0 and math.isfinite(args.period_s)):
+            print(f"{command}: --udp HOST:PORT, --sac and --sic 0-255, --period-s 0 or more", file=sys.stderr)
+            return 2
+        return process.run(args.id, keys, _zopts(args), site, lambda: asterix.AsterixSink(
+            cot.UdpSender(host.strip("[]"), int(port)), site, live, args.sac, args.sic, args.period_s),
+            live=live, max_skew=args.max_skew)
     if args.exporter == "geojson":
         path = Path(args.file)
         if not path.parent.is_dir():

@@ -182,6 +182,11 @@ class Gateway:
             out.extend(self._watermark(s, now - self.lag))
         return out
 
+    def promise(self, sensor: str, t: float) -> list[tuple[str, bytes]]:
+        """A watermark at ``t`` for ``sensor``: the device itself says that nothing of
+        this time or older will follow (a rotating radar's sector crossing)."""
+        return self._watermark(sensor, t) if math.isfinite(t) else []
+
     def flush(self) -> list[tuple[str, bytes]]:
         """Watermarks at each sensor's last time: what was sent is complete (the end of
         an input)."""

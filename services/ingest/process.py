@@ -1,4 +1,4 @@
-"""The gateway processes: ``zfusion ingest krakensdr`` and ``zfusion ingest jsonl``.
+"""The gateway processes: ``zfusion ingest krakensdr``, ``jsonl`` and ``asterix``.
 
 Thin: they move bytes between a device and Zenoh. Parsing and checking are sans-I/O
 (:mod:`.krakensdr`, :mod:`.jsonl`, :mod:`.gateway`). Lifetimes are explicit: the Zenoh
@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import math
 import os
 import queue
 import socket
@@ -36,6 +37,7 @@ from typing import Callable
 from schemas import KeySpace
 
 from ..node import Node
+from .asterix import AsterixFeed, AsterixIngest, CaptureError, pcap_datagrams, radars
 from .gateway import Gateway, Rejected, local_frame, sensor_sites
 from .jsonl import MAX_LINE, LineSplitter, reading
 from .krakensdr import MAX_BODY, Bearing, KrakenOptions, KrakenStation, Skipped
@@ -43,6 +45,7 @@ from .krakensdr import MAX_BODY, Bearing, KrakenOptions, KrakenStation, Skipped
 log = logging.getLogger("zfusion")
 
 QUEUE_SIZE = 1024
+TICK_S = 0.1  # heartbeat watermarks of a datagram gateway at most this often
 MAX_BACKOFF_S = 30.0
 PATHS = {"csv": "/DOA_value.html", "auto": "/DOA_value.html", "xml": "/doa.xml"}
 
@@ -465,16 +468,127 @@ def _jsonl(node: Node, gateway: Gateway, source: tuple[str, tuple[str, int] | No
     return 0
 
 
+# ------------------------------------------------------------------ asterix
+
+
+def run_asterix(args, keys: KeySpace, zopts) -> int:
+    """``zfusion ingest asterix``: UDP datagrams (or a pcap replay) through
+    :class:`~services.ingest.asterix.AsterixIngest`, which decides everything."""
+    def body() -> int:
+        site = load_site(args.site)
+        frame = local_frame(site)
+        try:
+            rs = radars(site, frame)
+            feed = AsterixFeed(rs, args.sector_lag)
+        except ValueError as e:
+            raise UsageError(str(e)) from None
+        _, sensors = _site_sensors(args, [r.sensor for r in rs.values()])
+        if args.pcap:
+            speed = _speed(args.speed)
+            try:
+                with open(args.pcap, "rb") as f:
+                    packets = list(pcap_datagrams(f.read()))
+            except (OSError, CaptureError) as e:
+                raise UsageError(f"--pcap {args.pcap}: {getattr(e, 'strerror', None) or e}") from None
+        else:
+            sock = _udp_socket(args.udp)
+        with Node(args.id, "ingest", keys, zopts) as node:
+            ingest = AsterixIngest(feed, _gateway(node, args, frame, sensors), node.reject, src=args.id)
+            outlet = Outlet(node, ingest.gateway, ingest.counters)
+            node.announce()
+            outlet.status("ready", force=True)
+            if args.pcap:
+                return _replay(node, ingest, outlet, packets, speed)
+            try:
+                return _receive(node, ingest, outlet, sock)
+            finally:
+                sock.close()
+
+    return _run("ingest asterix", body)
+
+
+def _speed(text: str) -> float:
+    try:
+        speed = math.inf if text == "max" else float(text)
+    except ValueError:
+        speed = -1.0
+    if not speed > 0:
+        raise UsageError(f"--speed {text!r}: a positive factor, or max")
+    return speed
+
+
+def _udp_socket(text: str) -> socket.socket:
+    """A bound UDP socket for ``[GROUP@]HOST:PORT`` (GROUP: an IPv4 multicast group joined
+    on the interface of HOST)."""
+    group, _, where = text.rpartition("@")
+    host, port = _host_port(where, "--udp")
+    family = socket.AF_INET6 if ":" in host else socket.AF_INET
+    sock = socket.socket(family, socket.SOCK_DGRAM)
+    try:
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4 << 20)
+        sock.bind((group or host, port))
+        if group:
+            sock.setsockopt(socket.IPPROTO_IP, socket.IP_ADD_MEMBERSHIP,
+                            socket.inet_aton(group) + socket.inet_aton(host))
+    except OSError as e:
+        sock.close()
+        raise UsageError(f"--udp {text}: {e.strerror or e}; choose a free port (and a multicast group "
+                         f"and an interface address for GROUP@HOST)") from None
+    sock.settimeout(0.2)
+    return sock
+
+
+def _receive(node: Node, ingest, outlet: Outlet, sock: socket.socket) -> int:
+    ticked = 0.0
+    while not node.stop.is_set():
+        try:
+            data = sock.recv(65_535)
+        except (TimeoutError, socket.timeout):
+            data = None
+        now = time.time()
+        if data is not None:
+            outlet.put(ingest.receive(data, now))
+            outlet.t_last = ingest.t_last
+        if now - ticked >= TICK_S:  # heartbeats ten times a second, not per datagram
+            ticked = now
+            outlet.tick(now)
+    outlet.status("stopped", force=True)
+    return 0
+
+
+def _replay(node: Node, ingest, outlet: Outlet, packets: list[tuple[float, bytes]], speed: float) -> int:
+    """A capture at ``speed`` times its pace; its own times are the receiver's clock."""
+    state, ticked = "stopped", -math.inf
+    w0 = time.monotonic()
+    t0 = packets[0][0] if packets else 0.0
+    for t, data in packets:
+        if node.stop.is_set():
+            break
+        if math.isfinite(speed):
+            node.stop.wait(max(0.0, w0 + (t - t0) / speed - time.monotonic()))
+        outlet.put(ingest.receive(data, t))
+        outlet.t_last = ingest.t_last
+        if t - ticked >= TICK_S:
+            ticked = t
+            outlet.tick(t)
+    else:
+        outlet.put(ingest.gateway.flush())
+        state = "done"
+    outlet.status(state, force=True)
+    return 0
+
+
 # ------------------------------------------------------------------ command line
 
 
 def add_parser(sub, fabric: Callable[[argparse.ArgumentParser], None]) -> None:
     """``zfusion ingest krakensdr|jsonl``; ``fabric`` adds the usual Zenoh options."""
-    p = sub.add_parser("ingest", help="a gateway for real sensors: KrakenSDR, or JSON lines")
+    p = sub.add_parser("ingest", help="a gateway for real sensors: KrakenSDR, JSON lines, ASTERIX")
     gw = p.add_subparsers(dest="gateway", required=True, metavar="GATEWAY")
 
-    def common(q: argparse.ArgumentParser) -> None:
-        q.add_argument("--id", required=True, help="the sensor id (a [sensors.<id>] of the site file)")
+    def common(q: argparse.ArgumentParser, id_help: str = "the sensor id (a [sensors.<id>] of the site file)") -> None:
+        q.add_argument("--id", required=True, help=id_help)
         q.add_argument("--site", required=True, metavar="FILE", help="the site file (or any scenario file)")
         q.add_argument("--max-skew", type=float, default=5.0,
                        help="seconds a time stamp may be ahead of this clock (default %(default)s)")
@@ -506,6 +620,18 @@ def add_parser(sub, fabric: Callable[[argparse.ArgumentParser], None]) -> None:
     k.add_argument("--station", help="only readings of this station id (default: any)")
     common(k)
 
+    a = gw.add_parser("asterix", help="ASTERIX radar plots and scan timing (CAT048, CAT034) over UDP or from a pcap "
+                                      "(docs/asterix.md)")
+    src = a.add_mutually_exclusive_group(required=True)
+    src.add_argument("--udp", metavar="[GROUP@]HOST:PORT",
+                     help="receive datagrams here (GROUP: an IPv4 multicast group joined on HOST's interface)")
+    src.add_argument("--pcap", metavar="FILE", help="replay the UDP datagrams of a pcap capture (its times are the clock)")
+    a.add_argument("--speed", default="1", help="pcap replay speed: a factor, or max (default %(default)s)")
+    a.add_argument("--sector-lag", type=int, default=1,
+                   help="a CAT034 crossing promises the plots older than this many crossings back (default "
+                        "%(default)s: radars send a sector's plots after its crossing)")
+    common(a, "this gateway's process id (its radars: the site file's sensors with sac_sic)")
+
     j = gw.add_parser("jsonl", help="one JSON measurement per line (docs/ingest.md)")
     j.add_argument("--input", default="-", help="-, udp://HOST:PORT or tcp://HOST:PORT (default: stdin)")
     common(j)
@@ -514,4 +640,6 @@ def add_parser(sub, fabric: Callable[[argparse.ArgumentParser], None]) -> None:
 def main(args, keys: KeySpace, zopts) -> int:
     if args.gateway == "krakensdr":
         return run_krakensdr(args, keys, zopts)
+    if args.gateway == "asterix":
+        return run_asterix(args, keys, zopts)
     return run_jsonl(args, keys, zopts)
