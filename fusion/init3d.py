@@ -36,9 +36,10 @@ from typing import Sequence
 
 import numpy as np
 
-from .types import KIND_COMPONENTS, Measurement
+from .measurement.kinds import KINDS, kinds_of
+from .types import Measurement
 
-INIT_KINDS = ("range_az", "azel", "az_el_range")
+INIT_KINDS = kinds_of("3d")
 _SAME_SITE_TOL = 1e-6  # m
 
 
@@ -84,10 +85,9 @@ class InitPriors:
 
 
 def _component(m: Measurement, name: str) -> tuple[float, float] | None:
-    comps = KIND_COMPONENTS[m.kind]
-    if name not in comps:
+    i = KINDS[m.kind].index(name)
+    if i is None:
         return None
-    i = comps.index(name)
     return float(m.z[i]), float(m.std[i])
 
 

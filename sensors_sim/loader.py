@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from fusion.geodetic import geodetic_to_enu
-from fusion.types import KIND_COMPONENTS
+from fusion.measurement.kinds import KINDS
 
 from ._toml import ANGLE, LENGTH, RATE, TIME, Reader, TomlSource
 from .noise import OUTLIER_LAWS
@@ -321,14 +321,29 @@ def _segment(r: Reader, origin, last: bool):
 
 # --- sensors ----------------------------------------------------------------------------
 
-# Measurement component -> (key base, units) of its noise std.
-_STD_KEYS = {"az": ("std_az", ANGLE), "el": ("std_el", ANGLE), "range": ("std_range", LENGTH)}
+_UNITS = {"rad": ANGLE, "m": LENGTH}  # a component's unit -> the units its scenario keys may take
+
+
+def _std(r: Reader, sensor_kind) -> np.ndarray:
+    """The stated std per component: each from the first of its keys given (the last one
+    required), in the component's units (:class:`sensors_sim.spec.SensorKind`)."""
+    out = []
+    for c, keys in zip(KINDS[sensor_kind.measures].components, sensor_kind.std_keys_of()):
+        units = _UNITS[c.unit]
+        value = None
+        for key in keys[:-1]:
+            value = r.quantity(key, units, default=None, gt=0)
+            if value is not None:
+                break
+        out.append(value if value is not None else r.quantity(keys[-1], units, gt=0))
+    return np.array(out)
 
 
 def _sensor(r: Reader, origin, targets: dict | None) -> tuple[SensorSpec, str]:
     """One ``[sensors.<id>]`` table; ``targets`` is None in a site file, whose sensors
     may be mobile (``site = "messages"``) and have no ``targets`` nor ``latency_s``."""
     kind = r.string("kind", choices=tuple(SENSOR_KINDS))
+    sensor_kind = SENSOR_KINDS[kind]
     if targets is None and r.raw("site", None) is not None:
         if r.data["site"] != MOBILE:
             raise r.error(f"must be {MOBILE!r} (a mobile station: its position comes with each measurement); "
@@ -340,10 +355,10 @@ def _sensor(r: Reader, origin, targets: dict | None) -> tuple[SensorSpec, str]:
         if targets is not None and r.has("site"):
             raise r.error("a scenario's sensors need a position or a path (the emulator measures from it); "
                           f"site = {MOBILE!r} is for site files", "site")
-        site, pos_key = _site(r, origin, require_path=(kind == "airborne_df" and targets is not None))
+        site, pos_key = _site(r, origin, require_path=(sensor_kind.airborne and targets is not None))
     period = r.quantity("period", TIME, gt=0)
     start = r.quantity("start", TIME, default=0.0, ge=0)
-    std = np.array([r.quantity(*_STD_KEYS[c], gt=0) for c in KIND_COMPONENTS[SENSOR_KINDS[kind]]])
+    std = _std(r, sensor_kind)
     p_detect = r.number("p_detect", 1.0, gt=0, le=1)
     fov_az = (0.0, 2 * math.pi)
     key = r.unit_key("fov_az", ANGLE, required=False)
@@ -362,7 +377,7 @@ def _sensor(r: Reader, origin, targets: dict | None) -> tuple[SensorSpec, str]:
     band = r.string("band", None)
     signal_power = r.number("signal_power_w", 1.0, gt=0)
     clutter_rate = r.number("clutter_rate", 0.0, ge=0)
-    if clutter_rate > 0 and "range" in KIND_COMPONENTS[SENSOR_KINDS[kind]] and math.isinf(max_range):
+    if clutter_rate > 0 and "range" in KINDS[sensor_kind.measures].names and math.isinf(max_range):
         # false alarms are spread uniformly over the coverage: its range must be finite
         raise r.error("clutter needs a finite coverage: give max_range_m or max_range_km", "clutter_rate")
     latency = r.quantity("latency", TIME, default=0.0, ge=0) if targets is not None else 0.0

@@ -6,11 +6,12 @@ One JSON object per line (``docs/ingest.md``; schema ``docs/ingest-line.schema.j
      "std": [1.0, 20.0], "lat_deg": 21.03, "lon_deg": 105.85, "alt_m": 12.0}
 
 ``t`` is UTC POSIX seconds. The components are those of the measurement kind
-(``bearing``: ``az_deg``; ``azel``: ``az_deg, el_deg``; ``range_az``: ``az_deg,
-range_m``; ``az_el_range``: all three), azimuth clockwise from true north (−180 … 360,
-wrapped to [0, 360)), elevation above the horizontal. ``std`` (optional) lists the
-stated std per component in the same units (degrees, metres); it must agree with the
-site file's. The position (optional: a sensor the site file does not pin needs it) is
+(:mod:`fusion.measurement.kinds`), each a field named after the component with its unit,
+``<name>_deg`` for an angle, ``<name>_m`` for a length (``bearing``: ``az_deg``;
+``azel``: ``az_deg, el_deg``; ``range_az``: ``az_deg, range_m``; ``az_el_range``: all
+three), azimuth clockwise from true north (−180 … 360, wrapped to [0, 360)), elevation
+above the horizontal. ``std`` (optional) lists the stated std per component in the same
+units (degrees, metres); it must agree with the site file's. The position (optional: a sensor the site file does not pin needs it) is
 geodetic (``lat_deg``, ``lon_deg``, optional ``alt_m``) or ENU ``site_m``. Any other
 field is an error, so a misspelt one is never silently ignored.
 
@@ -26,15 +27,29 @@ import math
 import numpy as np
 
 from fusion.angles import wrap_2pi
-from fusion.types import KIND_COMPONENTS
+from fusion.measurement.components import COMPONENTS, Component
+from fusion.measurement.kinds import KINDS
 
 from .gateway import Reading, Rejected
 
 MAX_LINE = 64 * 1024  # bytes: a line is ~200
-_FIELD = {"az": "az_deg", "el": "el_deg", "range": "range_m"}
-_ALLOWED = {"t", "kind", "az_deg", "el_deg", "range_m", "std", "lat_deg", "lon_deg", "alt_m", "site_m"}
-_LIMITS = {"az_deg": (-180.0, 360.0), "el_deg": (-90.0, 90.0), "range_m": (0.0, math.inf),
-           "lat_deg": (-90.0, 90.0), "lon_deg": (-180.0, 360.0), "alt_m": (-1e4, 1e6)}
+
+
+def _field(c: Component) -> tuple[str, tuple[float, float, bool, bool]]:
+    """A component's line field and its interval ``(lo, hi, lo_open, hi_open)`` in the
+    line's units: degrees for an angle (a periodic one from −180), metres for a length."""
+    if not c.angle:
+        return f"{c.name}_m", (c.lo, c.hi, c.lo_open, c.hi_open)
+    if c.periodic:
+        return f"{c.name}_deg", (-180.0, 360.0, False, False)
+    return f"{c.name}_deg", (math.degrees(c.lo), math.degrees(c.hi), c.lo_open, c.hi_open)
+
+
+_FIELD = {name: _field(c)[0] for name, c in COMPONENTS.items()}
+_LIMITS = {**{key: limits for key, limits in map(_field, COMPONENTS.values())},
+           "lat_deg": (-90.0, 90.0, False, False), "lon_deg": (-180.0, 360.0, False, False),
+           "alt_m": (-1e4, 1e6, False, False)}
+_ALLOWED = {"t", "kind", "std", "lat_deg", "lon_deg", "alt_m", "site_m", *_FIELD.values()}
 
 
 class LineSplitter:
@@ -86,9 +101,9 @@ def _num(d: dict, key: str, required: bool = True) -> float | None:
     x = float(x)
     if not math.isfinite(x):
         raise _Bad("non-finite", f"'{key}' is {x!r}")
-    lo, hi = _LIMITS.get(key, (-math.inf, math.inf))
-    if not lo <= x <= hi or (key == "range_m" and x == 0.0):
-        raise _Bad("range", f"'{key}' = {x:g} outside {'(' if key == 'range_m' else '['}{lo:g}, {hi:g}]")
+    lo, hi, lo_open, hi_open = _LIMITS.get(key, (-math.inf, math.inf, False, False))
+    if not lo <= x <= hi or (lo_open and x == lo) or (hi_open and x == hi):
+        raise _Bad("range", f"'{key}' = {x:g} outside {'(' if lo_open else '['}{lo:g}, {hi:g}{')' if hi_open else ']'}")
     return x
 
 
@@ -118,10 +133,10 @@ def reading(line: bytes, sensor: str) -> Reading | Rejected:
         if extra:
             raise _Bad("unknown-field", f"'{sorted(extra)[0]}' is not a field of a measurement line")
         kind = d.get("kind")
-        if kind not in KIND_COMPONENTS:
-            raise _Bad("kind", f"'kind' {str(kind)[:20]!r} is not one of {', '.join(KIND_COMPONENTS)}")
-        comps = KIND_COMPONENTS[kind]
-        unused = {_FIELD[c] for c in _FIELD if c not in comps} & set(d)
+        if not isinstance(kind, str) or kind not in KINDS:
+            raise _Bad("kind", f"'kind' {str(kind)[:20]!r} is not one of {', '.join(KINDS)}")
+        comps = KINDS[kind].components
+        unused = {_FIELD[c] for c in _FIELD if c not in KINDS[kind].names} & set(d)
         if unused:
             raise _Bad("unknown-field", f"'{sorted(unused)[0]}' is not a component of a {kind}")
         t = _num(d, "t")
@@ -129,13 +144,13 @@ def reading(line: bytes, sensor: str) -> Reading | Rejected:
             raise _Bad("time", f"'t' = {t:g} is not a UTC time (POSIX seconds)")
         z = []
         for c in comps:
-            x = _num(d, _FIELD[c])
-            z.append(wrap_2pi(math.radians(x)) if c == "az" else math.radians(x) if c == "el" else x)
+            x = _num(d, _FIELD[c.name])
+            z.append(wrap_2pi(math.radians(x)) if c.periodic else math.radians(x) if c.angle else x)
         std = _vector(d, "std", len(comps))
         if std is not None:
             if np.any(std <= 0):
                 raise _Bad("range", "'std' must be > 0")
-            std = np.array([math.radians(s) if c in ("az", "el") else s for s, c in zip(std, comps)])
+            std = np.array([math.radians(s) if c.angle else s for s, c in zip(std, comps)])
         site = _vector(d, "site_m", 3)
         geo = None
         if "lat_deg" in d or "lon_deg" in d:
