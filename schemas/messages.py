@@ -179,12 +179,32 @@ def _measurement_fields(kind: str) -> frozenset[str]:
 
 
 def _check_measurement(kind: str, d: dict, envelope: frozenset | set = ENVELOPE) -> dict:
+    k = _KINDS[kind]
     body: dict[str, Any] = {"sensor": _str(d, "sensor", ident=True), "site": _array(d, "site", (3,))}
-    for c in _KINDS[kind].components:
+    for c in k.components:
         body[c.name] = _num(d, c.name, lo=c.lo, hi=c.hi, lo_open=c.lo_open, hi_open=c.hi_open)
         body[c.std_field] = _num(d, c.std_field, lo=0.0, lo_open=True)
-    _no_extra(d, envelope | _measurement_fields(kind))
+    if k.own_noise and d.get("corr") is not None:
+        body["corr"] = _corr(d, "corr", k.n_z)
+    _no_extra(d, envelope | _measurement_fields(kind) | ({"corr"} if k.own_noise else set()))
     return body
+
+
+def _corr(d: dict, f: str, n: int) -> np.ndarray:
+    """A report's correlation coefficients, ``[ρ₁₂, ρ₁₃, …, ρ₂₃, …]`` (the upper triangle
+    row by row, n(n−1)/2 values in (−1, 1)), as the n × n matrix; it must be positive
+    definite."""
+    rho = _array(d, f, (n * (n - 1) // 2,))
+    if np.any(np.abs(rho) >= 1.0):
+        raise SchemaError("range", f, "correlation coefficients must lie in (-1, 1)")
+    C = np.eye(n)
+    C[np.triu_indices(n, 1)] = rho
+    C = np.triu(C) + np.triu(C, 1).T
+    try:
+        np.linalg.cholesky(C)
+    except np.linalg.LinAlgError:
+        raise SchemaError("value", f, "the correlation matrix is not positive definite") from None
+    return C
 
 
 def _check_watermark(d: dict) -> dict:
@@ -566,11 +586,15 @@ def encode(kind: str, src: str, seq: int, t: float, **payload: Any) -> bytes:
 
 
 def measurement_fields(m: Measurement) -> dict[str, Any]:
-    """A measurement's payload: ``sensor``, ``site``, its components and their stds."""
+    """A measurement's payload: ``sensor``, ``site``, its components and their stds, and its
+    correlations (``corr``) if it states them."""
     payload: dict[str, Any] = {"sensor": m.sensor, "site": m.site}
     for i, c in enumerate(_KINDS[m.kind].components):
         payload[c.name] = float(m.z[i])
         payload[c.std_field] = float(m.std[i])
+    if m.corr is not None:
+        corr = np.asarray(m.corr, dtype=float)
+        payload["corr"] = corr[np.triu_indices(corr.shape[0], 1)]
     return payload
 
 
@@ -578,7 +602,7 @@ def measurement_of(kind: str, b: dict, t: float, seq: int) -> Measurement:
     """The :class:`Measurement` of a validated measurement payload."""
     comps = _KINDS[kind].components
     return Measurement(t=t, sensor=b["sensor"], kind=kind, z=np.array([b[c.name] for c in comps]),
-                       std=np.array([b[c.std_field] for c in comps]), site=b["site"], seq=seq)
+                       std=np.array([b[c.std_field] for c in comps]), site=b["site"], seq=seq, corr=b.get("corr"))
 
 
 def encode_measurement(m: Measurement, src: str) -> bytes:

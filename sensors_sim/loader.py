@@ -178,9 +178,10 @@ def _scenario(root: Reader, name: str, display: str) -> Scenario:
         _check_targets(src, s, targets, jammers)
         if s.start > duration * (1 + _GRID_TOL):
             raise src.error(("sensors", sid, "start_s"), f"first scan after the end (duration {duration:g} s)")
-        _check_apart(src, ("sensors", sid, sensor_pos_keys[sid]), s.site,
-                     {**{t: ts.x0[:3] for t, ts in targets.items()},
-                      **{j: js.site.points for j, js in jammers.items()}})
+        if sensor_pos_keys[sid] is not None:  # (a position report's sensor has no site to be apart)
+            _check_apart(src, ("sensors", sid, sensor_pos_keys[sid]), s.site,
+                         {**{t: ts.x0[:3] for t, ts in targets.items()},
+                          **{j: js.site.points for j, js in jammers.items()}})
     noisy = [tid for tid, t in targets.items() if t.jerk_psd > 0]
     if noisy and endless:  # its truth is a grid of states over the duration: it has an end
         raise src.error(("targets", noisy[0], "jerk_psd"), "an endless scenario needs closed-form truth "
@@ -339,16 +340,23 @@ def _std(r: Reader, sensor_kind) -> np.ndarray:
     return np.array(out)
 
 
-def _sensor(r: Reader, origin, targets: dict | None) -> tuple[SensorSpec, str]:
+_POSITION_KEYS = ("pos_m", "pos_km", "lat_deg", "lon_deg", "alt_m", "path_m", "path_km")
+
+
+def _sensor(r: Reader, origin, targets: dict | None) -> tuple[SensorSpec, str | None]:
     """One ``[sensors.<id>]`` table; ``targets`` is None in a site file, whose sensors
-    may be mobile (``site = "messages"``) and have no ``targets`` nor ``latency_s``."""
+    may be mobile (``site = "messages"``) and have no ``targets`` nor ``latency_s``. A
+    sensor whose reports are positions (a kind that is not sited) needs no position: it
+    stands at the origin unless one is given (and its position key is then None)."""
     kind = r.string("kind", choices=tuple(SENSOR_KINDS))
     sensor_kind = SENSOR_KINDS[kind]
-    if targets is None and r.raw("site", None) is not None:
+    if not KINDS[sensor_kind.measures].sited and not any(r.has(k) for k in (*_POSITION_KEYS, "site")):
+        site, pos_key = Site(np.zeros((1, 3))), None
+    elif targets is None and r.raw("site", None) is not None:
         if r.data["site"] != MOBILE:
             raise r.error(f"must be {MOBILE!r} (a mobile station: its position comes with each measurement); "
                           "give a fixed position as pos_m, pos_km or lat_deg/lon_deg/alt_m", "site")
-        if any(r.has(k) for k in ("pos_m", "pos_km", "lat_deg", "lon_deg", "alt_m", "path_m", "path_km")):
+        if any(r.has(k) for k in _POSITION_KEYS):
             raise r.error(f"a mobile station (site = {MOBILE!r}) has no fixed position: remove it", "site")
         site, pos_key = None, "site"
     else:

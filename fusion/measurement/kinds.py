@@ -12,11 +12,14 @@ A :class:`Kind` says
   ray's crossing of the sphere (:func:`partners`);
 * ``model`` — ``model(site, std, corr, n_x)``, its :class:`~.models.MeasurementModel`
   (None: not for the 3D filters; the DF methods model bearings themselves);
-* ``sited`` — ``h`` depends on the reporting sensor's site (False: the report is a
-  position in the origin's frame, whatever the sensor's site);
-* ``correlated`` — its reports may state correlation coefficients between their
-  components beside the per-component std (``Measurement.corr``), so each report carries
-  its own full covariance.
+* ``sited`` — ``h`` depends on the reporting sensor's site. An unsited kind reports the
+  target's position itself, ``z`` in the origin's ENU frame (metres), whatever the
+  sensor's site: a gateway may take it in geodetic coordinates, the recorder draws it as
+  a point, the initiator starts a track at it;
+* ``own_noise`` — each report states its own noise: its std, and correlation
+  coefficients between its components (``Measurement.corr``), so each report carries its
+  own full covariance (a cooperative report's accuracy fields); the others state their
+  sensor's fixed std, which the site file gives.
 
 :func:`model_of` turns a :class:`~fusion.types.Measurement` into its model: the one way
 any code gets the model of a report.
@@ -51,12 +54,14 @@ class Kind:
     start: str
     model: ModelFactory | None = None
     sited: bool = True
-    correlated: bool = False
+    own_noise: bool = False
 
     def __post_init__(self):
         if self.family not in FAMILIES or self.start not in STARTS or not self.components:
             raise ValueError(f"kind {self.name!r}: family {self.family!r}, start {self.start!r}, "
                              f"components {self.components!r}")
+        if not self.sited and (self.start != POINT or [c.unit for c in self.components] != ["m"] * 3):
+            raise ValueError(f"kind {self.name!r}: an unsited kind reports a position (a point, 3 lengths)")
 
     @property
     def names(self) -> tuple[str, ...]:
@@ -127,7 +132,7 @@ def partners(name: str) -> frozenset[str]:
 
 def model_for(name: str, site, std, n_x: int = 9, corr=None) -> MeasurementModel:
     """The model of a sensor of kind ``name`` at ``site`` stating ``std`` (and, for a
-    correlated kind, ``corr``)."""
+    kind whose reports state their own noise, ``corr``)."""
     return _build(kind(name), site, std, corr, n_x)
 
 
@@ -157,7 +162,7 @@ def _build(k: Kind, site, std, corr, n_x: int) -> MeasurementModel:
     if site.shape != (3,) or std.shape != (n_z,):
         raise ValueError(f"a {k.name} model needs a 3-vector site and {n_z} stds, got site {site!r}, std {std!r}")
     if corr is not None:
-        if not k.correlated:
+        if not k.own_noise:
             raise ValueError(f"a {k.name} measurement states no correlations (its noise is diag(std²))")
         corr = np.asarray(corr, dtype=float)
         if corr.shape != (n_z, n_z):

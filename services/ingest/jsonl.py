@@ -11,8 +11,16 @@ One JSON object per line (``docs/ingest.md``; schema ``docs/ingest-line.schema.j
 ``azel``: ``az_deg, el_deg``; ``range_az``: ``az_deg, range_m``; ``az_el_range``: all
 three), azimuth clockwise from true north (−180 … 360, wrapped to [0, 360)), elevation
 above the horizontal. ``std`` (optional) lists the stated std per component in the same
-units (degrees, metres); it must agree with the site file's. The position (optional: a sensor the site file does not pin needs it) is
-geodetic (``lat_deg``, ``lon_deg``, optional ``alt_m``) or ENU ``site_m``. Any other
+units (degrees, metres); it must agree with the site file's. The sensor's position
+(optional: a sensor the site file does not pin needs it) is geodetic (``lat_deg``,
+``lon_deg``, optional ``alt_m``) or ENU ``site_m``.
+
+A kind that reports a position (not *sited*) gives it as its components (ENU metres in
+the site's frame) or as ``lat_deg``, ``lon_deg`` and ``alt_m``: then these are the
+reported position, and there is no sensor position (no ``site_m``). A kind whose reports
+state their own noise (``own_noise``) takes ``std`` as the report's own and an optional
+``corr``, the correlation coefficients ``[ρ₁₂, ρ₁₃, …, ρ₂₃, …]`` (the upper triangle, row
+by row); with a geodetic position both are in the ENU axes at that position. Any other
 field is an error, so a misspelt one is never silently ignored.
 
 :class:`LineSplitter` cuts a byte stream into lines with a bounded buffer;
@@ -49,7 +57,7 @@ _FIELD = {name: _field(c)[0] for name, c in COMPONENTS.items()}
 _LIMITS = {**{key: limits for key, limits in map(_field, COMPONENTS.values())},
            "lat_deg": (-90.0, 90.0, False, False), "lon_deg": (-180.0, 360.0, False, False),
            "alt_m": (-1e4, 1e6, False, False)}
-_ALLOWED = {"t", "kind", "std", "lat_deg", "lon_deg", "alt_m", "site_m", *_FIELD.values()}
+_ALLOWED = {"t", "kind", "std", "corr", "lat_deg", "lon_deg", "alt_m", "site_m", *_FIELD.values()}
 
 
 class LineSplitter:
@@ -120,6 +128,34 @@ def _vector(d: dict, key: str, n: int) -> np.ndarray | None:
     return a
 
 
+def _components(d: dict, comps: tuple[Component, ...]) -> np.ndarray:
+    """The components' values in SI (radians, azimuth wrapped to [0, 2π); metres)."""
+    z = []
+    for c in comps:
+        x = _num(d, _FIELD[c.name])
+        z.append(wrap_2pi(math.radians(x)) if c.periodic else math.radians(x) if c.angle else x)
+    return np.array(z)
+
+
+def _noise(d: dict, comps: tuple[Component, ...]) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """``std`` in SI (radians for angles) and ``corr`` (the upper triangle of a
+    correlation matrix, row by row) as the n × n matrix; None where not given."""
+    std = _vector(d, "std", len(comps))
+    if std is not None:
+        if np.any(std <= 0):
+            raise _Bad("range", "'std' must be > 0")
+        std = np.array([math.radians(s) if c.angle else s for s, c in zip(std, comps)])
+    n = len(comps)
+    rho = _vector(d, "corr", n * (n - 1) // 2)
+    if rho is None:
+        return std, None
+    if np.any(np.abs(rho) >= 1.0):
+        raise _Bad("range", "'corr' coefficients must lie in (-1, 1)")
+    C = np.eye(n)
+    C[np.triu_indices(n, 1)] = rho
+    return std, np.triu(C) + np.triu(C, 1).T
+
+
 def reading(line: bytes, sensor: str) -> Reading | Rejected:
     """One line -> a :class:`Reading` of ``sensor`` (SI units, radians) or why not."""
     try:
@@ -135,22 +171,32 @@ def reading(line: bytes, sensor: str) -> Reading | Rejected:
         kind = d.get("kind")
         if not isinstance(kind, str) or kind not in KINDS:
             raise _Bad("kind", f"'kind' {str(kind)[:20]!r} is not one of {', '.join(KINDS)}")
-        comps = KINDS[kind].components
-        unused = {_FIELD[c] for c in _FIELD if c not in KINDS[kind].names} & set(d)
+        k = KINDS[kind]
+        comps = k.components
+        unused = {_FIELD[c] for c in _FIELD if c not in k.names} & set(d)
         if unused:
             raise _Bad("unknown-field", f"'{sorted(unused)[0]}' is not a component of a {kind}")
+        if "corr" in d and not k.own_noise:
+            raise _Bad("unknown-field", f"'corr': a {kind} states its sensor's noise (the site file's), not its own")
         t = _num(d, "t")
         if t <= 0:
             raise _Bad("time", f"'t' = {t:g} is not a UTC time (POSIX seconds)")
-        z = []
-        for c in comps:
-            x = _num(d, _FIELD[c.name])
-            z.append(wrap_2pi(math.radians(x)) if c.periodic else math.radians(x) if c.angle else x)
-        std = _vector(d, "std", len(comps))
-        if std is not None:
-            if np.any(std <= 0):
-                raise _Bad("range", "'std' must be > 0")
-            std = np.array([math.radians(s) if c.angle else s for s, c in zip(std, comps)])
+        if not k.sited:  # a position report: its components, or lat/lon/alt
+            if "site_m" in d:
+                raise _Bad("unknown-field", f"'site_m': a {kind} report is a position, not seen from a site")
+            if not any(key in d for key in ("lat_deg", "lon_deg", "alt_m")):
+                z = _components(d, comps)
+                std, corr = _noise(d, comps)
+                return Reading(sensor=sensor, t=t, kind=kind, z=z, std=std, corr=corr)
+            given = [_FIELD[c.name] for c in comps if _FIELD[c.name] in d]
+            if given:
+                raise _Bad("position", f"give the position as {'/'.join(_FIELD[c.name] for c in comps)} or "
+                                       f"lat_deg/lon_deg/alt_m, not both ('{given[0]}')")
+            geo = (_num(d, "lat_deg"), _num(d, "lon_deg"), _num(d, "alt_m"))
+            std, corr = _noise(d, comps)
+            return Reading(sensor=sensor, t=t, kind=kind, z=None, std=std, geodetic=geo, corr=corr)
+        z = _components(d, comps)
+        std, corr = _noise(d, comps)
         site = _vector(d, "site_m", 3)
         geo = None
         if "lat_deg" in d or "lon_deg" in d:
@@ -159,6 +205,6 @@ def reading(line: bytes, sensor: str) -> Reading | Rejected:
             geo = (_num(d, "lat_deg"), _num(d, "lon_deg"), _num(d, "alt_m", required=False))
         elif "alt_m" in d:
             raise _Bad("position", "'alt_m' without 'lat_deg'/'lon_deg'")
-        return Reading(sensor=sensor, t=t, kind=kind, z=np.array(z), std=std, site=site, geodetic=geo)
+        return Reading(sensor=sensor, t=t, kind=kind, z=z, std=std, site=site, geodetic=geo, corr=corr)
     except _Bad as e:
         return Rejected(e.cause, str(e))

@@ -409,13 +409,15 @@ class Recorder:
         """One row: every report of this scan so far (a scan may see several targets)."""
         kind = KINDS[m.kind]
         z = dict(zip(kind.names, (float(v) for v in m.z)))
-        u = draw.unit(z["az"], z.get("el", 0.0))
         t0, scan = self._scan.get(path, (None, None))
         if t0 != m.t or scan is None:
             scan = {"points": [], "rays": [], "arcs": []}
             self._scan[path] = (m.t, scan)
         points, rays, arcs = scan["points"], scan["rays"], scan["arcs"]
-        if "range" in z:
+        u = None if not kind.sited else draw.unit(z["az"], z.get("el", 0.0))
+        if u is None:  # a position report: the point itself
+            points.append(np.asarray(m.z, dtype=float))
+        elif "range" in z:
             points.append(site + z["range"] * u)
             if kind.start == SPHERE:  # no elevation: the target is anywhere on this arc
                 arcs.append(draw.vertical_arc(site, z["az"], z["range"]))
