@@ -37,7 +37,7 @@ import numpy as np
 from fusion.measurement.kinds import KINDS
 from fusion.types import Measurement
 
-from .geometry import finish_measurement, in_coverage, observe
+from .geometry import coverage_span, finish_measurement, in_coverage, observe
 from .spec import SensorSpec
 from .jammer import jam_effect, switched_on_at
 from .noise import ScanDraws, outlier_from_uniform, process_rng
@@ -134,12 +134,9 @@ def clutter_plots(rng: np.random.Generator, sensor: SensorSpec) -> list[np.ndarr
     component uniform over the coverage (module docstring)."""
     count = int(rng.poisson(sensor.clutter_rate))
     u = rng.random((count, len(sensor.components)))
-    first, width = sensor.fov_az
-    lo, hi = sensor.fov_el
-    span = {"az": (first, width), "el": (lo, hi - lo), "range": (0.0, sensor.max_range)}
     z = np.empty_like(u)
     for i, c in enumerate(sensor.components):
-        origin, extent = span[c]
+        origin, extent = coverage_span(sensor, c)
         z[:, i] = origin + extent * u[:, i]
     return [finish_measurement(sensor.measurement_kind, row) for row in z]
 

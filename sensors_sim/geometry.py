@@ -57,6 +57,16 @@ def in_coverage(sensor: SensorSpec, d: np.ndarray) -> bool:
     return in_sector and lo <= aer["el"] <= hi and aer["range"] <= sensor.max_range
 
 
+def coverage_span(sensor: SensorSpec, component: str) -> tuple[float, float]:
+    """``(origin, extent)`` of a component's values over the sensor's coverage (azimuth
+    sector, elevation limits, instrumented range), what false alarms spread over; the
+    extent is infinite for a component no coverage bounds."""
+    first, width = sensor.fov_az
+    lo, hi = sensor.fov_el
+    spans = {"az": (first, width), "el": (lo, hi - lo), "range": (0.0, sensor.max_range)}
+    return spans.get(component, (-math.inf, math.inf))
+
+
 def finish_measurement(kind: str, z: np.ndarray) -> np.ndarray:
     """Put noisy values back in their components' intervals: a periodic one (azimuth)
     wrapped to [0, 2π), the others clipped (elevation to [−π/2, π/2], range at 0)."""

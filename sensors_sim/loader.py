@@ -24,6 +24,7 @@ from fusion.geodetic import geodetic_to_enu
 from fusion.measurement.kinds import KINDS
 
 from ._toml import ANGLE, LENGTH, RATE, TIME, Reader, TomlSource
+from .geometry import coverage_span
 from .noise import OUTLIER_LAWS
 from .spec import (
     DF_KINDS,
@@ -385,21 +386,23 @@ def _sensor(r: Reader, origin, targets: dict | None) -> tuple[SensorSpec, str | 
     band = r.string("band", None)
     signal_power = r.number("signal_power_w", 1.0, gt=0)
     clutter_rate = r.number("clutter_rate", 0.0, ge=0)
-    if clutter_rate > 0 and "range" in KINDS[sensor_kind.measures].names and math.isinf(max_range):
-        # false alarms are spread uniformly over the coverage: its range must be finite
-        raise r.error("clutter needs a finite coverage: give max_range_m or max_range_km", "clutter_rate")
     latency = r.quantity("latency", TIME, default=0.0, ge=0) if targets is not None else 0.0
     refs = r.raw("targets", None) if targets is not None else None
     if refs is not None and (not isinstance(refs, list) or not refs or not all(isinstance(x, str) for x in refs)
                              or len(set(refs)) != len(refs)):
         raise r.error("must be a non-empty list of distinct ids", "targets")
-    r.finish()
     spec = SensorSpec(
         id=r.path[-1], kind=kind, site=site, period=period, start=start, std=std, p_detect=p_detect,
         fov_az=fov_az, fov_el=fov_el, max_range=max_range, band=band, signal_power=signal_power,
         targets=tuple(refs) if refs is not None else tuple(targets or ()), clutter_rate=clutter_rate,
         latency=latency,
     )
+    unbounded = [c for c in spec.components if math.isinf(coverage_span(spec, c)[1])]
+    if clutter_rate > 0 and unbounded:  # false alarms are spread uniformly over the coverage
+        why = ("give max_range_m or max_range_km" if unbounded == ["range"]
+               else f"a {kind} sensor's {', '.join(unbounded)} have no coverage bounds")
+        raise r.error(f"clutter needs a finite coverage: {why}", "clutter_rate")
+    r.finish()
     return spec, pos_key
 
 
