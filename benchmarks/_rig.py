@@ -137,7 +137,8 @@ class MultiTrack:
     def _flush(self) -> list:
         from fusion import batch
         from fusion.init3d import initial_state
-        from fusion.sensors3d import SphericalModel, ekf_predict, ekf_update
+        from fusion.ekf import ekf_predict, ekf_update
+        from fusion.measurement.kinds import model_of
         from fusion.types import Estimate
 
         ms, self.pending = self.pending, []
@@ -145,7 +146,7 @@ class MultiTrack:
             return []
         t = ms[0].t
         idx = np.array([m.seq % self.n for m in ms])
-        model = SphericalModel.from_measurement(ms[0])
+        model = model_of(ms[0])
         z = np.array([m.z for m in ms])
         new = np.isnan(self.t[idx])
         nis = np.full(len(ms), np.nan)

@@ -24,7 +24,8 @@ from ekf_kernels import lean_step, numba_kernels
 from fusion import batch, kalman
 from fusion.angles import wrap_pi
 from fusion.motion import make_motion
-from fusion.sensors3d import Radar3D, ekf_predict, ekf_update
+from fusion.ekf import ekf_predict, ekf_update
+from fusion.measurement.kinds import model_for
 
 DT = 1.0
 Q_PSD = 0.01
@@ -37,7 +38,7 @@ def scene(N: int, seed: int = 1):
     """N tracks 5–30 km out with a realistic (correlated) covariance, and their measurements."""
     rng = np.random.default_rng(seed)
     motion = make_motion("ca", Q_PSD, "continuous")
-    model = Radar3D(SITE, STD)
+    model = model_for("az_el_range", SITE, STD)
     F = np.array(motion.F(DT))
     rng_m = rng.uniform(5e3, 30e3, N)
     az = rng.uniform(0, 2 * np.pi, N)
@@ -192,7 +193,7 @@ def main() -> None:
 
     # --- single update ---------------------------------------------------------------
     single = {
-        "zfusion (sensors3d.ekf_predict + ekf_update)": zf_single,
+        "zfusion (ekf.ekf_predict + ekf_update)": zf_single,
         "zfusion batch, N = 1": lambda: batch.ekf_step(motion, model, x[None], P[None], DT, z[None]),
         "lean numpy, 3×3 special case (benchmark only)": lambda: lean_step(x, P, F, Q, model.site, r_diag, z),
         "FilterPy ExtendedKalmanFilter": lambda: fp_step(x, P, z),
@@ -274,7 +275,7 @@ def main() -> None:
                   [[n, C.fmt_us(v["median_us"]), C.fmt_us(v["median_us"] / n), C.fmt_us(v["cpu_median_us"] / n)]
                    for n, v in res_sw.items()]))
 
-    zf1 = res_single["zfusion (sensors3d.ekf_predict + ekf_update)"]["median_us"]
+    zf1 = res_single["zfusion (ekf.ekf_predict + ekf_update)"]["median_us"]
     bper = res_b[f"zfusion batch.ekf_step, N = {N}"]["median_us"] / N
     print("\n## Targets\n")
     print(f"- single update ≥ 3× faster than FilterPy: project path {fp / zf1:.2f}× "

@@ -5,7 +5,7 @@ any numpy formulation, and, when numba is installed, the same step compiled.
 
 All compute one predict + update of the 9-state CA model with one spherical
 measurement ``[az, el, range]`` from one site, Joseph form, NIS — the maths of
-:func:`fusion.sensors3d.ekf_predict` + :func:`~fusion.sensors3d.ekf_update`. The
+:func:`fusion.ekf.ekf_predict` + :func:`~fusion.ekf.ekf_update`. The
 benchmark checks each against the project's path before timing it.
 """
 

@@ -173,7 +173,8 @@ def main() -> None:
     # In isolation, on the same inputs: the wire encode, and the EKF step beside the lean
     # 3 × 3 special case of benchmarks/ekf_kernels.py (a lower bound for numpy).
     from ekf_kernels import lean_step
-    from fusion.sensors3d import SphericalModel, ekf_predict, ekf_update
+    from fusion.ekf import ekf_predict, ekf_update
+    from fusion.measurement.kinds import model_of
 
     enc = per(lambda e: encode_estimate(e, "fuser", 1), ests, len(ests)) * len(ests) / n_meas
     line = f"\n(in isolation: encode_estimate {enc:.1f} µs per measurement"
@@ -181,7 +182,7 @@ def main() -> None:
     if motion is not None and N == 1:
         F, Q = np.array(motion.F(T_STEP)), np.array(motion.Q(T_STEP))
         x0, P0 = ests[-1].x, ests[-1].P
-        mdl = SphericalModel.from_measurement(meas[-1])
+        mdl = model_of(meas[-1])
         r_diag = np.diag(mdl.R).copy()
         zz = np.asarray(meas[-1].z, float)
         lean = per(lambda _: lean_step(x0, P0, F, Q, mdl.site, r_diag, zz), range(2000), 2000)

@@ -60,7 +60,7 @@ def gate_threshold(dof: int, prob: float) -> float:
 def mahalanobis2(model, x: np.ndarray, P: np.ndarray, Z: np.ndarray) -> np.ndarray:
     """``d²`` of each row of ``Z (n, n_z)`` (plots of one sensor) against the track ``(x, P)``.
 
-    ``model`` is the sensor's :class:`~fusion.sensors3d.SphericalModel`. Returns ``(n,)``;
+    ``model`` is the sensor's :class:`~fusion.measurement.models.MeasurementModel`. Returns ``(n,)``;
     ``inf`` for every plot when the geometry is undefined (track over the site).
     """
     Z = np.atleast_2d(np.asarray(Z, dtype=float))

@@ -1,6 +1,6 @@
-r"""The EKF step of :mod:`fusion.sensors3d` over many tracks at once (vectorised numpy).
+r"""The EKF step of :mod:`fusion.ekf` over many tracks at once (vectorised numpy).
 
-Same maths as :func:`fusion.sensors3d.ekf_predict` / :func:`~fusion.sensors3d.ekf_update`
+Same maths as :func:`fusion.ekf.ekf_predict` / :func:`~fusion.ekf.ekf_update`
 (:mod:`fusion.kalman`: angle-wrapped innovation, Joseph form, symmetrised, NIS), on a
 stack of ``N`` tracks: ``x`` is ``(N, n_x)``, ``P`` is ``(N, n_x, n_x)``. One call
 replaces ``N`` calls of the single-track path and equals it to round-off. Typical use:
@@ -31,7 +31,7 @@ from typing import NamedTuple
 import numpy as np
 
 from .angles import TWO_PI, wrap_pi
-from .sensors3d import MIN_HORIZONTAL_RANGE, MIN_RANGE, SphericalModel
+from .measurement.models import MIN_HORIZONTAL_RANGE, MIN_RANGE, SphericalModel
 
 __all__ = ["BatchUpdate", "predict", "ekf_predict", "spherical", "innovation", "update", "ekf_update",
            "ekf_step"]
@@ -120,7 +120,7 @@ def ekf_predict(motion, x: np.ndarray, P: np.ndarray, dt) -> tuple[np.ndarray, n
     ``dt`` is one interval for all tracks, or one per track ``(N,)``: tracks are grouped
     by ``dt``, each group predicted with the model's own (cached) matrices — the very ones
     the single-track path uses. Tracks with ``dt == 0`` are returned untouched, as
-    :func:`fusion.sensors3d.ekf_predict` does.
+    :func:`fusion.ekf.ekf_predict` does.
     """
     x, P = _check_stack(x, P)
     dt = np.asarray(dt, dtype=float)
@@ -144,7 +144,7 @@ def spherical(model: SphericalModel, x: np.ndarray, sites: np.ndarray | None = N
     """Predicted measurements ``h(x)`` (N, n_z) and position gradients ``H_p`` (N, n_z, 3).
 
     The rows are the model's components (az/el/range, formulas of
-    :mod:`fusion.sensors3d`); ``sites`` (N, n_z, 3) replaces the model's sites per track
+    :mod:`fusion.measurement.models`); ``sites`` (N, n_z, 3) replaces the model's sites per track
     (e.g. one model shared by tracks seen from different places). The full Jacobian is
     ``[H_p  0]``.
     """
@@ -289,7 +289,7 @@ def update(x: np.ndarray, P: np.ndarray, nu: np.ndarray, Hp: np.ndarray, R: np.n
 def ekf_update(model: SphericalModel, x: np.ndarray, P: np.ndarray, z: np.ndarray,
                sites: np.ndarray | None = None, R: np.ndarray | None = None) -> BatchUpdate:
     """EKF update of every track with one measurement each (``z`` (N, n_z)), linearised at
-    each track's ``x``: the batched :func:`fusion.sensors3d.ekf_update`.
+    each track's ``x``: the batched :func:`fusion.ekf.ekf_update`.
 
     All tracks share the model's components; ``sites`` (N, n_z, 3) and ``R`` (N, n_z, n_z)
     optionally replace its sites and noise per track.

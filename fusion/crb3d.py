@@ -45,7 +45,7 @@ def expected_information(models: Sequence, states, weights: Sequence[float] | No
 
     Args:
         models: measurement models with ``jacobian(x)`` (n_z × n_x) and ``R`` (n_z × n_z),
-            e.g. :class:`fusion.sensors3d.SphericalModel`.
+            e.g. :class:`fusion.measurement.models.SphericalModel`.
         states: one true state (n_x,) or samples (n_mc, n_x); the mean is over samples.
         weights: per-model factor (detection probability), default 1.
     """

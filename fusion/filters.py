@@ -7,8 +7,9 @@ A filter holds a Gaussian ``(x, P)`` at time ``t`` and offers
   state beyond ``(x, P)``, the IMM's mode probabilities, keeps it);
 * :meth:`Filter.predicted` ``(t) -> (x⁻, P⁻)``, the prediction without changing it (gates);
 * :meth:`Filter.predict` ``(t)``, moving it there with the motion model;
-* :meth:`Filter.update` ``(model, z)``, the update with a :class:`fusion.sensors3d.SphericalModel`
-  measurement at the current time, returning the step's ``UpdateResult`` (ν, S, NIS, K);
+* :meth:`Filter.update` ``(model, z)``, the update with a measurement ``z`` of a
+  :class:`fusion.measurement.models.MeasurementModel` at the current time, returning the
+  step's ``UpdateResult`` (ν, S, NIS, K);
 * :attr:`Filter.KH`, ``K·H`` of the last update: what the track-fusion rules need of a
   local update (:mod:`fusion.track_fusion`). For a filter that does not linearise,
   ``H`` is the statistical linearisation ``Pₓᵤᵀ P⁻⁻¹``, so ``P⁺ = (I − K·H) P⁻``
@@ -28,8 +29,9 @@ from typing import Callable, Protocol
 import numpy as np
 
 from .imm import ModelSet, TrackIMM
+from .ekf import TrackEKF
 from .kalman import UpdateResult
-from .sensors3d import SphericalModel, TrackEKF
+from .measurement.models import MeasurementModel
 from .ukf import TrackUKF
 
 
@@ -43,7 +45,7 @@ class Filter(Protocol):
     def set_state(self, x: np.ndarray, P: np.ndarray, t: float) -> None: ...
     def predicted(self, t: float) -> tuple[np.ndarray, np.ndarray]: ...
     def predict(self, t: float) -> None: ...
-    def update(self, model: SphericalModel, z: np.ndarray) -> UpdateResult: ...
+    def update(self, model: MeasurementModel, z: np.ndarray) -> UpdateResult: ...
 
     @property
     def KH(self) -> np.ndarray: ...

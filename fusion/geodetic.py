@@ -5,6 +5,18 @@ The frame is east-north-up, tangent to the WGS-84 ellipsoid at the scenario's or
 flat-earth shortcut). Latitude/longitude are radians by default (SI, like the rest of
 ``fusion``); pass ``deg=True`` for degrees. Altitudes are metres above the ellipsoid.
 Inputs broadcast (scalars or arrays).
+
+The ENU axes at a point turn with it: ``enu_rotation(φ, λ)`` has for rows the east,
+north and up unit vectors in ECEF::
+
+    [ −sin λ          cos λ          0     ]
+    [ −sin φ cos λ   −sin φ sin λ    cos φ ]
+    [  cos φ cos λ    cos φ sin λ    sin φ ]
+
+so a displacement (or a covariance) stated in the ENU axes at a point ``p`` is, in the
+frame's axes at the origin ``o``, ``T d`` (``T C Tᵀ``) with ``T = R(o) R(p)ᵀ``
+(:meth:`LocalFrame.rotation_from`). ENU and ECEF are affine in each other, so this is
+exact for any displacement, not a linearisation.
 """
 
 from __future__ import annotations
@@ -39,6 +51,14 @@ def enu_to_geodetic(e, n, u, lat0, lon0, alt0, *, deg: bool = False):
     return np.asarray(lat, dtype=float), np.asarray(lon, dtype=float), np.asarray(alt, dtype=float)
 
 
+def enu_rotation(lat, lon, *, deg: bool = False) -> np.ndarray:
+    """The 3 × 3 rotation from ECEF axes to the ENU axes at ``(lat, lon)`` (module docstring)."""
+    _check_latitude(lat, deg, "lat")
+    phi, lam = (np.radians(lat), np.radians(lon)) if deg else (float(lat), float(lon))
+    sp, cp, sl, cl = np.sin(phi), np.cos(phi), np.sin(lam), np.cos(lam)
+    return np.array([[-sl, cl, 0.0], [-sp * cl, -sp * sl, cp], [cp * cl, cp * sl, sp]])
+
+
 @dataclass(frozen=True)
 class LocalFrame:
     """A scenario's ENU frame: origin latitude, longitude (radians unless ``deg``) and
@@ -55,6 +75,11 @@ class LocalFrame:
     def to_enu(self, lat, lon, alt) -> np.ndarray:
         """ENU position(s), shape ``(..., 3)``."""
         return np.stack(geodetic_to_enu(lat, lon, alt, self.lat0, self.lon0, self.alt0, deg=self.deg), axis=-1)
+
+    def rotation_from(self, lat, lon) -> np.ndarray:
+        """``T = R(origin) R(lat, lon)ᵀ``: a vector in the ENU axes at ``(lat, lon)`` (this
+        frame's angle unit) in this frame's axes (module docstring)."""
+        return enu_rotation(self.lat0, self.lon0, deg=self.deg) @ enu_rotation(lat, lon, deg=self.deg).T
 
     def to_geodetic(self, enu) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         enu = np.asarray(enu, dtype=float)

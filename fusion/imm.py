@@ -7,7 +7,7 @@ at a fixed rate ω, any direction and plane; one per rate of a grid), ``turn``
 (:class:`fusion.motion.CoordinatedTurn`, a coordinated turn at the rate the state's own
 ``v`` and ``a`` imply, straight flight at ``a = 0``) and ``ca``. Each model-matched
 filter is an ordinary track filter (EKF or UKF, ``filter``) and the IMM adds only the
-cycle below, which predicts each model itself (:func:`fusion.sensors3d.motion_predict`:
+cycle below, which predicts each model itself (:func:`fusion.ekf.motion_predict`:
 ``F x``, or a state-dependent model's ``f(x)`` with its Jacobian, as an EKF).
 ``Π[i, j] = P(model j at k | model i at k − 1)``: a fixed matrix, or from each model's expected sojourn time τᵢ the
 continuous-time Markov chain ``Π(dt) = exp(G dt)``, ``Gᵢᵢ = −1/τᵢ``, ``Gᵢⱼ = 1/(τᵢ (m − 1))``
@@ -43,7 +43,7 @@ from scipy.linalg import expm
 
 from . import kalman
 from .motion import ConstantAcceleration, ConstantTurn, CoordinatedTurn, KinematicModel, PaddedConstantVelocity
-from .sensors3d import motion_predict
+from .ekf import motion_predict
 
 IMM_MODELS = ("cv", "ct", "turn", "ca")
 

@@ -24,6 +24,10 @@ apart: the far root is the default, a caller that can (a pair's azimuth consiste
 angles and on r (singular at tangency, b² = c, which counts as a miss); if the ray misses
 that sphere the range measurement is not used (prior instead).
 
+A position report (a kind that is not sited: it states the point itself,
+:mod:`fusion.measurement.kinds`) needs none of this: when the scan holds one, the
+position and its covariance are those of the report with the smallest ``tr R``.
+
 Velocity and acceleration start at zero with prior standard deviations per axis
 (horizontal ``vel_std``/``acc_std``, vertical ``vel_std_up``/``acc_std_up``),
 uncorrelated with position.
@@ -36,9 +40,10 @@ from typing import Sequence
 
 import numpy as np
 
-from .types import KIND_COMPONENTS, Measurement
+from .measurement.kinds import KINDS, kinds_of
+from .types import Measurement
 
-INIT_KINDS = ("range_az", "azel", "az_el_range")
+INIT_KINDS = kinds_of("3d")
 _SAME_SITE_TOL = 1e-6  # m
 
 
@@ -84,10 +89,9 @@ class InitPriors:
 
 
 def _component(m: Measurement, name: str) -> tuple[float, float] | None:
-    comps = KIND_COMPONENTS[m.kind]
-    if name not in comps:
+    i = KINDS[m.kind].index(name)
+    if i is None:
         return None
-    i = comps.index(name)
     return float(m.z[i]), float(m.std[i])
 
 
@@ -141,16 +145,33 @@ def spherical_to_position(site, az: float, el: float, rng: float, range_site=Non
 
 
 def initial_state(scan: Sequence[Measurement], n_x: int, priors: InitPriors = InitPriors(), root: int = FAR):
-    """Initial ``(x, P)`` (n_x = 6 or 9) from the first scan: position from the best
-    azimuth (and elevation at its site) and the best range (at the ray–sphere ``root``
-    when measured from another site), else the ``priors``, with the converted
-    covariance; velocity and acceleration zero with their prior stds."""
+    """Initial ``(x, P)`` (n_x = 6 or 9) from the first scan: position from its best
+    position report, else from the best azimuth (and elevation at its site) and the best
+    range (at the ray–sphere ``root`` when measured from another site), else the
+    ``priors``, with the converted covariance; velocity and acceleration zero with their
+    prior stds."""
     if n_x not in (6, 9):
         raise ValueError(f"3D track state length must be 6 (CV) or 9 (CA), got {n_x}")
     scan = list(scan)
     for m in scan:
         if m.kind not in INIT_KINDS:
             raise ValueError(f"cannot initialise a 3D track from a {m.kind!r} measurement (sensor {m.sensor!r})")
+    x = np.zeros(n_x)
+    P = np.zeros((n_x, n_x))
+    points = [m for m in scan if not KINDS[m.kind].sited]
+    if points:
+        best = min(points, key=lambda m: float(np.trace(m.R)))
+        x[:3], P[:3, :3] = best.z, best.R
+    else:
+        x[:3], P[:3, :3] = _spherical_position(scan, priors, root)
+    P[3:6, 3:6] = np.diag([priors.vel_std**2, priors.vel_std**2, priors.vel_std_up**2])
+    if n_x == 9:
+        P[6:9, 6:9] = np.diag([priors.acc_std**2, priors.acc_std**2, priors.acc_std_up**2])
+    return x, 0.5 * (P + P.T)
+
+
+def _spherical_position(scan: list[Measurement], priors: InitPriors, root: int) -> tuple[np.ndarray, np.ndarray]:
+    """The position and its covariance from the scan's spherical components (module docstring)."""
     az_src = _best(scan, "az")
     if az_src is None:
         raise ValueError("cannot initialise a 3D track from an empty scan")
@@ -168,12 +189,4 @@ def initial_state(scan: Sequence[Measurement], n_x: int, priors: InitPriors = In
         conv = spherical_to_position(site, az, el, priors.range)
         s_r = priors.range_std
     p, J = conv
-
-    x = np.zeros(n_x)
-    x[:3] = p
-    P = np.zeros((n_x, n_x))
-    P[:3, :3] = J @ np.diag([s_az**2, s_el**2, s_r**2]) @ J.T
-    P[3:6, 3:6] = np.diag([priors.vel_std**2, priors.vel_std**2, priors.vel_std_up**2])
-    if n_x == 9:
-        P[6:9, 6:9] = np.diag([priors.acc_std**2, priors.acc_std**2, priors.acc_std_up**2])
-    return x, 0.5 * (P + P.T)
+    return p, J @ np.diag([s_az**2, s_el**2, s_r**2]) @ J.T

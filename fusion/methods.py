@@ -24,13 +24,14 @@ from typing import Any, Callable, Mapping, Sequence
 
 from .df.methods import DF_METHODS
 from .df.multi import MultiEmitterMethod
+from .measurement.kinds import KINDS, RAY, SPHERE, kinds_of
 from .mtt import AssociationConfig, MultiTargetMethod
 from .network import NetworkMethod, Split, station_split, track_split
 from .patent import KINDS_3D, TrackerConfig, centralised, pieces_hndd, pieces_lcdd, pieces_stacked
 from .topology import TOPOLOGIES, scheme_of
 
 FAMILIES = ("df", "3d")
-BEARING = frozenset({"bearing"})
+BEARING = kinds_of("df")
 
 
 @dataclass(frozen=True)
@@ -90,7 +91,7 @@ def _df(name: str, split: Split | None = None) -> MethodSpec:
     return MethodSpec(name, "df", topology, BEARING, DF_METHODS[name], fixed_stations=split is not None, split=split)
 
 
-_PAIR = frozenset({"range_az", "azel"})
+_PAIR = frozenset(k for k in KINDS_3D if KINDS[k].start in (RAY, SPHERE))  # a ray and a sphere (LCDD, HNDD)
 
 METHODS: dict[str, MethodSpec] = {s.name: s for s in (
     # the theses' bearings-only methods

@@ -37,11 +37,11 @@ from .config import config_values
 from .init3d import FAR, NEAR, initial_state, spherical_to_position
 from .grouping import TimeGrouper
 from .patent import CentralisedMethod, GroupedMethod
-from .sensors3d import SphericalModel
-from .types import KIND_COMPONENTS, Estimate, Measurement
+from .measurement.kinds import KINDS, RAY, SPHERE, model_of, partners
+from .measurement.models import SphericalModel
+from .types import Estimate, Measurement
 
 ASSOCIATIONS = ("gnn",)
-_PARTNER = {"range_az": "azel", "azel": "range_az"}  # kinds that start a track as a pair
 _PAIR_PREFILTER = 10.0  # × the gate's σ: azimuth misfit beyond which a pair is not evaluated
 
 
@@ -154,7 +154,7 @@ class MultiTargetMethod(GroupedMethod):
         sensors = _by_sensor(frame)
         for k, plots in enumerate(sensors):
             free = list(range(len(plots)))
-            model = SphericalModel.from_measurement(plots[0], self.n_x)
+            model = model_of(plots[0], self.n_x)
             gate = self._gate(model.n_z)
             Z = np.array([p.z for p in plots])
             for confirmed in (True, False):
@@ -228,7 +228,7 @@ def scores_hit(kinds: Sequence[str], confirmed: bool, evidence: int) -> bool:
     34 frames with a hit from one sensor of any kind.)"""
     if len(kinds) >= evidence:
         return True
-    return confirmed and any("range" in KIND_COMPONENTS[k] for k in kinds)
+    return confirmed and any(KINDS[k].fixes_range for k in kinds)
 
 
 class Initiator:
@@ -259,9 +259,9 @@ class Initiator:
         each crossing in the gate is a candidate of its own (:meth:`pair_consistency`),
         and the support decides between them as between any two pairs."""
         candidates = []
-        radars = [r for r in left if r.kind == "range_az"]
+        radars = [r for r in left if KINDS[r.kind].start == SPHERE]
         for a in left:
-            if "el" not in KIND_COMPONENTS[a.kind] or "range" in KIND_COMPONENTS[a.kind]:
+            if KINDS[a.kind].start != RAY:
                 continue  # the ray: an angle sensor's az/el
             for r, roots in _near_spheres(a, [r for r in radars if r.sensor != a.sensor],
                                           _PAIR_PREFILTER * math.sqrt(self._gate(1))):
@@ -286,8 +286,8 @@ class Initiator:
         # A plot starts a track alone only if nothing in the frame could pair with it
         # (lone 2D radar and angle plots attract clutter through their broad priors).
         kinds = {m.kind for m in left}
-        alone = [m for m in left if m.order_key not in used and not (_PARTNER.get(m.kind) in kinds)]
-        alone.sort(key=lambda m: ("range" not in KIND_COMPONENTS[m.kind], m.order_key))  # radars first
+        alone = [m for m in left if m.order_key not in used and not (partners(m.kind) & kinds)]
+        alone.sort(key=lambda m: (not KINDS[m.kind].fixes_range, m.order_key))  # radars first
         return groups + [([m], [], *initial_state([m], self.n_x, self._priors)) for m in alone]
 
     def _gather(self, a: Measurement, r: Measurement, x: np.ndarray, P: np.ndarray, left: list[Measurement],
@@ -296,7 +296,7 @@ class Initiator:
         every other sensor, among the plots not ``used``; and the sum of their ``d²``."""
         more, total = [], 0.0
         for plots in _by_sensor([m for m in left if m.order_key not in used and m.sensor not in (a.sensor, r.sensor)]):
-            model = SphericalModel.from_measurement(plots[0], self.n_x)
+            model = model_of(plots[0], self.n_x)
             d2 = mahalanobis2(model, x, P, np.array([p.z for p in plots]))
             j = int(np.argmin(d2))
             if d2[j] <= self._gate(model.n_z):

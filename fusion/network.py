@@ -46,9 +46,9 @@ from .df.models import bearing_of
 from .df.multi import MultiEmitterMethod
 from .init3d import initial_state
 from .grouping import TimeGrouper
+from .measurement.kinds import kinds_of, model_of
 from .mtt import AssociationConfig, Initiator, scores_hit
 from .patent import KINDS_3D, LocalTracker, TrackerConfig
-from .sensors3d import SphericalModel
 from .topology import Scheme
 from .track_fusion import TrackFuser
 from .types import Estimate, Measurement
@@ -230,7 +230,7 @@ class StationNode(LocalNode):
     """A DF station of KF+TR / MKF+TR: smooths its bearings, sends each smoothed
     bearing (a ``bearing`` measurement with the smoothed std) up."""
 
-    kinds = frozenset({"bearing"})
+    kinds = kinds_of("df")
 
     def __init__(self, sensor: str, config: dict | None, cross_fed: bool):
         c = DFConfig.from_dict(config)
@@ -500,7 +500,7 @@ class MultiTrackNode(FramedNode):
     def _process(self, frame: list[Measurement], alone: bool) -> list[Uplink]:
         t = frame[0].t
         ids = list(self.tracks)
-        model = SphericalModel.from_measurement(frame[0], self.motion.n_x)
+        model = model_of(frame[0], self.motion.n_x)
         pairs = []
         if ids:
             Z = np.array([m.z for m in frame])
@@ -546,7 +546,7 @@ class MultiStationNode(FramedNode):
     smoothed bearing goes up as a bearing of the station: nothing says which emitter,
     the centre associates them as it does raw bearings."""
 
-    kinds = frozenset({"bearing"})
+    kinds = kinds_of("df")
 
     def __init__(self, sensor: str, config: dict | None, cross_fed: bool, association):
         c = DFConfig.from_dict(config)
@@ -736,7 +736,7 @@ class MultiTrackCentre(GroupedCentre):
         free = self.tracks
         if not free:
             return plots, []
-        model = SphericalModel.from_measurement(plots[0], self.motion.n_x)
+        model = model_of(plots[0], self.motion.n_x)
         Z = np.array([m.z for m in plots])
         d2 = np.array([mahalanobis2(model, *predicted[f.key], Z) for f in free])
         pairs = gnn(d2, gate_threshold(model.n_z, self.association.gate_prob))

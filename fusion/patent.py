@@ -1,14 +1,17 @@
 r"""The patent's six 3D fusion methods (document 004) and the single-sensor baselines.
 
 Sensors: 2D radars (``range_az``), angle sensors (``azel``) and, for a baseline, 3D
-radars (``az_el_range``); a sensor's role is its measurement kind, never its id. Every
-method shares one motion model (:mod:`fusion.motion`), one measurement geometry
-(:mod:`fusion.sensors3d`), one filter step and one initialiser (:mod:`fusion.init3d`),
-so their differences are the methods' own:
+radars (``az_el_range``); a sensor's role is its measurement kind, never its id, and the
+methods take every kind of the ``3d`` family (:mod:`fusion.measurement.kinds`). Every
+method shares one motion model (:mod:`fusion.motion`), the measurement models
+(:mod:`fusion.measurement.models`), one filter step and one initialiser
+(:mod:`fusion.init3d`), so their differences are the methods' own:
 
 * LCDD ``z = [az_i, el_i, range_r]``; HNDD ``z = [az_f, el_i, range_r]`` with ``az_f``
-  the inverse-variance fusion of the two azimuths; SS the stacked
-  ``z = [az_i, el_i, az_r, range_r]``, ``R = blkdiag(R_i, R_r)`` — one filter each;
+  the inverse-variance fusion of the two azimuths, each from the scan's first ray (angle
+  sensor) and sphere (2D radar), every other report one update of its own; SS the
+  stacked ``z = [az_i, el_i, az_r, range_r, …]``, ``R = blkdiag(R_i, R_r, …)`` — one
+  filter each;
 * HNV / PHHNV / DDHNV: a :class:`LocalTracker` per sensor and a
   :class:`~fusion.track_fusion.TrackFuser` at the centre, split in :mod:`fusion.network`;
 * RADAR2D / ANGLE / RADAR3D: one filter on one kind of sensor.
@@ -35,12 +38,13 @@ from .motion import make_motion, NOISE_FORMS
 from .filters import FILTERS, Filter, NewFilter, filter_factory
 from .grouping import TimeGrouper
 from .imm import IMM_MODELS, TrackIMM, model_set
-from .sensors3d import SphericalModel
+from .measurement.kinds import KINDS, RAY, SPHERE, kinds_of, model_of
+from .measurement.models import MeasurementModel, SphericalModel, stack
 from .track_fusion import CI_CRITERIA, FUSION_RULES
-from .types import KIND_COMPONENTS, Estimate, Measurement
+from .types import Estimate, Measurement
 
 MOTIONS = ("ca", "cv", "imm")
-KINDS_3D = frozenset({"range_az", "azel", "az_el_range"})
+KINDS_3D = kinds_of("3d")
 COLOCATED_TOL = 1e-3  # m: HNDD fuses two azimuths only if they are measured from one point
 
 
@@ -232,22 +236,22 @@ class ScanMethod(GroupedMethod):
 
 
 # Centralised methods: how a scan becomes measurement updates --------------------------
-Piece = tuple[SphericalModel, np.ndarray]
+Piece = tuple[MeasurementModel, np.ndarray]
 
 
 def _model(m: Measurement, n_x: int) -> Piece:
-    return SphericalModel.from_measurement(m, n_x), np.asarray(m.z, dtype=float)
+    return model_of(m, n_x), np.asarray(m.z, dtype=float)
 
 
 def _component(m: Measurement, name: str) -> tuple[float, float]:
-    i = KIND_COMPONENTS[m.kind].index(name)
+    i = KINDS[m.kind].index(name)
     return float(m.z[i]), float(m.std[i])
 
 
 def _pair(scan: Sequence[Measurement]):
-    """The first angle sensor and first 2D radar of a scan, and the rest."""
-    angle = next((m for m in scan if m.kind == "azel"), None)
-    radar = next((m for m in scan if m.kind == "range_az"), None)
+    """The first angle sensor (a ray) and first 2D radar (a sphere) of a scan, and the rest."""
+    angle = next((m for m in scan if KINDS[m.kind].start == RAY), None)
+    radar = next((m for m in scan if KINDS[m.kind].start == SPHERE), None)
     if angle is None or radar is None:
         return None, None, list(scan)
     return angle, radar, [m for m in scan if m is not angle and m is not radar]
@@ -256,7 +260,7 @@ def _pair(scan: Sequence[Measurement]):
 def pieces_stacked(scan: Sequence[Measurement], n_x: int) -> list[Piece]:
     """SS: every measurement of the scan in one stacked update."""
     models = [_model(m, n_x) for m in scan]
-    return [(SphericalModel.stack([p[0] for p in models]), np.concatenate([p[1] for p in models]))]
+    return [(stack([p[0] for p in models]), np.concatenate([p[1] for p in models]))]
 
 
 def pieces_lcdd(scan: Sequence[Measurement], n_x: int) -> list[Piece]:

@@ -11,21 +11,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-# Component order of ``Measurement.z`` for each measurement kind. The wire uses the
-# same names as fields, so the order is fixed here once.
-KIND_COMPONENTS: dict[str, tuple[str, ...]] = {
-    "bearing": ("az",),
-    "azel": ("az", "el"),
-    "range_az": ("az", "range"),
-    "az_el_range": ("az", "el", "range"),
-}
-ANGLE_COMPONENTS = frozenset({"az", "el"})
-
-
-def angle_mask(kind: str) -> np.ndarray:
-    """Boolean mask of the angular components of a measurement kind."""
-    return np.array([c in ANGLE_COMPONENTS for c in KIND_COMPONENTS[kind]], dtype=bool)
-
 
 @dataclass(frozen=True, eq=False)
 class Measurement:
@@ -34,12 +19,14 @@ class Measurement:
     Attributes:
         t: time of validity, seconds of scenario time.
         sensor: id of the reporting sensor.
-        kind: one of :data:`KIND_COMPONENTS`.
-        z: measured values in the order of ``KIND_COMPONENTS[kind]``; azimuth is
+        kind: a measurement kind (:data:`fusion.measurement.kinds.KINDS`).
+        z: measured values in the order of the kind's components; azimuth is
             compass azimuth in [0, 2π), elevation in [-π/2, π/2], range in metres.
-        std: the sensor's stated noise standard deviation per component.
+        std: the stated noise standard deviation per component.
         site: ENU position (3,) of the sensor at ``t`` (moves for airborne sensors).
         seq: the sensor's message counter; ``(t, sensor, seq)`` orders a stream.
+        corr: the stated correlation matrix of the noise (n_z × n_z, unit diagonal), for
+            a kind whose reports state one; None: uncorrelated components.
     """
 
     t: float
@@ -49,10 +36,15 @@ class Measurement:
     std: np.ndarray
     site: np.ndarray
     seq: int = 0
+    corr: np.ndarray | None = None
 
     @property
     def R(self) -> np.ndarray:
-        return np.diag(np.asarray(self.std, dtype=float) ** 2)
+        """The noise covariance: ``diag(std²)``, or ``σᵢ σⱼ ρᵢⱼ`` with a stated ``corr``."""
+        std = np.asarray(self.std, dtype=float)
+        if self.corr is None:
+            return np.diag(std**2)
+        return np.outer(std, std) * np.asarray(self.corr, dtype=float)
 
     @property
     def order_key(self) -> tuple[float, str, int]:
@@ -69,6 +61,8 @@ class Measurement:
             and np.array_equal(self.z, other.z)
             and np.array_equal(self.std, other.std)
             and np.array_equal(self.site, other.site)
+            and (self.corr is None) == (other.corr is None)
+            and (self.corr is None or np.array_equal(self.corr, other.corr))
         )
 
     __hash__ = None  # type: ignore[assignment]

@@ -9,8 +9,9 @@ Sigma points of ``(x, P)``, ``n = dim x``::
 Predict: the motion model is linear (``x ← F x``), for which the unscented transform
 is exact, so ``x⁻ = F x``, ``P⁻ = F P Fᵀ + Q`` (the shared step of :mod:`fusion.kalman`).
 
-Update with a :class:`fusion.sensors3d.SphericalModel` ``h`` and its ``R``, from the
-sigma points χ of ``(x⁻, P⁻)`` and ``Zᵢ = h(χᵢ)``::
+Update with a measurement model ``h`` and its ``R``
+(:class:`fusion.measurement.models.MeasurementModel`), from the sigma points χ of
+``(x⁻, P⁻)`` and ``Zᵢ = h(χᵢ)``::
 
     ẑ = Σ Wᵐᵢ Zᵢ        (an angle row: the weighted circular mean atan2(Σ Wᵐ sin Z, Σ Wᵐ cos Z))
     S = Σ Wᶜᵢ (Zᵢ − ẑ)(Zᵢ − ẑ)ᵀ + R,    Pₓᵤ = Σ Wᶜᵢ (χᵢ − x⁻)(Zᵢ − ẑ)ᵀ

@@ -23,16 +23,16 @@ from typing import Any, Callable
 import msgpack
 import numpy as np
 
-from fusion.types import KIND_COMPONENTS, Estimate, Measurement
+from fusion.measurement.kinds import KINDS as _KINDS
+from fusion.types import Estimate, Measurement
 
 from .keys import check_id
 
 SCHEMA_VERSION = 1
 MAX_BYTES = 1 << 20  # 1 MiB: far above any real message, stops memory abuse
 MAX_DIM = 64  # largest state / array dimension accepted
-TWO_PI = 2.0 * math.pi
 
-MEASUREMENT_KINDS = tuple(KIND_COMPONENTS)
+MEASUREMENT_KINDS = tuple(_KINDS)
 KINDS = MEASUREMENT_KINDS + ("watermark", "track", "uplink", "downlink", "jam_state", "truth", "status")
 
 
@@ -171,20 +171,40 @@ def _no_extra(d: dict, allowed: set[str]) -> None:
 ENVELOPE = {"v", "kind", "src", "seq", "t"}
 # Per-source counts a live status may give besides ``rejected`` (non-negative ints).
 SOURCE_COUNTS = frozenset({"oosm", "stale", "recovered", "missed"})
-_STD = {"az": "std_az", "el": "std_el", "range": "std_range"}
-_LIMITS = {"az": (0.0, TWO_PI, False, True), "el": (-math.pi / 2, math.pi / 2, False, False),
-           "range": (0.0, math.inf, True, False)}
+def _measurement_fields(kind: str) -> frozenset[str]:
+    """The payload fields of a measurement of ``kind``: ``sensor``, ``site``, and per
+    component its value and its std (:mod:`fusion.measurement.components`)."""
+    comps = _KINDS[kind].components
+    return frozenset({"sensor", "site"} | {c.name for c in comps} | {c.std_field for c in comps})
 
 
 def _check_measurement(kind: str, d: dict, envelope: frozenset | set = ENVELOPE) -> dict:
-    comps = KIND_COMPONENTS[kind]
+    k = _KINDS[kind]
     body: dict[str, Any] = {"sensor": _str(d, "sensor", ident=True), "site": _array(d, "site", (3,))}
-    for c in comps:
-        lo, hi, lo_open, hi_open = _LIMITS[c]
-        body[c] = _num(d, c, lo=lo, hi=hi, lo_open=lo_open, hi_open=hi_open)
-        body[_STD[c]] = _num(d, _STD[c], lo=0.0, lo_open=True)
-    _no_extra(d, envelope | {"sensor", "site"} | set(comps) | {_STD[c] for c in comps})
+    for c in k.components:
+        body[c.name] = _num(d, c.name, lo=c.lo, hi=c.hi, lo_open=c.lo_open, hi_open=c.hi_open)
+        body[c.std_field] = _num(d, c.std_field, lo=0.0, lo_open=True)
+    if k.own_noise and d.get("corr") is not None:
+        body["corr"] = _corr(d, "corr", k.n_z)
+    _no_extra(d, envelope | _measurement_fields(kind) | ({"corr"} if k.own_noise else set()))
     return body
+
+
+def _corr(d: dict, f: str, n: int) -> np.ndarray:
+    """A report's correlation coefficients, ``[ρ₁₂, ρ₁₃, …, ρ₂₃, …]`` (the upper triangle
+    row by row, n(n−1)/2 values in (−1, 1)), as the n × n matrix; it must be positive
+    definite."""
+    rho = _array(d, f, (n * (n - 1) // 2,))
+    if np.any(np.abs(rho) >= 1.0):
+        raise SchemaError("range", f, "correlation coefficients must lie in (-1, 1)")
+    C = np.eye(n)
+    C[np.triu_indices(n, 1)] = rho
+    C = np.triu(C) + np.triu(C, 1).T
+    try:
+        np.linalg.cholesky(C)
+    except np.linalg.LinAlgError:
+        raise SchemaError("value", f, "the correlation matrix is not positive definite") from None
+    return C
 
 
 def _check_watermark(d: dict) -> dict:
@@ -431,8 +451,10 @@ _CHECKERS: dict[str, Callable[[dict], dict]] = {
 
 
 # Fast path of validate() for what arrives most: measurements, watermarks, tracks ------
-_MEASUREMENT_FIELDS = {k: frozenset(ENVELOPE | {"sensor", "site"} | set(c) | {_STD[x] for x in c})
-                       for k, c in KIND_COMPONENTS.items()}
+_MEASUREMENT_FIELDS = {k: ENVELOPE | _measurement_fields(k) for k in _KINDS}
+# per kind, per component: (value field, std field, limits as _plain_float takes them)
+_FAST_COMPONENTS = {k: tuple((c.name, c.std_field, (c.lo, c.hi, c.lo_open, c.hi_open)) for c in kind.components)
+                    for k, kind in _KINDS.items()}
 _WATERMARK_FIELDS = frozenset(ENVELOPE | {"final"})
 _TRACK_FIELDS = frozenset(ENVELOPE | {"track", "node", "method", "x", "P", "nis", "nis_dof", "extra"})
 _SEQ_MAX = 2**63 - 1
@@ -475,12 +497,12 @@ def _validate_fast(d: Any) -> Message | None:
             and all(type(c) is float and math.isfinite(c) for c in site)):
         return None
     body: dict[str, Any] = {"sensor": sensor, "site": np.array(site)}
-    for c in KIND_COMPONENTS[kind]:
-        value, std = d[c], d[_STD[c]]
-        if not (_plain_float(value, *_LIMITS[c]) and _plain_float(std, 0.0, math.inf, True, False)):
+    for name, std_field, limits in _FAST_COMPONENTS[kind]:
+        value, std = d[name], d[std_field]
+        if not (_plain_float(value, *limits) and _plain_float(std, 0.0, math.inf, True, False)):
             return None
-        body[c] = value
-        body[_STD[c]] = std
+        body[name] = value
+        body[std_field] = std
     return Message(kind=kind, src=src, seq=seq, t=t, body=body)
 
 
@@ -564,19 +586,23 @@ def encode(kind: str, src: str, seq: int, t: float, **payload: Any) -> bytes:
 
 
 def measurement_fields(m: Measurement) -> dict[str, Any]:
-    """A measurement's payload: ``sensor``, ``site``, its components and their stds."""
+    """A measurement's payload: ``sensor``, ``site``, its components and their stds, and its
+    correlations (``corr``) if it states them."""
     payload: dict[str, Any] = {"sensor": m.sensor, "site": m.site}
-    for i, c in enumerate(KIND_COMPONENTS[m.kind]):
-        payload[c] = float(m.z[i])
-        payload[_STD[c]] = float(m.std[i])
+    for i, c in enumerate(_KINDS[m.kind].components):
+        payload[c.name] = float(m.z[i])
+        payload[c.std_field] = float(m.std[i])
+    if m.corr is not None:
+        corr = np.asarray(m.corr, dtype=float)
+        payload["corr"] = corr[np.triu_indices(corr.shape[0], 1)]
     return payload
 
 
 def measurement_of(kind: str, b: dict, t: float, seq: int) -> Measurement:
     """The :class:`Measurement` of a validated measurement payload."""
-    comps = KIND_COMPONENTS[kind]
-    return Measurement(t=t, sensor=b["sensor"], kind=kind, z=np.array([b[c] for c in comps]),
-                       std=np.array([b[_STD[c]] for c in comps]), site=b["site"], seq=seq)
+    comps = _KINDS[kind].components
+    return Measurement(t=t, sensor=b["sensor"], kind=kind, z=np.array([b[c.name] for c in comps]),
+                       std=np.array([b[c.std_field] for c in comps]), site=b["site"], seq=seq, corr=b.get("corr"))
 
 
 def encode_measurement(m: Measurement, src: str) -> bytes:

@@ -34,9 +34,10 @@ from typing import Iterator
 
 import numpy as np
 
+from fusion.measurement.kinds import KINDS
 from fusion.types import Measurement
 
-from .geometry import finish_measurement, in_coverage, observe
+from .geometry import coverage_span, finish_measurement, in_coverage, observe
 from .spec import SensorSpec
 from .jammer import jam_effect, switched_on_at
 from .noise import ScanDraws, outlier_from_uniform, process_rng
@@ -82,7 +83,7 @@ def sensor_events(scenario: Scenario, sensor_id: str, run: int = 0) -> Iterator[
     scan's clutter, with ``seq`` in publication order."""
     sensor = scenario.sensor(sensor_id)
     kind = sensor.measurement_kind
-    is_range = np.array([c == "range" for c in sensor.components])
+    is_range = ~KINDS[kind].angles  # lengths: a jammer's range outliers, if it has any
     n = len(sensor.components)
     rng = process_rng(scenario.seed, sensor_id, run)
     truths = truth_trajectories(scenario, run)
@@ -114,7 +115,7 @@ def sensor_events(scenario: Scenario, sensor_id: str, run: int = 0) -> Iterator[
                     std2 = np.where(is_range, effect.outlier_std_range or 0.0, effect.outlier_std)
                     replaced = ~is_range | (effect.outlier_std_range is not None)
                     error = np.where(replaced, outlier_from_uniform(draws.law, std2, effect.outlier_law), error)
-                z = finish_measurement(kind, observe(kind, d) + error)
+                z = finish_measurement(kind, observe(kind, position, site) + error)
             scan.append((SensorEvent(t, None, effect is not None, outlier, detected, obj, covered), z))
         if sensor.clutter_rate > 0.0:  # λ = 0 draws nothing: clutter-free streams stay identical
             false_alarm = SensorEvent(t, None, False, False, True, "", True, clutter=True)
@@ -133,12 +134,9 @@ def clutter_plots(rng: np.random.Generator, sensor: SensorSpec) -> list[np.ndarr
     component uniform over the coverage (module docstring)."""
     count = int(rng.poisson(sensor.clutter_rate))
     u = rng.random((count, len(sensor.components)))
-    first, width = sensor.fov_az
-    lo, hi = sensor.fov_el
-    span = {"az": (first, width), "el": (lo, hi - lo), "range": (0.0, sensor.max_range)}
     z = np.empty_like(u)
     for i, c in enumerate(sensor.components):
-        origin, extent = span[c]
+        origin, extent = coverage_span(sensor, c)
         z[:, i] = origin + extent * u[:, i]
     return [finish_measurement(sensor.measurement_kind, row) for row in z]
 

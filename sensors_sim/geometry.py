@@ -7,17 +7,20 @@ With ``d = p − site = (e, n, u)``::
     range = ‖d‖                         slant range
 
 (the patent's ``θ = atan(y/x)`` is the math angle; compass ``az = π/2 − θ``). A
-measurement kind picks its components in the order of ``fusion.types.KIND_COMPONENTS``.
+measurement kind picks its components in its order (:mod:`fusion.measurement.kinds`);
+:data:`VALUES` holds each component's value as a function of ``d`` and ``p``. This is
+the emulators' own h, on Python floats, independent of the trackers' models.
 """
 
 from __future__ import annotations
 
 import math
+from typing import Callable
 
 import numpy as np
 
 from fusion.angles import TWO_PI, wrap_2pi
-from fusion.types import KIND_COMPONENTS
+from fusion.measurement.kinds import KINDS
 
 from .spec import SensorSpec
 
@@ -29,10 +32,19 @@ def az_el_range(d: np.ndarray) -> dict[str, float]:
     return {"az": wrap_2pi(math.atan2(e, n)), "el": math.atan2(u, horizontal), "range": math.hypot(horizontal, u)}
 
 
-def observe(kind: str, d: np.ndarray) -> np.ndarray:
-    """Noise-free measurement of kind ``kind`` of the ENU offset ``d``."""
-    aer = az_el_range(d)
-    return np.array([aer[c] for c in KIND_COMPONENTS[kind]])
+#: component -> its noise-free value, ``value(d, p)`` of the offset ``d = p − site`` and the position ``p``
+VALUES: dict[str, Callable[[np.ndarray, np.ndarray], float]] = {
+    "az": lambda d, p: az_el_range(d)["az"],
+    "el": lambda d, p: az_el_range(d)["el"],
+    "range": lambda d, p: az_el_range(d)["range"],
+}
+
+
+def observe(kind: str, position: np.ndarray, site: np.ndarray) -> np.ndarray:
+    """Noise-free measurement of kind ``kind`` of a target at ``position`` seen from ``site``."""
+    p = np.asarray(position, dtype=float)
+    d = p - np.asarray(site, dtype=float)
+    return np.array([VALUES[c](d, p) for c in KINDS[kind].names])
 
 
 def in_coverage(sensor: SensorSpec, d: np.ndarray) -> bool:
@@ -45,15 +57,20 @@ def in_coverage(sensor: SensorSpec, d: np.ndarray) -> bool:
     return in_sector and lo <= aer["el"] <= hi and aer["range"] <= sensor.max_range
 
 
+def coverage_span(sensor: SensorSpec, component: str) -> tuple[float, float]:
+    """``(origin, extent)`` of a component's values over the sensor's coverage (azimuth
+    sector, elevation limits, instrumented range), what false alarms spread over; the
+    extent is infinite for a component no coverage bounds."""
+    first, width = sensor.fov_az
+    lo, hi = sensor.fov_el
+    spans = {"az": (first, width), "el": (lo, hi - lo), "range": (0.0, sensor.max_range)}
+    return spans.get(component, (-math.inf, math.inf))
+
+
 def finish_measurement(kind: str, z: np.ndarray) -> np.ndarray:
-    """Put noisy values back in their domains: azimuth wrapped to [0, 2π), elevation
-    clipped to [−π/2, π/2], range clipped at 0."""
+    """Put noisy values back in their components' intervals: a periodic one (azimuth)
+    wrapped to [0, 2π), the others clipped (elevation to [−π/2, π/2], range at 0)."""
     out = np.array(z, dtype=float)
-    for i, c in enumerate(KIND_COMPONENTS[kind]):
-        if c == "az":
-            out[i] = wrap_2pi(out[i])
-        elif c == "el":
-            out[i] = min(max(out[i], -math.pi / 2.0), math.pi / 2.0)
-        else:
-            out[i] = max(out[i], 0.0)
+    for i, c in enumerate(KINDS[kind].components):
+        out[i] = wrap_2pi(out[i]) if c.periodic else min(max(out[i], c.lo), c.hi)
     return out

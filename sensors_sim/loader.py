@@ -21,9 +21,10 @@ from pathlib import Path
 import numpy as np
 
 from fusion.geodetic import geodetic_to_enu
-from fusion.types import KIND_COMPONENTS
+from fusion.measurement.kinds import KINDS
 
 from ._toml import ANGLE, LENGTH, RATE, TIME, Reader, TomlSource
+from .geometry import coverage_span
 from .noise import OUTLIER_LAWS
 from .spec import (
     DF_KINDS,
@@ -178,9 +179,10 @@ def _scenario(root: Reader, name: str, display: str) -> Scenario:
         _check_targets(src, s, targets, jammers)
         if s.start > duration * (1 + _GRID_TOL):
             raise src.error(("sensors", sid, "start_s"), f"first scan after the end (duration {duration:g} s)")
-        _check_apart(src, ("sensors", sid, sensor_pos_keys[sid]), s.site,
-                     {**{t: ts.x0[:3] for t, ts in targets.items()},
-                      **{j: js.site.points for j, js in jammers.items()}})
+        if sensor_pos_keys[sid] is not None:  # (a position report's sensor has no site to be apart)
+            _check_apart(src, ("sensors", sid, sensor_pos_keys[sid]), s.site,
+                         {**{t: ts.x0[:3] for t, ts in targets.items()},
+                          **{j: js.site.points for j, js in jammers.items()}})
     noisy = [tid for tid, t in targets.items() if t.jerk_psd > 0]
     if noisy and endless:  # its truth is a grid of states over the duration: it has an end
         raise src.error(("targets", noisy[0], "jerk_psd"), "an endless scenario needs closed-form truth "
@@ -321,29 +323,51 @@ def _segment(r: Reader, origin, last: bool):
 
 # --- sensors ----------------------------------------------------------------------------
 
-# Measurement component -> (key base, units) of its noise std.
-_STD_KEYS = {"az": ("std_az", ANGLE), "el": ("std_el", ANGLE), "range": ("std_range", LENGTH)}
+_UNITS = {"rad": ANGLE, "m": LENGTH}  # a component's unit -> the units its scenario keys may take
 
 
-def _sensor(r: Reader, origin, targets: dict | None) -> tuple[SensorSpec, str]:
+def _std(r: Reader, sensor_kind) -> np.ndarray:
+    """The stated std per component: each from the first of its keys given (the last one
+    required), in the component's units (:class:`sensors_sim.spec.SensorKind`)."""
+    out = []
+    for c, keys in zip(KINDS[sensor_kind.measures].components, sensor_kind.std_keys_of()):
+        units = _UNITS[c.unit]
+        value = None
+        for key in keys[:-1]:
+            value = r.quantity(key, units, default=None, gt=0)
+            if value is not None:
+                break
+        out.append(value if value is not None else r.quantity(keys[-1], units, gt=0))
+    return np.array(out)
+
+
+_POSITION_KEYS = ("pos_m", "pos_km", "lat_deg", "lon_deg", "alt_m", "path_m", "path_km")
+
+
+def _sensor(r: Reader, origin, targets: dict | None) -> tuple[SensorSpec, str | None]:
     """One ``[sensors.<id>]`` table; ``targets`` is None in a site file, whose sensors
-    may be mobile (``site = "messages"``) and have no ``targets`` nor ``latency_s``."""
+    may be mobile (``site = "messages"``) and have no ``targets`` nor ``latency_s``. A
+    sensor whose reports are positions (a kind that is not sited) needs no position: it
+    stands at the origin unless one is given (and its position key is then None)."""
     kind = r.string("kind", choices=tuple(SENSOR_KINDS))
-    if targets is None and r.raw("site", None) is not None:
+    sensor_kind = SENSOR_KINDS[kind]
+    if not KINDS[sensor_kind.measures].sited and not any(r.has(k) for k in (*_POSITION_KEYS, "site")):
+        site, pos_key = Site(np.zeros((1, 3))), None
+    elif targets is None and r.raw("site", None) is not None:
         if r.data["site"] != MOBILE:
             raise r.error(f"must be {MOBILE!r} (a mobile station: its position comes with each measurement); "
                           "give a fixed position as pos_m, pos_km or lat_deg/lon_deg/alt_m", "site")
-        if any(r.has(k) for k in ("pos_m", "pos_km", "lat_deg", "lon_deg", "alt_m", "path_m", "path_km")):
+        if any(r.has(k) for k in _POSITION_KEYS):
             raise r.error(f"a mobile station (site = {MOBILE!r}) has no fixed position: remove it", "site")
         site, pos_key = None, "site"
     else:
         if targets is not None and r.has("site"):
             raise r.error("a scenario's sensors need a position or a path (the emulator measures from it); "
                           f"site = {MOBILE!r} is for site files", "site")
-        site, pos_key = _site(r, origin, require_path=(kind == "airborne_df" and targets is not None))
+        site, pos_key = _site(r, origin, require_path=(sensor_kind.airborne and targets is not None))
     period = r.quantity("period", TIME, gt=0)
     start = r.quantity("start", TIME, default=0.0, ge=0)
-    std = np.array([r.quantity(*_STD_KEYS[c], gt=0) for c in KIND_COMPONENTS[SENSOR_KINDS[kind]]])
+    std = _std(r, sensor_kind)
     p_detect = r.number("p_detect", 1.0, gt=0, le=1)
     fov_az = (0.0, 2 * math.pi)
     key = r.unit_key("fov_az", ANGLE, required=False)
@@ -362,9 +386,6 @@ def _sensor(r: Reader, origin, targets: dict | None) -> tuple[SensorSpec, str]:
     band = r.string("band", None)
     signal_power = r.number("signal_power_w", 1.0, gt=0)
     clutter_rate = r.number("clutter_rate", 0.0, ge=0)
-    if clutter_rate > 0 and "range" in KIND_COMPONENTS[SENSOR_KINDS[kind]] and math.isinf(max_range):
-        # false alarms are spread uniformly over the coverage: its range must be finite
-        raise r.error("clutter needs a finite coverage: give max_range_m or max_range_km", "clutter_rate")
     latency = r.quantity("latency", TIME, default=0.0, ge=0) if targets is not None else 0.0
     sac_sic = r.raw("sac_sic", None)
     if sac_sic is not None and (not isinstance(sac_sic, list) or len(sac_sic) != 2 or not all(
@@ -374,13 +395,18 @@ def _sensor(r: Reader, origin, targets: dict | None) -> tuple[SensorSpec, str]:
     if refs is not None and (not isinstance(refs, list) or not refs or not all(isinstance(x, str) for x in refs)
                              or len(set(refs)) != len(refs)):
         raise r.error("must be a non-empty list of distinct ids", "targets")
-    r.finish()
     spec = SensorSpec(
         id=r.path[-1], kind=kind, site=site, period=period, start=start, std=std, p_detect=p_detect,
         fov_az=fov_az, fov_el=fov_el, max_range=max_range, band=band, signal_power=signal_power,
         targets=tuple(refs) if refs is not None else tuple(targets or ()), clutter_rate=clutter_rate,
         latency=latency, sac_sic=None if sac_sic is None else tuple(sac_sic),
     )
+    unbounded = [c for c in spec.components if math.isinf(coverage_span(spec, c)[1])]
+    if clutter_rate > 0 and unbounded:  # false alarms are spread uniformly over the coverage
+        why = ("give max_range_m or max_range_km" if unbounded == ["range"]
+               else f"a {kind} sensor's {', '.join(unbounded)} have no coverage bounds")
+        raise r.error(f"clutter needs a finite coverage: {why}", "clutter_rate")
+    r.finish()
     return spec, pos_key
 
 

@@ -17,24 +17,49 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from fusion.measurement.kinds import KINDS
 from fusion.topology import TOPOLOGIES
-from fusion.types import KIND_COMPONENTS
 
 if TYPE_CHECKING:
     from .trajectories import Segment
 
-# Sensor kind -> the Measurement kind it reports (fusion.types.KIND_COMPONENTS).
-SENSOR_KINDS: dict[str, str] = {
-    "df": "bearing",
-    "airborne_df": "bearing",
-    "radar2d": "range_az",
-    "angle": "azel",
-    "radar3d": "az_el_range",
-}
-# Active sensors see their own echo (two-way path loss); the others are passive.
-ACTIVE_KINDS = frozenset({"radar2d", "radar3d"})
-# Sensors that may report bearings on a jammer (it is an emitter).
-DF_KINDS = frozenset({"df", "airborne_df"})
+
+@dataclass(frozen=True)
+class SensorKind:
+    """A kind of sensor a scenario or site file declares (``kind = "radar2d"``).
+
+    Attributes:
+        name: the ``kind`` key's value.
+        measures: the measurement kind it reports (:data:`fusion.measurement.kinds.KINDS`).
+        active: it sees its own echo (two-way path loss, :mod:`sensors_sim.jammer`);
+            the others are passive.
+        airborne: a scenario gives it a flight path (``path_m``/``path_km``), not a point.
+        std_keys: per component, the keys of its stated std, the first one given read
+            (each in the component's units: ``_deg``/``_rad`` or ``_m``/``_km``); empty:
+            each component's wire std field (``std_az``, ``std_range``, ...).
+    """
+
+    name: str
+    measures: str
+    active: bool = False
+    airborne: bool = False
+    std_keys: tuple[tuple[str, ...], ...] = ()
+
+    def std_keys_of(self) -> tuple[tuple[str, ...], ...]:
+        """The std keys per component (the class docstring's ``std_keys``, filled in)."""
+        return self.std_keys or tuple((c.std_field,) for c in KINDS[self.measures].components)
+
+
+#: every sensor kind, by name
+SENSOR_KINDS: dict[str, SensorKind] = {k.name: k for k in (
+    SensorKind("df", "bearing"),
+    SensorKind("airborne_df", "bearing", airborne=True),
+    SensorKind("radar2d", "range_az", active=True),
+    SensorKind("angle", "azel"),
+    SensorKind("radar3d", "az_el_range", active=True),
+)}
+# Sensors that may report bearings on a jammer (it is an emitter): the DF family's.
+DF_KINDS = frozenset(k.name for k in SENSOR_KINDS.values() if KINDS[k.measures].family == "df")
 JAM_MODES = ("barrage", "spot")
 TRUTH_PROCESS = "truth"
 
@@ -106,8 +131,8 @@ class SensorSpec:
             file for a mobile station whose position comes with each measurement.
         period, start: scans at ``start + k·period`` up to the scenario's duration (in
             a site file: the nominal period, which sizes the consumers' buffers).
-        std: stated noise standard deviations, in the order of
-            ``KIND_COMPONENTS[measurement_kind]`` (rad, m).
+        std: stated noise standard deviations, in the order of the measurement kind's
+            components (rad, m).
         p_detect: probability of detecting a target in coverage, per scan.
         fov_az: (first azimuth, width) of the azimuth sector, clockwise (rad).
         fov_el: (lowest, highest) elevation seen (rad).
@@ -144,15 +169,16 @@ class SensorSpec:
 
     @property
     def measurement_kind(self) -> str:
-        return SENSOR_KINDS[self.kind]
+        return SENSOR_KINDS[self.kind].measures
 
     @property
     def components(self) -> tuple[str, ...]:
-        return KIND_COMPONENTS[self.measurement_kind]
+        """The names of its measurement kind's components."""
+        return KINDS[self.measurement_kind].names
 
     @property
     def active(self) -> bool:
-        return self.kind in ACTIVE_KINDS
+        return SENSOR_KINDS[self.kind].active
 
 
 @dataclass(frozen=True, eq=False)

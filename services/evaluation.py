@@ -35,6 +35,7 @@ from typing import Callable, Iterable, Sequence
 
 import numpy as np
 
+from fusion.measurement.kinds import KINDS, RAY, SPHERE, kinds_of, model_for
 from fusion.methods import METHODS, make_method, method_config
 from fusion.types import Estimate, Measurement
 
@@ -80,7 +81,7 @@ def default_methods(scenario) -> list[str]:
     they are co-located). Bearings-only scenarios: every DF method.
     """
     kinds = measurement_kinds(scenario)
-    fixed = all(s.site.fixed for s in scenario.sensors.values() if s.measurement_kind == "bearing")
+    fixed = all(s.site.fixed for s in scenario.sensors.values() if KINDS[s.measurement_kind].family == "df")
     colocated = _colocated_pair(scenario)
     return [m for m, s in METHODS.items() if s.runs_on(kinds, fixed_stations=fixed, colocated=colocated)]
 
@@ -106,8 +107,10 @@ def method_misfit(scenario, method: str) -> str | None:
 def _colocated_pair(scenario) -> bool:
     from fusion.patent import COLOCATED_TOL
 
-    radars = [s for s in scenario.sensors.values() if s.measurement_kind == "range_az"]
-    angles = [s for s in scenario.sensors.values() if s.measurement_kind == "azel"]
+    starts = {s.id: KINDS[s.measurement_kind].start for s in scenario.sensors.values()
+              if KINDS[s.measurement_kind].family == "3d"}
+    radars = [s for s in scenario.sensors.values() if starts.get(s.id) == SPHERE]
+    angles = [s for s in scenario.sensors.values() if starts.get(s.id) == RAY]
     return any(r.site.fixed and a.site.fixed and np.max(np.abs(r.site.points[0] - a.site.points[0])) <= COLOCATED_TOL
                for r in radars for a in angles)
 
@@ -229,9 +232,9 @@ def _noise_std(scenario, sensor_id: str, t: float, position: np.ndarray) -> tupl
     if effect is None:
         return std, True
     out, regular = np.empty_like(std), True
-    for i, comp in enumerate(spec.components):
+    for i, comp in enumerate(KINDS[spec.measurement_kind].components):
         s1 = std[i] * math.sqrt(effect.variance_gain)
-        s2 = effect.outlier_std_range if comp == "range" else effect.outlier_std
+        s2 = effect.outlier_std if comp.angle else effect.outlier_std_range
         if s2 is None or effect.p_outlier == 0.0:
             out[i] = s1
             continue
@@ -253,9 +256,9 @@ def crb_summary(scenario, runs: int) -> dict | None:
         return None
     target = next(iter(scenario.targets))
     kinds = {s.measurement_kind for s in scenario.sensors.values() if target in s.targets}
-    if "bearing" in kinds:
+    if kinds & kinds_of("df"):
         return _crb_emitter(scenario, target)
-    if kinds & {"range_az", "azel", "az_el_range"}:
+    if kinds & kinds_of("3d"):
         return _crb_3d(scenario, target, runs)
     return None
 
@@ -269,7 +272,6 @@ def _crb_3d(scenario, target: str, runs: int) -> dict | None:
     from fusion.init3d import initial_state
     from fusion.motion import ConstantAcceleration
     from fusion.patent import KINDS_3D, TrackerConfig
-    from fusion.sensors3d import MODEL_BY_KIND, SphericalModel
     from sensors_sim import truth_trajectory
     from sensors_sim.geometry import in_coverage
     from sensors_sim.trajectories import ConstantAcceleration as CASegment
@@ -302,7 +304,7 @@ def _crb_3d(scenario, target: str, runs: int) -> dict | None:
                 continue
             std, reg = _noise_std(scenario, s, t, X[0, :3])
             regular &= reg
-            model = SphericalModel(spec.components, spec.site.position(t), std, 9)
+            model = model_for(spec.measurement_kind, spec.site.position(t), std, 9)
             info[k] += spec.p_detect * cov.mean() * expected_information([model], X[cov])
     # P0: the trackers' initialiser on the noise-free first scan (fusion.crb3d, "initial information")
     t0, _, first = groups[0]
@@ -310,7 +312,7 @@ def _crb_3d(scenario, target: str, runs: int) -> dict | None:
     scan0 = []
     for s in first:
         spec = scenario.sensor(s)
-        model = MODEL_BY_KIND[spec.measurement_kind](spec.site.position(t0), spec.std, 9)
+        model = model_for(spec.measurement_kind, spec.site.position(t0), spec.std, 9)
         scan0.append(Measurement(t0, s, spec.measurement_kind, model.h(x0), np.asarray(spec.std, float),
                                  spec.site.position(t0)))
     _, P0 = initial_state(scan0, 9, cfg.priors())
@@ -351,7 +353,8 @@ def _crb_emitter(scenario, target: str) -> dict | None:
     from fusion.df.methods import DFConfig
 
     spec_t = scenario.target(target)
-    sensors = [s for s, spec in scenario.sensors.items() if target in spec.targets and spec.measurement_kind == "bearing"]
+    sensors = [s for s, spec in scenario.sensors.items()
+               if target in spec.targets and KINDS[spec.measurement_kind].family == "df"]
     groups = scan_groups(scenario, sensors, pair_tol_of(scenario, DFConfig.pair_tol))
     try:  # the recursive methods' model: EKF's table
         cfg = DFConfig.from_dict(method_config(scenario.tracker, "EKF"))

@@ -29,6 +29,7 @@ import queue
 import time
 from typing import Any, Mapping
 
+from fusion.measurement.kinds import KINDS
 from fusion.methods import METHODS, make_method, method_config, split, track_fusion_rule
 from fusion.network import TrackCentre
 from fusion.oosm import Refiltering
@@ -51,7 +52,9 @@ class MeasurementIntake:
     kind and state its sensor's nominal noise std (sensors never state another: jamming
     is not announced in the data): a well-formed message that claims a 1e-300 std, or
     an angle sensor's message on a radar's key, is a configuration error or a forgery,
-    and is refused rather than fused (cause ``kind-mismatch`` / ``std-mismatch``).
+    and is refused rather than fused (cause ``kind-mismatch`` / ``std-mismatch``). A
+    kind whose reports state their own noise (``own_noise``, a cooperative position
+    report) is exempt from the std check.
     """
 
     family = "meas"
@@ -70,7 +73,7 @@ class MeasurementIntake:
             kind, std = self.expected[key_id]
             if m.kind != kind:
                 return None, f"kind-mismatch:{key_id} is a {kind} sensor, the message is {m.kind}"
-            if tuple(float(v) for v in m.std) != std:
+            if not KINDS[kind].own_noise and tuple(float(v) for v in m.std) != std:
                 return None, f"std-mismatch:{key_id} has std {list(std)}, the message says {list(m.std)}"
         return "item", m
 

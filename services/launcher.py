@@ -45,6 +45,7 @@ import zenoh
 
 from fusion.methods import METHODS, TRACK_FUSION_METHODS, topology_default, track_fusion_rule
 from schemas import KeySpace, SchemaError, decode, to_estimate, tracker_id
+from sensors_sim.spec import DF_KINDS
 
 from .node import Inbox, Node, ZenohOptions
 from .resources import ProcessUsage, own_usage
@@ -347,7 +348,7 @@ def resolve_topology(scenario, topology: str | None, method: str | None) -> tupl
     if method is None and topology is not None and (default is None or topology_of(default) != topology):
         if topology == "centralised":
             raise SystemExit(f"zfusion run: scenario {scenario.name} names no centralised method; give --method")
-        df = all(scenario.kind_of(s) in ("df", "airborne_df") for s in scenario.sensors)
+        df = all(scenario.kind_of(s) in DF_KINDS for s in scenario.sensors)
         method = topology_default(topology, "df" if df else "3d")
         if method is None:
             raise SystemExit(f"zfusion run: no DF method runs in the {topology!r} topology (docs/design.md, Topologies)")

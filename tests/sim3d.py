@@ -31,7 +31,7 @@ import numpy as np
 
 from fusion.angles import wrap_2pi
 from fusion.motion import ConstantAcceleration
-from fusion.sensors3d import MODEL_BY_KIND
+from fusion.measurement.kinds import model_for
 from fusion.types import Estimate, Measurement
 
 DEG = np.pi / 180.0
@@ -82,7 +82,7 @@ def simulate(n_runs: int, seed: int, sensors=PATENT_SENSORS, x0=X0, q=Q, duratio
         truth[:, k] = motion.sample(truth[:, k - 1], times[k] - times[k - 1], rng)
     meas: list[list[Measurement]] = [[] for _ in range(n_runs)]
     for s in sensors:
-        model = MODEL_BY_KIND[s.kind](s.site, s.std)
+        model = model_for(s.kind, s.site, s.std)
         idx = np.searchsorted(times, per_sensor[s.id])
         z = model.h(truth[:, idx]) + rng.standard_normal((n_runs, idx.size, model.n_z)) * model.std
         z[..., model.angles & (model.codes == 0)] = wrap_2pi(z[..., model.angles & (model.codes == 0)])
@@ -147,7 +147,7 @@ def scenario_runs(name: str, n_runs: int, seed: int | None = None) -> SimRuns:
 class LinearAnalogue:
     """A Kalman filter on ``x_{k+1} = F x_k + w``, ``z_k = H_k x_k + v`` with the CA model
     of rate ``q``, scans every ``dt`` and ``H_k = ∂h/∂x`` of ``model`` (a
-    :class:`~fusion.sensors3d.SphericalModel`) along the noise-free trajectory from
+    :class:`~fusion.measurement.models.SphericalModel`) along the noise-free trajectory from
     ``x0``. ``P0`` is the filter's initial covariance (``initial_state`` of a
     noise-free first scan, so the same as the EKF's up to linearisation), ``E0`` the
     true second moment of the initial error: its position block is ``P0``'s (the first
@@ -185,7 +185,7 @@ class LinearAnalogue:
         from fusion.methods import method_config
         from fusion.init3d import initial_state
         from fusion.patent import TrackerConfig
-        from fusion.sensors3d import SphericalModel
+        from fusion.measurement.models import SphericalModel
         from sensors_sim import load_scenario
 
         sc = load_scenario(name)
@@ -194,7 +194,7 @@ class LinearAnalogue:
         x0 = np.asarray(target.x0, float)
         scan, models = [], []
         for sid, s in sc.sensors.items():
-            model = MODEL_BY_KIND[s.measurement_kind](s.site.position(0.0), s.std)
+            model = model_for(s.measurement_kind, s.site.position(0.0), s.std)
             scan.append(Measurement(0.0, sid, s.measurement_kind, model.h(x0), np.asarray(s.std, float), s.site.position(0.0)))
             models.append(model)
         _, P0 = initial_state(scan, 9, cfg.priors())

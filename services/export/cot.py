@@ -36,6 +36,7 @@ import numpy as np
 
 from fusion.geodetic import LocalFrame
 from fusion.types import Estimate
+from sensors_sim.spec import SENSOR_KINDS
 
 from .. import geo
 from .tracks import utc_iso
@@ -46,7 +47,8 @@ UNKNOWN = 9999999.0  # CoT's "not known" for hae, ce, le
 TYPE_TRACK = "a-u-A"
 TYPE_EMITTER = "a-u-G-E"
 TYPE_SENSOR = "a-f-G-E-S"
-SENSOR_TYPES = {"radar2d": "a-f-G-E-S-R", "radar3d": "a-f-G-E-S-R", "airborne_df": "a-f-A"}
+SENSOR_TYPES = {**{k.name: "a-f-G-E-S-R" for k in SENSOR_KINDS.values() if k.active},  # radars
+                **{k.name: "a-f-A" for k in SENSOR_KINDS.values() if k.airborne}}
 STALE_S = 60.0
 BACKOFF_MIN_S = 0.5
 BACKOFF_MAX_S = 30.0

@@ -14,6 +14,13 @@ so that a fuser never waits for a quiet sensor (squelch closed): a reading that
 arrives after its time was promised is ``late`` and dropped, as is anything that fails
 a check, counted per cause and logged once per cause (:class:`services.node.RejectLog`).
 
+A kind that reports a position (not *sited*, :mod:`fusion.measurement.kinds`) may give
+it in geodetic coordinates: it is converted to the site's ENU frame, and its stated
+covariance turned from the ENU axes at that position into the frame's
+(:meth:`fusion.geodetic.LocalFrame.rotation_from`). A kind whose reports state their own
+noise (``own_noise``) is published with the reading's std and correlations (the site
+file's std when the reading states none), not checked against the site file's.
+
 An identical repeat of a reading (a device page polled twice between two updates) is
 not published again, nor refused again: it is counted as ``repeats``.
 
@@ -32,6 +39,7 @@ from typing import Mapping
 import numpy as np
 
 from fusion.geodetic import LocalFrame
+from fusion.measurement.kinds import KINDS
 from fusion.types import Measurement
 from schemas import KeySpace, SchemaError, encode, encode_measurement
 
@@ -63,21 +71,24 @@ class Reading:
 
     ``std`` None: the site file's. Position: ``site`` (ENU m) or ``geodetic``
     (lat °, lon °, alt m or None), or neither; used only for a sensor the site file
-    does not pin.
+    does not pin. A position report (a kind that is not sited) has no site: ``geodetic``
+    is then the reported position, and ``z`` None. ``corr``: the stated correlation
+    matrix of a kind whose reports state their own noise.
     """
 
     sensor: str
     t: float
     kind: str
-    z: np.ndarray
+    z: np.ndarray | None
     std: np.ndarray | None = None
     site: np.ndarray | None = None
     geodetic: tuple[float, float, float | None] | None = None
+    corr: np.ndarray | None = None
 
     def digest(self) -> tuple:
-        return (self.kind, tuple(np.asarray(self.z, float).tolist()),
-                None if self.std is None else tuple(np.asarray(self.std, float).tolist()),
-                None if self.site is None else tuple(np.asarray(self.site, float).tolist()), self.geodetic)
+        def values(a):
+            return None if a is None else tuple(np.asarray(a, float).ravel().tolist())
+        return (self.kind, values(self.z), values(self.std), values(self.site), self.geodetic, values(self.corr))
 
 
 @dataclass
@@ -128,8 +139,9 @@ class Gateway:
         if r.kind != spec.kind:
             return self.refuse(r.sensor, "kind-mismatch", f"{r.sensor} is a {spec.kind} sensor, the reading "
                                                           f"is {r.kind}")
+        own_noise = KINDS[r.kind].own_noise
         if r.std is not None and (np.shape(r.std) != np.shape(spec.std)
-                                  or not np.allclose(r.std, spec.std, rtol=1e-9, atol=0.0)):
+                                  or not (own_noise or np.allclose(r.std, spec.std, rtol=1e-9, atol=0.0))):
             return self.refuse(r.sensor, "std-mismatch", f"{r.sensor} states std {spec.std.tolist()} in the "
                                                          f"site file, the reading says {np.asarray(r.std).tolist()}")
         if not math.isfinite(r.t):
@@ -152,16 +164,20 @@ class Gateway:
             return self.refuse(r.sensor, "late", f"t = {r.t:.3f} is not after what was already promised "
                                                  f"({st.watermark:.3f}); out of order, or later than the "
                                                  f"heartbeat lag ({self.lag:g} s) allows")
+        std = r.std if own_noise and r.std is not None else spec.std
+        corr = r.corr if own_noise else None
         try:
-            site = self._site(spec, r)
+            if KINDS[r.kind].sited:
+                z, site = r.z, self._site(spec, r)
+            else:  # a position report
+                (z, std, corr), site = self._position(r, std, corr), spec.site if spec.site is not None else np.zeros(3)
         except ValueError as e:
             return self.refuse(r.sensor, "position", f"{r.sensor}: {e}")
         if site is None:
             return self.refuse(r.sensor, "no-position", f"{r.sensor} has no site in the site file and the "
                                                         f"reading gives none (no GPS fix?)")
-        std = spec.std
-        m = Measurement(t=float(r.t), sensor=r.sensor, kind=r.kind, z=np.asarray(r.z, dtype=float), std=std,
-                        site=site, seq=st.seq + 1)
+        m = Measurement(t=float(r.t), sensor=r.sensor, kind=r.kind, z=np.asarray(z, dtype=float), std=std,
+                        site=site, seq=st.seq + 1, corr=corr)
         try:
             data = encode_measurement(m, r.sensor)
         except (SchemaError, ValueError, TypeError) as e:
@@ -200,6 +216,22 @@ class Gateway:
         st.wm_seq += 1
         self.counters["watermarks"] += 1
         return [(self.keys.meas(sensor), encode("watermark", sensor, st.wm_seq, t, final=False))]
+
+    def _position(self, r: Reading, std: np.ndarray, corr: np.ndarray | None):
+        """A position report's ``(z, std, corr)`` in the site's frame: as given (ENU), or
+        from geodetic, its noise ``C = D ρ D`` turned by ``T = R(origin) R(position)ᵀ``."""
+        if r.geodetic is None:
+            return r.z, std, corr
+        lat, lon, alt = r.geodetic
+        z = self.frame.to_enu(lat, lon, self.frame.alt0 if alt is None else alt)
+        T = self.frame.rotation_from(lat, lon)
+        std = np.asarray(std, dtype=float)
+        C = np.outer(std, std) * (np.eye(std.size) if corr is None else corr)
+        C = T @ C @ T.T
+        s = np.sqrt(np.diag(C))
+        rho = 0.5 * (C + C.T) / np.outer(s, s)
+        np.fill_diagonal(rho, 1.0)
+        return z, s, rho
 
     def _site(self, spec: SensorSite, r: Reading) -> np.ndarray | None:
         if spec.site is not None:

@@ -49,7 +49,8 @@ import rerun as rr
 
 from fusion.metrics import gospa
 from fusion.mtt import AssociationConfig
-from fusion.types import KIND_COMPONENTS, Estimate, Measurement
+from fusion.measurement.kinds import KINDS, SPHERE
+from fusion.types import Estimate, Measurement
 from schemas import MEASUREMENT_KINDS, KeySpace, Message, SchemaError, decode, to_estimate, to_measurement
 from schemas.links import downlink, uplink
 
@@ -348,7 +349,7 @@ class Recorder:
     def _site(self, sensor: str, pos: np.ndarray, t: float, kind: str) -> np.ndarray:
         """Draw a sensor's site the first time and whenever it has moved; returns where it is drawn."""
         pos = np.asarray(pos, dtype=float).copy()
-        if sensor in self.df_sensors or kind == "bearing":
+        if sensor in self.df_sensors or (kind in KINDS and KINDS[kind].family == "df"):  # (kind: a sensor's or a measurement's)
             pos[2] = 0.0  # DF lives on the map plane
         prev = self._sites.get(sensor)
         if prev is not None and np.linalg.norm(prev - pos) <= 1.0:
@@ -406,19 +407,22 @@ class Recorder:
 
     def _draw_measurement(self, path: str, m, site: np.ndarray, c: tuple[int, int, int], learn: bool) -> None:
         """One row: every report of this scan so far (a scan may see several targets)."""
-        z = dict(zip(KIND_COMPONENTS[m.kind], (float(v) for v in m.z)))
-        u = draw.unit(z["az"], z.get("el", 0.0))
+        kind = KINDS[m.kind]
+        z = dict(zip(kind.names, (float(v) for v in m.z)))
         t0, scan = self._scan.get(path, (None, None))
         if t0 != m.t or scan is None:
             scan = {"points": [], "rays": [], "arcs": []}
             self._scan[path] = (m.t, scan)
         points, rays, arcs = scan["points"], scan["rays"], scan["arcs"]
-        if "range" in z:
+        u = None if not kind.sited else draw.unit(z["az"], z.get("el", 0.0))
+        if u is None:  # a position report: the point itself
+            points.append(np.asarray(m.z, dtype=float))
+        elif "range" in z:
             points.append(site + z["range"] * u)
-            if m.kind == "range_az":  # no elevation: the target is anywhere on this arc
+            if kind.start == SPHERE:  # no elevation: the target is anywhere on this arc
                 arcs.append(draw.vertical_arc(site, z["az"], z["range"]))
         else:
-            planar = m.kind == "bearing"
+            planar = kind.family == "df"
             rays.append(np.array([site, site + self._ray_length(site, u, planar) * u]))
             if planar and learn:
                 self._bearings.append((site, u))
@@ -430,7 +434,7 @@ class Recorder:
             colors = [c] * len(rays) + [draw.dim(c)] * len(arcs)
             parts.append(part(rr.LineStrips3D, strips=strips, colors=colors, radii=ui_points(1.0)))
         self._log(path, m.t, *parts)
-        if self.geo is not None and m.kind == "bearing":
+        if self.geo is not None and kind.family == "df":
             self.geo.bearings(path, m.t, rays, c)
 
     def _on_watermark(self, family: str, ident: str | None, msg: Message) -> None:

@@ -22,7 +22,7 @@ from fusion.association import (
     gnn,
     mahalanobis2,
 )
-from fusion.sensors3d import AngleSensor, Radar2D
+from fusion.measurement.kinds import model_for
 
 ALPHA = 0.01
 
@@ -40,7 +40,7 @@ def test_mahalanobis_distance_is_the_closed_form_and_wraps_azimuth():
     azimuth row sees none of it (∂az/∂p_n = 0), so d² = ν_az²/σ_az² + ν_r²/(σ_n² + σ_r²);
     an azimuth measured just below 2π is a small innovation of a target at 0."""
     sa, sr, sn = 0.01, 20.0, 100.0
-    model = Radar2D([0.0, 0.0, 0.0], [sa, sr], 9)
+    model = model_for("range_az", [0.0, 0.0, 0.0], [sa, sr], 9)
     x = np.zeros(9)
     x[:3] = [0.0, 10_000.0, 0.0]
     P = np.zeros((9, 9))
@@ -57,7 +57,7 @@ def test_sequential_gating_is_the_scalar_kalman_recursion():
     v₁ = σ_n²σ_r²/(σ_n² + σ_r²)), the second plot's d² is (r₂ − m₁)²/(v₁ + σ_r²) plus its
     azimuth term, and the two d² add up to the joint d² of both ranges stacked."""
     sa, sr, sn = 0.01, 20.0, 300.0
-    model = Radar2D([0.0, 0.0, 0.0], [sa, sr], 9)
+    model = model_for("range_az", [0.0, 0.0, 0.0], [sa, sr], 9)
     x = np.zeros(9)
     x[:3] = [0.0, 10_000.0, 0.0]
     P = np.diag([0.0, sn**2, 0.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0])
@@ -79,7 +79,7 @@ def test_true_measurements_fall_in_the_gate_with_the_gate_probability():
     covariance small enough for h to be linear, d² is χ²(2), so a 99 % gate keeps
     99 % of the true plots (binomial test at 1 %, 20 000 draws)."""
     rng = np.random.default_rng(5)
-    model = AngleSensor([100.0, -200.0, 0.0], [1e-3, 1e-3], 6)
+    model = model_for("azel", [100.0, -200.0, 0.0], [1e-3, 1e-3], 6)
     x = np.array([8000.0, 6000.0, 3000.0, 100.0, 0.0, 0.0])
     A = rng.normal(size=(6, 6))
     P = A @ A.T * 10.0 + np.eye(6) * 100.0

@@ -1,4 +1,4 @@
-"""fusion.batch: the batched EKF equals the single-track path (fusion.sensors3d +
+"""fusion.batch: the batched EKF equals the single-track path (fusion.ekf +
 fusion.kalman) to 1e-10, over random geometries, sensors and time steps."""
 
 from __future__ import annotations
@@ -8,8 +8,10 @@ import pytest
 
 from fusion import batch
 from fusion.angles import TWO_PI
+from fusion.ekf import ekf_predict, ekf_update
+from fusion.measurement.kinds import model_for
+from fusion.measurement.models import SphericalModel
 from fusion.motion import make_motion
-from fusion.sensors3d import AngleSensor, Radar2D, Radar3D, SphericalModel, ekf_predict, ekf_update
 
 TOL = 1e-10
 
@@ -45,11 +47,11 @@ def _random_model(rng, n_x: int) -> SphericalModel:
     kind = rng.integers(4)
     site = rng.uniform(-2e3, 2e3, 3)
     if kind == 0:
-        return Radar3D(site, [rng.uniform(1e-4, 0.03), rng.uniform(1e-4, 0.03), rng.uniform(1.0, 80.0)], n_x)
+        return model_for("az_el_range", site, [rng.uniform(1e-4, 0.03), rng.uniform(1e-4, 0.03), rng.uniform(1.0, 80.0)], n_x)
     if kind == 1:
-        return AngleSensor(site, [rng.uniform(1e-4, 0.03), rng.uniform(1e-4, 0.03)], n_x)
+        return model_for("azel", site, [rng.uniform(1e-4, 0.03), rng.uniform(1e-4, 0.03)], n_x)
     if kind == 2:
-        return Radar2D(site, [rng.uniform(1e-4, 0.03), rng.uniform(1.0, 80.0)], n_x)
+        return model_for("range_az", site, [rng.uniform(1e-4, 0.03), rng.uniform(1.0, 80.0)], n_x)
     n_z = int(rng.integers(1, 6))
     comps = rng.choice(["az", "el", "range"], n_z).tolist()
     std = [rng.uniform(1.0, 80.0) if c == "range" else rng.uniform(1e-4, 0.03) for c in comps]
@@ -91,7 +93,7 @@ def test_many_scans_stay_equal():
     """A stack run through 30 predict/update cycles stays on the single-track trajectory."""
     rng = np.random.default_rng(42)
     motion = make_motion("ca", 0.01)
-    model = SphericalModel.stack([Radar2D([0.0, 0.0, 0.0], [0.017, 20.0]), AngleSensor([0.0, 0.0, 0.0], [1e-3, 1e-3])])
+    model = SphericalModel.stack([model_for("range_az", [0.0, 0.0, 0.0], [0.017, 20.0]), model_for("azel", [0.0, 0.0, 0.0], [1e-3, 1e-3])])
     N = 32
     x, P = _random_states(rng, N, 9)
     xs, Ps = x.copy(), P.copy()
@@ -114,14 +116,14 @@ def test_per_track_sites_and_noise():
     rng = np.random.default_rng(7)
     N = 40
     x, P = _random_states(rng, N, 9)
-    model = Radar3D([0.0, 0.0, 0.0], [0.01, 0.01, 10.0])
+    model = model_for("az_el_range", [0.0, 0.0, 0.0], [0.01, 0.01, 10.0])
     sites = rng.uniform(-5e3, 5e3, (N, 1, 3)).repeat(3, axis=1)
     stds = np.c_[rng.uniform(1e-3, 0.02, (N, 2)), rng.uniform(5.0, 50.0, N)]
     R = np.stack([np.diag(s**2) for s in stds])
-    z = np.stack([Radar3D(sites[i, 0], stds[i]).h(x[i]) for i in range(N)])
+    z = np.stack([model_for("az_el_range", sites[i, 0], stds[i]).h(x[i]) for i in range(N)])
     res = batch.ekf_update(model, x, P, z, sites=sites, R=R)
     for i in range(N):
-        one = ekf_update(Radar3D(sites[i, 0], stds[i]), x[i], P[i], z[i])
+        one = ekf_update(model_for("az_el_range", sites[i, 0], stds[i]), x[i], P[i], z[i])
         _close(res.x[i], one.x, f"x[{i}]")
         _close(res.P[i], one.P, f"P[{i}]")
         assert abs(res.nis[i] - one.nis) <= TOL * max(1.0, one.nis)
@@ -132,7 +134,7 @@ def test_full_R_and_generic_predict():
     rng = np.random.default_rng(3)
     N = 20
     x, P = _random_states(rng, N, 9)
-    model = Radar3D([100.0, -50.0, 0.0], [0.01, 0.01, 10.0])
+    model = model_for("az_el_range", [100.0, -50.0, 0.0], [0.01, 0.01, 10.0])
     Rfull = _random_cov(rng, 3, model.std)
     zp, Hp = batch.spherical(model, x)
     z = _measure(rng, model, x)
@@ -172,7 +174,7 @@ def test_singular_geometry_names_the_track():
     x, P = _random_states(rng, 5, 9)
     x[3, :3] = [10.0, 20.0, 500.0]  # straight above the site
     with pytest.raises(ValueError, match="track 3: target straight above"):
-        batch.spherical(AngleSensor([10.0, 20.0, 0.0], [0.01, 0.01]), x)
+        batch.spherical(model_for("azel", [10.0, 20.0, 0.0], [0.01, 0.01]), x)
     x[2, :3] = [10.0, 20.0, 0.0]  # at the site
     with pytest.raises(ValueError, match="track 2: target at a sensor site"):
         batch.spherical(SphericalModel(["range"], [10.0, 20.0, 0.0], [5.0]), x)
@@ -180,7 +182,7 @@ def test_singular_geometry_names_the_track():
 
 def test_shapes_are_checked():
     x, P = _random_states(np.random.default_rng(0), 4, 9)
-    model = Radar3D([0.0, 0.0, 0.0], [0.01, 0.01, 10.0])
+    model = model_for("az_el_range", [0.0, 0.0, 0.0], [0.01, 0.01, 10.0])
     with pytest.raises(ValueError):
         batch.ekf_update(model, x, P[:3], np.zeros((4, 3)))
     with pytest.raises(ValueError):
@@ -200,7 +202,7 @@ def test_large_stacks_go_through_in_passes(monkeypatch):
     N = 50
     motion = make_motion("ca", 0.05)
     x, P = _random_states(rng, N, 9)
-    model = Radar3D([0.0, 0.0, 0.0], [0.01, 0.01, 10.0])
+    model = model_for("az_el_range", [0.0, 0.0, 0.0], [0.01, 0.01, 10.0])
     sites = rng.uniform(-5e3, 5e3, (N, 1, 3)).repeat(3, axis=1)
     R = np.stack([np.diag(rng.uniform(0.5, 2.0, 3) * model.std**2) for _ in range(N)])
     dt = rng.choice([0.0, 0.5, 1.0], N)

@@ -9,8 +9,8 @@ import pytest
 
 from fusion.crb3d import block_rmse, expected_information, posterior_crb
 from fusion.kalman import predict, update
+from fusion.measurement.kinds import model_for
 from fusion.motion import ConstantAcceleration, ConstantVelocity
-from fusion.sensors3d import AngleSensor, Radar2D, Radar3D
 
 DEG = np.pi / 180.0
 
@@ -66,7 +66,7 @@ def _fd_jacobian(model, x, h=1e-3):
 
 def test_expected_information_is_the_average_of_HtRinvH():
     rng = np.random.default_rng(5)
-    models = [Radar2D([0, 0, 0], [1 * DEG, 20.0]), AngleSensor([100, -50, 3], [0.05 * DEG, 0.05 * DEG])]
+    models = [model_for("range_az", [0, 0, 0], [1 * DEG, 20.0]), model_for("azel", [100, -50, 3], [0.05 * DEG, 0.05 * DEG])]
     X = np.hstack([rng.normal([6000, 8000, 2000], 300, size=(7, 3)), rng.normal(size=(7, 6))])
     ref = np.zeros((9, 9))
     for x in X:
@@ -89,7 +89,7 @@ def test_block_rmse():
 def test_static_3d_radar_bound_is_the_measurement_average():
     """A motionless target (q = 0), a 3D radar, no prior on position beyond the first scan:
     after k scans the position bound is (Σ HᵀR⁻¹H)⁻¹ (linearised at the true point)."""
-    model = Radar3D([0, 0, 0], [1 * DEG, 1 * DEG, 20.0], 6)
+    model = model_for("az_el_range", [0, 0, 0], [1 * DEG, 1 * DEG, 20.0], 6)
     x = np.array([6000.0, 8000.0, 2000.0, 0, 0, 0])
     H = model.jacobian(x)
     I1 = H.T @ np.linalg.inv(model.R) @ H

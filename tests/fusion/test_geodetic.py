@@ -50,3 +50,18 @@ def test_bad_latitude_is_an_error():
         geodetic_to_enu(0.0, 0.0, 0.0, 95.0, 0.0, 0.0, deg=True)
     with pytest.raises(ValueError, match="origin latitude"):
         LocalFrame(2.0, 0.0)
+
+
+@pytest.mark.parametrize("lat, lon", [(21.5, 106.9), (-33.9, 151.2), (21.0285, 105.8542)])
+def test_rotation_from_a_point_s_axes_matches_pymap3d(lat, lon):
+    """A displacement in the ENU axes at a point far from the origin, carried to the
+    origin's frame by ``T = R(o) R(p)ᵀ``, is where pymap3d puts the displaced point
+    (exact for any displacement: ENU and ECEF are affine in each other)."""
+    frame = LocalFrame(21.0285, 105.8542, 10.0, deg=True)
+    alt = 9000.0
+    T = frame.rotation_from(lat, lon)
+    np.testing.assert_allclose(T @ T.T, np.eye(3), atol=1e-15)
+    p = frame.to_enu(lat, lon, alt)
+    for d in ([1000.0, 0.0, 0.0], [0.0, 2500.0, -300.0], [-40.0, 75.0, 120.0]):
+        q = enu_to_geodetic(*d, lat, lon, alt, deg=True)
+        np.testing.assert_allclose(frame.to_enu(*q) - p, T @ np.array(d), rtol=0, atol=1e-6)

@@ -16,12 +16,13 @@ from scipy.integrate import quad_vec
 from scipy.linalg import expm
 from scipy.stats import chi2
 
+from fusion.ekf import TrackEKF
 from fusion.filters import filter_factory
 from fusion.imm import ModelSet, TrackIMM, model_set
+from fusion.measurement.kinds import model_for
 from fusion.methods import make_method
 from fusion.motion import ConstantAcceleration, ConstantTurn, CoordinatedTurn, PaddedConstantVelocity
 from fusion.patent import TrackerConfig
-from fusion.sensors3d import Radar3D, TrackEKF
 from fusion.types import Measurement
 from services.cli import main
 from conftest import ROOT
@@ -136,7 +137,7 @@ def _radar_scans(n=30, seed=0):
     std = np.array([np.radians(1.0), np.radians(1.0), 20.0])
     x = np.array([6000.0, 8000.0, 2000.0, -120.0, -60.0, 5.0, 0.0, 0.0, 0.0])
     out = []
-    model = Radar3D(np.zeros(3), std)
+    model = model_for("az_el_range", np.zeros(3), std)
     for k in range(n):
         p = x[:3] + x[3:6] * k
         z = model.h(np.concatenate([p, np.zeros(6)])) + rng.normal(0.0, std)
@@ -157,7 +158,7 @@ def test_one_model_of_probability_one_without_switching_is_that_filter(last):
                    x0, P0, 0.0)
     ekf = TrackEKF(ca, x0, P0, 0.0)
     for m in _radar_scans()[1:]:
-        model = Radar3D(m.site, m.std)
+        model = model_for("az_el_range", m.site, m.std)
         imm.predict(m.t)
         ekf.predict(m.t)
         r_imm, r_ekf = imm.update(model, m.z), ekf.update(model, m.z)

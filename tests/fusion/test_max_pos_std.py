@@ -20,7 +20,7 @@ from sim3d import run_method  # noqa: E402
 from fusion.association import CONFIRMED, DELETED, ManagementRule, TrackLogic  # noqa: E402
 from fusion.methods import make_method, method_config  # noqa: E402
 from fusion.motion import make_motion  # noqa: E402
-from fusion.sensors3d import SphericalModel  # noqa: E402
+from fusion.measurement.models import SphericalModel  # noqa: E402
 from fusion.types import Measurement  # noqa: E402
 from sensors_sim import load_scenario  # noqa: E402
 from services.evaluation import merged_measurements  # noqa: E402

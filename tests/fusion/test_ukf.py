@@ -16,7 +16,7 @@ from sim3d import centre_track, nees, run_method, scenario_runs  # noqa: E402
 
 from fusion.methods import make_method, method_config  # noqa: E402
 from fusion.motion import make_motion  # noqa: E402
-from fusion.sensors3d import SphericalModel  # noqa: E402
+from fusion.measurement.models import SphericalModel  # noqa: E402
 from fusion.ukf import TrackUKF  # noqa: E402
 from sensors_sim import load_scenario  # noqa: E402
 

@@ -11,7 +11,7 @@ import pytest
 from scipy import stats
 
 from fusion.angles import wrap_pi
-from fusion.types import angle_mask
+from fusion.measurement.kinds import KINDS
 from sensors_sim import process_rng, sensor_events, truth_trajectory
 from sensors_sim.geometry import finish_measurement, in_coverage, observe
 
@@ -29,8 +29,8 @@ def errors_of(scenario, sensor_id, run=0):
     out = []
     for ev in sensor_events(scenario, sensor_id, run):
         m = ev.measurement
-        e = m.z - observe(m.kind, traj.position(m.t) - m.site)
-        out.append(np.where(angle_mask(m.kind), wrap_pi(e), e))
+        e = m.z - observe(m.kind, traj.position(m.t), m.site)
+        out.append(np.where(KINDS[m.kind].angles, wrap_pi(e), e))
     return np.array(out)
 
 
@@ -158,9 +158,9 @@ def test_azimuth_is_compass_and_wrapped_near_north(tmp_path):
 
 def test_geometry_closed_forms_and_domains():
     # east: az 90°, 45° up: el 45°, slant range √2·1000
-    np.testing.assert_allclose(observe("az_el_range", np.array([1000.0, 0.0, 1000.0])),
+    np.testing.assert_allclose(observe("az_el_range", np.array([1000.0, 0.0, 1000.0]), np.zeros(3)),
                                [math.pi / 2, math.pi / 4, math.sqrt(2) * 1000.0])
-    np.testing.assert_allclose(observe("bearing", np.array([-1.0, -1.0, 5.0])), [5 * math.pi / 4])
+    np.testing.assert_allclose(observe("bearing", np.array([-1.0, -1.0, 5.0]), np.zeros(3)), [5 * math.pi / 4])
     np.testing.assert_allclose(finish_measurement("az_el_range", np.array([-0.1, 1.7, -3.0])),
                                [2 * math.pi - 0.1, math.pi / 2, 0.0])
 

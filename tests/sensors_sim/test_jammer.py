@@ -57,7 +57,7 @@ def bearing_errors(scenario, sensor_id, events=None):
     """(times, wrapped bearing errors, outlier flags, jammed flags) of detected scans."""
     traj = truth_trajectory(scenario, "E1")
     events = events if events is not None else list(sensor_events(scenario, sensor_id))
-    rows = [(e.t, float(wrap_pi(e.measurement.z[0] - observe("bearing", traj.position(e.t) - e.measurement.site)[0])),
+    rows = [(e.t, float(wrap_pi(e.measurement.z[0] - observe("bearing", traj.position(e.t), e.measurement.site)[0])),
              e.outlier, e.jammed) for e in events if e.measurement is not None]
     t, err, out, jam = (np.array(c) for c in zip(*rows))
     return t, err, out.astype(bool), jam.astype(bool)

@@ -16,8 +16,9 @@ from scipy.linalg import cho_factor, cho_solve
 
 from fusion import batch, kalman
 from fusion.angles import wrap_pi
+from fusion.ekf import TrackEKF, ekf_predict
+from fusion.measurement.models import MIN_HORIZONTAL_RANGE, SphericalModel, _wrap_pi
 from fusion.motion import ConstantAcceleration
-from fusion.sensors3d import MIN_HORIZONTAL_RANGE, SphericalModel, TrackEKF, _wrap_pi, ekf_predict
 from fusion.types import Estimate
 from schemas import SchemaError, decode, encode, encode_estimate, messages
 from schemas.messages import _encode_estimate_fast, _estimate_payload, _validate_fast, _validate_strict

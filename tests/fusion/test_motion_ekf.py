@@ -15,7 +15,9 @@ from scipy.optimize import brentq
 
 from fusion.init3d import FAR, NEAR, InitPriors, initial_state, spherical_to_position
 from fusion.motion import ConstantAcceleration, ConstantVelocity, make_motion
-from fusion.sensors3d import AngleSensor, Radar2D, Radar3D, SphericalModel, TrackEKF, from_measurement
+from fusion.ekf import TrackEKF
+from fusion.measurement.kinds import KINDS, model_for, model_of
+from fusion.measurement.models import SphericalModel
 from fusion.types import Measurement
 
 DEG = np.pi / 180.0
@@ -122,9 +124,9 @@ def _random_geometry(rng, n):
 
 
 SENSORS = [
-    (Radar2D, (1.0 * DEG, 20.0)),
-    (AngleSensor, (0.05 * DEG, 0.05 * DEG)),
-    (Radar3D, (1.0 * DEG, 1.0 * DEG, 20.0)),
+    ("range_az", (1.0 * DEG, 20.0)),
+    ("azel", (0.05 * DEG, 0.05 * DEG)),
+    ("az_el_range", (1.0 * DEG, 1.0 * DEG, 20.0)),
 ]
 
 
@@ -134,16 +136,16 @@ def test_h_matches_pymap3d_enu2aer():
     for k in range(len(x)):
         az, el, rng_ = pymap3d.enu2aer(*(x[k, :3] - site[k]), deg=False)
         ref = {"az": az, "el": el, "range": rng_}
-        for cls, std in SENSORS:
-            z = cls(site[k], std).h(x[k])
-            np.testing.assert_allclose(z, [ref[c] for c in cls(site[k], std).components], rtol=1e-12, atol=1e-9)
+        for kind, std in SENSORS:
+            z = model_for(kind, site[k], std).h(x[k])
+            np.testing.assert_allclose(z, [ref[c] for c in KINDS[kind].names], rtol=1e-12, atol=1e-9)
             assert 0.0 <= z[0] < 2 * np.pi
 
 
 def test_h_is_vectorised_over_states():
     rng = np.random.default_rng(2)
     x, *_ = _random_geometry(rng, 50)
-    m = Radar3D(np.zeros(3), (0.01, 0.01, 5.0))
+    m = model_for("az_el_range", np.zeros(3), (0.01, 0.01, 5.0))
     np.testing.assert_allclose(m.h(x.reshape(5, 10, 9)).reshape(50, 3), np.array([m.h(xi) for xi in x]), rtol=1e-15)
 
 
@@ -153,8 +155,8 @@ def test_jacobians_match_central_differences(n_x):
     x, site, *_ = _random_geometry(rng, 400)
     for k in range(len(x)):
         xk = x[k, :n_x]
-        for cls, std in SENSORS:
-            m = cls(site[k], std, n_x)
+        for kind, std in SENSORS:
+            m = model_for(kind, site[k], std, n_x)
             H = m.jacobian(xk)
             assert H.shape == (m.n_z, n_x)
             step = 1e-5 * np.linalg.norm(xk[:3] - site[k])
@@ -173,7 +175,7 @@ def test_jacobians_match_central_differences(n_x):
 def test_composite_model_rows_come_from_their_own_sites():
     rng = np.random.default_rng(4)
     x, *_ = _random_geometry(rng, 1)
-    a, r = AngleSensor([100.0, 0, 0], (1e-3, 1e-3)), Radar2D([0, -300.0, 5.0], (0.02, 15.0))
+    a, r = model_for("azel", [100.0, 0, 0], (1e-3, 1e-3)), model_for("range_az", [0, -300.0, 5.0], (0.02, 15.0))
     ss = SphericalModel.stack([a, r])
     np.testing.assert_array_equal(ss.h(x[0]), np.concatenate([a.h(x[0]), r.h(x[0])]))
     np.testing.assert_array_equal(ss.jacobian(x[0]), np.vstack([a.jacobian(x[0]), r.jacobian(x[0])]))
@@ -187,9 +189,9 @@ def test_composite_model_rows_come_from_their_own_sites():
 def test_singular_geometry_is_a_clear_error():
     above = np.array([10.0, 20.0, 5000.0, 0, 0, 0])
     with pytest.raises(ValueError, match="straight above"):
-        AngleSensor([10.0, 20.0, 0.0], (1e-3, 1e-3), 6).jacobian(above)
+        model_for("azel", [10.0, 20.0, 0.0], (1e-3, 1e-3), 6).jacobian(above)
     with pytest.raises(ValueError, match="straight above"):
-        Radar2D([10.0, 20.0, 0.0], (1e-2, 10.0), 6).h(above)
+        model_for("range_az", [10.0, 20.0, 0.0], (1e-2, 10.0), 6).h(above)
     with pytest.raises(ValueError, match="zero range"):
         SphericalModel(["range"], [10.0, 20.0, 5000.0], [1.0], 6).jacobian(above)
     # Range alone is fine straight above.
@@ -197,28 +199,28 @@ def test_singular_geometry_is_a_clear_error():
 
 
 def test_innovation_wraps_azimuth_across_north():
-    m = AngleSensor(np.zeros(3), (1e-3, 1e-3), 6)
+    m = model_for("azel", np.zeros(3), (1e-3, 1e-3), 6)
     x = np.array([-1.0, 1000.0, 10.0, 0, 0, 0])  # just west of north: az ≈ 2π − 0.001
     nu = m.innovation(np.array([0.001, m.h(x)[1]]), x)
     assert nu[0] == pytest.approx(0.001 + 0.001, abs=1e-6)
 
 
-def test_from_measurement_builds_the_sensor_model():
+def test_model_of_builds_the_sensor_model():
     site = np.array([1.0, 2.0, 3.0])
     m = Measurement(0.0, "r1", "range_az", np.array([0.3, 5000.0]), np.array([0.01, 7.0]), site)
-    model = from_measurement(m, 6)
-    assert isinstance(model, Radar2D) and model.n_x == 6
+    model = model_of(m, 6)
+    assert model.components == ("az", "range") and model.n_x == 6
     np.testing.assert_array_equal(model.site, site)
     np.testing.assert_array_equal(model.R, np.diag([0.01**2, 49.0]))
-    assert isinstance(SphericalModel.from_measurement(Measurement(0.0, "a", "azel", m.z, m.std, site)), AngleSensor)
+    assert model_of(Measurement(0.0, "a", "azel", m.z, m.std, site)).components == ("az", "el")
     with pytest.raises(ValueError, match="bearing"):
-        from_measurement(Measurement(0.0, "df", "bearing", np.array([0.3]), np.array([0.01]), site))
-    with pytest.raises(ValueError, match="Radar3D"):
-        Radar3D.from_measurement(m)
+        model_of(Measurement(0.0, "df", "bearing", np.array([0.3]), np.array([0.01]), site))
     with pytest.raises(ValueError, match="r1"):
-        from_measurement(Measurement(0.0, "r1", "range_az", np.array([0.3]), np.array([0.01, 7.0]), site))
+        model_of(Measurement(0.0, "r1", "range_az", np.array([0.3]), np.array([0.01, 7.0]), site))
+    with pytest.raises(ValueError, match="correlations"):
+        model_of(Measurement(0.0, "r1", "range_az", m.z, m.std, site, corr=np.eye(2)))
     with pytest.raises(ValueError, match="std"):
-        Radar2D(site, (0.01, -1.0))
+        model_for("range_az", site, (0.01, -1.0))
 
 
 # EKF step vs Stone Soup ------------------------------------------------------------------
@@ -247,7 +249,7 @@ def _stonesoup_ekf(model, motion, x, P, dt, z):
     perm = np.array([3 * (i % 3) + i // 3 for i in range(n)])  # ours[i] = stonesoup[perm[i]]
 
     class Wrapped(NonLinearGaussianMeasurement):
-        ours: object = Property(doc="a fusion.sensors3d model")
+        ours: object = Property(doc="a fusion.measurement model")
 
         @property
         def ndim_meas(self):
@@ -276,10 +278,10 @@ def _stonesoup_ekf(model, motion, x, P, dt, z):
 @pytest.mark.parametrize(
     "model",
     [
-        Radar2D([50.0, -20.0, 3.0], (1.0 * DEG, 20.0)),
-        AngleSensor([0.0, 0.0, 0.0], (0.05 * DEG, 0.05 * DEG)),
-        Radar3D([-300.0, 100.0, 10.0], (0.5 * DEG, 0.7 * DEG, 15.0)),
-        SphericalModel.stack([AngleSensor(np.zeros(3), (0.05 * DEG, 0.05 * DEG)), Radar2D(np.zeros(3), (1.0 * DEG, 20.0))]),
+        model_for("range_az", [50.0, -20.0, 3.0], (1.0 * DEG, 20.0)),
+        model_for("azel", [0.0, 0.0, 0.0], (0.05 * DEG, 0.05 * DEG)),
+        model_for("az_el_range", [-300.0, 100.0, 10.0], (0.5 * DEG, 0.7 * DEG, 15.0)),
+        SphericalModel.stack([model_for("azel", np.zeros(3), (0.05 * DEG, 0.05 * DEG)), model_for("range_az", np.zeros(3), (1.0 * DEG, 20.0))]),
     ],
     ids=["radar2d", "angle", "radar3d", "stacked"],
 )
@@ -441,10 +443,10 @@ def test_iterated_update_is_the_map_estimate_and_one_iteration_is_the_ekf():
     with one iteration it is the EKF; ν, S and NIS stay those of the prediction."""
     from scipy.optimize import least_squares
 
-    from fusion.sensors3d import ekf_update, iterated_ekf_update
+    from fusion.ekf import ekf_update, iterated_ekf_update
 
     rng = np.random.default_rng(7)
-    m = Radar3D(np.zeros(3), (np.radians(1.0), np.radians(1.0), 20.0))  # fine range, coarse angles
+    m = model_for("az_el_range", np.zeros(3), (np.radians(1.0), np.radians(1.0), 20.0))  # fine range, coarse angles
     truth = np.r_[6000.0, 8000.0, 2000.0, np.zeros(6)]
     P = np.diag([1000.0**2] * 3 + [100.0**2] * 3 + [10.0**2] * 3)  # a broad cross-range spread
     x_bar = truth + np.linalg.cholesky(P) @ rng.standard_normal(9)
