@@ -37,6 +37,9 @@ VALUES: dict[str, Callable[[np.ndarray, np.ndarray], float]] = {
     "az": lambda d, p: az_el_range(d)["az"],
     "el": lambda d, p: az_el_range(d)["el"],
     "range": lambda d, p: az_el_range(d)["range"],
+    "east": lambda d, p: float(p[0]),
+    "north": lambda d, p: float(p[1]),
+    "up": lambda d, p: float(p[2]),
 }
 
 

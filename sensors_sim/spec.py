@@ -57,6 +57,8 @@ SENSOR_KINDS: dict[str, SensorKind] = {k.name: k for k in (
     SensorKind("radar2d", "range_az", active=True),
     SensorKind("angle", "azel"),
     SensorKind("radar3d", "az_el_range", active=True),
+    # a cooperative surveillance receiver: each aircraft's own position report
+    SensorKind("adsb", "position", std_keys=(("std_pos",), ("std_pos",), ("std_alt", "std_pos"))),
 )}
 # Sensors that may report bearings on a jammer (it is an emitter): the DF family's.
 DF_KINDS = frozenset(k.name for k in SENSOR_KINDS.values() if KINDS[k.measures].family == "df")

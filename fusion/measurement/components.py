@@ -14,6 +14,7 @@ here and nowhere else:
 
 Azimuth is compass azimuth (clockwise from north) in [0, 2π), elevation above the local
 horizontal in [−π/2, π/2], range the slant range in metres (> 0); :mod:`fusion.angles`.
+``east``, ``north``, ``up`` are a reported position in the origin's ENU frame (metres).
 """
 
 from __future__ import annotations
@@ -57,5 +58,9 @@ AZ = Component("az", "rad", angle=True, std_field="std_az", lo=0.0, hi=TWO_PI, h
 EL = Component("el", "rad", angle=True, std_field="std_el", lo=-math.pi / 2, hi=math.pi / 2)
 RANGE = Component("range", "m", angle=False, std_field="std_range", lo=0.0, lo_open=True)
 
+EAST = Component("east", "m", angle=False, std_field="std_east")
+NORTH = Component("north", "m", angle=False, std_field="std_north")
+UP = Component("up", "m", angle=False, std_field="std_up")
+
 #: every component, by name
-COMPONENTS: dict[str, Component] = {c.name: c for c in (AZ, EL, RANGE)}
+COMPONENTS: dict[str, Component] = {c.name: c for c in (AZ, EL, RANGE, EAST, NORTH, UP)}

@@ -33,8 +33,8 @@ from typing import Callable
 import numpy as np
 
 from ..types import Measurement
-from .components import AZ, EL, RANGE, Component
-from .models import MeasurementModel, spherical
+from .components import AZ, EAST, EL, NORTH, RANGE, UP, Component
+from .models import MeasurementModel, PositionModel, spherical
 
 POINT, RAY, SPHERE = "point", "ray", "sphere"
 STARTS = (POINT, RAY, SPHERE)
@@ -94,6 +94,10 @@ def _spherical(names: tuple[str, ...]) -> ModelFactory:
     return model
 
 
+def _position(site, std, corr, n_x):
+    return PositionModel(np.diag(std**2) if corr is None else np.outer(std, std) * corr, n_x)
+
+
 def _kind(name: str, family: str, components: tuple[Component, ...], start: str, **facts) -> Kind:
     if family == "3d" and "model" not in facts:
         facts["model"] = _spherical(tuple(c.name for c in components))
@@ -106,6 +110,8 @@ KINDS: dict[str, Kind] = {k.name: k for k in (
     _kind("azel", "3d", (AZ, EL), RAY),
     _kind("range_az", "3d", (AZ, RANGE), SPHERE),
     _kind("az_el_range", "3d", (AZ, EL, RANGE), POINT),
+    # a cooperative position report (ADS-B, ASTERIX CAT021): ENU metres, its own covariance
+    _kind("position", "3d", (EAST, NORTH, UP), POINT, model=_position, sited=False, own_noise=True),
 )}
 
 

@@ -22,6 +22,9 @@ raise ``ValueError``.
 :func:`stack` puts several models' rows into one (``R`` block-diagonal): spherical rows
 merge into one :class:`SphericalModel` (its single-state path stays the hand-optimised
 one), other models join them in a :class:`StackedModel`.
+
+:class:`PositionModel` — a report of the position itself (ENU metres in the origin's
+frame), linear: ``h(x) = x[:3]``, ``H = [I₃ 0]``, with the report's own full ``R``.
 """
 
 from __future__ import annotations
@@ -301,6 +304,61 @@ class StackedModel:
         z = _check_z(self, z)
         parts = [b.innovation_and_jacobian(z[s], x) for b, s in zip(self.blocks, self._slices)]
         return np.concatenate([p[0] for p in parts]), np.vstack([p[1] for p in parts])
+
+
+class PositionModel:
+    """A position report: ``z = p = x[:3]`` (ENU metres in the origin's frame, whatever the
+    reporting sensor's site), ``H = [I₃ 0]``, noise ``R`` (3 × 3, symmetric positive
+    definite: the report's own covariance).
+
+    Args:
+        R: the report's noise covariance.
+        n_x: length of the state (position first).
+    """
+
+    components = ("east", "north", "up")
+    n_z = 3
+
+    def __init__(self, R, n_x: int = 9):
+        R = np.array(R, dtype=float)
+        if R.shape != (3, 3) or not np.all(np.isfinite(R)) or not np.array_equal(R, R.T):
+            raise ValueError(f"a position report's R must be a finite symmetric 3×3 matrix, got {R!r}")
+        try:
+            np.linalg.cholesky(R)
+        except np.linalg.LinAlgError:
+            raise ValueError(f"a position report's R must be positive definite, got {R!r}") from None
+        n_x = int(n_x)
+        if n_x < 3:
+            raise ValueError(f"state length n_x must be >= 3 (position first), got {n_x}")
+        self.n_x = n_x
+        self.R = R
+        self.angles = np.zeros(3, dtype=bool)
+        self._H = np.hstack([np.eye(3), np.zeros((3, n_x - 3))])
+        for a in (self.R, self.angles, self._H):
+            a.setflags(write=False)
+
+    def __repr__(self) -> str:
+        return f"PositionModel(std={np.sqrt(np.diag(self.R)).tolist()})"
+
+    def _state(self, x) -> np.ndarray:
+        x = np.asarray(x, dtype=float)
+        if x.shape[-1] != self.n_x:
+            raise ValueError(f"state must have {self.n_x} components, got shape {x.shape}")
+        return x
+
+    def h(self, x: np.ndarray) -> np.ndarray:
+        return self._state(x)[..., :3].copy()
+
+    def jacobian(self, x: np.ndarray) -> np.ndarray:
+        if self._state(x).ndim != 1:
+            raise ValueError(f"jacobian takes one state vector, got shape {np.shape(x)}")
+        return self._H
+
+    def residual(self, z: np.ndarray, z_hat: np.ndarray) -> np.ndarray:
+        return np.asarray(z, dtype=float) - z_hat
+
+    def innovation_and_jacobian(self, z: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return _check_z(self, z) - self.h(x), self.jacobian(x)
 
 
 def stack(models: Sequence[MeasurementModel]) -> MeasurementModel:

@@ -33,9 +33,10 @@ import pytest
 from hypothesis import HealthCheck, Phase, given, seed, settings
 from hypothesis import strategies as st
 
+from fusion.angles import TWO_PI
 from fusion.methods import make_method, method_config
 from schemas import KINDS, SchemaError, decode
-from schemas.messages import MAX_BYTES, TWO_PI
+from schemas.messages import MAX_BYTES
 from services.fuser import FuserCore
 from services.node import RejectLog
 

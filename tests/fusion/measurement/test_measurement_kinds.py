@@ -35,7 +35,7 @@ def test_a_3d_kind_s_model_has_the_kind_s_rows(name):
 
 
 def test_families_and_what_a_report_starts_a_track_from():
-    assert kinds_of("3d") == {"azel", "range_az", "az_el_range"}
+    assert kinds_of("3d") == {"azel", "range_az", "az_el_range", "position"}
     assert kinds_of("df") == {"bearing"}
     assert [KINDS[k].start for k in ("bearing", "azel", "range_az", "az_el_range")] == [RAY, RAY, SPHERE, POINT]
     assert KINDS["bearing"].model is None
@@ -63,7 +63,8 @@ def test_model_of_refuses_what_is_not_a_3d_report():
 def test_the_wire_carries_each_kind_s_components_and_their_std_fields():
     assert MEASUREMENT_KINDS == tuple(KINDS)
     for k in KINDS.values():
-        z = np.array([{"az": 0.5, "el": 0.1, "range": 1234.0}[c] for c in k.names])
+        z = np.array([{"az": 0.5, "el": 0.1, "range": 1234.0, "east": -5.0, "north": 7.0, "up": 900.0}[c]
+                      for c in k.names])
         m = Measurement(2.0, "s1", k.name, z, np.full(k.n_z, 0.01), np.array([1.0, 2.0, 3.0]), 7)
         msg = decode(encode_measurement(m, "s1"))
         assert set(msg.body) == {"sensor", "site", *k.names, *(c.std_field for c in k.components)}
