@@ -29,6 +29,7 @@ docs/algorithms.md, "JIPDA".
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import dataclass
 from typing import Sequence
 
@@ -148,10 +149,12 @@ def hypothesise(model, x: np.ndarray, P: np.ndarray, Z: np.ndarray, gate_prob: f
 
 
 # Clutter density -----------------------------------------------------------------------
-def clutter_density(Z: np.ndarray, angles: np.ndarray, expected_targets: float, min_volume: float = 0.0) -> float:
-    """The clutter density of one scan, estimated from its plots: ``ρ̂ = max(m − n̂, 1) / V̂``.
+def clutter_density(Z: np.ndarray, angles: np.ndarray, expected_targets: float, min_volume: float = 0.0,
+                    scans: int = 1) -> float:
+    """The clutter density of a sensor, estimated from the plots of its last ``scans``
+    scans: ``ρ̂ = max(m − n̂, 1) / (scans · V̂)``.
 
-    ``m`` plots, ``n̂`` of them expected from targets (``Σ P_D P_G rᵢ``); ``V̂`` the box the
+    ``m`` plots, ``n̂`` of them expected from targets (``Σ P_D P_G rᵢ`` per scan); ``V̂`` the box the
     plots span in measurement space, each side scaled by ``(m + 1)/(m − 1)`` — the unbiased
     length of a uniform interval from its sample range; an angle row spans the full circle
     unless its plots leave a gap that m plots all round leave with probability below
@@ -178,7 +181,25 @@ def clutter_density(Z: np.ndarray, angles: np.ndarray, expected_targets: float, 
     volume = max(volume, float(min_volume))
     if not volume > 0.0:
         raise ValueError("clutter density: the plots span no volume and no gate volume was given")
-    return max(m - float(expected_targets), 1.0) / volume
+    return max(m - float(expected_targets), 1.0) / (int(scans) * volume)
+
+
+class ClutterWindow:
+    """The clutter density of one sensor from its last ``scans`` scans
+    (:func:`clutter_density` over their plots together): a few clutter plots a scan span
+    little of the cover, the plots of several span it (docs/algorithms.md, "JIPDA")."""
+
+    def __init__(self, scans: int = 10):
+        if scans < 1:
+            raise ValueError(f"a clutter window needs at least one scan, got {scans}")
+        self._scans: deque[tuple[np.ndarray, float]] = deque(maxlen=int(scans))
+
+    def update(self, Z: np.ndarray, angles: np.ndarray, expected_targets: float, min_volume: float = 0.0) -> float:
+        """Add a scan's plots (and the target plots expected in it); the density now."""
+        self._scans.append((np.atleast_2d(np.asarray(Z, dtype=float)), float(expected_targets)))
+        plots = np.concatenate([z for z, _ in self._scans])
+        expected = sum(e for _, e in self._scans)
+        return clutter_density(plots, angles, expected, min_volume, len(self._scans))
 
 
 # Clusters and joint association probabilities ---------------------------------------------

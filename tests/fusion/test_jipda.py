@@ -30,7 +30,7 @@ from stonesoup.updater.kalman import ExtendedKalmanUpdater
 from stonesoup.updater.probability import PDAUpdater
 
 from fusion import kalman
-from fusion.jipda import (EXACT_EVENTS, ExistenceRule, clusters, clutter_density, exact_marginals, existence_update,
+from fusion.jipda import (EXACT_EVENTS, ClutterWindow, ExistenceRule, clusters, clutter_density, exact_marginals, existence_update,
                           hypothesise, ipda_existence, lbp_marginals, marginals, n_events_bound, pda_update,
                           scan_update)
 from fusion.sensors3d import AngleSensor, Radar3D
@@ -392,6 +392,28 @@ def test_clutter_density_from_plots():
     assert clutter_density(Z[:1], np.array([True, False]), 0.5, min_volume=40.0) == pytest.approx(1 / 40.0)
     with pytest.raises(ValueError):
         clutter_density(Z[:1], np.array([True, False]), 0.5)
+
+
+def test_clutter_window_over_sparse_scans():
+    """Ten false alarms a scan among 20 target plots bunched in a corner of the cover: one
+    scan's plots span little of it (ρ̂ far too high), the last ten scans' span most."""
+    rng = np.random.default_rng(9)
+    spans, angles = np.array([2 * math.pi, 80000.0]), np.array([True, False])
+    truth = 10.0 / np.prod(spans)
+    window = ClutterWindow(10)
+    single, windowed = [], []
+    for k in range(60):
+        Z = np.vstack([rng.random((rng.poisson(10.0), 2)) * spans,
+                       [1.0, 30000.0] + rng.random((20, 2)) * [0.5, 20000.0]])
+        single.append(clutter_density(Z, angles, 20.0))
+        rho = window.update(Z, angles, 20.0)
+        if k >= 10:
+            windowed.append(rho)
+    assert np.mean(windowed) == pytest.approx(truth, rel=0.15)
+    assert np.std(windowed) < 0.5 * np.std(single)
+    assert abs(np.mean(single) / truth - 1.0) > 2 * abs(np.mean(windowed) / truth - 1.0)
+    with pytest.raises(ValueError):
+        ClutterWindow(0)
 
 
 def test_estimated_density_is_used_when_none_given():
