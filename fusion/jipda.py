@@ -22,8 +22,8 @@ by loopy belief propagation where it is not (:func:`lbp_marginals`). Then per tr
 with ``K``, ``Pᶜ`` the EKF gain and updated covariance at the prediction (Joseph form).
 Between scans ``r⁻ = p_S^Δt r`` (Markov chain one). One track alone gives the IPDA's
 closed form ``r⁺ = (1 − δ) r / (1 − δ r)``, ``δ = P_D P_G − P_D Σⱼ Nⱼ/ρ``. ρ is estimated
-from the scan (:func:`clutter_density`). The maths, choices and measurements:
-docs/algorithms.md, "JIPDA".
+from the sensor's recent plots (:class:`ClutterWindow`). The maths, choices and
+measurements: docs/algorithms.md, "JIPDA: association with track existence".
 """
 
 from __future__ import annotations
@@ -160,7 +160,7 @@ def clutter_density(Z: np.ndarray, angles: np.ndarray, expected_targets: float, 
     unless its plots leave a gap that m plots all round leave with probability below
     :data:`FULL_CIRCLE_TEST` (``P(gap > g) ≈ m (1 − g/2π)^(m−1)``), else the shortest arc
     holding them; ``V̂`` at least ``min_volume`` (the largest gate: a scan of one plot
-    spans no box). docs/algorithms.md, "JIPDA".
+    spans no box). docs/algorithms.md, "JIPDA: association with track existence".
     """
     Z = np.atleast_2d(np.asarray(Z, dtype=float))
     m = len(Z)
@@ -187,7 +187,8 @@ def clutter_density(Z: np.ndarray, angles: np.ndarray, expected_targets: float, 
 class ClutterWindow:
     """The clutter density of one sensor from its last ``scans`` scans
     (:func:`clutter_density` over their plots together): a few clutter plots a scan span
-    little of the cover, the plots of several span it (docs/algorithms.md, "JIPDA")."""
+    little of the cover, the plots of several span it (docs/algorithms.md, "JIPDA:
+    association with track existence")."""
 
     def __init__(self, scans: int = 10):
         if scans < 1:
@@ -282,7 +283,7 @@ def lbp_marginals(w0: np.ndarray, W: np.ndarray, tol: float = LBP_TOL, max_iter:
 
     until no ``ν`` moves by more than ``tol``; then ``βᵢⱼ ∝ Wᵢⱼ νᵢⱼ``, ``βᵢ₀ ∝ w0ᵢ``. The
     iteration converges for this problem (Williams and Lau); its error against the
-    exact sum is measured in docs/algorithms.md, "JIPDA".
+    exact sum is measured in docs/algorithms.md, "JIPDA: association with track existence".
     """
     w0 = np.asarray(w0, dtype=float)
     W = np.asarray(W, dtype=float)
