@@ -81,6 +81,7 @@ from services.evaluation import merged_measurements
 from services.scoring import score_tracks_of
 from fusion.mtt_metrics import TrackScore
 from sensors_sim import load_scenario
+from sensors_sim.geometry import coverage_span
 
 T0 = datetime.datetime(2024, 1, 1)
 PERM = [0, 3, 6, 1, 4, 7, 2, 5, 8]  # ours[k] = stonesoup[PERM[k]]: [x vx ax y vy ay z vz az] -> [p v a]
@@ -223,10 +224,8 @@ def build_tracker(scenario, detector, min_points: int, alt0: float = 6000.0, alt
     gate_prob = float(tr.get("gate_prob", 0.999))
     sensors = scenario.sensors
     p_detect = min(s.p_detect for s in sensors.values())
-    densities = {}
-    for sid, s in sensors.items():
-        span = s.max_range if "range" in s.components else s.fov_el[1] - s.fov_el[0]
-        densities[sid] = s.clutter_rate / (s.fov_az[1] * span)
+    densities = {sid: s.clutter_rate / math.prod(coverage_span(s, c)[1] for c in s.components)
+                 for sid, s in sensors.items()}  # λ / V, V the cover in measurement space
     transition = CachedTransition([ConstantAcceleration(noise_diff_coeff=q)] * 3)
     predictor = ExtendedKalmanPredictor(transition)
     updater = ExtendedKalmanUpdater(measurement_model=None)

@@ -125,9 +125,9 @@ class TrackHypotheses:
 def hypothesise(model, x: np.ndarray, P: np.ndarray, Z: np.ndarray, gate_prob: float) -> TrackHypotheses:
     """The gated plots of one scan ``Z (m, n_z)`` for a track predicted to ``(x, P)``.
 
-    ``model`` gives ``h``, ``jacobian``, ``R`` and which rows are ``angles`` (wrapped
-    to (−π, π] as its own innovation does). A track where the geometry is undefined
-    (over a sensor's site) gates nothing."""
+    ``model`` is a :class:`fusion.measurement.models.MeasurementModel` (``h``,
+    ``jacobian``, ``R``, ``residual`` with the angle rows wrapped). A track where the
+    geometry is undefined (over a sensor's site) gates nothing."""
     Z = np.asarray(Z, dtype=float).reshape(-1, model.n_z)
     empty = TrackHypotheses(np.zeros(0, int), np.zeros((0, model.n_z)), np.zeros(0), None, 0.0)
     try:
@@ -135,7 +135,7 @@ def hypothesise(model, x: np.ndarray, P: np.ndarray, Z: np.ndarray, gate_prob: f
         H = model.jacobian(x)
     except ValueError:
         return empty
-    nu = kalman.innovation(Z, z_pred, model.angles)
+    nu = model.residual(Z, z_pred)
     S = kalman.symmetrise(H @ P @ H.T + model.R)
     L_inv = kalman.inverse_cholesky_factor(S)
     d2 = np.sum((nu @ L_inv.T) ** 2, axis=1)
@@ -358,7 +358,7 @@ def scan_update(model, states: Sequence[tuple[np.ndarray, np.ndarray]], r: Seque
     """JIPDA update of every track with one sensor scan (module docstring).
 
     Args:
-        model: the sensor's measurement model (``h``, ``jacobian``, ``R``, ``angles``, ``n_z``).
+        model: the sensor's :class:`fusion.measurement.models.MeasurementModel`.
         states: each track's predicted ``(x, P)`` at the scan time.
         r: each track's predicted existence probability.
         Z: the scan's plots (m, n_z).

@@ -33,7 +33,7 @@ from fusion import kalman
 from fusion.jipda import (EXACT_EVENTS, ClutterWindow, ExistenceRule, clusters, clutter_density, exact_marginals, existence_update,
                           hypothesise, ipda_existence, lbp_marginals, marginals, n_events_bound, pda_update,
                           scan_update)
-from fusion.sensors3d import AngleSensor, Radar3D
+from fusion.measurement.models import SphericalModel
 
 DEG = math.pi / 180.0
 T0 = dt.datetime(2024, 1, 1)
@@ -43,7 +43,7 @@ INV = np.argsort(PERM)
 
 
 class PositionModel:
-    """A linear model of the position, ``z = p + v``: the minimum the JIPDA reads."""
+    """A linear model of the position, ``z = p + v``: the protocol's minimum."""
 
     def __init__(self, std: float, n_x: int = 6):
         self.n_z, self.n_x = 3, n_x
@@ -56,6 +56,9 @@ class PositionModel:
 
     def jacobian(self, x):
         return self._H
+
+    def residual(self, z, z_hat):
+        return np.asarray(z, dtype=float) - z_hat
 
 
 # Stone Soup references -------------------------------------------------------------------
@@ -152,10 +155,10 @@ def _scene(kind, seed, n_tracks=3, n_clutter=6):
         model = PositionModel(30.0)
         centre = np.array([20000.0, 30000.0, 5000.0])
     elif kind == "az_el_range":
-        model = Radar3D([1000.0, -2000.0, 50.0], (1.0 * DEG, 0.7 * DEG, 25.0), n_x=6)
+        model = SphericalModel(("az", "el", "range"), [1000.0, -2000.0, 50.0], (1.0 * DEG, 0.7 * DEG, 25.0), n_x=6)
         centre = np.array([1500.0, 28000.0, 6000.0])  # due north of the site: azimuth wraps at 0/2π
     else:
-        model = AngleSensor([-500.0, 300.0, 0.0], (0.3 * DEG, 0.3 * DEG), n_x=6)
+        model = SphericalModel(("az", "el"), [-500.0, 300.0, 0.0], (0.3 * DEG, 0.3 * DEG), n_x=6)
         centre = np.array([14000.0, 22000.0, 4000.0])
     states, truths = [], []
     for _ in range(n_tracks):
