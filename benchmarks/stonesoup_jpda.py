@@ -86,6 +86,7 @@ from sensors_sim.geometry import coverage_span
 T0 = datetime.datetime(2024, 1, 1)
 PERM = [0, 3, 6, 1, 4, 7, 2, 5, 8]  # ours[k] = stonesoup[PERM[k]]: [x vx ax y vy ay z vz az] -> [p v a]
 POS = (0, 3, 6)
+MAX_EL = math.sin(math.radians(80.0))  # sine of the steepest elevation a radar plot is lifted to
 
 
 class CartesianToBearingSlantRange(NonLinearGaussianMeasurement):
@@ -208,7 +209,7 @@ class RadarPlotInitiator(SimpleMeasurementInitiator):
             std_b, std_r = np.sqrt(np.diag(m.covar()))
             r = float(d.state_vector[1, 0])
             up = (self.alt0 - float(m.translation_offset[2, 0])) / r
-            el0 = math.asin(max(-1.0, min(1.0, up)))
+            el0 = math.asin(max(-MAX_EL, min(MAX_EL, up)))  # a plot nearer than alt0: steep, not overhead
             el_std = self.alt_std / (r * max(math.cos(el0), 0.1))
             model = CartesianToElevationBearingRange(
                 ndim_state=9, mapping=POS, translation_offset=m.translation_offset,
@@ -312,7 +313,7 @@ def main(argv=None) -> int:
     ap.add_argument("--scenario", default="air-picture-dense")
     ap.add_argument("--runs", type=int, default=3)
     ap.add_argument("--first-run", type=int, default=0)
-    ap.add_argument("--min-points", type=int, default=6,
+    ap.add_argument("--min-points", type=int, default=10,
                     help="updates a tentative track needs to be confirmed (MultiMeasurementInitiator)")
     ap.add_argument("--duration-s", type=float, default=None)
     ap.add_argument("--json", default=None)
