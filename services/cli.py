@@ -117,15 +117,9 @@ def _live(args):
 
 def _defaults(args) -> dict:
     """The ``[defaults]`` of ``--scenario`` or ``--site``; a bad file is one line, exit 2."""
-    from sensors_sim import ScenarioError
+    from .scenario import load, load_site
 
-    from .node import load, load_site
-
-    try:
-        return (load(args.scenario) if args.site is None else load_site(args.site)).defaults
-    except ScenarioError as e:
-        print(f"zfusion {args.command}: {e}", file=sys.stderr)
-        raise SystemExit(2) from None
+    return (load(args.scenario) if args.site is None else load_site(args.site)).defaults
 
 
 def _setting(text: str) -> tuple[str, object]:
@@ -466,16 +460,15 @@ def viewer_argv(path: str, env) -> list[str]:
 
 
 def _export(args, keys: KeySpace) -> int:
-    from sensors_sim.spec import ScenarioError
-
+    from .errors import UserError
     from .export import cot, process
-    from .node import load, load_site
+    from .scenario import load, load_site
 
     command = f"zfusion export {args.exporter}"
     live = args.site is not None
     try:
         site = load_site(args.site) if live else load(args.scenario)
-    except ScenarioError as e:
+    except UserError as e:
         print(f"{command}: {e}; give a site or scenario file", file=sys.stderr)
         return 2
     if args.exporter == "asterix":
@@ -512,15 +505,9 @@ def _export(args, keys: KeySpace) -> int:
 
 def _scenario_of(args):
     """``--scenario`` with ``--seed`` and ``--duration-s`` applied; a bad file is one line, exit 2."""
-    from sensors_sim import ScenarioError
+    from .scenario import load
 
-    from .node import load
-
-    try:
-        return load(args.scenario, args.seed, getattr(args, "duration_s", None))
-    except ScenarioError as e:
-        print(f"zfusion {args.command}: {e}", file=sys.stderr)
-        raise SystemExit(2) from None
+    return load(args.scenario, args.seed, getattr(args, "duration_s", None))
 
 
 def writable_dir(path: Path, option: str) -> None:

@@ -24,13 +24,16 @@ process with the same inputs.
 from __future__ import annotations
 
 import functools
+import json
 import math
 import queue
 import time
+from pathlib import Path
 from typing import Any, Mapping
 
 from fusion.measurement.kinds import KINDS
 from fusion.methods import METHODS, make_method, method_config, split, track_fusion_rule
+from fusion.mtt import AssociationConfig
 from fusion.network import TrackCentre
 from fusion.oosm import Refiltering
 from fusion.types import Estimate
@@ -38,11 +41,16 @@ from schemas import (MEASUREMENT_KINDS, KeySpace, Message, SchemaError, decode, 
                      to_measurement, tracker_id)
 from schemas.links import encode_downlink, horizon_message, uplink
 
+from .lazy import lazy
 from .live import ClockGuard, LiveOptions
-from .node import Inbox, Node, Recovery, RejectLog, load, load_site
-from .ordering import DEFAULT_MAX_HELD, HORIZON_SLACK_S, WatermarkMerger
+from .node import Inbox, Node, Recovery, RejectLog
+from .ordering import DEFAULT_MAX_HELD, HORIZON_SLACK_S, WatermarkMerger, hold_cap
 from .picture import Picture
+from .scenario import load, load_site
 from .source import recovery_cache
+
+# --json only: the scorer (scipy.stats, the scenario's truth) loads when a summary is written
+summary = lazy("services.summary")
 
 
 class MeasurementIntake:
@@ -271,8 +279,6 @@ def max_held_for(scenario, window: float | None = None) -> int:
     Default window: a scenario's whole run, since at ``--speed max`` a source may
     legitimately run that far ahead of a late one; live, the source timeout, after
     which a laggard is declared dead (:func:`services.ordering.hold_cap`)."""
-    from .ordering import hold_cap
-
     traffic = scenario.traffic.max_alive if getattr(scenario, "traffic", None) is not None else 0
     rate = max((max(len(s.targets) + traffic, 1) + s.clutter_rate) / s.period for s in scenario.sensors.values())
     return hold_cap(rate, (scenario.duration if window is None else window) + 1.0)
@@ -280,8 +286,6 @@ def max_held_for(scenario, window: float | None = None) -> int:
 
 def _delete_misses(scenario) -> int:
     """Frames without a report after which a track has left the picture: the trackers' rule."""
-    from fusion.mtt import AssociationConfig
-
     association, _ = AssociationConfig.split(scenario.tracker)
     return (association or AssociationConfig).delete_misses
 
@@ -392,19 +396,14 @@ def run(process_id: str, scenario_ref: str, method_name: str, overrides: dict, k
 def _write_result(path: str, scenario, method: str, config: Mapping, estimates: list[Estimate],
                   sources: dict) -> None:
     """``--json``: the run's summary, as ``zfusion run --json`` writes it, and its table on stdout."""
-    import json
-    from pathlib import Path
-
-    from .summary import RunScorer, format_table, run_summary
-
     rule = (config.get("fusion_rule") if METHODS[method].fuses_tracks else None) or track_fusion_rule(
         scenario.tracker, [method])
     for sid in scenario.process_ids():  # processes the fuser does not consume (truth, jammers) too
         sources.setdefault(sid, {"dead_intervals": [], "rejected": 0})
-    scorer = RunScorer(scenario)
+    scorer = summary.RunScorer(scenario)
     for e in estimates:
         scorer.add(e)
-    doc = run_summary(scenario, METHODS[method].topology, method, rule, scorer.method_summary(), sources)
+    doc = summary.run_summary(scenario, METHODS[method].topology, method, rule, scorer.method_summary(), sources)
     Path(path).parent.mkdir(parents=True, exist_ok=True)
     Path(path).write_text(json.dumps(doc, indent=1))
-    print(format_table(doc), flush=True)
+    print(summary.format_table(doc), flush=True)

@@ -31,7 +31,8 @@ from schemas.links import downlink, encode_uplink
 
 from .fuser import FuserCore, MeasurementIntake
 from .live import LiveOptions
-from .node import Inbox, Node, Recovery, load, load_site
+from .node import Inbox, Node, Recovery
+from .scenario import load, load_site
 from .source import recovery_cache
 
 

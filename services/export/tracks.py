@@ -18,6 +18,7 @@ sequence numbers.
 
 from __future__ import annotations
 
+import datetime as dt
 import math
 from collections import OrderedDict
 from typing import Callable
@@ -107,8 +108,6 @@ class TrackTable:
 
 def utc_iso(t: float) -> str:
     """POSIX seconds as ISO 8601 UTC with milliseconds, e.g. ``2026-12-01T20:14:33.491Z``."""
-    import datetime as dt
-
     return dt.datetime.fromtimestamp(t, dt.timezone.utc).isoformat(timespec="milliseconds").replace("+00:00", "Z")
 
 

@@ -35,6 +35,8 @@ from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from typing import Callable
 
 from schemas import KeySpace
+from sensors_sim import ScenarioError
+from sensors_sim import load_site as load_site_file
 
 from ..node import Node
 from .asterix import AsterixFeed, AsterixIngest, CaptureError, pcap_datagrams, radars
@@ -147,10 +149,8 @@ def _gateway(node: Node, args, frame, sensors) -> Gateway:
 
 def load_site(path: str):
     """The site file (any scenario file is a site too)."""
-    from sensors_sim import ScenarioError, load_site
-
     try:
-        return load_site(path)
+        return load_site_file(path)
     except (ScenarioError, OSError, ValueError) as e:
         raise UsageError(f"cannot read the site file: {e}") from None
 

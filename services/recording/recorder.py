@@ -53,15 +53,18 @@ from fusion.measurement.kinds import KINDS, SPHERE
 from fusion.types import Estimate, Measurement
 from schemas import MEASUREMENT_KINDS, KeySpace, Message, SchemaError, decode, to_estimate, to_measurement
 from schemas.links import downlink, uplink
+from sensors_sim.spec import DF_KINDS
 
 from .. import picture
 from . import draw
 from . import map as recorder_map
 from ..scoring import GOSPA_CUTOFF, many_targets
+from ..live import ClockGuard
 from ..node import ListenerInbox, Node, Recovery, RejectLog
 from ..ordering import HORIZON_SLACK_S, SEQ_WINDOW
 from ..picture import Reports
 from ..rotation import Rotation
+from ..scenario import load, load_site
 from .draw import TRAIL_STEP_S, Trail
 from .stream import Part, Recording, open_recording, part, safe_flush, ui_points
 
@@ -321,8 +324,6 @@ class Recorder:
     # -- scenario --------------------------------------------------------------------------------
 
     def _from_scenario(self, sc) -> None:
-        from sensors_sim.spec import DF_KINDS
-
         duration = getattr(sc, "duration", None) if self.clock_guard is None else None  # a site (live): no end
         if duration is not None:
             self.horizon = float(duration) + HORIZON_SLACK_S
@@ -735,11 +736,7 @@ def run(process_id: str, keys: KeySpace, zopts, rrd_path: str, expect: list[str]
     a site (or a scenario taken as its site), optional."""
     sc = None
     if scenario is not None:
-        from ..node import load, load_site
-
         sc = load(scenario, seed, duration) if live is None else load_site(scenario)
-    from sensors_sim.spec import DF_KINDS
-
     df = sc is not None and bool(sc.sensors) and all(s.kind in DF_KINDS for s in sc.sensors.values())
     inbox = ListenerInbox(BACKLOG_MAX, BACKLOG_IN_MEMORY)
 
@@ -750,11 +747,7 @@ def run(process_id: str, keys: KeySpace, zopts, rrd_path: str, expect: list[str]
                                    many=hasattr(sc, "targets") and many_targets(sc), geo=sc is not None,
                                    live=live is not None)
         rec, _ = opener(str(rotation.first()) if rotation else rrd_path)
-        guard = None
-        if live is not None:
-            from ..live import ClockGuard
-
-            guard = ClockGuard(live.max_skew)
+        guard = ClockGuard(live.max_skew) if live is not None else None
         recorder = Recorder(rec, keys, node.reject, sc, clock_guard=guard)
         utc = time.time if live is not None else lambda: None
         recovery = None
