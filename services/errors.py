@@ -12,8 +12,6 @@ through as a traceback. ``-v`` shows the traceback of these too.
   configuration or endpoint that Zenoh refuses (``zenoh.ZError``, its Rust source
   location dropped), and a missing optional dependency (``ImportError``) are mapped by
   :func:`one_line`.
-* ``SystemExit`` with a text (the older ``raise SystemExit("zfusion x: ...")``) is a
-  usage error: exit 2.
 
 Exit codes: 2 usage and input errors, 1 failures, 130 interrupted (Ctrl-C).
 """
@@ -59,6 +57,4 @@ def one_line(exc: BaseException) -> tuple[str, int] | None:
         return f"this needs the Python package {exc.name.split('.')[0]}, which is not installed{extra}", USAGE
     if isinstance(exc, OSError) and exc.filename is not None:
         return f"{exc.filename}: {exc.strerror or exc}; give a path that exists and that you may use", USAGE
-    if isinstance(exc, SystemExit) and isinstance(exc.code, str):
-        return exc.code, USAGE
     return None

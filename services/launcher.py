@@ -43,11 +43,14 @@ from typing import Iterable
 
 import zenoh
 
-from fusion.methods import METHODS, TRACK_FUSION_METHODS, topology_default, track_fusion_rule
+from fusion.methods import TRACK_FUSION_METHODS, track_fusion_rule
 from schemas import KeySpace, SchemaError, decode, to_estimate, tracker_id
-from sensors_sim.spec import DF_KINDS
 
+from .commands import options
+from .errors import FAILURE, UserError
+from .export.outputs import OUTPUTS
 from .node import Inbox, Node, ZenohOptions
+from .request import check_methods, resolve_topology, scenario_of
 from .resources import ProcessUsage, own_usage
 from .rotation import rotated_files
 from .summary import RunScorer, format_table, run_summary
@@ -60,7 +63,6 @@ LAUNCHER_ID = "launcher"
 RESTART_DELAY = 0.5  # s: lets the fabric see the dead process's token go before the new one appears
 MAX_RESTARTS = 3  # per process: a process killed again and again is not coming back
 END_GRACE = 10.0  # s after the last source ends, when no fuser is left to say it is done
-EXPORTERS = {"geojson": ("export-geojson", "--file"), "cot": ("export-cot", "--to")}  # run flag -> child id, its option
 # s of silence after which a source is dead at --speed max: nothing is paced there, so a
 # source that is silent is far more often starved of CPU (many processes, two cores) than
 # dead, and taking it for dead changes what is fused
@@ -338,93 +340,43 @@ def progress_line(scenario, t: float | None, updates: int, sources: dict) -> Non
     sys.stderr.flush()
 
 
-def topology_of(method: str) -> str:
-    return METHODS[method].topology if method in METHODS else "centralised"  # an unknown one fails at make_method
-
-
-def resolve_topology(scenario, topology: str | None, method: str | None) -> tuple[str, str]:
-    """Topology and method from the command line and the scenario's defaults; they must agree."""
-    default = scenario.defaults.get("method")
-    if method is None and topology is not None and (default is None or topology_of(default) != topology):
-        if topology == "centralised":
-            raise SystemExit(f"zfusion run: scenario {scenario.name} names no centralised method; give --method")
-        df = all(scenario.kind_of(s) in DF_KINDS for s in scenario.sensors)
-        method = topology_default(topology, "df" if df else "3d")
-        if method is None:
-            raise SystemExit(f"zfusion run: no DF method runs in the {topology!r} topology (docs/design.md, Topologies)")
-    method = method or default
-    if not method:
-        raise SystemExit("zfusion run: no --method given and the scenario names no default method")
-    topology = topology or topology_of(method)
-    if topology_of(method) != topology:
-        raise SystemExit(f"zfusion run: method {method} runs in the {topology_of(method)!r} topology, "
-                         f"not {topology!r}")
-    return topology, method
-
-
 def default_rrd(scenario: str, topology: str) -> str:
     stamp = _dt.datetime.now().strftime("%Y%m%d-%H%M%S")
     return str(Path("runs") / f"{scenario}-{topology}-{stamp}.rrd")
 
 
 def exporter_argv(args) -> dict[str, list[str]]:
-    """The ``zfusion export`` children of ``--geojson``/``--cot`` (a bad value: one line, exit 2)."""
-    from .export.cot import parse_url
-
+    """The ``zfusion export`` children of ``--geojson``/``--cot`` (:data:`OUTPUTS`), each value checked."""
     out = {}
-    for flag, (name, option) in EXPORTERS.items():
-        value = getattr(args, flag, None)
-        if value is None:
-            continue
-        if flag == "cot":
-            try:
-                parse_url(value)
-            except ValueError as e:
-                print(f"zfusion run: --cot {e}", file=sys.stderr)
-                raise SystemExit(2) from None
-        else:
-            value = str(Path(value).resolve())
-            Path(value).parent.mkdir(parents=True, exist_ok=True)
-        live = getattr(args, "live", False)  # a live session: the scenario is the site, times are UTC
-        out[name] = ["export", flag, option, value, "--site" if live else "--scenario", args.scenario, "--id", name]
+    live = getattr(args, "live", False)  # a live session: the scenario is the site, times are UTC
+    for output in OUTPUTS:
+        value = getattr(args, output.name, None)
+        if value is not None:
+            out[output.process_id] = ["export", output.name, output.option, output.prepare(value),
+                                      "--site" if live else "--scenario", args.scenario, "--id", output.process_id]
     return out
 
 
 def run(args) -> int:
-    from .cli import _check_overrides, _overrides, _scenario_of
-
     live = getattr(args, "live", False)
-    if live and args.speed != "1":
-        print("zfusion run: --live runs in real time: remove --speed", file=sys.stderr)
-        return 2
-    if not live and getattr(args, "for_s", None) is not None:
-        print("zfusion run: --for is for live runs: add --live, or use --duration-s", file=sys.stderr)
-        return 2
-    scenario = _scenario_of(args)
+    scenario = scenario_of(args)
     if live and args.duration_s is None and args.for_s is not None and args.for_s > scenario.duration:
         scenario = dataclasses.replace(scenario, duration=args.for_s)  # the sources play until --for
     endless = live and args.duration_s is None and args.for_s is None and scenario.endless  # until Ctrl-C
     topology, method = resolve_topology(scenario, args.topology, args.method)
-    from fusion.methods import make_method, method_config
-
     if args.fusion_rule and method not in TRACK_FUSION_METHODS:
-        raise SystemExit(f"zfusion run: --fusion-rule applies to the track-fusion methods "
-                         f"({', '.join(TRACK_FUSION_METHODS)}), not to {method}")
-    overrides = _overrides(args)
-    _check_overrides(scenario, [method], overrides, "run")  # fail here, with a clear error, not in a child
-    make_method(method, method_config(scenario.tracker, method, overrides))
+        raise UserError(f"--fusion-rule applies to the track-fusion methods ({', '.join(TRACK_FUSION_METHODS)}), "
+                        f"not to {method}")
+    overrides = options.overrides(args)
+    check_methods(scenario, [method], overrides)  # fail here, with a clear error, not in a child
     tracker_args = [a for k, v in getattr(args, "settings", []) for a in ("--set", f"{k}={json.dumps(v)}")]
     speed = math.inf if args.speed == "max" else float(args.speed)
-    if not speed > 0:
-        raise SystemExit("zfusion run: --speed must be > 0 or 'max'")
     rrd = args.rrd or default_rrd(scenario.name, topology)
     exporters = exporter_argv(args)
     Path(rrd).parent.mkdir(parents=True, exist_ok=True)
 
     keys = KeySpace(args.deployment)
     if args.connect and len(unreachable(args.connect)) == len(args.connect):
-        from .errors import FAILURE, UserError
-
         raise UserError(f"--connect {' '.join(args.connect)}: nothing accepts a connection there; start the "
                         f"router first (zfusion router --listen ENDPOINT) or fix the endpoint", FAILURE)
     listen = getattr(args, "listen", None)
@@ -439,9 +391,8 @@ def run(args) -> int:
     try:
         mine.to_config()
     except (zenoh.ZError, ValueError) as e:
-        print(f"zfusion run: --listen {listen}: not a Zenoh endpoint (e.g. tcp/127.0.0.1:7447)"
-              if listen else f"zfusion run: {zenoh_reason(e)}", file=sys.stderr)
-        return 2
+        raise UserError(f"--listen {listen}: not a Zenoh endpoint (e.g. tcp/127.0.0.1:7447)" if listen
+                        else zenoh_reason(e)) from None
     endpoint = listen or (None if args.connect or args.zenoh_config else hub)
     common = ["--deployment", args.deployment, *theirs.to_args()] + (["-v"] if args.verbose else [])
     seed = ["--seed", str(scenario.seed)]
@@ -473,8 +424,7 @@ def run(args) -> int:
     try:
         node.__enter__()
     except zenoh.ZError as e:  # e.g. --listen on a port in use
-        print(f"zfusion run: cannot open the session: {zenoh_reason(e)}", file=sys.stderr)
-        return 2
+        raise UserError(f"cannot open the session: {zenoh_reason(e)}") from None
     if endpoint:  # a user's other shell joins the session here (docs/live.md, "The current picture")
         print(f"zfusion run: session at {endpoint} (zfusion picture --connect {endpoint}"
               f"{'' if args.deployment == 'default' else ' --deployment ' + args.deployment})", file=sys.stderr, flush=True)

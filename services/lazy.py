@@ -8,30 +8,39 @@ process does not pay for what it may never use. The name is declared at module l
 beside the imports, where ``tests/test_import_graph.py`` reads it as an edge of the
 import graph like any import (cycles through it are caught).
 
-This is the standard library's own recipe (:class:`importlib.util.LazyLoader`, "Implementing
-lazy imports" in the :mod:`importlib` documentation): the module object is created and
-registered at once, and executed on its first attribute access. A module already
-imported is returned as it is.
+The first attribute read imports the module by the ordinary import system
+(:func:`importlib.import_module`) and the proxy reads through to it from then on. Not
+:class:`importlib.util.LazyLoader`: that registers a not-yet-executed module in
+``sys.modules`` for every other importer to trip over, and a Ctrl-C while it executes
+left a half-run module there that later imports took for whole (an ``ImportError`` for a
+name the module defines); the ordinary system removes a module whose import failed.
 """
 
 from __future__ import annotations
 
-import importlib.util
-import sys
+import importlib
 from types import ModuleType
 
 
-def lazy(name: str) -> ModuleType:
-    """The module ``name``, executed when one of its attributes is first read."""
-    module = sys.modules.get(name)
-    if module is not None:
-        return module
-    spec = importlib.util.find_spec(name)
-    if spec is None or spec.loader is None:
-        raise ImportError(f"no module named {name!r}", name=name)
-    loader = importlib.util.LazyLoader(spec.loader)
-    spec.loader = loader
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[name] = module
-    loader.exec_module(module)
-    return module
+class Lazy:
+    """Stands for the module ``name`` until it is first used (module docstring)."""
+
+    __slots__ = ("_name", "_module")
+
+    def __init__(self, name: str):
+        self._name = name
+        self._module: ModuleType | None = None
+
+    def __getattr__(self, attr: str):
+        module = self._module
+        if module is None:
+            module = self._module = importlib.import_module(self._name)
+        return getattr(module, attr)
+
+    def __repr__(self) -> str:
+        return f"<module {self._name!r} ({'loaded' if self._module is not None else 'not loaded yet'})>"
+
+
+def lazy(name: str) -> Lazy:
+    """The module ``name``, imported when one of its attributes is first read."""
+    return Lazy(name)

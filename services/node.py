@@ -27,6 +27,7 @@ import zenoh.ext as zx
 
 from schemas import KeySpace, encode
 
+from .commands.options import split_override
 from .resources import own_usage
 
 log = logging.getLogger("zfusion")
@@ -90,15 +91,6 @@ class ZenohOptions:
         args += [a for e in self.connect for a in ("--connect", e)]
         args += ["--zenoh-mode", self.mode] if self.mode else []
         return args + [a for o in self.overrides for a in ("--zenoh-set", o)]
-
-
-def split_override(item: str) -> tuple[str, str]:
-    """``KEY=VALUE`` of a ``--zenoh-set`` option, e.g.
-    ``transport/link/tls/connect_certificate=/etc/zfusion/certs/radar2d.pem``."""
-    key, sep, value = item.partition("=")
-    if not sep or not key.strip("/ ") or not value:
-        raise ValueError(f"expected KEY=VALUE (a Zenoh config path and a JSON5 value), not {item!r}")
-    return key.strip(), value
 
 
 class Inbox:

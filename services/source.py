@@ -34,6 +34,7 @@ from typing import Iterator
 from schemas import KeySpace, encode, encode_measurement
 from sensors_sim import jam_events, sensor_events, truth_events
 
+from .errors import UserError
 from .node import Node
 from .scenario import load
 
@@ -88,7 +89,7 @@ def run(process_id: str, scenario_ref: str, keys: KeySpace, zopts, speed: float,
     elif process_id in scenario.jammers:
         role = "jammer"
     else:
-        raise SystemExit(f"zfusion sensor: {process_id!r} is not a source of scenario {scenario.name} "
+        raise UserError(f"{process_id!r} is not a source of scenario {scenario.name} "
                          f"(sources: {', '.join(scenario.process_ids())})")
     with Node(process_id, role, keys, zopts) as node:
         node.announce()

@@ -31,6 +31,7 @@ from schemas.links import downlink, encode_uplink
 
 from .fuser import FuserCore, MeasurementIntake
 from .live import LiveOptions
+from .errors import UserError
 from .node import Inbox, Node, Recovery
 from .scenario import load, load_site
 from .source import recovery_cache
@@ -67,7 +68,7 @@ def run(sensor: str, scenario_ref: str, method_name: str, overrides: dict, keys:
     order by itself, so it has no bounded wait and no out-of-sequence data."""
     scenario = load(scenario_ref, seed, duration) if live is None else load_site(scenario_ref)
     if sensor not in scenario.sensors:
-        raise SystemExit(f"zfusion tracker: {sensor!r} is not a sensor of {scenario.name} "
+        raise UserError(f"{sensor!r} is not a sensor of {scenario.name} "
                          f"(sensors: {', '.join(scenario.sensors)})")
     me = tracker_id(sensor)
     config = method_config(scenario.tracker, method_name, overrides)

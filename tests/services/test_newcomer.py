@@ -159,7 +159,7 @@ def test_the_table_keeps_its_columns_apart_and_explains_the_bound():
 
 
 def test_view_checks_the_file_and_the_display_first(tmp_path):
-    from services.cli import viewer_argv
+    from services.commands.view import viewer_argv
     from services.errors import UserError
 
     good, bad = tmp_path / "good.rrd", tmp_path / "bad.rrd"
