@@ -28,6 +28,7 @@ def run(args) -> int:
     scenario = request.scenario_of(args)
     topology, method = request.resolve_topology(scenario, args.topology, args.method)
     request.check_methods(scenario, [method], {})
-    print(plan.format_plan(scenario, topology, method, plan.plan(args.scenario, scenario, topology, method,
-                                                                 args.connect, args.speed, args.rrd, args.json)))
+    fabric = ["--zenoh-mode", "client", "--connect", args.connect]
+    print(plan.RunPlan.build(args.scenario, scenario, topology, method, fabric=fabric, speed=args.speed,
+                             rrd=args.rrd, json_path=args.json, router=args.connect).format())
     return 0

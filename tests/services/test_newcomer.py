@@ -32,13 +32,13 @@ def test_report_of_a_many_target_evaluation(tmp_path, args):
 # 2. a child that fails ends the run ---------------------------------------------------------
 FAILING_SENSOR = """
 import sys
-import services.launcher as launcher
-start = launcher.Children.start
+import services.supervisor as supervisor
+start = supervisor.Children.start
 def failing(self, name, argv):  # the radar's emulator fails at its first scan, as with a bad seed
     if name == "radar2d":
         argv = [*argv, "--seed", "-1"]
     start(self, name, argv)
-launcher.Children.start = failing
+supervisor.Children.start = failing
 from services.cli import main
 sys.exit(main(sys.argv[1:]))
 """
