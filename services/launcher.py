@@ -36,11 +36,12 @@ from typing import Iterable
 import zenoh
 
 from fusion.methods import TRACK_FUSION_METHODS, track_fusion_rule
-from schemas import KeySpace, SchemaError, decode, to_estimate
+from schemas import KeySpace, to_estimate
 
 from .commands import options
 from .errors import FAILURE, UserError
 from .export.outputs import OUTPUTS
+from .intake import Intake
 from .node import Inbox, Node, ZenohOptions
 from .plan import FUSER_ID, RECORDER_ID, Live, RunPlan, source_timeout
 from .request import check_methods, resolve_topology, scenario_of
@@ -167,6 +168,7 @@ class Launch:
         self.children = Children()
         self.started: float | None = None  # wall-clock epoch of scenario time 0, once the sources start
         self.inbox = Inbox(node.stop)
+        self.intake = Intake(node.keys, node.reject, ["fused", "status"])
         self.sup = Supervisor(self.children, plan, restart, self.clock, self.event, fuser_grace=timeout)
         node.subscribe(node.keys.fused(), self.inbox)
         node.subscribe(node.keys.all("status"), self.inbox)
@@ -187,19 +189,17 @@ class Launch:
     def drain(self, block: float = 0.0) -> None:
         """Take what has come in (waiting up to ``block`` s for the first): fused
         estimates to the scorer, statuses to the supervisor and the usage table."""
-        keys = self.node.keys
         try:
             while True:
                 key, data = self.inbox.get(timeout=block) if block else self.inbox.get_nowait()
                 block = 0.0
-                try:
-                    msg = decode(data)
-                except SchemaError as e:
-                    self.node.reject(key.rsplit("/", 1)[-1], e.cause, str(e))
+                sample = self.intake.offer(key, data)
+                if sample is None:
                     continue
-                if msg.kind == "track" and key == keys.fused():
+                msg = sample.msg
+                if sample.family == "fused":
                     self.scorer.add(to_estimate(msg))
-                elif msg.kind == "status":
+                else:
                     self.statuses[msg.src] = msg.body
                     self.heard_at[msg.src] = time.monotonic()
                     self.usage.setdefault(msg.src, ProcessUsage()).status(msg.seq, msg.body["counters"])

@@ -28,8 +28,7 @@ call at least every ``SEND_PERIOD_S``. The recorder only listens: its subscripti
 feeds a bounded queue (overflow counted and dropped, never pushed back to a publisher;
 beyond ``BACKLOG_IN_MEMORY`` samples it waits in a temporary file, not in memory),
 and every sample that fails to decode, arrives on the wrong key, repeats, or lies
-beyond the scenario's end is counted by cause and dropped
-(:class:`~services.node.RejectLog`). docs/notes.md ("Recorder paths") says why paths
+beyond the scenario's end is counted by cause and dropped (:class:`services.intake.Intake`). docs/notes.md ("Recorder paths") says why paths
 are thinned.
 """
 
@@ -42,7 +41,6 @@ import queue
 import time
 from collections import OrderedDict, deque
 from functools import lru_cache
-from typing import Callable
 
 import numpy as np
 import rerun as rr
@@ -51,7 +49,7 @@ from fusion.metrics import gospa
 from fusion.mtt import AssociationConfig
 from fusion.measurement.kinds import KINDS, SPHERE
 from fusion.types import Estimate, Measurement
-from schemas import MEASUREMENT_KINDS, KeySpace, Message, SchemaError, decode, to_estimate, to_measurement
+from schemas import KeySpace, Message, to_estimate, to_measurement
 from schemas.links import downlink, uplink
 from sensors_sim.spec import DF_KINDS
 
@@ -59,9 +57,9 @@ from .. import picture
 from . import draw
 from . import map as recorder_map
 from ..scoring import GOSPA_CUTOFF, many_targets
+from ..intake import HORIZON_SLACK_S, ROUTES, Intake
 from ..live import ClockGuard
 from ..node import ListenerInbox, Node, Recovery, RejectLog
-from ..ordering import HORIZON_SLACK_S, SEQ_WINDOW
 from ..picture import Reports
 from ..rotation import Rotation
 from ..scenario import load, load_site
@@ -133,7 +131,6 @@ class Recorder:
         self.default_ray = DEFAULT_RAY_M
         # per-entity state
         self._styled: set[str] = set()
-        self._seqs: dict[tuple[str, ...], OrderedDict[int, int]] = {}  # stream -> seq -> hash of the bytes
         self._sites: dict[str, np.ndarray] = {}
         self._site_paths: dict[str, Trail] = {}
         self._scan: dict[str, tuple[float, dict[str, list[np.ndarray]]]] = {}  # by entity path
@@ -159,7 +156,16 @@ class Recorder:
         self._jam_victims: dict[str, set[str]] = {}
         self.geo: recorder_map.MapLayer | None = None  # the map, where the session has a geodetic origin
         self.clock_guard = clock_guard  # live: no end, and the scenario (if any) is only its site
-        self.clock_events: list[str] = []
+        duration = getattr(scenario, "duration", None) if clock_guard is None else None
+        if duration is not None:
+            self.horizon = float(duration) + HORIZON_SLACK_S
+        # everything on the deployment's keys; a row's time is never before 0 nor past the end
+        self.intake = Intake(keys, self.reject, ROUTES, horizon=self.horizon, earliest=0.0, clock=clock_guard,
+                             dedup=True)
+        self.clock_events = self.intake.events  # what the clock guard says of the sources' clocks
+        self._handlers = {"meas": self._on_measurement, "fused": self._on_estimate, "local": self._on_uplink,
+                          "feedback": self._on_feedback, "truth": self._on_truth, "jam": self._on_jam_state,
+                          "status": self._on_status}
         rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
         if scenario is not None:
             self._from_scenario(scenario)
@@ -168,109 +174,22 @@ class Recorder:
 
     def offer(self, key: str, data: bytes, utc: float | None = None) -> Message | None:
         """One sample off the wire (``utc``: this host's clock, live). Bad input is counted
-        and dropped; never raises."""
-        try:
-            family, ident = self.keys.family_and_id(key)
-        except ValueError as e:
-            self.reject("?", "key", str(e))
+        and dropped (:class:`services.intake.Intake`); never raises."""
+        sample = self.intake.offer(key, data, utc)
+        if sample is None:
             return None
-        hint = ident or family
-        try:
-            msg = decode(data)
-        except SchemaError as e:
-            self.reject(hint, e.cause, str(e))
-            return None
-        if self.clock_guard is not None and utc is not None and msg.kind != "status":
-            rej = self.clock_guard.check(msg.src, msg.t, utc, self.clock_events)
-            if rej is not None:
-                self.reject(hint, rej.cause, rej.detail)
-                return None
-        handler, why = self._route(family, ident, msg, hash(data))
-        if handler is None:
-            self.reject(hint, why[0], why[1])
-            return None
+        family, ident, msg = sample.family, sample.ident, sample.msg
+        handler = self._handlers[family]
+        if msg.kind == "watermark":
+            handler = self._on_watermark
         try:
             handler(family, ident, msg)
         except Exception as e:  # the schema let it through but it cannot be drawn: count, go on
-            self.reject(hint, "unrecordable", f"{msg.kind} from {msg.src}: {type(e).__name__}: {e}")
+            self.reject(ident or family, "unrecordable", f"{msg.kind} from {msg.src}: {type(e).__name__}: {e}")
             return None
         if msg.kind == "status" and msg.body["state"] in ("done", "stopped"):
             self.finished.add(msg.src)
         return msg
-
-    def _route(self, family: str, ident: str | None, msg: Message,
-               digest: int) -> tuple[Callable | None, tuple[str, str]]:
-        kind = msg.kind
-        if kind != "status" and msg.t > self.horizon:
-            return None, ("future", f"t = {msg.t:g} s is beyond the scenario's end ({self.horizon:g} s)")
-        # Scenario time starts at 0; rows must fit the timeline. A watermark just before 0
-        # (a node holding a plot at t = 0 promises nothing earlier) is no row, and no error.
-        if kind not in ("status", "watermark") and msg.t < 0.0:
-            return None, ("past", f"t = {msg.t:g} s is before the scenario's start")
-        handler, why = self._route_kind(family, ident, msg)
-        if handler is not None and kind not in ("watermark", "status"):
-            # one row per message: a repeated message (src, seq and bytes) is dropped.
-            # Measurements and estimates are told apart: a process may count them separately.
-            stream = (family, ident or "", msg.src, "meas" if kind in MEASUREMENT_KINDS else kind)
-            if self._repeated(stream, msg.seq, digest):
-                return None, ("duplicate", f"{kind} seq {msg.seq} from {msg.src} already recorded")
-        return handler, why
-
-    def _route_kind(self, family: str, ident: str | None, msg: Message) -> tuple[Callable | None, tuple[str, str]]:
-        kind = msg.kind
-        wrong = (None, ("kind", f"{kind!r} is not expected on {family}/{ident or ''}"))
-        if family == "meas":
-            if kind not in MEASUREMENT_KINDS and kind != "watermark":
-                return wrong
-            if msg.src != ident or (kind != "watermark" and msg.body["sensor"] != ident):
-                return None, ("spoofed-src", f"{kind} of {msg.body.get('sensor', msg.src)!r} from "
-                                             f"{msg.src!r} came on meas/{ident}")
-            if kind == "watermark":
-                return self._on_watermark, ("", "")
-            return self._on_measurement, ("", "")
-        if family == "fused":
-            return (self._on_estimate, ("", "")) if kind == "track" else wrong
-        if family == "local":
-            if kind == "watermark":
-                return self._on_watermark, ("", "")
-            return (self._on_uplink, ("", "")) if kind == "uplink" else wrong
-        if family == "feedback":
-            if kind == "watermark":  # the fuser's feedback horizon: nothing to draw
-                return self._on_watermark, ("", "")
-            return (self._on_feedback, ("", "")) if kind == "downlink" else wrong
-        if family == "truth":
-            if kind != "truth":
-                return wrong
-            if msg.body["target"] != ident:
-                return None, ("spoofed-src", f"truth of {msg.body['target']!r} came on truth/{ident}")
-            return self._on_truth, ("", "")
-        if family == "jam":
-            if kind != "jam_state":
-                return wrong
-            if msg.src != ident:
-                return None, ("spoofed-src", f"jam_state from {msg.src!r} came on jam/{ident}")
-            return self._on_jam_state, ("", "")
-        if family == "status":
-            if kind != "status":
-                return wrong
-            if msg.src != ident:
-                return None, ("spoofed-src", f"status of {msg.src!r} came on status/{ident}")
-            return self._on_status, ("", "")
-        return None, ("key", f"no such family {family!r}")
-
-    def _repeated(self, stream: tuple[str, ...], seq: int, digest: int) -> bool:
-        """Whether this message (its ``seq`` on ``stream``, ``digest`` the hash of its bytes)
-        was recorded already. A restarted process numbers its messages from 1 again, and
-        its "ready" status, published as its session opens, may reach no one: a reused
-        seq with other bytes is a new message, not a repeat."""
-        seen = self._seqs.setdefault(stream, OrderedDict())
-        if seen.get(seq) == digest:
-            return True
-        seen[seq] = digest
-        seen.move_to_end(seq)
-        if len(seen) > SEQ_WINDOW:
-            seen.popitem(last=False)
-        return False
 
     # -- logging ---------------------------------------------------------------------------------
 
@@ -325,8 +244,6 @@ class Recorder:
 
     def _from_scenario(self, sc) -> None:
         duration = getattr(sc, "duration", None) if self.clock_guard is None else None  # a site (live): no end
-        if duration is not None:
-            self.horizon = float(duration) + HORIZON_SLACK_S
         association, _ = AssociationConfig.split(sc.tracker)
         if association is not None:
             self.delete_misses = association.delete_misses
@@ -486,8 +403,7 @@ class Recorder:
         """``tgt`` has left: its truth samples, path and duplicate bookkeeping go."""
         self._truth.pop(tgt, None)
         self._truth_paths.pop(tgt, None)
-        for stream in [s for s in self._seqs if s[0] == "truth" and s[1] == tgt]:
-            del self._seqs[stream]
+        self.intake.forget("truth", tgt)
 
     def _truth_at(self, t: float) -> list[np.ndarray] | None:
         """The truth of every target present at ``t`` (one whose samples start after ``t`` or
