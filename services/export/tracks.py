@@ -26,7 +26,7 @@ import numpy as np
 
 from fusion.mtt import AssociationConfig
 from fusion.types import Estimate
-from schemas import KeySpace, to_estimate
+from schemas import KeySpace, Message, to_estimate
 
 from ..intake import Intake
 from ..live import ClockGuard
@@ -55,7 +55,7 @@ class TrackTable:
         self.reject = reject
         self.intake = Intake.of_scenario(keys, reject, ["fused"], duration, dedup=True,
                                          clock=ClockGuard(max_skew) if clock is not None else None)
-        self.src: str | None = None  # the sender of the last estimate taken
+        self.msg: Message | None = None  # the message of the last estimate taken
         self.clock = clock
         self.delete_misses = delete_misses
         self.tracks: OrderedDict[str, Estimate] = OrderedDict()  # by track id, oldest update first
@@ -75,7 +75,7 @@ class TrackTable:
             self.tracks.pop(gone, None)
         self.tracks[e.track] = e
         self.tracks.move_to_end(e.track)
-        self.src = msg.src  # who sent the estimate just taken
+        self.msg = msg
         while len(self.tracks) > MAX_TRACKS:
             old, _ = self.tracks.popitem(last=False)
             self._reports.forget(old)

@@ -37,7 +37,6 @@ from __future__ import annotations
 import functools
 import logging
 import math
-import queue
 import time
 from collections import OrderedDict, deque
 from functools import lru_cache
@@ -53,13 +52,13 @@ from schemas import KeySpace, Message, to_estimate, to_measurement
 from schemas.links import downlink, uplink
 from sensors_sim.spec import DF_KINDS
 
-from .. import picture
 from . import draw
 from . import map as recorder_map
 from ..scoring import GOSPA_CUTOFF, many_targets
 from ..intake import HORIZON_SLACK_S, ROUTES, Intake
+from ..listener import run_listener
 from ..live import ClockGuard
-from ..node import ListenerInbox, Node, Recovery, RejectLog
+from ..node import Node, RejectLog
 from ..picture import Reports
 from ..rotation import Rotation
 from ..scenario import load, load_site
@@ -645,6 +644,68 @@ class Recorder:
 # -- the process ----------------------------------------------------------------------------------
 
 
+class RecordingSink:
+    """The recorder as a listener's sink (:func:`services.listener.run_listener`): a
+    :class:`Recorder` on a recording file (rotated every ``rotate_s`` of session time),
+    whose rows go out at least every ``SEND_PERIOD_S`` and whose file is flushed once a
+    second, so a killed recorder loses little. Done once every process of ``expect``
+    has reported done."""
+
+    def __init__(self, node: Node, rrd_path: str, expect: list[str], sc, live, app: str, spawn: bool,
+                 rotate_s: float | None):
+        df = sc is not None and bool(sc.sensors) and all(s.kind in DF_KINDS for s in sc.sensors.values())
+        self.rotation = Rotation(rrd_path, rotate_s) if rotate_s else None
+        self.opener = functools.partial(open_recording, app=app, spawn=spawn, df=df,
+                                        many=hasattr(sc, "targets") and many_targets(sc), geo=sc is not None,
+                                        live=live is not None)
+        self.rec, _ = self.opener(str(self.rotation.first()) if self.rotation else rrd_path)
+        guard = ClockGuard(live.max_skew) if live is not None else None
+        self.recorder = Recorder(self.rec, node.keys, node.reject, sc, clock_guard=guard)
+        self.events = self.recorder.clock_events
+        self.expect = set(expect)
+        self._sent = self._flushed = time.monotonic()
+
+    def offer(self, key: str, data: bytes, utc: float | None) -> Message | None:
+        msg = self.recorder.offer(key, data, utc)
+        at = self.rotation.due(self.recorder.clock) if self.rotation and self.recorder.started else None
+        if at is not None:
+            new, _ = self.opener(str(self.rotation.next()), recording_id=self.rec.get_recording_id())
+            self.rec.hand_over(new, at)
+            self.rec = new
+            self.recorder.reopen(new, at)
+        if self.rec.queued >= SEND_ROWS_MAX:
+            self._send()
+        return msg
+
+    def _send(self) -> None:
+        self.rec.send_rows()
+        self._sent = time.monotonic()
+
+    def tick(self, final: bool = False) -> None:
+        if final:
+            self.recorder.finish()
+            safe_flush(self.rec, 10.0)
+            return
+        if time.monotonic() - self._sent >= SEND_PERIOD_S:
+            self._send()
+        if time.monotonic() - self._flushed >= 1.0:
+            safe_flush(self.rec, 0.0)  # keep the file current: a killed recorder loses little
+            self._flushed = time.monotonic()
+
+    def done(self) -> bool:
+        return bool(self.expect) and self.expect <= self.recorder.finished
+
+    def now(self) -> float:
+        return self.recorder.now
+
+    def counters(self) -> dict[str, float]:
+        return {"uplinked": self.recorder.uplinked, "unscored": self.recorder.unscored}
+
+    def close(self) -> None:
+        safe_flush(self.rec, 10.0)
+        self.rec.disconnect()  # writes the file's footer; gives an unreachable viewer at most a few seconds
+
+
 def run(process_id: str, keys: KeySpace, zopts, rrd_path: str, expect: list[str], app: str = "zfusion", *,
         spawn: bool = False, scenario: str | None = None, seed: int | None = None,
         rotate_s: float | None = None, live=None, duration: float | None = None) -> int:
@@ -653,75 +714,8 @@ def run(process_id: str, keys: KeySpace, zopts, rrd_path: str, expect: list[str]
     sc = None
     if scenario is not None:
         sc = load(scenario, seed, duration) if live is None else load_site(scenario)
-    df = sc is not None and bool(sc.sensors) and all(s.kind in DF_KINDS for s in sc.sensors.values())
-    inbox = ListenerInbox(BACKLOG_MAX, BACKLOG_IN_MEMORY)
-
-    with Node(process_id, "recorder", keys, zopts) as node:
-        # The file is opened once SIGTERM/SIGINT are handled, so a stop at any time leaves a whole file.
-        rotation = Rotation(rrd_path, rotate_s) if rotate_s else None
-        opener = functools.partial(open_recording, app=app, spawn=spawn, df=df,
-                                   many=hasattr(sc, "targets") and many_targets(sc), geo=sc is not None,
-                                   live=live is not None)
-        rec, _ = opener(str(rotation.first()) if rotation else rrd_path)
-        guard = ClockGuard(live.max_skew) if live is not None else None
-        recorder = Recorder(rec, keys, node.reject, sc, clock_guard=guard)
-        utc = time.time if live is not None else lambda: None
-        recovery = None
-        if live is not None:  # live: what the recoverable publishers (sensors, trackers, fuser) sent while cut off
-            recovery = Recovery(node.processes_by_session())
-            node.recovering_subscriber(keys.all(), inbox, recovery.on_miss)
-        else:
-            node.subscribe(keys.all(), inbox)
-        # Started mid-session: begin with the fuser's current tracks (none answers at a run's start).
-        late_join = picture.Request(node.session, keys, lambda data: inbox.put((keys.fused(), data)))
-
-        def count_status() -> None:
-            """The counters each status carries, beside the node's own."""
-            node.counters.update(dropped=inbox.dropped, uplinked=recorder.uplinked, unscored=recorder.unscored,
-                                 backlog=inbox.qsize(), picture=late_join.tracks,
-                                 **(recovery.counters() if recovery is not None else {}))
-
-        node.announce()
-        node.publish_status("ready")
-        last_status = last_send = time.monotonic()
-        while not node.stop.is_set():
-            try:
-                key, data = inbox.get(timeout=0.1)
-            except queue.Empty:
-                pass
-            else:
-                msg = recorder.offer(key, data, utc())
-                if msg is not None:
-                    node.count("recorded")
-                    if recovery is not None and msg.kind != "status":
-                        recovery.arrived(msg.src, msg.t, utc())
-                if key == keys.fused():
-                    late_join.cancel()  # the fuser's own stream: its picture is coming anyway
-                at = rotation.due(recorder.clock) if rotation and recorder.started else None
-                if at is not None:
-                    new, _ = opener(str(rotation.next()), recording_id=rec.get_recording_id())
-                    rec.hand_over(new, at)
-                    rec = new
-                    recorder.reopen(rec, at)
-                for ev in recorder.clock_events:
-                    node.event(ev)
-                recorder.clock_events.clear()
-            late_join.poll()
-            if rec.queued >= SEND_ROWS_MAX or time.monotonic() - last_send >= SEND_PERIOD_S:
-                rec.send_rows()
-                last_send = time.monotonic()
-            if expect and set(expect) <= recorder.finished and inbox.empty():
-                break
-            if time.monotonic() - last_status >= 1.0:
-                count_status()
-                node.publish_status("running", recorder.now)
-                safe_flush(rec, 0.0)  # keep the file current: a killed recorder loses little
-                last_status = time.monotonic()
-        recorder.finish()
-        safe_flush(rec, 10.0)
-        count_status()
-        node.publish_status("done" if not node.stop.is_set() else "stopped", recorder.now)
-    safe_flush(rec, 10.0)
-    inbox.close()
-    rec.disconnect()  # writes the file's footer; gives an unreachable viewer at most a few seconds
-    return 0
+    # The file is opened once SIGTERM/SIGINT are handled, so a stop at any time leaves a whole file.
+    return run_listener(process_id, "recorder", keys, zopts,
+                        lambda node: RecordingSink(node, rrd_path, expect, sc, live, app, spawn, rotate_s),
+                        subscribe=keys.all(), live=live is not None, backlog=BACKLOG_MAX,
+                        in_memory=BACKLOG_IN_MEMORY, counted="recorded")
