@@ -14,9 +14,10 @@ the panels.
 Many targets: each track is an entity keyed by (node, id) and is cleared (``rr.Clear``,
 recursively) once its stream has reported ``delete_misses`` frames without it, or at
 once when the centre tells its node to ``drop`` it; a cleared track's path and frame
-bookkeeping are forgotten, so state is held for the live tracks only. The fused picture
-is scored per frame as ``zfusion eval`` scores it (GOSPA, cut-off ``GOSPA_CUTOFF``),
-against the targets that have a truth sample at that time. Targets come and go too
+bookkeeping are forgotten, so state is held for the live tracks only. The ``metrics/``
+panels draw what the scoring hands back (:class:`services.scoring.LiveScore`: errors and
+NEES per estimate, the fused picture's GOSPA per frame, as ``zfusion eval`` scores
+them); the recorder computes none of it. Targets come and go too
 (``[traffic]``): a target missing from one truth frame is cleared from the drawing, and
 one missing from ``TRUTH_GONE_FRAMES`` frames is forgotten (its truth samples, path and
 duplicate bookkeeping), so truth is held for the targets alive of late only.
@@ -24,12 +25,13 @@ duplicate bookkeeping), so truth is held for the targets alive of late only.
 Bounded work per row: a path gets a point at most every ``TRAIL_STEP_S`` of scenario
 time and keeps ``PATH_MAX`` points; a 3D path is logged only with the row that adds a
 point; :class:`Recording` queues rows and sends each entity's in one ``send_columns``
-call at least every ``SEND_PERIOD_S``. The recorder only listens: its subscription
-feeds a bounded queue (overflow counted and dropped, never pushed back to a publisher;
-beyond ``BACKLOG_IN_MEMORY`` samples it waits in a temporary file, not in memory),
-and every sample that fails to decode, arrives on the wrong key, repeats, or lies
-beyond the scenario's end is counted by cause and dropped (:class:`services.intake.Intake`). docs/notes.md ("Recorder paths") says why paths
-are thinned.
+call at least every ``SEND_PERIOD_S``. The recorder only listens
+(:func:`services.listener.run_listener`): its subscription feeds a bounded queue
+(overflow counted and dropped, never pushed back to a publisher; beyond
+``BACKLOG_IN_MEMORY`` samples it waits in a temporary file, not in memory), and every
+sample that fails to decode, arrives on the wrong key, repeats, or lies beyond the
+scenario's end is counted by cause and dropped (:class:`services.intake.Intake`).
+docs/notes.md ("Recorder paths") says why paths are thinned.
 """
 
 from __future__ import annotations
@@ -38,13 +40,12 @@ import functools
 import logging
 import math
 import time
-from collections import OrderedDict, deque
+from collections import deque
 from functools import lru_cache
 
 import numpy as np
 import rerun as rr
 
-from fusion.metrics import gospa
 from fusion.mtt import AssociationConfig
 from fusion.measurement.kinds import KINDS, SPHERE
 from fusion.types import Estimate, Measurement
@@ -54,7 +55,7 @@ from sensors_sim.spec import DF_KINDS
 
 from . import draw
 from . import map as recorder_map
-from ..scoring import GOSPA_CUTOFF, many_targets
+from ..scoring import LiveScore, Scored, many_targets
 from ..intake import HORIZON_SLACK_S, ROUTES, Intake
 from ..listener import run_listener
 from ..live import ClockGuard
@@ -68,9 +69,7 @@ from .stream import Part, Recording, open_recording, part, safe_flush, ui_points
 log = logging.getLogger("zfusion")
 
 DEFAULT_RAY_M = 20_000.0
-TRUTH_CACHE = 4096  # truth samples kept per target, to score estimates against
 TRUTH_GONE_FRAMES = 30  # truth frames a target may miss before its samples are forgotten (it has left)
-PENDING_MAX = 4096  # estimates waiting for the truth sample of their time
 BACKLOG_MAX = 50_000  # queued samples before the recorder starts dropping (and counting): seconds of traffic
 BACKLOG_IN_MEMORY = 2_048  # ... of which in memory; the rest waits in a temporary file (ListenerInbox)
 SEND_PERIOD_S = 0.2  # queued rows go out at least this often (wall clock)
@@ -124,7 +123,6 @@ class Recorder:
         self.scenario_run = scenario is not None
         self.finished: set[str] = set()  # processes that reported done/stopped
         self.uplinked = 0  # measurements local trackers sent up on local/* (drawn as the node's)
-        self.unscored = 0  # estimates older than the truth kept of their target: drawn, never scored
         self.horizon = math.inf
         self.df_sensors: set[str] = set()
         self.default_ray = DEFAULT_RAY_M
@@ -135,21 +133,14 @@ class Recorder:
         self._scan: dict[str, tuple[float, dict[str, list[np.ndarray]]]] = {}  # by entity path
         self._bearings: deque[tuple[np.ndarray, np.ndarray]] = deque(maxlen=32)
         self._ref_pos: np.ndarray | None = None  # latest fused (else any) estimate: scales rays
-        self._truth: dict[str, OrderedDict[float, np.ndarray]] = {}
         self._truth_paths: dict[str, Trail] = {}
-        self._truth_t = -math.inf  # the latest truth frame's time
         self._truth_drawn = Reports()  # truth frames: a target missing from one is no longer drawn
         self._truth_kept = Reports()  # ... one missing from TRUTH_GONE_FRAMES is forgotten
         self._track_paths: dict[str, Trail] = {}
         self.delete_misses = AssociationConfig.delete_misses  # the trackers' default; the scenario may set it
         self._reports: dict[tuple[str, str], Reports] = {}  # by stream (family, key id)
         self._node_of: dict[str, str] = {}  # local/<id> -> the node its estimates name
-        self._pending: OrderedDict[float, list[tuple[Estimate, tuple[str, ...]]]] = OrderedDict()
-        self._n_pending = 0
-        self.many: bool | None = None  # many targets (from the scenario; else: more than one truth seen)
-        # many targets: per method, its frames not scored yet (time -> fused positions) and its state size
-        self._pictures: dict[str, OrderedDict[float, list[np.ndarray]]] = {}
-        self._picture_size: dict[str, int] = {}
+        self.score = LiveScore()  # what the panels plot: scored against the truth as both arrive
         self._states: dict[str, str] = {}
         self._jam: dict[str, tuple] = {}
         self._jam_victims: dict[str, set[str]] = {}
@@ -247,7 +238,7 @@ class Recorder:
         if association is not None:
             self.delete_misses = association.delete_misses
         self.df_sensors = {sid for sid, s in sc.sensors.items() if s.kind in DF_KINDS}
-        self.many = many_targets(sc) if hasattr(sc, "targets") else None  # a site: judged from the truth seen
+        self.score.many = many_targets(sc) if hasattr(sc, "targets") else None  # a site: judged from the truth seen
         self.geo = recorder_map.MapLayer.at(sc.origin, self._log)
         # The scenario's scale, from where its sensors and jammers are during the run (not its targets).
         times = np.linspace(0.0, float(duration or 0.0), 9)
@@ -362,7 +353,6 @@ class Recorder:
     def _on_truth(self, family: str, ident: str | None, msg: Message) -> None:
         tgt, x = msg.body["target"], np.asarray(msg.body["x"], dtype=float)
         self._advance(msg.t)
-        self._truth_t = max(self._truth_t, msg.t)
         missed = self._truth_drawn.t  # the frame a target gone at this one is missing from: cleared there
         for gone in self._truth_drawn.report(tgt, msg.t, 1):
             self._log(_p("world", "truth", gone), missed, part(rr.Clear, is_recursive=[True]))
@@ -370,25 +360,7 @@ class Recorder:
                 self.geo.clear(_p("world", "truth", gone), missed)
         for gone in self._truth_kept.report(tgt, msg.t, TRUTH_GONE_FRAMES):
             self._forget_truth(gone)
-        cache = self._truth.setdefault(tgt, OrderedDict())
-        cache[msg.t] = x
-        while len(cache) > TRUTH_CACHE:
-            cache.popitem(last=False)
-        waiting = self._pending.get(msg.t)
-        if waiting:
-            keep = []
-            for e, prefix in waiting:
-                if e.track == tgt or (e.track not in self._truth and len(self._truth) == 1):
-                    self._score(e, prefix, x)
-                    self._n_pending -= 1
-                else:
-                    keep.append((e, prefix))
-            if keep:
-                self._pending[msg.t] = keep
-            else:
-                del self._pending[msg.t]
-        if self._pictures:
-            self._score_pictures()
+        self._plot(self.score.truth(tgt, msg.t, x))
         pos = x[:3] if x.size >= 3 else np.array([x[0], x[1], 0.0])
         parts = [part(rr.Points3D, positions=[pos], labels=[tgt], colors=[draw.TRUTH_COLOR], radii=ui_points(5.0))]
         path, grew = self._path(self._truth_paths, tgt, msg.t, pos)
@@ -400,21 +372,9 @@ class Recorder:
 
     def _forget_truth(self, tgt: str) -> None:
         """``tgt`` has left: its truth samples, path and duplicate bookkeeping go."""
-        self._truth.pop(tgt, None)
+        self.score.forget(tgt)
         self._truth_paths.pop(tgt, None)
         self.intake.forget("truth", tgt)
-
-    def _truth_at(self, t: float) -> list[np.ndarray] | None:
-        """The truth of every target present at ``t`` (one whose samples start after ``t`` or
-        end before it is not), or None if a target whose samples span ``t`` lacks it (lost)."""
-        out = []
-        for cache in self._truth.values():
-            x = cache.get(t)
-            if x is not None:
-                out.append(x)
-            elif cache and next(iter(cache)) < t < next(reversed(cache)):
-                return None
-        return out
 
     def _draw_estimate(self, path: str, e: Estimate, color: tuple[int, int, int], label: str) -> np.ndarray | None:
         """Point + 3σ ellipsoid / ellipse + path so far; a smoothed bearing as a ray with its
@@ -472,29 +432,7 @@ class Recorder:
         pos = self._draw_estimate(track, e, color, label)
         if pos is not None and (fused or self._ref_pos is None):
             self._ref_pos = pos
-        prefix = (e.method,) if fused else (e.method, e.node)
-        if e.nis is not None and e.nis_dof:
-            self._series("nis", prefix, e.t, float(e.nis), int(e.nis_dof))
-        if draw.TRUTH_INDEX.get(e.x.size) is None:
-            return
-        if self.many or (self.many is None and len(self._truth) > 1):
-            if fused:
-                self._picture(e)
-            return
-        truth = self._truth.get(e.track)
-        if truth is None and len(self._truth) == 1:
-            truth = next(iter(self._truth.values()))
-        if truth is not None and e.t in truth:
-            self._score(e, prefix, truth[e.t])
-            return
-        if truth is not None and len(truth) >= TRUTH_CACHE and e.t < next(iter(truth)):
-            self.unscored += 1  # its truth came and was forgotten (the truth far ahead, at --speed max)
-            return
-        self._pending.setdefault(e.t, []).append((e, prefix))
-        self._n_pending += 1
-        while self._n_pending > PENDING_MAX:
-            _, dropped = self._pending.popitem(last=False)
-            self._n_pending -= len(dropped)
+        self._plot(self.score.estimate(e, fused))
 
     def _on_feedback(self, family: str, ident: str | None, msg: Message) -> None:
         d = downlink(ident or "", msg)
@@ -527,70 +465,28 @@ class Recorder:
         for path in [p for p in self._track_paths if p == track or p.startswith(track + "/")]:
             del self._track_paths[path]
 
-    def _score(self, e: Estimate, prefix: tuple[str, ...], x_truth: np.ndarray) -> None:
-        ref = draw.truth_part(x_truth, e.x.size)
-        if ref is None:
-            return
-        err = e.x - ref
-        d = draw.position_dims(e.x.size)
-        path = _p("metrics", "error_pos", *prefix)
-        self._style(path, part(rr.SeriesLines, names=["/".join(prefix)]))
-        self._log(path, e.t, part(rr.Scalars, scalars=[float(np.linalg.norm(err[:d]))]))
-        try:
-            nees = float(err @ np.linalg.solve(e.P, err))
-        except np.linalg.LinAlgError:
-            return
-        if math.isfinite(nees):
-            self._series("nees", prefix, e.t, nees, e.x.size)
-
-    def _picture(self, e: Estimate) -> None:
-        """A confirmed fused track of a many-target method: into its frame (module docstring)."""
-        frames = self._pictures.setdefault(e.method, OrderedDict())
-        self._picture_size[e.method] = e.x.size
-        frames.setdefault(e.t, []).append(e.x[:draw.position_dims(e.x.size)].astype(float))
-        while len(frames) > PENDING_MAX:  # no truth is coming
-            frames.popitem(last=False)
-        self._score_pictures()
-
-    def _score_pictures(self, final: bool = False) -> None:
-        """Score every complete frame whose truth is in; drop one whose time the truth has
-        passed without a sample."""
-        for method, frames in self._pictures.items():
-            n = self._picture_size[method]
-            while len(frames) > (0 if final else 1) and self._truth:
-                t = next(iter(frames))
-                if not final and self._truth_t <= t:
-                    break  # the truth of this time is still to come (a later truth frame closes it)
-                truths = self._truth_at(t)
-                if not truths:  # a sample lost, or no truth of that time: not scored
-                    frames.popitem(last=False)
-                    continue
-                refs = [draw.truth_part(x, n) for x in truths]
-                d = draw.position_dims(n)
-                g = gospa(frames.popitem(last=False)[1], [r[:d] for r in refs if r is not None], GOSPA_CUTOFF, 2.0)
-                self._style(_p("metrics", "gospa", method), part(rr.SeriesLines, names=[method]))
-                self._log(_p("metrics", "gospa", method), t, part(rr.Scalars, scalars=[g.distance]))
-                for name, count in (("missed", g.n_missed), ("false", g.n_false)):
-                    path = _p("metrics", "picture", method, name)
-                    self._style(path, part(rr.SeriesLines, names=[f"{method} {name}"]))
-                    self._log(path, t, part(rr.Scalars, scalars=[float(count)]))
-
     def finish(self) -> None:
-        """The recording ends: score the frames still open."""
-        self._score_pictures(final=True)
+        """The recording ends: the frames still open are scored."""
+        self._plot(self.score.finish())
 
-    def _series(self, metric: str, prefix: tuple[str, ...], t: float, value: float, dof: int) -> None:
-        lo, hi = draw.chi2_bounds(dof)
-        base = ("metrics", metric, *prefix)
-        name = "/".join(prefix)
-        self._style(_p(*base), part(rr.SeriesLines, names=[name]))
-        self._style(_p(*base, "lo"), part(rr.SeriesLines, colors=[draw.BOUND_COLOR], widths=[1.0],
-                                          names=[f"{name} χ²({dof}) 2.5%"]))
-        self._style(_p(*base, "hi"), part(rr.SeriesLines, colors=[draw.BOUND_COLOR], widths=[1.0],
-                                          names=[f"{name} χ²({dof}) 97.5%"]))
-        self._log(_p(*base), t, part(rr.Scalars, scalars=[value]))
-        self._log(_p(*base, "lo"), t, part(rr.Scalars, scalars=[lo]))
-        self._log(_p(*base, "hi"), t, part(rr.Scalars, scalars=[hi]))
+    @property
+    def unscored(self) -> int:
+        return self.score.unscored
+
+    def _plot(self, points: list[Scored]) -> None:
+        """Draw what the scoring handed back: a series per metric and estimates, a NEES or
+        NIS with its 95 % χ² interval."""
+        for pt in points:
+            base = ("metrics", "picture", pt.prefix[0], pt.metric) if pt.metric in ("missed", "false") \
+                else ("metrics", pt.metric, *pt.prefix)
+            name = "/".join(pt.prefix) if pt.metric not in ("missed", "false") else f"{pt.prefix[0]} {pt.metric}"
+            self._style(_p(*base), part(rr.SeriesLines, names=[name]))
+            self._log(_p(*base), pt.t, part(rr.Scalars, scalars=[pt.value]))
+            if pt.bounds is not None:
+                for end, level, bound in (("lo", "2.5%", pt.bounds[0]), ("hi", "97.5%", pt.bounds[1])):
+                    self._style(_p(*base, end), part(rr.SeriesLines, colors=[draw.BOUND_COLOR], widths=[1.0],
+                                                     names=[f"{name} χ²({pt.dof}) {level}"]))
+                    self._log(_p(*base, end), pt.t, part(rr.Scalars, scalars=[bound]))
 
     # -- jamming and status ------------------------------------------------------------------------
 
