@@ -47,7 +47,8 @@ from pathlib import Path
 import _common as C  # noqa: F401  (puts the repository on sys.path)
 import numpy as np
 
-from services.launcher import Children, die_with_parent, free_port
+from services.launcher import free_port
+from services.supervisor import Children, die_with_parent
 
 HERE = Path(__file__).resolve().parent
 SITE_RADIUS_M = 5_000.0

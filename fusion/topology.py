@@ -10,8 +10,9 @@ predictions, updates that with each measurement, and fuses those updates.
 
 A split topology's :class:`Scheme` says this as a value, which the nodes and centre of
 :mod:`fusion.network` read. A leaf module (no imports from the package), so a scenario
-loader can check a topology's name without loading the estimation methods; each
-method's topology is its registry record's (:mod:`fusion.methods`).
+loader can check a topology's name, and the command line offer the topologies and the
+centre's fusion rules, without loading the estimation methods; each method's topology
+is its registry record's (:mod:`fusion.methods`).
 """
 
 from __future__ import annotations
@@ -19,6 +20,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 TOPOLOGIES = ("centralised", "distributed", "feedback", "two-stage")
+# The track-to-track fusion rules of a split topology's centre (fusion.track_fusion), named
+# here so that the command line offers them without loading the estimation methods.
+FUSION_RULES = ("naive", "bar-shalom-campo", "ci", "info")
 
 
 @dataclass(frozen=True)

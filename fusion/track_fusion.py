@@ -32,9 +32,9 @@ from scipy.optimize import brentq, minimize
 
 from .imm import ModelSet, mixed_predictions
 from .kalman import gaussian_loglikelihood, gaussian_mixture, symmetrise
+from .topology import FUSION_RULES
 from .types import Estimate
 
-FUSION_RULES = ("naive", "bar-shalom-campo", "ci", "info")
 CI_CRITERIA = ("trace", "det")
 _PINV_RTOL = 1e-10  # eigenvalues of an equilibrated PSD matrix below this count as zero
 

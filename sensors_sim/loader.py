@@ -41,7 +41,7 @@ from .spec import (
     TargetSpec,
     TrafficSpec,
 )
-from .trajectories import (
+from .segments import (
     ConstantAcceleration,
     ConstantVelocity,
     CoordinatedTurn,

@@ -13,15 +13,13 @@ jammers) is a pure function of them. Positions are local ENU metres around
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from fusion.measurement.kinds import KINDS
 from fusion.topology import TOPOLOGIES
 
-if TYPE_CHECKING:
-    from .trajectories import Segment
+from .segments import Segment
 
 
 @dataclass(frozen=True)

@@ -14,11 +14,14 @@ signal.signal(signal.SIGINT, signal.default_int_handler)
 
 from services.errors import INTERRUPTED  # noqa: E402  (after the handler; it imports only re)
 
+try:
+    from services.cli import main as command  # noqa: E402  (light: the commands' modules load as they run)
+except KeyboardInterrupt:
+    sys.exit(INTERRUPTED)
+
 
 def main() -> int:
     try:
-        from services.cli import main as command
-
         return command()  # which says 130 itself once it runs its command
     except KeyboardInterrupt:
         return INTERRUPTED

@@ -4,15 +4,14 @@ Every command runs inside :func:`services.cli.main`, which turns the errors a us
 cause into one line on stderr and an exit code, and lets any other exception (a bug)
 through as a traceback. ``-v`` shows the traceback of these too.
 
-* :class:`UserError`: raised by the command line and the launcher for a request that
-  cannot be carried out as given (exit 2, or 1 for a failure such as a refused
-  connection); its text is the "what, how to fix" part.
-* ``ScenarioError`` (a bad scenario or site file), a bad file given on the command line
-  (``OSError`` with a file name), a Zenoh configuration or endpoint that Zenoh refuses
-  (``zenoh.ZError``, its Rust source location dropped), and a missing optional
-  dependency (``ImportError``) are mapped by :func:`one_line`.
-* ``SystemExit`` with a text (the older ``raise SystemExit("zfusion x: ...")``) is a
-  usage error: exit 2.
+* :class:`UserError`: raised by the command line, the launcher and the processes for a
+  request that cannot be carried out as given (exit 2, or 1 for a failure such as a
+  refused connection); its text is the "what, how to fix" part. A scenario or site file
+  that cannot be used is one (:mod:`services.scenario` says ``file:line: field: why``).
+* A bad file given on the command line (``OSError`` with a file name), a Zenoh
+  configuration or endpoint that Zenoh refuses (``zenoh.ZError``, its Rust source
+  location dropped), and a missing optional dependency (``ImportError``) are mapped by
+  :func:`one_line`.
 
 Exit codes: 2 usage and input errors, 1 failures, 130 interrupted (Ctrl-C).
 """
@@ -49,12 +48,8 @@ def zenoh_text(exc: BaseException) -> tuple[str, int]:
 
 def one_line(exc: BaseException) -> tuple[str, int] | None:
     """The one line and exit code for an error a user can cause, else None (a bug)."""
-    from sensors_sim import ScenarioError
-
     if isinstance(exc, UserError):
         return str(exc), exc.code
-    if isinstance(exc, ScenarioError):
-        return f"{exc}", USAGE
     if type(exc).__name__ == "ZError":
         return zenoh_text(exc)
     if isinstance(exc, ImportError) and exc.name:
@@ -62,6 +57,4 @@ def one_line(exc: BaseException) -> tuple[str, int] | None:
         return f"this needs the Python package {exc.name.split('.')[0]}, which is not installed{extra}", USAGE
     if isinstance(exc, OSError) and exc.filename is not None:
         return f"{exc.filename}: {exc.strerror or exc}; give a path that exists and that you may use", USAGE
-    if isinstance(exc, SystemExit) and isinstance(exc.code, str):
-        return exc.code, USAGE
     return None

@@ -29,22 +29,33 @@ from __future__ import annotations
 import dataclasses
 import heapq
 import math
+import multiprocessing
 import os
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, field
 from typing import Callable, Iterable, Sequence
 
 import numpy as np
 
+from fusion.crb3d import block_rmse, expected_information, noise_fisher_information, posterior_crb
+from fusion.df.crb import fisher_information, moving_emitter_pcrb
+from fusion.df.methods import DFConfig
+from fusion.init3d import initial_state
 from fusion.measurement.kinds import KINDS, RAY, SPHERE, kinds_of, model_for
 from fusion.methods import METHODS, make_method, method_config
+from fusion.metrics import cep50
+from fusion.motion import ConstantAcceleration
+from fusion.patent import COLOCATED_TOL, KINDS_3D, TrackerConfig
 from fusion.types import Estimate, Measurement
+from sensors_sim import jam_effect, sensor_events, truth_trajectory
+from sensors_sim.geometry import in_coverage
+from sensors_sim.segments import ConstantAcceleration as CASegment
+from sensors_sim.segments import Static
 
 from .scoring import GOSPA_CUTOFF, many_targets, pair_tol_of, scan_groups, score_run, score_tracks_of, truth_function
 from .summary import aggregate, summary, tracks_summary
 
 def merged_measurements(scenario, run: int = 0, sensors: Iterable[str] | None = None) -> list[Measurement]:
-    from sensors_sim import sensor_events
-
     streams = [
         (ev.measurement for ev in sensor_events(scenario, sid, run=run) if ev.measurement is not None)
         for sid in (sensors if sensors is not None else scenario.sensors)
@@ -105,8 +116,6 @@ def method_misfit(scenario, method: str) -> str | None:
 
 
 def _colocated_pair(scenario) -> bool:
-    from fusion.patent import COLOCATED_TOL
-
     starts = {s.id: KINDS[s.measurement_kind].start for s in scenario.sensors.values()
               if KINDS[s.measurement_kind].family == "3d"}
     radars = [s for s in scenario.sensors.values() if starts.get(s.id) == SPHERE]
@@ -186,9 +195,6 @@ def evaluate(scenario, variants: Sequence[Variant], runs: int, *, jobs: int = 1,
             if progress:
                 progress(r + 1, runs)
     else:
-        import multiprocessing
-        from concurrent.futures import ProcessPoolExecutor, as_completed
-
         chunk = max(1, min(10, runs // (4 * jobs)))
         batches = [list(range(i, min(i + chunk, runs))) for i in range(0, runs, chunk)]
         ctx = multiprocessing.get_context("fork" if "fork" in multiprocessing.get_all_start_methods() else "spawn")
@@ -223,9 +229,6 @@ def default_jobs() -> int:
 def _noise_std(scenario, sensor_id: str, t: float, position: np.ndarray) -> tuple[np.ndarray, bool]:
     """Per-component effective std (``1/√Fisher``) of a sensor's noise at ``t``, jamming
     included; and whether the noise density is regular (False for uniform outliers)."""
-    from fusion.crb3d import noise_fisher_information
-    from sensors_sim import jam_effect
-
     spec = scenario.sensor(sensor_id)
     std = np.asarray(spec.std, dtype=float)
     effect = jam_effect(scenario, sensor_id, t, position) if scenario.jammers else None
@@ -268,14 +271,6 @@ def _nullable(values) -> list:
 
 
 def _crb_3d(scenario, target: str, runs: int) -> dict | None:
-    from fusion.crb3d import block_rmse, expected_information, posterior_crb
-    from fusion.init3d import initial_state
-    from fusion.motion import ConstantAcceleration
-    from fusion.patent import KINDS_3D, TrackerConfig
-    from sensors_sim import truth_trajectory
-    from sensors_sim.geometry import in_coverage
-    from sensors_sim.trajectories import ConstantAcceleration as CASegment
-
     try:
         # The bound uses every 3D sensor's measurements, i.e. the centralised SS filter's
         # information, from SS's prior.
@@ -344,13 +339,6 @@ def _crb_3d(scenario, target: str, runs: int) -> dict | None:
 
 
 def _crb_emitter(scenario, target: str) -> dict | None:
-    from fusion.df.crb import fisher_information
-    from fusion.metrics import cep50
-    from sensors_sim import truth_trajectory
-    from sensors_sim.geometry import in_coverage
-    from sensors_sim.trajectories import Static
-
-    from fusion.df.methods import DFConfig
 
     spec_t = scenario.target(target)
     sensors = [s for s, spec in scenario.sensors.items()
@@ -405,11 +393,6 @@ def _crb_moving_emitter(scenario, target: str, groups, cfg) -> dict:
     along run 0's truth, with the ``[tracker]``'s ``q`` and ``init_vel_std``; jammed
     bearings with the information of their noise mixture, detection probability scaling
     it, a station out of coverage giving none."""
-    from fusion.df.crb import moving_emitter_pcrb
-    from fusion.metrics import cep50
-    from sensors_sim import truth_trajectory
-    from sensors_sim.geometry import in_coverage
-
     traj = truth_trajectory(scenario, target, 0)
     times, positions, epochs, regular = [], [], [], True
     for t, t_last, members in groups:

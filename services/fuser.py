@@ -24,29 +24,38 @@ process with the same inputs.
 from __future__ import annotations
 
 import functools
+import json
 import math
 import queue
 import time
+from pathlib import Path
 from typing import Any, Mapping
 
 from fusion.measurement.kinds import KINDS
 from fusion.methods import METHODS, make_method, method_config, split, track_fusion_rule
+from fusion.mtt import AssociationConfig
 from fusion.network import TrackCentre
 from fusion.oosm import Refiltering
 from fusion.types import Estimate
-from schemas import (MEASUREMENT_KINDS, KeySpace, Message, SchemaError, decode, encode_estimate, to_estimate,
-                     to_measurement, tracker_id)
+from schemas import KeySpace, Message, decode, encode_estimate, to_estimate, to_measurement, tracker_id
 from schemas.links import encode_downlink, horizon_message, uplink
 
+from .intake import HORIZON_SLACK_S, Intake
+from .lazy import lazy
 from .live import ClockGuard, LiveOptions
-from .node import Inbox, Node, Recovery, RejectLog, load, load_site
-from .ordering import DEFAULT_MAX_HELD, HORIZON_SLACK_S, WatermarkMerger
+from .node import Inbox, Node, Recovery, RejectLog
+from .ordering import DEFAULT_MAX_HELD, WatermarkMerger, hold_cap
 from .picture import Picture
+from .scenario import load, load_site
 from .source import recovery_cache
+
+# --json only: the scorer (scipy.stats, the scenario's truth) loads when a summary is written
+summary = lazy("services.summary")
 
 
 class MeasurementIntake:
-    """Raw measurements on ``meas/<sensor>`` (centralised fuser, local tracker).
+    """What the fuser (or a local tracker) takes from ``meas/<sensor>``, beyond the wire
+    checks of :class:`services.intake.Intake` (the key's family, kind and sender).
 
     With the scenario's ``sensors`` given, a measurement must also be of its sensor's
     kind and state its sensor's nominal noise std (sensors never state another: jamming
@@ -64,10 +73,6 @@ class MeasurementIntake:
                          for sid, s in (sensors or {}).items()}
 
     def item(self, key_id: str, msg: Message) -> tuple[str, Any] | tuple[None, str]:
-        if msg.kind not in MEASUREMENT_KINDS:
-            return None, "kind"
-        if msg.body["sensor"] != key_id:
-            return None, f"spoofed-src:measurement of sensor {msg.body['sensor']!r} sent by {key_id!r}"
         m = to_measurement(msg)
         if key_id in self.expected:
             kind, std = self.expected[key_id]
@@ -79,7 +84,7 @@ class MeasurementIntake:
 
 
 class UplinkIntake:
-    """Uplinks on ``local/<node>`` (fuser of the distributed topologies); ``nodes`` maps
+    """What the fuser of a distributed topology takes from ``local/<node>``; ``nodes`` maps
     tracker id to its sensor, which an uplink must be of."""
 
     family = "local"
@@ -91,8 +96,6 @@ class UplinkIntake:
         sensor = self.nodes.get(key_id)
         if sensor is None:
             return None, "unknown-source"
-        if msg.kind != "uplink":
-            return None, "kind"
         u = uplink(msg)
         if u.node != sensor:
             return None, f"spoofed-src:uplink of node {u.node!r} sent by {key_id!r}"
@@ -129,7 +132,9 @@ class FuserCore:
         sources: the ids this fuser waits for (sensors, or local trackers).
         keys: the deployment's key space (to check that ``src`` matches the key).
         reject: where rejections are counted.
-        timeout, start_grace, horizon: see :class:`~services.ordering.WatermarkMerger`.
+        timeout, start_grace: see :class:`~services.ordering.WatermarkMerger`.
+        horizon: data (and watermarks) beyond this scenario time are ``future``, and
+            data before 0 ``past`` (:class:`services.intake.Intake`; live: neither).
         intake: what the input is (:class:`MeasurementIntake` by default).
         max_held: the merger's per-source cap (:func:`max_held_for` a scenario).
         live: a live session (:class:`~services.live.LiveOptions`): no horizon, stamps
@@ -148,13 +153,13 @@ class FuserCore:
         self.keys = keys
         self.reject = reject
         self.intake = intake or MeasurementIntake()
+        self.wire = Intake(keys, reject, [self.intake.family], horizon=math.inf if live else horizon,
+                           earliest=-math.inf if live else 0.0)
         self.live = live
         self.refilter = Refiltering(method, live.oosm_window, shared=(reject,)) if live and refilter else None
         self._method = method
         bounded = self.refilter is not None
-        self.merger = WatermarkMerger(sources, timeout, start_grace, horizon if not live else math.inf, now,
-                                      earliest=0.0 if not live else -math.inf,
-                                      max_held=max_held or DEFAULT_MAX_HELD,
+        self.merger = WatermarkMerger(sources, timeout, start_grace, now, max_held=max_held or DEFAULT_MAX_HELD,
                                       max_delay=live.max_delay if bounded else math.inf,
                                       oosm_window=live.oosm_window if bounded else 0.0)
         self.clock = ClockGuard(live.max_skew) if live else None
@@ -179,23 +184,13 @@ class FuserCore:
 
     def offer(self, key: str, data: bytes, now: float, utc: float | None = None) -> Message | None:
         """One sample off the wire (``now``: monotonic clock; ``utc``: this host's UTC
-        clock, live). Bad input is counted and dropped; never raises. Returns the decoded
-        message (whether or not it was then accepted), None if it did not decode."""
+        clock, live). Bad input is counted and dropped; never raises. Returns the message
+        if the wire intake took it (whether or not it was then accepted), else None."""
         self.received += 1
-        try:
-            family, key_id = self.keys.family_and_id(key)
-        except ValueError as e:
-            self.reject("?", "key", str(e))
+        sample = self.wire.offer(key, data)
+        if sample is None:
             return None
-        hint = key_id or "?"
-        try:
-            msg = decode(data)
-        except SchemaError as e:
-            self.reject(hint, e.cause, str(e))
-            return None
-        if family != self.intake.family or msg.src != key_id:
-            self.reject(hint, "spoofed-src", f"message says src={msg.src!r} but came on {key}")
-            return msg
+        msg = sample.msg
         st = self.merger.sources.get(msg.src)
         if self.clock is not None and utc is not None and st is not None and st.dead:
             # Heard again after it was declared dead: what it sent while cut off comes now, given
@@ -212,10 +207,10 @@ class FuserCore:
         if msg.kind == "watermark":
             rej = self.merger.watermark(msg.src, msg.t, msg.body["final"], now, self.events)
         else:
-            what, item = self.intake.item(key_id, msg)
+            what, item = self.intake.item(sample.ident, msg)
             if what is None:
                 cause, _, detail = item.partition(":")
-                self.reject(hint, cause, detail or f"{msg.kind!r} is not expected on {key}")
+                self.reject(sample.ident, cause, detail or f"{msg.kind!r} is not expected on {key}")
                 return msg
             rej = self.merger.add(msg.src, msg.t, msg.seq, item, now, self.events)
         if rej is not None:
@@ -271,8 +266,6 @@ def max_held_for(scenario, window: float | None = None) -> int:
     Default window: a scenario's whole run, since at ``--speed max`` a source may
     legitimately run that far ahead of a late one; live, the source timeout, after
     which a laggard is declared dead (:func:`services.ordering.hold_cap`)."""
-    from .ordering import hold_cap
-
     traffic = scenario.traffic.max_alive if getattr(scenario, "traffic", None) is not None else 0
     rate = max((max(len(s.targets) + traffic, 1) + s.clutter_rate) / s.period for s in scenario.sensors.values())
     return hold_cap(rate, (scenario.duration if window is None else window) + 1.0)
@@ -280,8 +273,6 @@ def max_held_for(scenario, window: float | None = None) -> int:
 
 def _delete_misses(scenario) -> int:
     """Frames without a report after which a track has left the picture: the trackers' rule."""
-    from fusion.mtt import AssociationConfig
-
     association, _ = AssociationConfig.split(scenario.tracker)
     return (association or AssociationConfig).delete_misses
 
@@ -392,19 +383,14 @@ def run(process_id: str, scenario_ref: str, method_name: str, overrides: dict, k
 def _write_result(path: str, scenario, method: str, config: Mapping, estimates: list[Estimate],
                   sources: dict) -> None:
     """``--json``: the run's summary, as ``zfusion run --json`` writes it, and its table on stdout."""
-    import json
-    from pathlib import Path
-
-    from .summary import RunScorer, format_table, run_summary
-
     rule = (config.get("fusion_rule") if METHODS[method].fuses_tracks else None) or track_fusion_rule(
         scenario.tracker, [method])
     for sid in scenario.process_ids():  # processes the fuser does not consume (truth, jammers) too
         sources.setdefault(sid, {"dead_intervals": [], "rejected": 0})
-    scorer = RunScorer(scenario)
+    scorer = summary.RunScorer(scenario)
     for e in estimates:
         scorer.add(e)
-    doc = run_summary(scenario, METHODS[method].topology, method, rule, scorer.method_summary(), sources)
+    doc = summary.run_summary(scenario, METHODS[method].topology, method, rule, scorer.method_summary(), sources)
     Path(path).parent.mkdir(parents=True, exist_ok=True)
     Path(path).write_text(json.dumps(doc, indent=1))
-    print(format_table(doc), flush=True)
+    print(summary.format_table(doc), flush=True)

@@ -25,8 +25,9 @@ from typing import Any, Callable, Iterable
 import zenoh
 import zenoh.ext as zx
 
-from schemas import KeySpace, SchemaError, encode
+from schemas import KeySpace, encode
 
+from .commands.options import split_override
 from .resources import own_usage
 
 log = logging.getLogger("zfusion")
@@ -90,15 +91,6 @@ class ZenohOptions:
         args += [a for e in self.connect for a in ("--connect", e)]
         args += ["--zenoh-mode", self.mode] if self.mode else []
         return args + [a for o in self.overrides for a in ("--zenoh-set", o)]
-
-
-def split_override(item: str) -> tuple[str, str]:
-    """``KEY=VALUE`` of a ``--zenoh-set`` option, e.g.
-    ``transport/link/tls/connect_certificate=/etc/zfusion/certs/radar2d.pem``."""
-    key, sep, value = item.partition("=")
-    if not sep or not key.strip("/ ") or not value:
-        raise ValueError(f"expected KEY=VALUE (a Zenoh config path and a JSON5 value), not {item!r}")
-    return key.strip(), value
 
 
 class Inbox:
@@ -512,35 +504,3 @@ class Node:
 def setup_logging(verbose: bool = False) -> None:
     logging.basicConfig(level=logging.DEBUG if verbose else logging.INFO, stream=sys.stderr,
                         format="%(asctime)s %(levelname)s %(message)s", datefmt="%H:%M:%S")
-
-
-def decode_or_count(node: Node, data: bytes, src_hint: str, decode: Callable[[bytes], Any]) -> Any | None:
-    """Decode a sample; on failure count it, log it (rate-limited) and return None."""
-    try:
-        return decode(data)
-    except SchemaError as e:
-        node.reject(src_hint, e.cause, str(e))
-        return None
-
-
-def load_site(site_ref: str):
-    """Load a site file, or a scenario as its site (``--site``: a live session)."""
-    from sensors_sim import load_site as load_site_file
-
-    return load_site_file(site_ref)
-
-
-def load(scenario_ref: str, seed: int | None = None, duration: float | None = None):
-    """Load a scenario, with ``--seed`` and ``--duration-s`` (if given) replacing the
-    file's. Every process of a run gets the same values from the launcher, so they all
-    draw consistently."""
-    import dataclasses
-
-    from sensors_sim import load_scenario
-
-    scenario = load_scenario(scenario_ref)
-    if seed is not None:
-        scenario = dataclasses.replace(scenario, seed=int(seed))
-    if duration is not None:
-        scenario = dataclasses.replace(scenario, duration=float(duration))
-    return scenario

@@ -8,9 +8,9 @@ a distributed run feeds the estimator the same sequence at any speed. A source s
 for longer than its timeout is declared dead and no longer waited for; it rejoins when
 it speaks again.
 
-Bad input (``unknown-source``, ``future``, ``past``, ``out-of-order``, ``duplicate``,
-``late``, ``stale``) is dropped and counted by cause and leaves the released sequence as
-if it had never arrived; duplicates are judged by ``seq`` among the held data only, so a
+Input it cannot order (``unknown-source``, ``out-of-order``, ``duplicate``, ``late``,
+``stale``; a time outside the session is the intake's, :mod:`services.intake`) is
+dropped and counted by cause and leaves the released sequence as if it had never arrived; duplicates are judged by ``seq`` among the held data only, so a
 forged huge ``seq`` cannot silence a source. Each source holds at most ``max_held``
 measurements (:func:`hold_cap`); beyond that the latest is ``shed``. Live sessions wait
 at most ``max_delay`` for a lagging source and hand data that then arrives for a
@@ -34,8 +34,6 @@ from typing import Any
 # scenario's whole output per source (61 measurements), so no run at any speed sheds.
 DEFAULT_MAX_HELD = 1024
 LEAD_MAX = 4096  # rises of the leading watermark remembered for the bounded wait
-SEQ_WINDOW = 4096  # recent sequence numbers a listener remembers per source (duplicate detection)
-HORIZON_SLACK_S = 1.0  # data beyond a scenario's end + this is "future"
 
 
 def hold_cap(rate_hz: float, window_s: float, factor: float = 10.0) -> int:
@@ -83,11 +81,7 @@ class WatermarkMerger:
         sources: the expected source ids (anything else is rejected as unknown).
         timeout: seconds of wall-clock silence after which a source is declared dead.
         start_grace: extra seconds a source that has never been heard gets at start-up.
-        horizon: measurements (and watermarks) with ``t`` beyond this scenario time are
-            rejected as "future" (a scenario's duration plus slack; ``inf`` disables).
         now: wall clock at start.
-        earliest: measurements stamped before this scenario time are rejected as "past"
-            (scenario time starts at 0).
         max_held: measurements held per source before the latest is shed (see the
             module docstring and :func:`hold_cap`).
         max_delay: live: longest wall-clock wait (s) for a lagging source's watermark;
@@ -97,16 +91,13 @@ class WatermarkMerger:
     """
 
     def __init__(self, sources: list[str], timeout: float, start_grace: float = 30.0,
-                 horizon: float = math.inf, now: float = 0.0, earliest: float = 0.0,
-                 max_held: int = DEFAULT_MAX_HELD, max_delay: float = math.inf, oosm_window: float = 0.0):
+                 now: float = 0.0, max_held: int = DEFAULT_MAX_HELD, max_delay: float = math.inf, oosm_window: float = 0.0):
         if not sources:
             raise ValueError("WatermarkMerger needs at least one source")
         if max_held < 1:
             raise ValueError(f"max_held must be at least 1, got {max_held}")
         self.sources = {s: SourceState() for s in sources}
         self.timeout = timeout
-        self.horizon = horizon
-        self.earliest = earliest
         self.max_held = max_held
         self._start = now
         self._start_grace = start_grace
@@ -142,10 +133,6 @@ class WatermarkMerger:
         st = self._source(src)
         if isinstance(st, Rejection):
             return st
-        if t > self.horizon:
-            return Rejection(src, "future", f"t = {t:g} s is beyond the scenario's end ({self.horizon:g} s)")
-        if t < self.earliest:
-            return Rejection(src, "past", f"t = {t:g} s is before the scenario's start ({self.earliest:g} s)")
         if t <= st.watermark:
             return Rejection(src, "out-of-order", f"t = {t:g} s is not after its own watermark {st.watermark:g} s")
         if seq in st.held_seqs or seq in st.oosm_seqs:
@@ -190,8 +177,6 @@ class WatermarkMerger:
         st = self._source(src)
         if isinstance(st, Rejection):
             return st
-        if t > self.horizon:
-            return Rejection(src, "future", f"watermark {t:g} s is beyond the scenario's end ({self.horizon:g} s)")
         if t < st.watermark:
             return Rejection(src, "out-of-order", f"watermark {t:g} s goes back from {st.watermark:g} s")
         st.watermark = t

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import json
 import math
+import sys
 import threading
 import time
 from typing import Callable
@@ -171,8 +172,6 @@ def query(session: zenoh.Session, keys: KeySpace, timeout: float = 2.0) -> dict 
 
 def main(keys: KeySpace, zopts, timeout: float) -> int:
     """``zfusion picture``: print the picture as one line of JSON (exit 1 if no fuser answers)."""
-    import sys
-
     with zenoh.open(zopts.to_config()) as session:
         doc = query(session, keys, timeout)
     if doc is None:

@@ -1,6 +1,9 @@
 """Scoring against truth, in one place for every job that has truth: ``zfusion run``
-(estimates received over Zenoh), the recorder (its error panels) and ``zfusion eval``
-(in-process Monte Carlo runs), so all three give the same numbers.
+(estimates received over Zenoh), the recorder (its error panels: :class:`LiveScore`, which
+it only draws) and ``zfusion eval`` (in-process Monte Carlo runs), so all three give the
+same numbers. An estimate of ``n`` states is compared with the components
+:data:`TRUTH_INDEX` of the truth ``[px py pz vx vy vz ax ay az]``; NEES ``eᵀP⁻¹e`` and NIS
+are plotted against the 95 % interval of one χ² sample (:func:`chi2_interval`).
 
 One target per track (a scenario with one target, or tracks named after targets):
 :func:`score_run` turns one run's estimates into per-estimate error records against
@@ -18,10 +21,14 @@ from __future__ import annotations
 
 import heapq
 import math
+from collections import OrderedDict
+from dataclasses import dataclass
+from functools import lru_cache
 from typing import Callable, Iterator, Sequence
 
 import numpy as np
 
+from fusion.metrics import chi2_bounds, gospa
 from fusion.mtt_metrics import Step, score_tracks
 from fusion.patent import TrackerConfig
 from fusion.types import Estimate
@@ -29,7 +36,36 @@ from sensors_sim import truth_trajectory
 from sensors_sim.trajectories import iter_times
 from sensors_sim.traffic import Traffic
 
-from .recording.draw import TRUTH_INDEX
+# Truth is [px py pz vx vy vz ax ay az]; an estimate of n states is compared with these
+# components of it. Sizes not listed are drawn when possible but not scored.
+TRUTH_INDEX: dict[int, tuple[int, ...]] = {
+    2: (0, 1),  # emitter fix [px py]
+    3: (0, 1, 2),  # position only
+    4: (0, 1, 3, 4),  # planar CV [px py vx vy]
+    6: tuple(range(6)),  # CV
+    9: tuple(range(9)),  # CA
+}
+
+
+def truth_part(x_truth: np.ndarray, n: int) -> np.ndarray | None:
+    """The components of a truth state an n-state estimate is compared with (or None)."""
+    idx = TRUTH_INDEX.get(n)
+    x_truth = np.asarray(x_truth, dtype=float)
+    if idx is None or max(idx) >= x_truth.size:
+        return None
+    return x_truth[list(idx)]
+
+
+def position_dims(n: int) -> int:
+    """How many leading components of an n-state estimate (after :func:`truth_part`) are
+    position: 2 for a map-plane state (an emitter fix, planar CV), else 3."""
+    return 2 if n in (2, 4) else 3
+
+
+@lru_cache(maxsize=256)
+def chi2_interval(dof: int) -> tuple[float, float]:
+    """The two-sided 95 % interval of a single χ²(dof) sample (one NEES or NIS)."""
+    return chi2_bounds(dof, 1)
 
 
 TruthFn = Callable[[int, str, float], np.ndarray]  # (run, track, t) -> true state
@@ -222,3 +258,163 @@ def score_tracks_of(scenario, estimates: Sequence[Estimate], run: int = 0, c: fl
     """A run's fused tracks scored by :func:`fusion.mtt_metrics.score_tracks`."""
 
     return score_tracks(track_steps(scenario, estimates, run), c, p)
+
+
+# The recorder's panels ---------------------------------------------------------------------
+
+TRUTH_CACHE = 4096  # truth samples kept per target, to score estimates against
+PENDING_MAX = 4096  # estimates waiting for the truth sample of their time (and open frames per method)
+
+
+@dataclass(frozen=True)
+class Scored:
+    """One value for a panel: ``metric`` (``error_pos``, ``nees``, ``nis``, ``gospa``,
+    ``missed``, ``false``) of the estimates ``prefix`` names (``(method,)`` fused,
+    ``(method, node)`` a local track) at ``t``; ``dof`` and ``bounds`` for a NEES or NIS
+    (the 95 % interval of one χ² sample)."""
+
+    metric: str
+    prefix: tuple[str, ...]
+    t: float
+    value: float
+    dof: int | None = None
+    bounds: tuple[float, float] | None = None
+
+
+class LiveScore:
+    """Estimates scored against the truth as both arrive, in any order (the recorder's
+    panels; it draws what this hands back).
+
+    One target per track: each estimate's position error and NEES, once the truth sample
+    of its time is in (an estimate waits for it, at most ``PENDING_MAX`` of them; one
+    older than the ``TRUTH_CACHE`` samples kept of its target is ``unscored``). Many
+    targets (``many``; None: judged from the truth, more than one target seen): the fused
+    tracks of each time are a frame, scored with GOSPA (cut-off :data:`GOSPA_CUTOFF`,
+    order 2) against every target present at that time, once a later truth frame shows
+    the truth of its time is complete. Every NIS is handed back as it comes.
+    """
+
+    def __init__(self, many: bool | None = None):
+        self.many = many
+        self.unscored = 0  # estimates older than the truth kept of their target: drawn, never scored
+        self._truth: dict[str, OrderedDict[float, np.ndarray]] = {}
+        self._truth_t = -math.inf  # the latest truth frame's time
+        self._pending: OrderedDict[float, list[tuple[Estimate, tuple[str, ...]]]] = OrderedDict()
+        self._n_pending = 0
+        # many targets: per method, its frames not scored yet (time -> fused positions) and its state size
+        self._frames: dict[str, OrderedDict[float, list[np.ndarray]]] = {}
+        self._size: dict[str, int] = {}
+
+    def truth(self, target: str, t: float, x: np.ndarray) -> list[Scored]:
+        """A truth sample: what it lets be scored."""
+        self._truth_t = max(self._truth_t, t)
+        cache = self._truth.setdefault(target, OrderedDict())
+        cache[t] = x
+        while len(cache) > TRUTH_CACHE:
+            cache.popitem(last=False)
+        out: list[Scored] = []
+        waiting = self._pending.get(t)
+        if waiting:
+            keep = []
+            for e, prefix in waiting:
+                if e.track == target or (e.track not in self._truth and len(self._truth) == 1):
+                    out += self._score(e, prefix, x)
+                    self._n_pending -= 1
+                else:
+                    keep.append((e, prefix))
+            if keep:
+                self._pending[t] = keep
+            else:
+                del self._pending[t]
+        if self._frames:
+            out += self._score_frames()
+        return out
+
+    def forget(self, target: str) -> None:
+        """``target`` has left: its truth samples go."""
+        self._truth.pop(target, None)
+
+    def estimate(self, e: Estimate, fused: bool) -> list[Scored]:
+        """An estimate (``fused``: of the centre): what it lets be scored now."""
+        prefix = (e.method,) if fused else (e.method, e.node)
+        out = []
+        if e.nis is not None and e.nis_dof:
+            out.append(Scored("nis", prefix, e.t, float(e.nis), int(e.nis_dof), chi2_interval(int(e.nis_dof))))
+        if TRUTH_INDEX.get(e.x.size) is None:
+            return out
+        if self.many or (self.many is None and len(self._truth) > 1):
+            if fused:
+                frames = self._frames.setdefault(e.method, OrderedDict())
+                self._size[e.method] = e.x.size
+                frames.setdefault(e.t, []).append(e.x[:position_dims(e.x.size)].astype(float))
+                while len(frames) > PENDING_MAX:  # no truth is coming
+                    frames.popitem(last=False)
+                out += self._score_frames()
+            return out
+        truth = self._truth.get(e.track)
+        if truth is None and len(self._truth) == 1:
+            truth = next(iter(self._truth.values()))
+        if truth is not None and e.t in truth:
+            return out + self._score(e, prefix, truth[e.t])
+        if truth is not None and len(truth) >= TRUTH_CACHE and e.t < next(iter(truth)):
+            self.unscored += 1  # its truth came and was forgotten (the truth far ahead, at --speed max)
+            return out
+        self._pending.setdefault(e.t, []).append((e, prefix))
+        self._n_pending += 1
+        while self._n_pending > PENDING_MAX:
+            _, dropped = self._pending.popitem(last=False)
+            self._n_pending -= len(dropped)
+        return out
+
+    def finish(self) -> list[Scored]:
+        """The end: the frames still open, scored."""
+        return self._score_frames(final=True)
+
+    @staticmethod
+    def _score(e: Estimate, prefix: tuple[str, ...], x_truth: np.ndarray) -> list[Scored]:
+        ref = truth_part(x_truth, e.x.size)
+        if ref is None:
+            return []
+        err = e.x - ref
+        d = position_dims(e.x.size)
+        out = [Scored("error_pos", prefix, e.t, float(np.linalg.norm(err[:d])))]
+        try:
+            nees = float(err @ np.linalg.solve(e.P, err))
+        except np.linalg.LinAlgError:
+            return out
+        if math.isfinite(nees):
+            out.append(Scored("nees", prefix, e.t, nees, e.x.size, chi2_interval(e.x.size)))
+        return out
+
+    def _truth_at(self, t: float) -> list[np.ndarray] | None:
+        """The truth of every target present at ``t`` (one whose samples start after ``t`` or
+        end before it is not), or None if a target whose samples span ``t`` lacks it (lost)."""
+        out = []
+        for cache in self._truth.values():
+            x = cache.get(t)
+            if x is not None:
+                out.append(x)
+            elif cache and next(iter(cache)) < t < next(reversed(cache)):
+                return None
+        return out
+
+    def _score_frames(self, final: bool = False) -> list[Scored]:
+        """Every complete frame whose truth is in, scored; one whose time the truth has
+        passed without a sample dropped."""
+        out = []
+        for method, frames in self._frames.items():
+            n = self._size[method]
+            while len(frames) > (0 if final else 1) and self._truth:
+                t = next(iter(frames))
+                if not final and self._truth_t <= t:
+                    break  # the truth of this time is still to come (a later truth frame closes it)
+                truths = self._truth_at(t)
+                if not truths:  # a sample lost, or no truth of that time: not scored
+                    frames.popitem(last=False)
+                    continue
+                refs = [truth_part(x, n) for x in truths]
+                d = position_dims(n)
+                g = gospa(frames.popitem(last=False)[1], [r[:d] for r in refs if r is not None], GOSPA_CUTOFF, 2.0)
+                out += [Scored("gospa", (method,), t, g.distance), Scored("missed", (method,), t, float(g.n_missed)),
+                        Scored("false", (method,), t, float(g.n_false))]
+        return out

@@ -32,8 +32,11 @@ import time
 from typing import Iterator
 
 from schemas import KeySpace, encode, encode_measurement
+from sensors_sim import jam_events, sensor_events, truth_events
 
-from .node import Node, load
+from .errors import UserError
+from .node import Node
+from .scenario import load
 
 
 RECOVERY_S = 30.0  # s of a live sensor's stream its publisher keeps for a fuser cut off from it
@@ -86,7 +89,7 @@ def run(process_id: str, scenario_ref: str, keys: KeySpace, zopts, speed: float,
     elif process_id in scenario.jammers:
         role = "jammer"
     else:
-        raise SystemExit(f"zfusion sensor: {process_id!r} is not a source of scenario {scenario.name} "
+        raise UserError(f"{process_id!r} is not a source of scenario {scenario.name} "
                          f"(sources: {', '.join(scenario.process_ids())})")
     with Node(process_id, role, keys, zopts) as node:
         node.announce()
@@ -115,8 +118,6 @@ def _status_every(node: Node, period: float = 1.0) -> Iterator[None]:
 
 
 def _play_sensor(node: Node, scenario, pacer: Pacer, run_index: int) -> float:
-    from sensors_sim import sensor_events
-
     meas_pub = (node.recoverable_publisher(node.keys.meas(node.id), recovery_cache(scenario, node.id)) if pacer.offset
                 else node.publisher(node.keys.meas(node.id)))
     wm_seq = 0
@@ -164,8 +165,6 @@ def _play_sensor(node: Node, scenario, pacer: Pacer, run_index: int) -> float:
 
 
 def _play_truth(node: Node, scenario, pacer: Pacer, run_index: int) -> float:
-    from sensors_sim import truth_events
-
     pubs: dict[str, object] = {}
     seq = 0
     t = 0.0
@@ -184,8 +183,6 @@ def _play_truth(node: Node, scenario, pacer: Pacer, run_index: int) -> float:
 
 
 def _play_jammer(node: Node, scenario, pacer: Pacer, run_index: int) -> float:
-    from sensors_sim import jam_events
-
     pub = node.publisher(node.keys.jam(node.id))
     seq = 0
     t = 0.0

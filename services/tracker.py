@@ -26,12 +26,15 @@ import time
 
 import zenoh
 from fusion.methods import method_config, split
-from schemas import KeySpace, Message, SchemaError, decode, encode, tracker_id
+from schemas import KeySpace, Message, encode, tracker_id
 from schemas.links import downlink, encode_uplink
 
 from .fuser import FuserCore, MeasurementIntake
+from .intake import HORIZON_SLACK_S, Intake
 from .live import LiveOptions
-from .node import Inbox, Node, Recovery, load, load_site
+from .errors import UserError
+from .node import Inbox, Node, Recovery
+from .scenario import load, load_site
 from .source import recovery_cache
 
 
@@ -66,7 +69,7 @@ def run(sensor: str, scenario_ref: str, method_name: str, overrides: dict, keys:
     order by itself, so it has no bounded wait and no out-of-sequence data."""
     scenario = load(scenario_ref, seed, duration) if live is None else load_site(scenario_ref)
     if sensor not in scenario.sensors:
-        raise SystemExit(f"zfusion tracker: {sensor!r} is not a sensor of {scenario.name} "
+        raise UserError(f"{sensor!r} is not a sensor of {scenario.name} "
                          f"(sensors: {', '.join(scenario.sensors)})")
     me = tracker_id(sensor)
     config = method_config(scenario.tracker, method_name, overrides)
@@ -78,7 +81,7 @@ def run(sensor: str, scenario_ref: str, method_name: str, overrides: dict, keys:
         # Its one sensor is never declared dead here: the tracker waits for it to come back
         # (the fuser, meanwhile, declares this tracker dead and carries on without it).
         core = FuserCore(feed, [sensor], keys, node.reject, math.inf, start_grace,
-                         horizon=scenario.duration + 1.0 if live is None else math.inf, now=time.monotonic(),
+                         horizon=scenario.duration + HORIZON_SLACK_S if live is None else math.inf, now=time.monotonic(),
                          intake=MeasurementIntake(scenario.sensors), live=live, refilter=False,
                          periods={sensor: scenario.sensor(sensor).period})
         utc = time.time if live is not None else lambda: None
@@ -110,24 +113,19 @@ def run(sensor: str, scenario_ref: str, method_name: str, overrides: dict, keys:
         last_status = 0.0
         down_key = keys.feedback(me)
 
+        feedback = Intake(keys, node.reject, ["feedback"], senders={"feedback": fuser_id})
+
         def on_downlink(data: bytes) -> Message | None:
             """The fuser's downlink or horizon, applied; the message, if it was one."""
             nonlocal alone, waiting_since
-            try:
-                msg = decode(data)
-            except SchemaError as e:
-                node.reject(fuser_id, e.cause, str(e))
+            sample = feedback.offer(down_key, data)
+            if sample is None:
                 return None
-            if msg.src != fuser_id:
-                node.reject(msg.src, "spoofed-src", f"feedback for {me} from {msg.src!r}, not {fuser_id!r}")
-                return None
+            msg = sample.msg
             if msg.kind == "watermark":
                 local.set_horizon(msg.t)
-            elif msg.kind == "downlink":
-                local.receive(downlink(sensor, msg))
             else:
-                node.reject(fuser_id, "kind", f"{msg.kind!r} is not expected on {down_key}")
-                return None
+                local.receive(downlink(sensor, msg))
             waiting_since = None
             if alone:
                 alone = False

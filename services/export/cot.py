@@ -12,7 +12,7 @@ One CoT 2.0 event per fused update and per sensor (pure: :func:`track_event`,
 
 Types are MIL-STD-2525's tree: ``a-u-A`` a 3D track (air, unknown affiliation),
 ``a-u-G-E`` an emitter fix (ground equipment; the tree has no emitter leaf),
-``a-f-G-E-S`` a sensor (``-R`` a radar, ``a-f-A`` an airborne DF). ``start`` is the
+``a-f-G-E-S`` a sensor (``-R`` a radar, ``a-f-A`` an airborne DF): :mod:`.cot_types`. ``start`` is the
 estimate's UTC time in a live session, else now (scenario seconds have no date; the
 scenario time is in ``<zfusion t=…>``); ``ce``/``le`` are 1σ metres
 (:func:`services.geo.ce_le`). Over TCP a failed send closes the connection and the
@@ -39,17 +39,14 @@ from fusion.types import Estimate
 from sensors_sim.spec import SENSOR_KINDS
 
 from .. import geo
+from .cot_types import TYPE_EMITTER, TYPE_SENSOR, TYPE_TRACK
 from .tracks import utc_iso
 
 log = logging.getLogger("zfusion")
 
 UNKNOWN = 9999999.0  # CoT's "not known" for hae, ce, le
-TYPE_TRACK = "a-u-A"
-TYPE_EMITTER = "a-u-G-E"
-TYPE_SENSOR = "a-f-G-E-S"
 SENSOR_TYPES = {**{k.name: "a-f-G-E-S-R" for k in SENSOR_KINDS.values() if k.active},  # radars
                 **{k.name: "a-f-A" for k in SENSOR_KINDS.values() if k.airborne}}
-STALE_S = 60.0
 BACKOFF_MIN_S = 0.5
 BACKOFF_MAX_S = 30.0
 MAX_PENDING = 4096

@@ -1,36 +1,34 @@
 """The exporter process: ``fused`` in, a sink (the GeoJSON file, CoT to TAK) out.
 
-It joins Zenoh like the recorder and is, like it, only a listener: its subscription is
-served by Zenoh's threads into a bounded queue (``BACKLOG_MAX``; overflow is counted as
-``dropped``, never pushed back to the fuser). The loop feeds each sample to the
-:class:`~services.export.tracks.TrackTable`, hands every accepted update to the sink and
-lets the sink do its periodic work (write the file, re-send sensors, reconnect). A fuser
-that restarts is just more samples on ``fused``; an exporter that starts (or restarts)
-mid-session begins with the fuser's current picture (:class:`services.picture.Request`).
-On SIGINT/SIGTERM the loop drains what is queued, the sink writes or sends a last time
-and the session closes; exit 0.
+Like the recorder, an exporter is a listener (:func:`services.listener.run_listener`:
+a bounded inbox of ``BACKLOG_MAX`` samples, overflow counted as ``dropped`` and never
+pushed back to the fuser; live, recovery; mid-session, the fuser's current picture
+first). Its sink, :class:`Exporter`, feeds each sample to the
+:class:`~services.export.tracks.TrackTable`, hands every accepted update to the format
+:class:`Sink` and lets it do its periodic work (write the file, re-send sensors,
+reconnect). A fuser that restarts is just more samples on ``fused``. On SIGINT/SIGTERM
+what is queued is still handed over, the sink writes or sends a last time and the
+session closes; exit 0. Which sinks there are: :data:`services.export.outputs.OUTPUTS`.
 """
 
 from __future__ import annotations
 
 import logging
-import queue
 import time
 from pathlib import Path
 
 from fusion.mtt import AssociationConfig
-from schemas import KeySpace
+from schemas import KeySpace, Message
 
 from ..geo import frame_of
-from ..node import ListenerInbox, Node, Recovery, ZenohOptions
-from ..picture import Request
+from ..listener import run_listener
+from ..node import ZenohOptions
 from . import cot, geojson
 from .tracks import MAX_SKEW_S, TrackTable, sensor_sites
 
 log = logging.getLogger("zfusion")
 
 BACKLOG_MAX = 10_000  # samples queued from Zenoh's threads: seconds of fused output
-BURST_MAX = 1_000  # samples handled between two ticks, so a sustained stream still gets its file written
 WRITE_PERIOD_S = 0.1  # the GeoJSON file is rewritten at most this often (and after the last update)
 
 
@@ -116,67 +114,50 @@ class CoTSink(Sink):
         self.sender.close()
 
 
+class Exporter:
+    """An exporter as a listener's sink (:func:`services.listener.run_listener`): the
+    fused picture (:class:`~services.export.tracks.TrackTable`) and the :class:`Sink` that
+    every accepted update goes to. ``site`` is the loaded site or scenario; ``live``: a
+    session on UTC time (no end; data may lead the clock by ``max_skew`` s)."""
+
+    def __init__(self, node, site, sink: Sink, live: bool, max_skew: float):
+        association, _ = AssociationConfig.split(getattr(site, "tracker", {}) or {})
+        self.table = TrackTable(node.keys, node.reject, None if live else getattr(site, "duration", None),
+                                association.delete_misses if association is not None else AssociationConfig.delete_misses,
+                                clock=time.time if live else None, max_skew=max_skew)
+        self.sink = sink
+        self.events = self.table.intake.events
+        self.t = 0.0  # the latest update's time
+
+    def offer(self, key: str, data: bytes, utc: float | None) -> Message | None:
+        e = self.table.offer(key, data)
+        if e is None:
+            return None
+        self.t = max(self.t, e.t)
+        self.sink.update(self.table, e)
+        return self.table.msg
+
+    def tick(self, final: bool = False) -> None:
+        self.sink.tick(self.table, final)
+
+    def done(self) -> bool:
+        return False  # until stopped
+
+    def now(self) -> float:
+        return self.t
+
+    def counters(self) -> dict[str, float]:
+        return self.sink.counters()
+
+    def close(self) -> None:
+        self.sink.close()
+
+
 def run(process_id: str, keys: KeySpace, zopts: ZenohOptions, site, make_sink, live: bool = False,
         max_skew: float = MAX_SKEW_S) -> int:
     """Run until SIGINT/SIGTERM. ``site`` is the loaded site or scenario; ``make_sink()``
     builds the sink once the process has its session (so a bad sink is an error at start);
     ``live``: a session on UTC time (no end; data may lead the clock by ``max_skew`` s)."""
-    duration = None if live else getattr(site, "duration", None)
-    association, _ = AssociationConfig.split(getattr(site, "tracker", {}) or {})
-    inbox = ListenerInbox(BACKLOG_MAX)
-
-    with Node(process_id, "exporter", keys, zopts) as node:
-        table = TrackTable(keys, node.reject, duration,
-                           association.delete_misses if association is not None else AssociationConfig.delete_misses,
-                           clock=time.time if live else None, max_skew=max_skew)
-        sink = make_sink()
-        try:
-            recovery = None
-            if live:  # the live fuser's estimates sent while this exporter was cut off from it come back
-                recovery = Recovery(node.processes_by_session())
-                node.recovering_subscriber(keys.fused(), inbox, recovery.on_miss)
-            else:
-                node.subscribe(keys.fused(), inbox)
-            late_join = Request(node.session, keys, lambda data: inbox.put((keys.fused(), data)))
-            node.announce()
-            node.publish_status("ready")
-            last_status = time.monotonic()
-            t = 0.0
-
-            def recovered() -> dict[str, float]:
-                return recovery.counters() if recovery is not None else {}
-
-            def handle(key: str, data: bytes) -> None:
-                nonlocal t
-                late_join.cancel()  # the fuser's stream (or its picture's first reply): no need to ask again
-                e = table.offer(key, data)
-                if e is not None:
-                    t = max(t, e.t)
-                    if recovery is not None:
-                        recovery.arrived(table.src, e.t, time.time())
-                    node.count("updates")
-                    sink.update(table, e)
-
-            while not node.stop.is_set():
-                try:
-                    handle(*inbox.get(timeout=0.1))
-                    for _ in range(BURST_MAX):  # the rest of a burst, then one tick
-                        handle(*inbox.get_nowait())
-                except queue.Empty:
-                    pass
-                late_join.poll()
-                sink.tick(table)
-                if time.monotonic() - last_status >= 1.0:
-                    node.publish_status("running", t, extra={**sink.counters(), "dropped": inbox.dropped,
-                                                             "backlog": inbox.qsize(), **recovered()})
-                    last_status = time.monotonic()
-            while True:  # stopping: what is queued is still part of the picture
-                try:
-                    handle(*inbox.get_nowait())
-                except queue.Empty:
-                    break
-            sink.tick(table, final=True)
-            node.publish_status("stopped", t, extra={**sink.counters(), "dropped": inbox.dropped, **recovered()})
-        finally:
-            sink.close()
-    return 0
+    return run_listener(process_id, "exporter", keys, zopts,
+                        lambda node: Exporter(node, site, make_sink(), live, max_skew),
+                        subscribe=keys.fused(), live=live, backlog=BACKLOG_MAX, counted="updates")

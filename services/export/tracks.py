@@ -1,24 +1,24 @@
 """The fused tracks as an exporter keeps them: sans-I/O, bytes off ``fused`` in.
 
-:meth:`TrackTable.offer` takes a sample (key and bytes), validates it with the project's
-schemas and returns the estimate it brings, or ``None`` once the sample is counted and
-dropped (:class:`~services.node.RejectLog`, rate-limited): a sample on another key, one
-that fails to decode, a kind other than ``track``, a time before the session's start or
-beyond its end (scenario runs: duration + 1 s; live sessions, on UTC: more than
-``max_skew`` s ahead of the clock), a repeat (same source, seq and bytes),
-or an update older than the track's latest. A dropped sample leaves the table as if
+:meth:`TrackTable.offer` takes a sample (key and bytes) through the intake every
+consumer uses (:class:`services.intake.Intake`: another key, a sample that fails to
+decode, a kind other than ``track``, a time before the session's start or beyond its end
+(scenario runs: duration + 1 s; live sessions, on UTC: more than ``max_skew`` s ahead of
+the clock), a repeat (same source, seq and bytes)) and returns the estimate it brings,
+or ``None`` once the sample is counted and dropped (:class:`~services.node.RejectLog`,
+rate-limited); so is an update older than the track's latest. A dropped sample leaves the table as if
 it never arrived.
 
 A track is gone once the fused stream has had ``delete_misses`` frames (distinct times)
 without it, the rule of the fuser's own picture (:class:`services.picture.Reports`); a fuser restarted
 with other tracks therefore replaces the old ones within a few frames. Memory: the live
-tracks (at most ``MAX_TRACKS``, oldest update dropped first) and ``SEQ_WINDOW`` recent
+tracks (at most ``MAX_TRACKS``, oldest update dropped first) and the intake's recent
 sequence numbers.
 """
 
 from __future__ import annotations
 
-import math
+import datetime as dt
 from collections import OrderedDict
 from typing import Callable
 
@@ -26,11 +26,12 @@ import numpy as np
 
 from fusion.mtt import AssociationConfig
 from fusion.types import Estimate
-from schemas import KeySpace, SchemaError, decode, to_estimate
+from schemas import KeySpace, Message, to_estimate
 
+from ..intake import Intake
+from ..live import ClockGuard
 from ..node import RejectLog
 from ..picture import Reports
-from ..ordering import HORIZON_SLACK_S, SEQ_WINDOW
 
 MAX_TRACKS = 4096
 MAX_SKEW_S = 5.0  # live: how far ahead of this host's clock a time of validity may be
@@ -51,44 +52,20 @@ class TrackTable:
     def __init__(self, keys: KeySpace, reject: RejectLog, duration: float | None = None,
                  delete_misses: int = AssociationConfig.delete_misses, clock: Callable[[], float] | None = None,
                  max_skew: float = MAX_SKEW_S):
-        self.keys = keys
         self.reject = reject
-        self.horizon = math.inf if duration is None else float(duration) + HORIZON_SLACK_S
-        self.src: str | None = None  # the sender of the last estimate taken
-        self.clock, self.max_skew = clock, max_skew
+        self.intake = Intake.of_scenario(keys, reject, ["fused"], duration, dedup=True,
+                                         clock=ClockGuard(max_skew) if clock is not None else None)
+        self.msg: Message | None = None  # the message of the last estimate taken
+        self.clock = clock
         self.delete_misses = delete_misses
         self.tracks: OrderedDict[str, Estimate] = OrderedDict()  # by track id, oldest update first
         self._reports = Reports()
-        self._seen: OrderedDict[tuple[str, int], int] = OrderedDict()  # (src, seq) -> hash of the bytes
 
     def offer(self, key: str, data: bytes) -> Estimate | None:
-        if key != self.keys.fused():
-            self.reject(key.rsplit("/", 1)[-1], "key", f"{key!r} is not {self.keys.fused()!r}")
+        sample = self.intake.offer(key, data, self.clock() if self.clock is not None else None)
+        if sample is None:
             return None
-        try:
-            msg = decode(data)
-        except SchemaError as e:
-            self.reject("fused", e.cause, str(e))
-            return None
-        if msg.kind != "track":
-            self.reject(msg.src, "kind", f"{msg.kind!r} is not expected on fused")
-            return None
-        if msg.t > self.horizon:
-            self.reject(msg.src, "future", f"t = {msg.t:g} s is beyond the session's end ({self.horizon:g} s)")
-            return None
-        if self.clock is not None and msg.t > self.clock() + self.max_skew:
-            self.reject(msg.src, "future", f"t = {msg.t:.3f} is more than {self.max_skew:g} s ahead of the clock")
-            return None
-        if self.horizon < math.inf and msg.t < 0.0:
-            self.reject(msg.src, "past", f"t = {msg.t:g} s is before the scenario's start")
-            return None
-        digest = hash(data)
-        if self._seen.get((msg.src, msg.seq)) == digest:
-            self.reject(msg.src, "duplicate", f"track seq {msg.seq} from {msg.src} already seen")
-            return None
-        self._seen[(msg.src, msg.seq)] = digest
-        while len(self._seen) > SEQ_WINDOW:
-            self._seen.popitem(last=False)
+        msg = sample.msg
         e = to_estimate(msg)
         last = self.tracks.get(e.track)
         if last is not None and e.t < last.t:
@@ -98,7 +75,7 @@ class TrackTable:
             self.tracks.pop(gone, None)
         self.tracks[e.track] = e
         self.tracks.move_to_end(e.track)
-        self.src = msg.src  # who sent the estimate just taken
+        self.msg = msg
         while len(self.tracks) > MAX_TRACKS:
             old, _ = self.tracks.popitem(last=False)
             self._reports.forget(old)
@@ -107,8 +84,6 @@ class TrackTable:
 
 def utc_iso(t: float) -> str:
     """POSIX seconds as ISO 8601 UTC with milliseconds, e.g. ``2026-12-01T20:14:33.491Z``."""
-    import datetime as dt
-
     return dt.datetime.fromtimestamp(t, dt.timezone.utc).isoformat(timespec="milliseconds").replace("+00:00", "Z")
 
 

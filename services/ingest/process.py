@@ -18,7 +18,6 @@ lands in one bounded queue (:data:`QUEUE_SIZE` items; a POST that finds it full 
 
 from __future__ import annotations
 
-import argparse
 import logging
 import math
 import os
@@ -35,7 +34,10 @@ from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from typing import Callable
 
 from schemas import KeySpace
+from sensors_sim import ScenarioError
+from sensors_sim import load_site as load_site_file
 
+from ..errors import UserError
 from ..node import Node
 from .asterix import AsterixFeed, AsterixIngest, CaptureError, pcap_datagrams, radars
 from .gateway import Gateway, Rejected, local_frame, sensor_sites
@@ -48,10 +50,6 @@ QUEUE_SIZE = 1024
 TICK_S = 0.1  # heartbeat watermarks of a datagram gateway at most this often
 MAX_BACKOFF_S = 30.0
 PATHS = {"csv": "/DOA_value.html", "auto": "/DOA_value.html", "xml": "/doa.xml"}
-
-
-class UsageError(Exception):
-    """A user mistake: one line on stderr, exit 2."""
 
 
 @dataclass
@@ -132,12 +130,12 @@ def _site_sensors(args, ids: list[str]):
     for flag in ("max_skew", "max_age", "watermark_lag", "poll_s", "timeout_s"):
         v = getattr(args, flag, 1.0)
         if not (v >= 0 if flag == "watermark_lag" else v > 0) or v == float("inf"):
-            raise UsageError(f"--{flag.replace('_', '-')} must be a positive number of seconds, not {v}")
+            raise UserError(f"--{flag.replace('_', '-')} must be a positive number of seconds, not {v}")
     site = load_site(args.site)
     try:
         return local_frame(site), sensor_sites(site, ids)
     except ValueError as e:
-        raise UsageError(str(e)) from None
+        raise UserError(str(e)) from None
 
 
 def _gateway(node: Node, args, frame, sensors) -> Gateway:
@@ -147,20 +145,10 @@ def _gateway(node: Node, args, frame, sensors) -> Gateway:
 
 def load_site(path: str):
     """The site file (any scenario file is a site too)."""
-    from sensors_sim import ScenarioError, load_site
-
     try:
-        return load_site(path)
+        return load_site_file(path)
     except (ScenarioError, OSError, ValueError) as e:
-        raise UsageError(f"cannot read the site file: {e}") from None
-
-
-def _run(command: str, body: Callable[[], int]) -> int:
-    try:
-        return body()
-    except UsageError as e:
-        print(f"zfusion {command}: {e}", file=sys.stderr)
-        return 2
+        raise UserError(f"cannot read the site file: {e}") from None
 
 
 # ------------------------------------------------------------------ krakensdr
@@ -170,7 +158,7 @@ def kraken_options(args) -> KrakenOptions:
     try:
         heading = args.heading if args.heading in ("message", "none") else float(args.heading)
     except ValueError:
-        raise UsageError(f"--heading {args.heading!r}: 'message', 'none' or a heading in degrees") from None
+        raise UserError(f"--heading {args.heading!r}: 'message', 'none' or a heading in degrees") from None
     vfos = tuple(f * 1e6 for f in args.vfo or ())
     return KrakenOptions(convention=args.doa, heading=heading, vfos=vfos, vfo_tol_hz=args.vfo_tol_khz * 1e3,
                          min_conf=args.min_conf, station=args.station)
@@ -179,28 +167,25 @@ def kraken_options(args) -> KrakenOptions:
 def poll_url(url: str, fmt: str) -> str:
     u = urllib.parse.urlsplit(url)
     if u.scheme not in ("http", "https") or not u.netloc:
-        raise UsageError(f"--url {url!r}: expected http://HOST:PORT (the KrakenSDR's web server, port 8081)")
+        raise UserError(f"--url {url!r}: expected http://HOST:PORT (the KrakenSDR's web server, port 8081)")
     if u.path in ("", "/"):
         if fmt not in PATHS:
-            raise UsageError(f"--format {fmt} is pushed, not polled: use --listen HOST:PORT")
+            raise UserError(f"--format {fmt} is pushed, not polled: use --listen HOST:PORT")
         return urllib.parse.urlunsplit((u.scheme, u.netloc, PATHS[fmt], u.query, ""))
     return url
 
 
 def run_krakensdr(args, keys: KeySpace, zopts) -> int:
-    def body() -> int:
-        options = kraken_options(args)
-        url = poll_url(args.url, args.format) if args.url else None
-        listen = _host_port(args.listen, "--listen") if args.listen else None
-        frame, sensors = _site_sensors(args, options.channel_ids(args.id))
-        with Node(args.id, "ingest", keys, zopts) as node:
-            gateway = _gateway(node, args, frame, sensors)
-            station = KrakenStation(args.id, options)
-            if url:
-                return _poll(node, gateway, station, url, args)
-            return _listen(node, gateway, station, listen, args)
-
-    return _run("ingest krakensdr", body)
+    options = kraken_options(args)
+    url = poll_url(args.url, args.format) if args.url else None
+    listen = _host_port(args.listen, "--listen") if args.listen else None
+    frame, sensors = _site_sensors(args, options.channel_ids(args.id))
+    with Node(args.id, "ingest", keys, zopts) as node:
+        gateway = _gateway(node, args, frame, sensors)
+        station = KrakenStation(args.id, options)
+        if url:
+            return _poll(node, gateway, station, url, args)
+        return _listen(node, gateway, station, listen, args)
 
 
 def _poll(node: Node, gateway: Gateway, station: KrakenStation, url: str, args) -> int:
@@ -252,7 +237,7 @@ def _http_cause(e: Exception) -> str:
 def _host_port(text: str, flag: str) -> tuple[str, int]:
     host, sep, port = text.rpartition(":")
     if not sep or not port.isdigit() or not 0 <= int(port) < 65536:
-        raise UsageError(f"{flag} {text!r}: expected HOST:PORT, e.g. 127.0.0.1:8042")
+        raise UserError(f"{flag} {text!r}: expected HOST:PORT, e.g. 127.0.0.1:8042")
     return host.strip("[]") or "0.0.0.0", int(port)
 
 
@@ -299,7 +284,7 @@ def _listen(node: Node, gateway: Gateway, station: KrakenStation, where: tuple[s
     try:
         server = ThreadingHTTPServer(where, handler)
     except OSError as e:
-        raise UsageError(f"cannot listen on {where[0]}:{where[1]} ({e.strerror or e}); choose a free port") from None
+        raise UserError(f"cannot listen on {where[0]}:{where[1]} ({e.strerror or e}); choose a free port") from None
     server.daemon_threads = True
     thread = threading.Thread(target=server.serve_forever, kwargs={"poll_interval": 0.2}, daemon=True)
     thread.start()
@@ -332,14 +317,11 @@ def _listen(node: Node, gateway: Gateway, station: KrakenStation, where: tuple[s
 
 
 def run_jsonl(args, keys: KeySpace, zopts) -> int:
-    def body() -> int:
-        source = _input(args.input)
-        frame, sensors = _site_sensors(args, [args.id])
-        with Node(args.id, "ingest", keys, zopts) as node:
-            gateway = _gateway(node, args, frame, sensors)
-            return _jsonl(node, gateway, source, args)
-
-    return _run("ingest jsonl", body)
+    source = _input(args.input)
+    frame, sensors = _site_sensors(args, [args.id])
+    with Node(args.id, "ingest", keys, zopts) as node:
+        gateway = _gateway(node, args, frame, sensors)
+        return _jsonl(node, gateway, source, args)
 
 
 def _input(text: str) -> tuple[str, tuple[str, int] | None]:
@@ -347,7 +329,7 @@ def _input(text: str) -> tuple[str, tuple[str, int] | None]:
         return "stdin", None
     u = urllib.parse.urlsplit(text)
     if u.scheme not in ("udp", "tcp") or not u.hostname or u.port is None:
-        raise UsageError(f"--input {text!r}: expected -, udp://HOST:PORT or tcp://HOST:PORT")
+        raise UserError(f"--input {text!r}: expected -, udp://HOST:PORT or tcp://HOST:PORT")
     return u.scheme, (u.hostname, u.port)
 
 
@@ -366,7 +348,7 @@ class _Reader:
                 self.sock.bind(where)
             except OSError as e:
                 self.sock.close()
-                raise UsageError(f"cannot bind {kind}://{where[0]}:{where[1]} ({e.strerror or e}); "
+                raise UserError(f"cannot bind {kind}://{where[0]}:{where[1]} ({e.strerror or e}); "
                                  f"choose a free port") from None
             self.sock.settimeout(0.2)
             if kind == "tcp":
@@ -474,37 +456,34 @@ def _jsonl(node: Node, gateway: Gateway, source: tuple[str, tuple[str, int] | No
 def run_asterix(args, keys: KeySpace, zopts) -> int:
     """``zfusion ingest asterix``: UDP datagrams (or a pcap replay) through
     :class:`~services.ingest.asterix.AsterixIngest`, which decides everything."""
-    def body() -> int:
-        site = load_site(args.site)
-        frame = local_frame(site)
+    site = load_site(args.site)
+    frame = local_frame(site)
+    try:
+        rs = radars(site, frame)
+        feed = AsterixFeed(rs, args.sector_lag)
+    except ValueError as e:
+        raise UserError(str(e)) from None
+    _, sensors = _site_sensors(args, [r.sensor for r in rs.values()])
+    if args.pcap:
+        speed = _speed(args.speed)
         try:
-            rs = radars(site, frame)
-            feed = AsterixFeed(rs, args.sector_lag)
-        except ValueError as e:
-            raise UsageError(str(e)) from None
-        _, sensors = _site_sensors(args, [r.sensor for r in rs.values()])
+            with open(args.pcap, "rb") as f:
+                packets = list(pcap_datagrams(f.read()))
+        except (OSError, CaptureError) as e:
+            raise UserError(f"--pcap {args.pcap}: {getattr(e, 'strerror', None) or e}") from None
+    else:
+        sock = _udp_socket(args.udp)
+    with Node(args.id, "ingest", keys, zopts) as node:
+        ingest = AsterixIngest(feed, _gateway(node, args, frame, sensors), node.reject, src=args.id)
+        outlet = Outlet(node, ingest.gateway, ingest.counters)
+        node.announce()
+        outlet.status("ready", force=True)
         if args.pcap:
-            speed = _speed(args.speed)
-            try:
-                with open(args.pcap, "rb") as f:
-                    packets = list(pcap_datagrams(f.read()))
-            except (OSError, CaptureError) as e:
-                raise UsageError(f"--pcap {args.pcap}: {getattr(e, 'strerror', None) or e}") from None
-        else:
-            sock = _udp_socket(args.udp)
-        with Node(args.id, "ingest", keys, zopts) as node:
-            ingest = AsterixIngest(feed, _gateway(node, args, frame, sensors), node.reject, src=args.id)
-            outlet = Outlet(node, ingest.gateway, ingest.counters)
-            node.announce()
-            outlet.status("ready", force=True)
-            if args.pcap:
-                return _replay(node, ingest, outlet, packets, speed)
-            try:
-                return _receive(node, ingest, outlet, sock)
-            finally:
-                sock.close()
-
-    return _run("ingest asterix", body)
+            return _replay(node, ingest, outlet, packets, speed)
+        try:
+            return _receive(node, ingest, outlet, sock)
+        finally:
+            sock.close()
 
 
 def _speed(text: str) -> float:
@@ -513,7 +492,7 @@ def _speed(text: str) -> float:
     except ValueError:
         speed = -1.0
     if not speed > 0:
-        raise UsageError(f"--speed {text!r}: a positive factor, or max")
+        raise UserError(f"--speed {text!r}: a positive factor, or max")
     return speed
 
 
@@ -533,7 +512,7 @@ def _udp_socket(text: str) -> socket.socket:
                             socket.inet_aton(group) + socket.inet_aton(host))
     except OSError as e:
         sock.close()
-        raise UsageError(f"--udp {text}: {e.strerror or e}; choose a free port (and a multicast group "
+        raise UserError(f"--udp {text}: {e.strerror or e}; choose a free port (and a multicast group "
                          f"and an interface address for GROUP@HOST)") from None
     sock.settimeout(0.2)
     return sock
@@ -579,65 +558,8 @@ def _replay(node: Node, ingest, outlet: Outlet, packets: list[tuple[float, bytes
     return 0
 
 
-# ------------------------------------------------------------------ command line
-
-
-def add_parser(sub, fabric: Callable[[argparse.ArgumentParser], None]) -> None:
-    """``zfusion ingest krakensdr|jsonl``; ``fabric`` adds the usual Zenoh options."""
-    p = sub.add_parser("ingest", help="a gateway for real sensors: KrakenSDR, JSON lines, ASTERIX")
-    gw = p.add_subparsers(dest="gateway", required=True, metavar="GATEWAY")
-
-    def common(q: argparse.ArgumentParser, id_help: str = "the sensor id (a [sensors.<id>] of the site file)") -> None:
-        q.add_argument("--id", required=True, help=id_help)
-        q.add_argument("--site", required=True, metavar="FILE", help="the site file (or any scenario file)")
-        q.add_argument("--max-skew", type=float, default=5.0,
-                       help="seconds a time stamp may be ahead of this clock (default %(default)s)")
-        q.add_argument("--max-age", type=float, default=60.0,
-                       help="seconds a time stamp may be behind this clock (default %(default)s)")
-        q.add_argument("--watermark-lag", type=float, default=2.0,
-                       help="heartbeat watermarks promise everything older than now minus this (default "
-                            "%(default)s s); a reading that arrives later is dropped as late; 0: no heartbeats "
-                            "(a replay of old data)")
-        fabric(q)
-
-    k = gw.add_parser("krakensdr", help="a KrakenSDR DF station (Kraken App CSV, doa.xml, Kraken Pro POSTs)")
-    src = k.add_mutually_exclusive_group(required=True)
-    src.add_argument("--url", help="poll the station's web server, e.g. http://HOST:8081")
-    src.add_argument("--listen", metavar="HOST:PORT", help="take the station's POSTs, e.g. 127.0.0.1:8042")
-    k.add_argument("--format", choices=("auto", "csv", "xml", "json"), default="auto",
-                   help="auto: told by the content (default); csv: /DOA_value.html; xml: /doa.xml; json: POSTs")
-    k.add_argument("--poll-s", type=float, default=1.0, help="seconds between polls (default %(default)s)")
-    k.add_argument("--timeout-s", type=float, default=2.0, help="HTTP timeout (default %(default)s s)")
-    k.add_argument("--doa", choices=("auto", "cw", "ccw"), default="auto",
-                   help="how the DoA is counted from the array: auto (CSV cw as 360-θ, XML/JSON ccw θ; default)")
-    k.add_argument("--heading", default="message",
-                   help="message: add the message's heading (default); none: the DoA is from true north; "
-                        "or a fixed heading in degrees")
-    k.add_argument("--vfo", type=float, action="append", metavar="MHZ",
-                   help="a VFO channel to publish (repeatable: channel k as <id>-<k>); default: VFO 0")
-    k.add_argument("--vfo-tol-khz", type=float, default=12.5, help="channel match tolerance (default %(default)s)")
-    k.add_argument("--min-conf", type=float, default=0.0, help="skip readings of lower confidence (default 0)")
-    k.add_argument("--station", help="only readings of this station id (default: any)")
-    common(k)
-
-    a = gw.add_parser("asterix", help="ASTERIX radar plots and scan timing (CAT048, CAT034) over UDP or from a pcap "
-                                      "(docs/asterix.md)")
-    src = a.add_mutually_exclusive_group(required=True)
-    src.add_argument("--udp", metavar="[GROUP@]HOST:PORT",
-                     help="receive datagrams here (GROUP: an IPv4 multicast group joined on HOST's interface)")
-    src.add_argument("--pcap", metavar="FILE", help="replay the UDP datagrams of a pcap capture (its times are the clock)")
-    a.add_argument("--speed", default="1", help="pcap replay speed: a factor, or max (default %(default)s)")
-    a.add_argument("--sector-lag", type=int, default=1,
-                   help="a CAT034 crossing promises the plots older than this many crossings back (default "
-                        "%(default)s: radars send a sector's plots after its crossing)")
-    common(a, "this gateway's process id (its radars: the site file's sensors with sac_sic)")
-
-    j = gw.add_parser("jsonl", help="one JSON measurement per line (docs/ingest.md)")
-    j.add_argument("--input", default="-", help="-, udp://HOST:PORT or tcp://HOST:PORT (default: stdin)")
-    common(j)
-
-
 def main(args, keys: KeySpace, zopts) -> int:
+    """``zfusion ingest GATEWAY`` (:mod:`services.commands.ingest` parses its options)."""
     if args.gateway == "krakensdr":
         return run_krakensdr(args, keys, zopts)
     if args.gateway == "asterix":

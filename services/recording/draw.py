@@ -4,31 +4,19 @@ Conventions are the project's: ENU metres, compass azimuth (clockwise from north
 elevation above the horizontal. State layouts (docs/design.md, Conventions): a 3D target is
 ``[px py pz vx vy vz (ax ay az)]``, an emitter fix ``[px py]``. The recorder also meets
 a few layouts other processes may publish as local tracks; :func:`state_layout` names
-what it knows how to draw and score.
+what it knows how to draw (what is scored, and how: :mod:`services.scoring`).
 """
 
 from __future__ import annotations
 
 import math
 import zlib
-from functools import lru_cache
 
 import numpy as np
-from scipy.stats import chi2
 
 N_SIGMA = 3.0
 MIN_RAY_M = 1_000.0
 MAX_RAY_M = 2_000_000.0
-
-# Truth is [px py pz vx vy vz ax ay az]; an estimate of n states is compared with these
-# components of it. Sizes not listed are drawn when possible but not scored.
-TRUTH_INDEX: dict[int, tuple[int, ...]] = {
-    2: (0, 1),  # emitter fix [px py]
-    3: (0, 1, 2),  # position only
-    4: (0, 1, 3, 4),  # planar CV [px py vx vy]
-    6: tuple(range(6)),  # CV
-    9: tuple(range(9)),  # CA
-}
 
 
 def state_layout(n: int) -> str | None:
@@ -49,20 +37,6 @@ def position3(x: np.ndarray) -> np.ndarray:
     if state_layout(x.size) == "2d":
         return np.array([x[0], x[1], 0.0])
     return x[:3].copy()
-
-
-def truth_part(x_truth: np.ndarray, n: int) -> np.ndarray | None:
-    """The components of a truth state an n-state estimate is compared with (or None)."""
-    idx = TRUTH_INDEX.get(n)
-    x_truth = np.asarray(x_truth, dtype=float)
-    if idx is None or max(idx) >= x_truth.size:
-        return None
-    return x_truth[list(idx)]
-
-
-def position_dims(n: int) -> int:
-    """How many leading components of an n-state estimate (after :func:`truth_part`) are position."""
-    return 2 if state_layout(n) == "2d" else 3
 
 
 def unit(az: float, el: float = 0.0) -> np.ndarray:
@@ -130,14 +104,6 @@ def ray_hit(p1: np.ndarray, u1: np.ndarray, p2: np.ndarray, u2: np.ndarray, min_
 
 def clamp_ray(length: float) -> float:
     return float(min(max(length, MIN_RAY_M), MAX_RAY_M))
-
-
-@lru_cache(maxsize=256)
-def chi2_bounds(dof: int, level: float = 0.95) -> tuple[float, float]:
-    """Two-sided ``level`` bounds of a single χ²(dof) sample."""
-    a = (1.0 - level) / 2.0
-    lo, hi = chi2.ppf([a, 1.0 - a], dof)
-    return float(lo), float(hi)
 
 
 # -- colours -----------------------------------------------------------------------------------

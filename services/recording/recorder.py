@@ -14,9 +14,10 @@ the panels.
 Many targets: each track is an entity keyed by (node, id) and is cleared (``rr.Clear``,
 recursively) once its stream has reported ``delete_misses`` frames without it, or at
 once when the centre tells its node to ``drop`` it; a cleared track's path and frame
-bookkeeping are forgotten, so state is held for the live tracks only. The fused picture
-is scored per frame as ``zfusion eval`` scores it (GOSPA, cut-off ``GOSPA_CUTOFF``),
-against the targets that have a truth sample at that time. Targets come and go too
+bookkeeping are forgotten, so state is held for the live tracks only. The ``metrics/``
+panels draw what the scoring hands back (:class:`services.scoring.LiveScore`: errors and
+NEES per estimate, the fused picture's GOSPA per frame, as ``zfusion eval`` scores
+them); the recorder computes none of it. Targets come and go too
 (``[traffic]``): a target missing from one truth frame is cleared from the drawing, and
 one missing from ``TRUTH_GONE_FRAMES`` frames is forgotten (its truth samples, path and
 duplicate bookkeeping), so truth is held for the targets alive of late only.
@@ -24,13 +25,13 @@ duplicate bookkeeping), so truth is held for the targets alive of late only.
 Bounded work per row: a path gets a point at most every ``TRAIL_STEP_S`` of scenario
 time and keeps ``PATH_MAX`` points; a 3D path is logged only with the row that adds a
 point; :class:`Recording` queues rows and sends each entity's in one ``send_columns``
-call at least every ``SEND_PERIOD_S``. The recorder only listens: its subscription
-feeds a bounded queue (overflow counted and dropped, never pushed back to a publisher;
-beyond ``BACKLOG_IN_MEMORY`` samples it waits in a temporary file, not in memory),
-and every sample that fails to decode, arrives on the wrong key, repeats, or lies
-beyond the scenario's end is counted by cause and dropped
-(:class:`~services.node.RejectLog`). docs/notes.md ("Recorder paths") says why paths
-are thinned.
+call at least every ``SEND_PERIOD_S``. The recorder only listens
+(:func:`services.listener.run_listener`): its subscription feeds a bounded queue
+(overflow counted and dropped, never pushed back to a publisher; beyond
+``BACKLOG_IN_MEMORY`` samples it waits in a temporary file, not in memory), and every
+sample that fails to decode, arrives on the wrong key, repeats, or lies beyond the
+scenario's end is counted by cause and dropped (:class:`services.intake.Intake`).
+docs/notes.md ("Recorder paths") says why paths are thinned.
 """
 
 from __future__ import annotations
@@ -38,39 +39,37 @@ from __future__ import annotations
 import functools
 import logging
 import math
-import queue
 import time
-from collections import OrderedDict, deque
+from collections import deque
 from functools import lru_cache
-from typing import Callable
 
 import numpy as np
 import rerun as rr
 
-from fusion.metrics import gospa
 from fusion.mtt import AssociationConfig
 from fusion.measurement.kinds import KINDS, SPHERE
 from fusion.types import Estimate, Measurement
-from schemas import MEASUREMENT_KINDS, KeySpace, Message, SchemaError, decode, to_estimate, to_measurement
+from schemas import KeySpace, Message, to_estimate, to_measurement
 from schemas.links import downlink, uplink
+from sensors_sim.spec import DF_KINDS
 
-from .. import picture
 from . import draw
 from . import map as recorder_map
-from ..scoring import GOSPA_CUTOFF, many_targets
-from ..node import ListenerInbox, Node, Recovery, RejectLog
-from ..ordering import HORIZON_SLACK_S, SEQ_WINDOW
+from ..scoring import LiveScore, Scored, many_targets
+from ..intake import HORIZON_SLACK_S, ROUTES, Intake
+from ..listener import run_listener
+from ..live import ClockGuard
+from ..node import Node, RejectLog
 from ..picture import Reports
 from ..rotation import Rotation
+from ..scenario import load, load_site
 from .draw import TRAIL_STEP_S, Trail
 from .stream import Part, Recording, open_recording, part, safe_flush, ui_points
 
 log = logging.getLogger("zfusion")
 
 DEFAULT_RAY_M = 20_000.0
-TRUTH_CACHE = 4096  # truth samples kept per target, to score estimates against
 TRUTH_GONE_FRAMES = 30  # truth frames a target may miss before its samples are forgotten (it has left)
-PENDING_MAX = 4096  # estimates waiting for the truth sample of their time
 BACKLOG_MAX = 50_000  # queued samples before the recorder starts dropping (and counting): seconds of traffic
 BACKLOG_IN_MEMORY = 2_048  # ... of which in memory; the rest waits in a temporary file (ListenerInbox)
 SEND_PERIOD_S = 0.2  # queued rows go out at least this often (wall clock)
@@ -124,39 +123,39 @@ class Recorder:
         self.scenario_run = scenario is not None
         self.finished: set[str] = set()  # processes that reported done/stopped
         self.uplinked = 0  # measurements local trackers sent up on local/* (drawn as the node's)
-        self.unscored = 0  # estimates older than the truth kept of their target: drawn, never scored
         self.horizon = math.inf
         self.df_sensors: set[str] = set()
         self.default_ray = DEFAULT_RAY_M
         # per-entity state
         self._styled: set[str] = set()
-        self._seqs: dict[tuple[str, ...], OrderedDict[int, int]] = {}  # stream -> seq -> hash of the bytes
         self._sites: dict[str, np.ndarray] = {}
         self._site_paths: dict[str, Trail] = {}
         self._scan: dict[str, tuple[float, dict[str, list[np.ndarray]]]] = {}  # by entity path
         self._bearings: deque[tuple[np.ndarray, np.ndarray]] = deque(maxlen=32)
         self._ref_pos: np.ndarray | None = None  # latest fused (else any) estimate: scales rays
-        self._truth: dict[str, OrderedDict[float, np.ndarray]] = {}
         self._truth_paths: dict[str, Trail] = {}
-        self._truth_t = -math.inf  # the latest truth frame's time
         self._truth_drawn = Reports()  # truth frames: a target missing from one is no longer drawn
         self._truth_kept = Reports()  # ... one missing from TRUTH_GONE_FRAMES is forgotten
         self._track_paths: dict[str, Trail] = {}
         self.delete_misses = AssociationConfig.delete_misses  # the trackers' default; the scenario may set it
         self._reports: dict[tuple[str, str], Reports] = {}  # by stream (family, key id)
         self._node_of: dict[str, str] = {}  # local/<id> -> the node its estimates name
-        self._pending: OrderedDict[float, list[tuple[Estimate, tuple[str, ...]]]] = OrderedDict()
-        self._n_pending = 0
-        self.many: bool | None = None  # many targets (from the scenario; else: more than one truth seen)
-        # many targets: per method, its frames not scored yet (time -> fused positions) and its state size
-        self._pictures: dict[str, OrderedDict[float, list[np.ndarray]]] = {}
-        self._picture_size: dict[str, int] = {}
+        self.score = LiveScore()  # what the panels plot: scored against the truth as both arrive
         self._states: dict[str, str] = {}
         self._jam: dict[str, tuple] = {}
         self._jam_victims: dict[str, set[str]] = {}
         self.geo: recorder_map.MapLayer | None = None  # the map, where the session has a geodetic origin
         self.clock_guard = clock_guard  # live: no end, and the scenario (if any) is only its site
-        self.clock_events: list[str] = []
+        duration = getattr(scenario, "duration", None) if clock_guard is None else None
+        if duration is not None:
+            self.horizon = float(duration) + HORIZON_SLACK_S
+        # everything on the deployment's keys; a row's time is never before 0 nor past the end
+        self.intake = Intake(keys, self.reject, ROUTES, horizon=self.horizon, earliest=0.0, clock=clock_guard,
+                             dedup=True)
+        self.clock_events = self.intake.events  # what the clock guard says of the sources' clocks
+        self._handlers = {"meas": self._on_measurement, "fused": self._on_estimate, "local": self._on_uplink,
+                          "feedback": self._on_feedback, "truth": self._on_truth, "jam": self._on_jam_state,
+                          "status": self._on_status}
         rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
         if scenario is not None:
             self._from_scenario(scenario)
@@ -165,109 +164,22 @@ class Recorder:
 
     def offer(self, key: str, data: bytes, utc: float | None = None) -> Message | None:
         """One sample off the wire (``utc``: this host's clock, live). Bad input is counted
-        and dropped; never raises."""
-        try:
-            family, ident = self.keys.family_and_id(key)
-        except ValueError as e:
-            self.reject("?", "key", str(e))
+        and dropped (:class:`services.intake.Intake`); never raises."""
+        sample = self.intake.offer(key, data, utc)
+        if sample is None:
             return None
-        hint = ident or family
-        try:
-            msg = decode(data)
-        except SchemaError as e:
-            self.reject(hint, e.cause, str(e))
-            return None
-        if self.clock_guard is not None and utc is not None and msg.kind != "status":
-            rej = self.clock_guard.check(msg.src, msg.t, utc, self.clock_events)
-            if rej is not None:
-                self.reject(hint, rej.cause, rej.detail)
-                return None
-        handler, why = self._route(family, ident, msg, hash(data))
-        if handler is None:
-            self.reject(hint, why[0], why[1])
-            return None
+        family, ident, msg = sample.family, sample.ident, sample.msg
+        handler = self._handlers[family]
+        if msg.kind == "watermark":
+            handler = self._on_watermark
         try:
             handler(family, ident, msg)
         except Exception as e:  # the schema let it through but it cannot be drawn: count, go on
-            self.reject(hint, "unrecordable", f"{msg.kind} from {msg.src}: {type(e).__name__}: {e}")
+            self.reject(ident or family, "unrecordable", f"{msg.kind} from {msg.src}: {type(e).__name__}: {e}")
             return None
         if msg.kind == "status" and msg.body["state"] in ("done", "stopped"):
             self.finished.add(msg.src)
         return msg
-
-    def _route(self, family: str, ident: str | None, msg: Message,
-               digest: int) -> tuple[Callable | None, tuple[str, str]]:
-        kind = msg.kind
-        if kind != "status" and msg.t > self.horizon:
-            return None, ("future", f"t = {msg.t:g} s is beyond the scenario's end ({self.horizon:g} s)")
-        # Scenario time starts at 0; rows must fit the timeline. A watermark just before 0
-        # (a node holding a plot at t = 0 promises nothing earlier) is no row, and no error.
-        if kind not in ("status", "watermark") and msg.t < 0.0:
-            return None, ("past", f"t = {msg.t:g} s is before the scenario's start")
-        handler, why = self._route_kind(family, ident, msg)
-        if handler is not None and kind not in ("watermark", "status"):
-            # one row per message: a repeated message (src, seq and bytes) is dropped.
-            # Measurements and estimates are told apart: a process may count them separately.
-            stream = (family, ident or "", msg.src, "meas" if kind in MEASUREMENT_KINDS else kind)
-            if self._repeated(stream, msg.seq, digest):
-                return None, ("duplicate", f"{kind} seq {msg.seq} from {msg.src} already recorded")
-        return handler, why
-
-    def _route_kind(self, family: str, ident: str | None, msg: Message) -> tuple[Callable | None, tuple[str, str]]:
-        kind = msg.kind
-        wrong = (None, ("kind", f"{kind!r} is not expected on {family}/{ident or ''}"))
-        if family == "meas":
-            if kind not in MEASUREMENT_KINDS and kind != "watermark":
-                return wrong
-            if msg.src != ident or (kind != "watermark" and msg.body["sensor"] != ident):
-                return None, ("spoofed-src", f"{kind} of {msg.body.get('sensor', msg.src)!r} from "
-                                             f"{msg.src!r} came on meas/{ident}")
-            if kind == "watermark":
-                return self._on_watermark, ("", "")
-            return self._on_measurement, ("", "")
-        if family == "fused":
-            return (self._on_estimate, ("", "")) if kind == "track" else wrong
-        if family == "local":
-            if kind == "watermark":
-                return self._on_watermark, ("", "")
-            return (self._on_uplink, ("", "")) if kind == "uplink" else wrong
-        if family == "feedback":
-            if kind == "watermark":  # the fuser's feedback horizon: nothing to draw
-                return self._on_watermark, ("", "")
-            return (self._on_feedback, ("", "")) if kind == "downlink" else wrong
-        if family == "truth":
-            if kind != "truth":
-                return wrong
-            if msg.body["target"] != ident:
-                return None, ("spoofed-src", f"truth of {msg.body['target']!r} came on truth/{ident}")
-            return self._on_truth, ("", "")
-        if family == "jam":
-            if kind != "jam_state":
-                return wrong
-            if msg.src != ident:
-                return None, ("spoofed-src", f"jam_state from {msg.src!r} came on jam/{ident}")
-            return self._on_jam_state, ("", "")
-        if family == "status":
-            if kind != "status":
-                return wrong
-            if msg.src != ident:
-                return None, ("spoofed-src", f"status of {msg.src!r} came on status/{ident}")
-            return self._on_status, ("", "")
-        return None, ("key", f"no such family {family!r}")
-
-    def _repeated(self, stream: tuple[str, ...], seq: int, digest: int) -> bool:
-        """Whether this message (its ``seq`` on ``stream``, ``digest`` the hash of its bytes)
-        was recorded already. A restarted process numbers its messages from 1 again, and
-        its "ready" status, published as its session opens, may reach no one: a reused
-        seq with other bytes is a new message, not a repeat."""
-        seen = self._seqs.setdefault(stream, OrderedDict())
-        if seen.get(seq) == digest:
-            return True
-        seen[seq] = digest
-        seen.move_to_end(seq)
-        if len(seen) > SEQ_WINDOW:
-            seen.popitem(last=False)
-        return False
 
     # -- logging ---------------------------------------------------------------------------------
 
@@ -321,16 +233,12 @@ class Recorder:
     # -- scenario --------------------------------------------------------------------------------
 
     def _from_scenario(self, sc) -> None:
-        from sensors_sim.spec import DF_KINDS
-
         duration = getattr(sc, "duration", None) if self.clock_guard is None else None  # a site (live): no end
-        if duration is not None:
-            self.horizon = float(duration) + HORIZON_SLACK_S
         association, _ = AssociationConfig.split(sc.tracker)
         if association is not None:
             self.delete_misses = association.delete_misses
         self.df_sensors = {sid for sid, s in sc.sensors.items() if s.kind in DF_KINDS}
-        self.many = many_targets(sc) if hasattr(sc, "targets") else None  # a site: judged from the truth seen
+        self.score.many = many_targets(sc) if hasattr(sc, "targets") else None  # a site: judged from the truth seen
         self.geo = recorder_map.MapLayer.at(sc.origin, self._log)
         # The scenario's scale, from where its sensors and jammers are during the run (not its targets).
         times = np.linspace(0.0, float(duration or 0.0), 9)
@@ -445,7 +353,6 @@ class Recorder:
     def _on_truth(self, family: str, ident: str | None, msg: Message) -> None:
         tgt, x = msg.body["target"], np.asarray(msg.body["x"], dtype=float)
         self._advance(msg.t)
-        self._truth_t = max(self._truth_t, msg.t)
         missed = self._truth_drawn.t  # the frame a target gone at this one is missing from: cleared there
         for gone in self._truth_drawn.report(tgt, msg.t, 1):
             self._log(_p("world", "truth", gone), missed, part(rr.Clear, is_recursive=[True]))
@@ -453,25 +360,7 @@ class Recorder:
                 self.geo.clear(_p("world", "truth", gone), missed)
         for gone in self._truth_kept.report(tgt, msg.t, TRUTH_GONE_FRAMES):
             self._forget_truth(gone)
-        cache = self._truth.setdefault(tgt, OrderedDict())
-        cache[msg.t] = x
-        while len(cache) > TRUTH_CACHE:
-            cache.popitem(last=False)
-        waiting = self._pending.get(msg.t)
-        if waiting:
-            keep = []
-            for e, prefix in waiting:
-                if e.track == tgt or (e.track not in self._truth and len(self._truth) == 1):
-                    self._score(e, prefix, x)
-                    self._n_pending -= 1
-                else:
-                    keep.append((e, prefix))
-            if keep:
-                self._pending[msg.t] = keep
-            else:
-                del self._pending[msg.t]
-        if self._pictures:
-            self._score_pictures()
+        self._plot(self.score.truth(tgt, msg.t, x))
         pos = x[:3] if x.size >= 3 else np.array([x[0], x[1], 0.0])
         parts = [part(rr.Points3D, positions=[pos], labels=[tgt], colors=[draw.TRUTH_COLOR], radii=ui_points(5.0))]
         path, grew = self._path(self._truth_paths, tgt, msg.t, pos)
@@ -483,22 +372,9 @@ class Recorder:
 
     def _forget_truth(self, tgt: str) -> None:
         """``tgt`` has left: its truth samples, path and duplicate bookkeeping go."""
-        self._truth.pop(tgt, None)
+        self.score.forget(tgt)
         self._truth_paths.pop(tgt, None)
-        for stream in [s for s in self._seqs if s[0] == "truth" and s[1] == tgt]:
-            del self._seqs[stream]
-
-    def _truth_at(self, t: float) -> list[np.ndarray] | None:
-        """The truth of every target present at ``t`` (one whose samples start after ``t`` or
-        end before it is not), or None if a target whose samples span ``t`` lacks it (lost)."""
-        out = []
-        for cache in self._truth.values():
-            x = cache.get(t)
-            if x is not None:
-                out.append(x)
-            elif cache and next(iter(cache)) < t < next(reversed(cache)):
-                return None
-        return out
+        self.intake.forget("truth", tgt)
 
     def _draw_estimate(self, path: str, e: Estimate, color: tuple[int, int, int], label: str) -> np.ndarray | None:
         """Point + 3σ ellipsoid / ellipse + path so far; a smoothed bearing as a ray with its
@@ -556,29 +432,7 @@ class Recorder:
         pos = self._draw_estimate(track, e, color, label)
         if pos is not None and (fused or self._ref_pos is None):
             self._ref_pos = pos
-        prefix = (e.method,) if fused else (e.method, e.node)
-        if e.nis is not None and e.nis_dof:
-            self._series("nis", prefix, e.t, float(e.nis), int(e.nis_dof))
-        if draw.TRUTH_INDEX.get(e.x.size) is None:
-            return
-        if self.many or (self.many is None and len(self._truth) > 1):
-            if fused:
-                self._picture(e)
-            return
-        truth = self._truth.get(e.track)
-        if truth is None and len(self._truth) == 1:
-            truth = next(iter(self._truth.values()))
-        if truth is not None and e.t in truth:
-            self._score(e, prefix, truth[e.t])
-            return
-        if truth is not None and len(truth) >= TRUTH_CACHE and e.t < next(iter(truth)):
-            self.unscored += 1  # its truth came and was forgotten (the truth far ahead, at --speed max)
-            return
-        self._pending.setdefault(e.t, []).append((e, prefix))
-        self._n_pending += 1
-        while self._n_pending > PENDING_MAX:
-            _, dropped = self._pending.popitem(last=False)
-            self._n_pending -= len(dropped)
+        self._plot(self.score.estimate(e, fused))
 
     def _on_feedback(self, family: str, ident: str | None, msg: Message) -> None:
         d = downlink(ident or "", msg)
@@ -611,70 +465,28 @@ class Recorder:
         for path in [p for p in self._track_paths if p == track or p.startswith(track + "/")]:
             del self._track_paths[path]
 
-    def _score(self, e: Estimate, prefix: tuple[str, ...], x_truth: np.ndarray) -> None:
-        ref = draw.truth_part(x_truth, e.x.size)
-        if ref is None:
-            return
-        err = e.x - ref
-        d = draw.position_dims(e.x.size)
-        path = _p("metrics", "error_pos", *prefix)
-        self._style(path, part(rr.SeriesLines, names=["/".join(prefix)]))
-        self._log(path, e.t, part(rr.Scalars, scalars=[float(np.linalg.norm(err[:d]))]))
-        try:
-            nees = float(err @ np.linalg.solve(e.P, err))
-        except np.linalg.LinAlgError:
-            return
-        if math.isfinite(nees):
-            self._series("nees", prefix, e.t, nees, e.x.size)
-
-    def _picture(self, e: Estimate) -> None:
-        """A confirmed fused track of a many-target method: into its frame (module docstring)."""
-        frames = self._pictures.setdefault(e.method, OrderedDict())
-        self._picture_size[e.method] = e.x.size
-        frames.setdefault(e.t, []).append(e.x[:draw.position_dims(e.x.size)].astype(float))
-        while len(frames) > PENDING_MAX:  # no truth is coming
-            frames.popitem(last=False)
-        self._score_pictures()
-
-    def _score_pictures(self, final: bool = False) -> None:
-        """Score every complete frame whose truth is in; drop one whose time the truth has
-        passed without a sample."""
-        for method, frames in self._pictures.items():
-            n = self._picture_size[method]
-            while len(frames) > (0 if final else 1) and self._truth:
-                t = next(iter(frames))
-                if not final and self._truth_t <= t:
-                    break  # the truth of this time is still to come (a later truth frame closes it)
-                truths = self._truth_at(t)
-                if not truths:  # a sample lost, or no truth of that time: not scored
-                    frames.popitem(last=False)
-                    continue
-                refs = [draw.truth_part(x, n) for x in truths]
-                d = draw.position_dims(n)
-                g = gospa(frames.popitem(last=False)[1], [r[:d] for r in refs if r is not None], GOSPA_CUTOFF, 2.0)
-                self._style(_p("metrics", "gospa", method), part(rr.SeriesLines, names=[method]))
-                self._log(_p("metrics", "gospa", method), t, part(rr.Scalars, scalars=[g.distance]))
-                for name, count in (("missed", g.n_missed), ("false", g.n_false)):
-                    path = _p("metrics", "picture", method, name)
-                    self._style(path, part(rr.SeriesLines, names=[f"{method} {name}"]))
-                    self._log(path, t, part(rr.Scalars, scalars=[float(count)]))
-
     def finish(self) -> None:
-        """The recording ends: score the frames still open."""
-        self._score_pictures(final=True)
+        """The recording ends: the frames still open are scored."""
+        self._plot(self.score.finish())
 
-    def _series(self, metric: str, prefix: tuple[str, ...], t: float, value: float, dof: int) -> None:
-        lo, hi = draw.chi2_bounds(dof)
-        base = ("metrics", metric, *prefix)
-        name = "/".join(prefix)
-        self._style(_p(*base), part(rr.SeriesLines, names=[name]))
-        self._style(_p(*base, "lo"), part(rr.SeriesLines, colors=[draw.BOUND_COLOR], widths=[1.0],
-                                          names=[f"{name} χ²({dof}) 2.5%"]))
-        self._style(_p(*base, "hi"), part(rr.SeriesLines, colors=[draw.BOUND_COLOR], widths=[1.0],
-                                          names=[f"{name} χ²({dof}) 97.5%"]))
-        self._log(_p(*base), t, part(rr.Scalars, scalars=[value]))
-        self._log(_p(*base, "lo"), t, part(rr.Scalars, scalars=[lo]))
-        self._log(_p(*base, "hi"), t, part(rr.Scalars, scalars=[hi]))
+    @property
+    def unscored(self) -> int:
+        return self.score.unscored
+
+    def _plot(self, points: list[Scored]) -> None:
+        """Draw what the scoring handed back: a series per metric and estimates, a NEES or
+        NIS with its 95 % χ² interval."""
+        for pt in points:
+            base = ("metrics", "picture", pt.prefix[0], pt.metric) if pt.metric in ("missed", "false") \
+                else ("metrics", pt.metric, *pt.prefix)
+            name = "/".join(pt.prefix) if pt.metric not in ("missed", "false") else f"{pt.prefix[0]} {pt.metric}"
+            self._style(_p(*base), part(rr.SeriesLines, names=[name]))
+            self._log(_p(*base), pt.t, part(rr.Scalars, scalars=[pt.value]))
+            if pt.bounds is not None:
+                for end, level, bound in (("lo", "2.5%", pt.bounds[0]), ("hi", "97.5%", pt.bounds[1])):
+                    self._style(_p(*base, end), part(rr.SeriesLines, colors=[draw.BOUND_COLOR], widths=[1.0],
+                                                     names=[f"{name} χ²({pt.dof}) {level}"]))
+                    self._log(_p(*base, end), pt.t, part(rr.Scalars, scalars=[bound]))
 
     # -- jamming and status ------------------------------------------------------------------------
 
@@ -728,6 +540,68 @@ class Recorder:
 # -- the process ----------------------------------------------------------------------------------
 
 
+class RecordingSink:
+    """The recorder as a listener's sink (:func:`services.listener.run_listener`): a
+    :class:`Recorder` on a recording file (rotated every ``rotate_s`` of session time),
+    whose rows go out at least every ``SEND_PERIOD_S`` and whose file is flushed once a
+    second, so a killed recorder loses little. Done once every process of ``expect``
+    has reported done."""
+
+    def __init__(self, node: Node, rrd_path: str, expect: list[str], sc, live, app: str, spawn: bool,
+                 rotate_s: float | None):
+        df = sc is not None and bool(sc.sensors) and all(s.kind in DF_KINDS for s in sc.sensors.values())
+        self.rotation = Rotation(rrd_path, rotate_s) if rotate_s else None
+        self.opener = functools.partial(open_recording, app=app, spawn=spawn, df=df,
+                                        many=hasattr(sc, "targets") and many_targets(sc), geo=sc is not None,
+                                        live=live is not None)
+        self.rec, _ = self.opener(str(self.rotation.first()) if self.rotation else rrd_path)
+        guard = ClockGuard(live.max_skew) if live is not None else None
+        self.recorder = Recorder(self.rec, node.keys, node.reject, sc, clock_guard=guard)
+        self.events = self.recorder.clock_events
+        self.expect = set(expect)
+        self._sent = self._flushed = time.monotonic()
+
+    def offer(self, key: str, data: bytes, utc: float | None) -> Message | None:
+        msg = self.recorder.offer(key, data, utc)
+        at = self.rotation.due(self.recorder.clock) if self.rotation and self.recorder.started else None
+        if at is not None:
+            new, _ = self.opener(str(self.rotation.next()), recording_id=self.rec.get_recording_id())
+            self.rec.hand_over(new, at)
+            self.rec = new
+            self.recorder.reopen(new, at)
+        if self.rec.queued >= SEND_ROWS_MAX:
+            self._send()
+        return msg
+
+    def _send(self) -> None:
+        self.rec.send_rows()
+        self._sent = time.monotonic()
+
+    def tick(self, final: bool = False) -> None:
+        if final:
+            self.recorder.finish()
+            safe_flush(self.rec, 10.0)
+            return
+        if time.monotonic() - self._sent >= SEND_PERIOD_S:
+            self._send()
+        if time.monotonic() - self._flushed >= 1.0:
+            safe_flush(self.rec, 0.0)  # keep the file current: a killed recorder loses little
+            self._flushed = time.monotonic()
+
+    def done(self) -> bool:
+        return bool(self.expect) and self.expect <= self.recorder.finished
+
+    def now(self) -> float:
+        return self.recorder.now
+
+    def counters(self) -> dict[str, float]:
+        return {"uplinked": self.recorder.uplinked, "unscored": self.recorder.unscored}
+
+    def close(self) -> None:
+        safe_flush(self.rec, 10.0)
+        self.rec.disconnect()  # writes the file's footer; gives an unreachable viewer at most a few seconds
+
+
 def run(process_id: str, keys: KeySpace, zopts, rrd_path: str, expect: list[str], app: str = "zfusion", *,
         spawn: bool = False, scenario: str | None = None, seed: int | None = None,
         rotate_s: float | None = None, live=None, duration: float | None = None) -> int:
@@ -735,84 +609,9 @@ def run(process_id: str, keys: KeySpace, zopts, rrd_path: str, expect: list[str]
     a site (or a scenario taken as its site), optional."""
     sc = None
     if scenario is not None:
-        from ..node import load, load_site
-
         sc = load(scenario, seed, duration) if live is None else load_site(scenario)
-    from sensors_sim.spec import DF_KINDS
-
-    df = sc is not None and bool(sc.sensors) and all(s.kind in DF_KINDS for s in sc.sensors.values())
-    inbox = ListenerInbox(BACKLOG_MAX, BACKLOG_IN_MEMORY)
-
-    with Node(process_id, "recorder", keys, zopts) as node:
-        # The file is opened once SIGTERM/SIGINT are handled, so a stop at any time leaves a whole file.
-        rotation = Rotation(rrd_path, rotate_s) if rotate_s else None
-        opener = functools.partial(open_recording, app=app, spawn=spawn, df=df,
-                                   many=hasattr(sc, "targets") and many_targets(sc), geo=sc is not None,
-                                   live=live is not None)
-        rec, _ = opener(str(rotation.first()) if rotation else rrd_path)
-        guard = None
-        if live is not None:
-            from ..live import ClockGuard
-
-            guard = ClockGuard(live.max_skew)
-        recorder = Recorder(rec, keys, node.reject, sc, clock_guard=guard)
-        utc = time.time if live is not None else lambda: None
-        recovery = None
-        if live is not None:  # live: what the recoverable publishers (sensors, trackers, fuser) sent while cut off
-            recovery = Recovery(node.processes_by_session())
-            node.recovering_subscriber(keys.all(), inbox, recovery.on_miss)
-        else:
-            node.subscribe(keys.all(), inbox)
-        # Started mid-session: begin with the fuser's current tracks (none answers at a run's start).
-        late_join = picture.Request(node.session, keys, lambda data: inbox.put((keys.fused(), data)))
-
-        def count_status() -> None:
-            """The counters each status carries, beside the node's own."""
-            node.counters.update(dropped=inbox.dropped, uplinked=recorder.uplinked, unscored=recorder.unscored,
-                                 backlog=inbox.qsize(), picture=late_join.tracks,
-                                 **(recovery.counters() if recovery is not None else {}))
-
-        node.announce()
-        node.publish_status("ready")
-        last_status = last_send = time.monotonic()
-        while not node.stop.is_set():
-            try:
-                key, data = inbox.get(timeout=0.1)
-            except queue.Empty:
-                pass
-            else:
-                msg = recorder.offer(key, data, utc())
-                if msg is not None:
-                    node.count("recorded")
-                    if recovery is not None and msg.kind != "status":
-                        recovery.arrived(msg.src, msg.t, utc())
-                if key == keys.fused():
-                    late_join.cancel()  # the fuser's own stream: its picture is coming anyway
-                at = rotation.due(recorder.clock) if rotation and recorder.started else None
-                if at is not None:
-                    new, _ = opener(str(rotation.next()), recording_id=rec.get_recording_id())
-                    rec.hand_over(new, at)
-                    rec = new
-                    recorder.reopen(rec, at)
-                for ev in recorder.clock_events:
-                    node.event(ev)
-                recorder.clock_events.clear()
-            late_join.poll()
-            if rec.queued >= SEND_ROWS_MAX or time.monotonic() - last_send >= SEND_PERIOD_S:
-                rec.send_rows()
-                last_send = time.monotonic()
-            if expect and set(expect) <= recorder.finished and inbox.empty():
-                break
-            if time.monotonic() - last_status >= 1.0:
-                count_status()
-                node.publish_status("running", recorder.now)
-                safe_flush(rec, 0.0)  # keep the file current: a killed recorder loses little
-                last_status = time.monotonic()
-        recorder.finish()
-        safe_flush(rec, 10.0)
-        count_status()
-        node.publish_status("done" if not node.stop.is_set() else "stopped", recorder.now)
-    safe_flush(rec, 10.0)
-    inbox.close()
-    rec.disconnect()  # writes the file's footer; gives an unreachable viewer at most a few seconds
-    return 0
+    # The file is opened once SIGTERM/SIGINT are handled, so a stop at any time leaves a whole file.
+    return run_listener(process_id, "recorder", keys, zopts,
+                        lambda node: RecordingSink(node, rrd_path, expect, sc, live, app, spawn, rotate_s),
+                        subscribe=keys.all(), live=live is not None, backlog=BACKLOG_MAX,
+                        in_memory=BACKLOG_IN_MEMORY, counted="recorded")

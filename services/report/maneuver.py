@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from fusion.metrics import chi2_bounds, nees
+from sensors_sim import load_scenario
 
 from ..evaluation import Variant, evaluate, run_method
 from ..scoring import truth_function
@@ -92,8 +93,6 @@ def pv_anees(scenario, method: str, overrides: dict, runs: int) -> dict:
 
 
 def build_maneuver(runs: int, jobs: int = 1, progress=None) -> dict:
-    from sensors_sim import load_scenario
-
     scenario = load_scenario(MANEUVER)
     variants = [Variant(label(m, r, mo), m, {"motion": mo, **({"fusion_rule": r} if r else {})})
                 for m, r, mo in MANEUVER_VARIANTS]

@@ -6,6 +6,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from sensors_sim import load_scenario
+
 from ..evaluation import default_methods, evaluate, variants_for
 from .figures import plot_series
 from .tables import fmt, md_table, ratio, write_report
@@ -21,8 +23,6 @@ MANY = {
 
 
 def build_many(name: str, runs: int, jobs: int = 1, progress=None) -> dict:
-    from sensors_sim import load_scenario
-
     sc = load_scenario(name)
     spec = MANY[name]
     methods = list(spec["methods"] or default_methods(sc))

@@ -7,6 +7,8 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Sequence
 
+from sensors_sim import load_scenario
+
 from ..evaluation import evaluate, variants_for
 from .figures import plot_series
 from .tables import fmt, inside_fraction, md_table, ratio, rms_from, write_report
@@ -19,8 +21,6 @@ MOVING_JAM_FACTOR = 0.5  # df-moving-jammed: IMM at most this fraction of the EK
 
 
 def build_moving(runs: int, jobs: int = 1, progress=None, scenarios: Sequence[str] = MOVING_SCENARIOS) -> dict:
-    from sensors_sim import load_scenario
-
     evs = {name: evaluate(load_scenario(name), variants_for(MOVING_METHODS), runs, jobs=jobs, progress=progress)
            for name in scenarios}
     return {"report": "df-moving", "runs": runs, "command": f"python -m services.report df-moving --runs {runs}",

@@ -6,7 +6,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from fusion.init3d import InitPriors
 from fusion.metrics import chi2_bounds
+from sensors_sim import load_scenario
 
 from ..evaluation import Variant, default_methods, evaluate, variants_for, with_sensors
 from .figures import dofs_of, nis_bands, plot_series
@@ -31,8 +33,6 @@ CONSISTENT_RULES = ("info", "bar-shalom-campo", "ci")
 
 
 def build_patent(name: str, runs: int, jobs: int = 1, progress=None) -> dict:
-    from sensors_sim import load_scenario
-
     sc = load_scenario(name)
     methods = default_methods(sc)
     evals = {"naive": evaluate(sc, variants_for(methods, {"fusion_rule": "naive"}), runs, jobs=jobs,
@@ -47,8 +47,6 @@ def build_patent(name: str, runs: int, jobs: int = 1, progress=None) -> dict:
                                 topology="in-process (baseline)")
     # HNV with the generic vertical prior instead of its table's physical one: what its
     # altitude-blind radar-local tracker does without it (docs/consistency.md §5)
-    from fusion.init3d import InitPriors
-
     generic = {"init_vel_std_up": InitPriors.vel_std_up, "init_acc_std_up": InitPriors.acc_std_up}
     evals["hnv-generic"] = evaluate(sc, [Variant("HNV", "HNV", generic)], runs, jobs=jobs, progress=progress,
                                     topology="distributed (in-process), generic vertical prior")

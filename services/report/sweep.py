@@ -9,6 +9,8 @@ import math
 from pathlib import Path
 from typing import Sequence
 
+from sensors_sim import load_scenario
+
 from ..evaluation import Variant, evaluate
 from .figures import pyplot, save_figure
 from .tables import fmt, md_table, ratio, write_report
@@ -35,8 +37,6 @@ def sweep_variants(duration: float) -> list[Variant]:
 
 def build_sweep(runs: int, jobs: int = 1, progress=None, ps: Sequence[float] = SWEEP_P,
                 laws: Sequence[str] = SWEEP_LAWS) -> dict:
-    from sensors_sim import load_scenario
-
     base = load_scenario("jammed-df")
     jid = next(iter(base.jammers))
     sigma1 = float(next(iter(base.sensors.values())).std[0])

@@ -10,6 +10,7 @@ from typing import Sequence
 import numpy as np
 
 from fusion.metrics import chi2_bounds
+from sensors_sim import load_scenario
 
 from ..evaluation import default_methods, evaluate, variants_for
 from .figures import plot_fixes
@@ -32,8 +33,6 @@ def thesis_methods(scenario) -> list[str]:
 
 
 def build_thesis(runs: int, jobs: int = 1, progress=None, scenarios: Sequence[str] = THESIS_SCENARIOS) -> dict:
-    from sensors_sim import load_scenario
-
     evals = {}
     for name in scenarios:
         sc = load_scenario(name)

@@ -68,7 +68,7 @@ def test_coordinated_turn_takes_its_rate_from_the_state():
     """``turn``: its Jacobian is the central finite difference of ``f`` (turning, general and
     straight states); at a turning state it is the fixed-rate model at that state's rate; at
     ``a = 0`` the CA model; and it flies a 6 g level turn as the truth's closed form does."""
-    from sensors_sim.trajectories import CoordinatedTurn as TruthTurn
+    from sensors_sim.segments import CoordinatedTurn as TruthTurn
 
     md, dt = CoordinatedTurn(3.0), 1.0
     turning = np.array([100.0, -50.0, 3000.0, 250.0, 0.0, 0.0, 0.0, -39.2, 0.0])

@@ -13,7 +13,7 @@ from fusion.network import MultiTrackCentre, TrackCentre, TrackNode
 from fusion.topology import TOPOLOGIES as LEAF_TOPOLOGIES
 from fusion.topology import SCHEMES, Scheme, scheme_of
 from services.cli import build_parser
-from services.launcher import topology_of
+from services.request import topology_of
 
 ASSOCIATION = {"association": "gnn"}
 

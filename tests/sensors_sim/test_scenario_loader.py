@@ -10,7 +10,7 @@ import pymap3d
 import pytest
 
 from sensors_sim import ScenarioError, load_scenario
-from sensors_sim.trajectories import ConstantAcceleration, CoordinatedTurn, Static, Waypoints
+from sensors_sim.segments import ConstantAcceleration, CoordinatedTurn, Static, Waypoints
 from conftest import ROOT
 
 GOOD = """\

@@ -11,15 +11,8 @@ from scipy import stats
 
 from fusion.angles import wrap_pi
 from sensors_sim import load_scenario, truth_events, truth_trajectory
-from sensors_sim.trajectories import (
-    ConstantAcceleration,
-    ConstantVelocity,
-    CoordinatedTurn,
-    Static,
-    Trajectory,
-    Waypoints,
-    sample_times,
-)
+from sensors_sim.segments import ConstantAcceleration, ConstantVelocity, CoordinatedTurn, Orbit, Static, Waypoints
+from sensors_sim.trajectories import Trajectory, sample_times
 from sensors_sim.spec import TargetSpec
 
 ALPHA = 0.01  # significance of every statistical test in this file
@@ -234,8 +227,6 @@ def test_orbit_is_smooth_periodic_and_its_own_derivative():
     """Velocity and acceleration are the derivatives of position (central differences,
     independent of the closed forms), the ellipse's semi-axes and lap are as given,
     and the state at t and t + k·lap is the same for any k: defined for every t."""
-    from sensors_sim.trajectories import Orbit
-
     seg = Orbit(10_000.0, 5_000.0, 600.0, math.radians(90.0), left=True)
     traj = Trajectory(make_target([0.0, 5000.0, 2000.0, 0, 0, 0, 0, 0, 0], seg))
     h = 1e-3
@@ -256,8 +247,6 @@ def test_orbit_is_smooth_periodic_and_its_own_derivative():
 
 
 def test_orbit_turning_right_mirrors_left():
-    from sensors_sim.trajectories import Orbit
-
     x0 = [0.0, 0.0, 1000.0, 0, 0, 0, 0, 0, 0]
     left = Trajectory(make_target(x0, Orbit(4000.0, 1000.0, 300.0, 0.0, left=True)))  # long axis north
     right = Trajectory(make_target(x0, Orbit(4000.0, 1000.0, 300.0, 0.0, left=False)))

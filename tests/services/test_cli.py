@@ -54,3 +54,11 @@ def test_every_option_of_every_command_says_what_it_does():
 
     walk(build_parser(), [])
     assert not silent, silent
+
+
+def test_the_command_line_offers_the_key_spaces_default():
+    """The parser names the default deployment itself (the key space's module loads numpy)."""
+    from schemas.keys import DEFAULT_DEPLOYMENT
+    from services.commands.options import DEFAULT_DEPLOYMENT as offered
+
+    assert offered == DEFAULT_DEPLOYMENT

@@ -177,7 +177,8 @@ def test_a_process_that_dies_at_start_up_ends_the_wait_at_once(deployment):
     exited (here a fuser given a scenario that does not exist) will not, so the wait
     ends as soon as it is seen, with its exit code, and `zfusion run` fails (exit 1)
     instead of hanging for a minute."""
-    from services.launcher import Children, free_port
+    from services.launcher import free_port
+    from services.supervisor import Children
     from services.node import Node
 
     children = Children()

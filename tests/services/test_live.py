@@ -145,8 +145,7 @@ def test_clock_guard_refuses_the_future_and_reports_skewed_sources():
 
 
 def test_merger_waits_at_most_max_delay_for_a_lagging_source():
-    m = WatermarkMerger(["fast", "slow"], timeout=100.0, horizon=math.inf, earliest=-math.inf,
-                        max_delay=0.5, oosm_window=10.0)
+    m = WatermarkMerger(["fast", "slow"], timeout=100.0, max_delay=0.5, oosm_window=10.0)
     ev: list[str] = []
     m.watermark("slow", EPOCH - 1.0, False, 0.0, ev)
     assert m.add("fast", EPOCH, 0, "f0", 0.0, ev) is None
@@ -164,7 +163,7 @@ def test_merger_waits_at_most_max_delay_for_a_lagging_source():
     # a later measurement of the laggard for a released time: out of sequence too
     assert m.add("slow", EPOCH + 0.9, 1, "s1", 0.8, ev) is None and m.take_oosm() == ["s1"]
     # older than the window: stale
-    m2 = WatermarkMerger(["a", "b"], timeout=100.0, earliest=-math.inf, max_delay=0.0, oosm_window=10.0)
+    m2 = WatermarkMerger(["a", "b"], timeout=100.0, max_delay=0.0, oosm_window=10.0)
     m2.add("a", EPOCH + 20, 0, "a0", 0.0, ev)
     m2.watermark("a", EPOCH + 20, False, 0.0, ev)
     assert m2.release(0.0)[0] == ["a0"]
@@ -177,7 +176,7 @@ def test_data_of_a_dead_source_given_back_after_it_rejoins_is_recovered_and_appl
     each such measurement (stamped up to ``recovery_until``, set as it is heard again) counts as
     ``recovered`` and is applied out of sequence, or refused as stale past the window;
     its data after that is neither."""
-    m = WatermarkMerger(["a", "b"], timeout=2.0, earliest=-math.inf, max_delay=0.5, oosm_window=10.0)
+    m = WatermarkMerger(["a", "b"], timeout=2.0, max_delay=0.5, oosm_window=10.0)
     ev: list[str] = []
     for k in range(3):  # both flow, then b goes silent at EPOCH + 2
         for src in ("a", "b"):

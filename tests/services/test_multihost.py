@@ -18,7 +18,8 @@ import zenoh
 
 from schemas import KeySpace, tracker_id
 from services.cli import build_parser
-from services.launcher import Children, free_port
+from services.launcher import free_port
+from services.supervisor import Children
 from services.node import ZenohOptions
 from sensors_sim import load_scenario
 

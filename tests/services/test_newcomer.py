@@ -32,13 +32,13 @@ def test_report_of_a_many_target_evaluation(tmp_path, args):
 # 2. a child that fails ends the run ---------------------------------------------------------
 FAILING_SENSOR = """
 import sys
-import services.launcher as launcher
-start = launcher.Children.start
+import services.supervisor as supervisor
+start = supervisor.Children.start
 def failing(self, name, argv):  # the radar's emulator fails at its first scan, as with a bad seed
     if name == "radar2d":
         argv = [*argv, "--seed", "-1"]
     start(self, name, argv)
-launcher.Children.start = failing
+supervisor.Children.start = failing
 from services.cli import main
 sys.exit(main(sys.argv[1:]))
 """
@@ -159,7 +159,7 @@ def test_the_table_keeps_its_columns_apart_and_explains_the_bound():
 
 
 def test_view_checks_the_file_and_the_display_first(tmp_path):
-    from services.cli import viewer_argv
+    from services.commands.view import viewer_argv
     from services.errors import UserError
 
     good, bad = tmp_path / "good.rrd", tmp_path / "bad.rrd"

@@ -68,7 +68,7 @@ def test_a_burst_at_ten_times_the_nominal_rate_is_held_to_the_cap_and_the_rest_s
 def test_a_far_ahead_flood_on_a_key_does_not_lock_out_the_real_data():
     """Data held farthest ahead is what gets shed, so a flood of far-future (but
     in-scenario) measurements on a source's key cannot keep its real data out."""
-    m = WatermarkMerger(["a", "b"], timeout=1e9, horizon=100.0, max_held=CAP)
+    m = WatermarkMerger(["a", "b"], timeout=1e9, max_held=CAP)
     for i in range(3 * CAP):
         m.add("a", 90.0 + i * 1e-3, 10**6 + i, "flood", 0.0, [])
     assert len(m.sources["a"].held) == CAP and m.shed == 2 * CAP

@@ -18,7 +18,8 @@ import zenoh
 
 from fusion.types import Estimate
 from schemas import KeySpace, decode, encode, encode_estimate, tracker_id
-from services.launcher import Children, free_port
+from services.launcher import free_port
+from services.supervisor import Children
 from services.node import ZenohOptions
 from sensors_sim import load_scenario
 

@@ -15,7 +15,8 @@ import psutil
 import pytest
 
 from services.evaluation import run_method
-from services.launcher import resolve_topology
+from services.errors import UserError
+from services.request import resolve_topology
 from services.scoring import truth_function
 from services.summary import method_summary
 from sensors_sim import load_scenario
@@ -71,11 +72,11 @@ def test_topology_and_method_must_agree():
     assert resolve_topology(sc, "feedback", None) == ("feedback", "PHHNV")
     assert resolve_topology(sc, None, "DDHNV") == ("two-stage", "DDHNV")
     assert resolve_topology(sc, None, None) == ("centralised", "SS")
-    with pytest.raises(SystemExit, match="runs in the 'distributed' topology"):
+    with pytest.raises(UserError, match="runs in the 'distributed' topology"):
         resolve_topology(sc, "centralised", "HNV")
     df = load_scenario("thesis-fixed-c3")
     assert resolve_topology(df, "distributed", None) == ("distributed", "KF+TR")
-    with pytest.raises(SystemExit, match="no DF method"):
+    with pytest.raises(UserError, match="no DF method"):
         resolve_topology(df, "feedback", None)
 
 

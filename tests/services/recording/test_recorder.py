@@ -16,8 +16,10 @@ import msgpack
 import numpy as np
 import pytest
 import zenoh
+from scipy.stats import chi2
 
 import services.recording.recorder as recorder_mod
+import services.scoring as scoring
 from fusion.types import Measurement
 from schemas import KeySpace, encode, encode_estimate
 from sensors_sim import load_scenario
@@ -31,6 +33,11 @@ from _recording import (KEYS, Session, downlink_msg, est_msg, meas_msg, read_rrd
                         uplink_msg, verify)
 
 N = 8  # scans in the scripted streams
+
+
+def chi2_95(dof: int) -> tuple[float, float]:
+    """The 95 % interval of one χ²(dof) sample, from scipy (what the panels must draw)."""
+    return tuple(float(v) for v in chi2.ppf([0.025, 0.975], dof))
 
 
 def test_patent_like_stream_rows_read_back_from_file(tmp_path):
@@ -60,10 +67,10 @@ def test_patent_like_stream_rows_read_back_from_file(tmp_path):
     np.testing.assert_allclose(err, 50.0, rtol=1e-6)
     nees = [r["Scalars:scalars"][0] for r in rows["/metrics/nees/SS"]]
     np.testing.assert_allclose(nees, 2500.0 / 400.0, rtol=1e-6)
-    lo, hi = draw.chi2_bounds(9)
+    lo, hi = chi2_95(9)
     assert rows["/metrics/nees/SS/lo"][0]["Scalars:scalars"][0] == pytest.approx(lo, rel=1e-6)
     assert rows["/metrics/nees/SS/hi"][0]["Scalars:scalars"][0] == pytest.approx(hi, rel=1e-6)
-    assert rows["/metrics/nis/SS/hi"][0]["Scalars:scalars"][0] == pytest.approx(draw.chi2_bounds(3)[1], rel=1e-6)
+    assert rows["/metrics/nis/SS/hi"][0]["Scalars:scalars"][0] == pytest.approx(chi2_95(3)[1], rel=1e-6)
     assert [r["Scalars:scalars"][0] for r in rows["/metrics/nis/SS"]] == [1.0 + k for k in range(N)]
     # 3σ ellipsoid with the track: half-sizes 3·20 m
     np.testing.assert_allclose(rows["/world/tracks/centre/T1"][0]["Ellipsoids3D:half_sizes"][0], [60.0] * 3,
@@ -183,7 +190,7 @@ def test_local_tracks_feedback_predictions_and_uplinked_measurements(tmp_path):
     assert "/metrics/error_pos/HNV/angle" not in rows  # predictions are drawn, not scored
     np.testing.assert_allclose([r["Scalars:scalars"][0] for r in rows["/metrics/error_pos/HNV/radar2d"]], 10.0,
                                rtol=1e-6)
-    assert rows["/metrics/nees/HNV/radar2d/hi"][0]["Scalars:scalars"][0] == pytest.approx(draw.chi2_bounds(6)[1])
+    assert rows["/metrics/nees/HNV/radar2d/hi"][0]["Scalars:scalars"][0] == pytest.approx(chi2_95(6)[1])
 
 
 def test_state_layouts_a_local_node_may_publish(tmp_path):
@@ -251,7 +258,7 @@ def test_df_bearings_fixes_and_airborne_path(tmp_path):
     np.testing.assert_allclose(m, 9.0, rtol=1e-4)  # every point on the 3σ contour
     # a 2-state fix is scored against the emitter's position
     assert rows["/metrics/error_pos/EKF"][0]["Scalars:scalars"][0] == pytest.approx(500.0, rel=1e-6)
-    assert rows["/metrics/nees/EKF/hi"][0]["Scalars:scalars"][0] == pytest.approx(draw.chi2_bounds(2)[1])
+    assert rows["/metrics/nees/EKF/hi"][0]["Scalars:scalars"][0] == pytest.approx(chi2_95(2)[1])
 
 
 def test_jamming_contamination_and_status_events(tmp_path):
@@ -545,13 +552,13 @@ def test_traffic_picture_scored_against_the_aircraft_alive_and_departed_forgotte
     held = []  # aircraft whose truth the recorder holds, after each truth frame
     for _, key, data in sorted(truth + fused, key=lambda r: (r[0], r[1] == KEYS.fused())):
         assert s.put(key, data) is not None
-        held.append(len(s.r._truth))
+        held.append(len(s.r.score._truth))
     last_seen = {}
     for x in samples:
         last_seen[x.target] = x.t
     t_end = samples[-1].t
     recent = {a for a, t in last_seen.items() if t_end - t < recorder_mod.TRUTH_GONE_FRAMES + 1}
-    assert set(s.r._truth) == recent and len(last_seen) > len(recent) + 3, (len(last_seen), len(recent))
+    assert set(s.r.score._truth) == recent and len(last_seen) > len(recent) + 3, (len(last_seen), len(recent))
     rows = s.close()
 
     steps = [st for st in track_steps(sc, out) if st.tracks and st.truths]
@@ -628,7 +635,7 @@ def test_an_estimate_older_than_the_truth_kept_is_counted_unscored_not_held(tmp_
     """At --speed max the truth runs far ahead of the fused output: an estimate whose
     truth sample has come and been forgotten (beyond TRUTH_CACHE) can never be scored; it
     is drawn, counted as unscored, and not kept waiting. One still in the cache is scored."""
-    monkeypatch.setattr(recorder_mod, "TRUTH_CACHE", 20)
+    monkeypatch.setattr(scoring, "TRUTH_CACHE", 20)
     s = Session(tmp_path)
     n = 50
     for k in range(n):  # all the truth first
@@ -636,7 +643,7 @@ def test_an_estimate_older_than_the_truth_kept_is_counted_unscored_not_held(tmp_
     x = lambda t: [6000.0 + 100 * t + 10.0, 8000.0, 2000.0, 100.0, 0, 0, 0, 0, 0]  # 10 m east of the truth
     for k in range(n):
         s.put(KEYS.fused(), est_msg(float(k), x(float(k)), np.eye(9), seq=k + 1))
-    assert s.r.unscored == n - 20 and s.r._n_pending == 0
+    assert s.r.unscored == n - 20 and s.r.score._n_pending == 0
     rows = s.close()
     assert len(rows["/world/tracks/centre/T1"]) == n  # every estimate drawn
     scored = rows["/metrics/error_pos/SS"]
