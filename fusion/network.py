@@ -36,18 +36,22 @@ import dataclasses
 import math
 from collections import deque
 from dataclasses import dataclass
+from functools import partial
 
 import numpy as np
 
 from .angles import wrap_pi
-from .association import CONFIRMED, DELETED, TrackIds, TrackLogic, gate_threshold, gnn, mahalanobis2, track_distance2
+from .tracking.associators import gnn
+from .tracking.config import AssociationConfig
+from .tracking.hypotheses import gate_threshold, mahalanobis2, track_distance2
+from .tracking.initiators import Initiator
+from .tracking.table import CONFIRMED, Track, TrackIds, TrackLogic, TrackTable, scores_hit
 from .df.methods import DFConfig, SmootherTorrieriMethod, make_station_smoother
 from .df.models import bearing_of
 from .df.multi import MultiEmitterMethod
 from .init3d import initial_state
 from .grouping import TimeGrouper
 from .measurement.kinds import kinds_of, model_of
-from .mtt import AssociationConfig, Initiator, scores_hit
 from .patent import KINDS_3D, LocalTracker, TrackerConfig
 from .topology import Scheme
 from .track_fusion import TrackFuser
@@ -580,14 +584,24 @@ class MultiStationNode(FramedNode):
         return out
 
 
-class _Fused:
-    """One track of the centre's picture: its fuser, its life, and its local tracks."""
+class _Fused(Track):
+    """One track of the centre's picture: its fuser (``filter``), its life, and its local tracks."""
 
-    def __init__(self, key: str, fuser: TrackFuser, logic, last: Estimate):
-        self.key, self.fuser, self.logic, self.last = key, fuser, logic, last
-        self.id: str | None = None  # published id, given at confirmation
+    __slots__ = ("members", "joins")
+
+    def __init__(self, fuser: TrackFuser, last: Estimate):
+        super().__init__(fuser, last)
         self.members: dict[str, str] = {}  # node -> its local id on this track
         self.joins: set[str] = set()  # nodes to send an init after this frame
+
+    @property
+    def fuser(self) -> TrackFuser:
+        return self.filter
+
+    @property
+    def key(self) -> str:
+        """The centre's own name of the track, from birth (``F<n>``)."""
+        return f"F{self.birth}"
 
 
 class MultiTrackCentre(GroupedCentre):
@@ -605,11 +619,9 @@ class MultiTrackCentre(GroupedCentre):
         self.rule = association.rule()
         self.motion = config.motion_model()
         self._new_filter = config.new_filter(self.motion)
-        self.tracks: list[_Fused] = []  # confirmed in id order, then tentative in birth order
+        self.table = TrackTable(partial(TrackLogic, self.rule))
         self._initiator = Initiator(self.motion.n_x, config.priors(), association.gate_prob)
         self._grouper = TimeGrouper(config.pair_tol)
-        self._ids = TrackIds()
-        self._births = 0
         self._duplicates = association.duplicate_watch()
         self._mapped: dict[tuple[str, str], _Fused] = {}  # (node, local id) -> fused track
         self._local_ids: dict[str, TrackIds] = {}  # node -> the names of the local tracks it is sent
@@ -647,33 +659,29 @@ class MultiTrackCentre(GroupedCentre):
                 x, P = predicted[f.key]
                 f.last = Estimate(t, x, P, self.name, "centre", f.key)
             f.logic.record(self._hit(seen[f.key], f.logic.status == CONFIRMED, evidence), f.fuser.P[:3, :3])
-        live = {f.key: f for f in self.tracks if f.logic.status != DELETED}  # in priority order
-        for key in self._duplicates.duplicates([(k, f.last.x, f.last.P) for k, f in live.items()]):
-            live[key].logic.status = DELETED
+        self._duplicates.review(self.tracks)
         for first, more, x, P in self._initiator.groups(sorted(left, key=lambda m: m.order_key)):
-            self._births += 1
             fuser = TrackFuser(self.config.fusion_rule, self.motion, self.config.ci_criterion, self.name, "")
             fuser.initialise(x, P, t)
-            f = _Fused(f"F{self._births}", fuser, TrackLogic(self.rule), Estimate(t, x, P, self.name, "centre"))
+            f = self.table.add(_Fused(fuser, Estimate(t, x, P, self.name, "centre")))
             f.joins = {m.sensor for m in (*first, *more)}
-            self.tracks.append(f)
         for f in self.tracks:
-            if f.logic.status == DELETED:
+            if f.deleted:
                 for node, lid in sorted(f.members.items()):
                     self._drop(node, lid, f.last)
                 continue
-            if f.logic.status == CONFIRMED and f.id is None:
-                f.id = self._ids.next()
             for node in sorted(f.joins):  # from the latest fused state (late joiners too)
                 self._join(node, f)
             f.joins = set()
-        self.tracks = [f for f in self.tracks if f.logic.status != DELETED]
-        confirmed = sorted((f for f in self.tracks if f.id is not None), key=lambda f: int(f.id[1:]))
-        self.tracks = confirmed + [f for f in self.tracks if f.id is None]
-        return [dataclasses.replace(f.last, track=f.id) for f in confirmed]
+        return [dataclasses.replace(f.last, track=f.id) for f in self.table.close_frame()]
+
+    @property
+    def tracks(self) -> list[_Fused]:
+        """The fused tracks, in priority order (deleted ones still listed while a frame closes)."""
+        return self.table.tracks
 
     def _hit(self, nodes: set[str], confirmed: bool, evidence: int) -> bool:
-        """:func:`fusion.mtt.scores_hit` on the kinds of the nodes' sensors. Here the
+        """:func:`fusion.tracking.table.scores_hit` on the kinds of the nodes' sensors. Here the
         ghost along an angle sensor's ray is a local angle track alone holding a fused
         track (fed back to it under PHHNV/DDHNV) whose range drifts away from the radar
         plots, which then start a second track on the target."""

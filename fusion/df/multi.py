@@ -17,13 +17,13 @@ the ``K`` stations that reported:
    groups of the most stations, then least total cost;
 3. a group continues the tentative track whose gate holds it, else starts one; each
    track is one instance of the wrapped DF method, fed only its own bearings;
-4. tracks are managed by :class:`fusion.association.TrackLogic` (M-of-N, misses,
+4. tracks are managed by :class:`fusion.tracking.table.TrackLogic` (M-of-N, misses,
    ``max_pos_std``), a χ² consistency test over each confirmed track's window, and an
    exchange test that undoes a swap ghost pair;
 5. one estimate per confirmed track is reported, ids ``E1, E2, …`` in confirmation order.
 
 Switched on by ``association = "gnn"``; the keys are those of
-:class:`fusion.mtt.AssociationConfig` and of the wrapped method's
+:class:`fusion.tracking.config.AssociationConfig` and of the wrapped method's
 :class:`fusion.df.methods.DFConfig`. docs/algorithms.md ("Many emitters") gives the
 reasoning, docs/notes.md what the tests on ``df-multi`` showed.
 """
@@ -33,15 +33,18 @@ from __future__ import annotations
 import dataclasses
 import itertools
 from collections import deque
+from functools import partial
 from typing import Callable, Sequence
 
 import numpy as np
 from scipy.optimize import Bounds, LinearConstraint, milp
 
 from ..angles import wrap_pi
-from ..association import CONFIRMED, DELETED, TrackIds, TrackLogic, gate_threshold, gnn
+from ..tracking.associators import gnn
+from ..tracking.config import AssociationConfig
+from ..tracking.hypotheses import gate_threshold
+from ..tracking.table import CONFIRMED, DELETED, Track, TrackLogic, TrackTable
 from ..grouping import TimeGrouper
-from ..mtt import AssociationConfig
 from ..types import Estimate, Measurement
 from .init import usable_pairs
 from .methods import DFMethod
@@ -205,17 +208,24 @@ def _solve(c, constraints):
     return res
 
 
-class _Emitter:
-    """One emitter track: its DF method instance, its life, its latest estimate, and the
-    bearings it took in its last ``window`` epochs."""
+class _Emitter(Track):
+    """One emitter track: its DF method instance (``filter``), its life, its latest
+    estimate, and the bearings it took in its last ``window`` epochs."""
 
-    __slots__ = ("method", "logic", "birth", "last", "id", "nis", "taken")
+    __slots__ = ("nis", "taken")
 
-    def __init__(self, method: DFMethod, logic: TrackLogic, birth: int, last: Estimate, window: int):
-        self.method, self.logic, self.birth, self.last = method, logic, birth, last
-        self.id: str | None = None  # issued at confirmation
+    def __init__(self, method: DFMethod, last: Estimate, window: int, logic: TrackLogic | None = None):
+        super().__init__(method, last, logic)
         self.nis: deque = deque(maxlen=window)  # (Σ d², number of bearings) of its last epochs as confirmed
         self.taken: deque = deque(maxlen=window)  # per epoch: (sites, betas, sigmas, stations, bearings, t0)
+
+    @property
+    def method(self) -> DFMethod:
+        return self.filter
+
+    @method.setter
+    def method(self, method: DFMethod) -> None:
+        self.filter = method
 
     def without(self, station: str) -> tuple[np.ndarray, np.ndarray]:
         """``(x, P)`` to gate ``station``'s bearings with: one Torrieri step from the
@@ -246,8 +256,6 @@ class MultiEmitterMethod:
 
     def __init__(self, name: str, make_emitter: Callable[[], DFMethod], config: AssociationConfig):
         proto = make_emitter()
-        if not isinstance(proto, DFMethod):
-            raise ValueError(f"MultiEmitterMethod needs a DF method, got {name}")
         if config.local_max_pos_std is not None or config.merge_frames != AssociationConfig.merge_frames:
             raise ValueError(f"{name}: 'merge_frames' and 'local_max_pos_std' apply to 3D tracks, not to emitters")
         self.name = name
@@ -257,10 +265,25 @@ class MultiEmitterMethod:
         self._rule = config.rule()
         self._gate = gate_threshold(1, config.gate_prob)
         self._grouper = TimeGrouper(self.df.pair_tol)
-        self._ids = TrackIds(prefix="E")
-        self._births = 0
+        self.table = TrackTable(partial(TrackLogic, self._rule), prefix="E")
         self._window: deque = deque(maxlen=int(self.df.init_epochs) - 1)  # earlier epochs, newest first
-        self.tracks: list[_Emitter] = []  # confirmed in id order, then tentative in birth order
+
+    @classmethod
+    def from_table(cls, name: str, make: Callable[[dict], DFMethod], table: dict) -> "MultiEmitterMethod":
+        """DF method ``name`` (``make(table)`` builds one instance) for many emitters,
+        from a resolved ``[tracker]`` table with ``association``."""
+        association, rest = AssociationConfig.split(table)
+        if association is None:
+            raise ValueError(f"{name}: many emitters need 'association' in the tracker table")
+        if rest.get("motion", "static") != "static":
+            raise ValueError(f"association with motion = {rest['motion']!r}: many emitters are tracked as static "
+                             "ones (the bearing association gates on their latest positions)")
+        return cls(name, lambda: make(dict(rest)), association)
+
+    @property
+    def tracks(self) -> list[_Emitter]:
+        """The emitter tracks, in priority order."""
+        return self.table.tracks
 
     def __repr__(self) -> str:
         return f"MultiEmitterMethod({self.name!r})"
@@ -338,13 +361,7 @@ class MultiEmitterMethod:
             if c not in continued.values():
                 self._start(_subset(bearings, g))
 
-        for tr in self.tracks:
-            if tr.logic.status == CONFIRMED and tr.id is None:
-                tr.id = self._ids.next()
-        live = [tr for tr in self.tracks if tr.logic.status != DELETED]
-        confirmed = sorted((tr for tr in live if tr.logic.status == CONFIRMED), key=lambda tr: int(tr.id[1:]))
-        self.tracks = confirmed + sorted((tr for tr in live if tr.logic.status != CONFIRMED), key=lambda tr: tr.birth)
-        return [dataclasses.replace(tr.last, t=t, track=tr.id, node="centre") for tr in confirmed]
+        return [dataclasses.replace(tr.last, t=t, track=tr.id, node="centre") for tr in self.table.close_frame()]
 
     def _update(self, tr: _Emitter, mine: tuple, enough: int) -> None:
         """Track ``tr`` with its bearings ``mine`` of the epoch (as :meth:`_bearings`):
@@ -424,10 +441,8 @@ class MultiEmitterMethod:
         est = self._localise(method, group[4], group[5])
         if est is None:
             return
-        self._births += 1
-        tr = _Emitter(method, TrackLogic(self._rule), self._births, est, int(self.df.init_epochs))
+        tr = self.table.add(_Emitter(method, est, int(self.df.init_epochs)))
         tr.taken.append(group)
-        self.tracks.append(tr)
 
 
 def _subset(bearings: tuple, idx) -> tuple:

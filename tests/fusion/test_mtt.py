@@ -10,7 +10,7 @@ import subprocess
 import numpy as np
 import pytest
 
-from fusion.association import CONFIRMED
+from fusion.tracking.table import CONFIRMED
 from fusion.methods import make_method, method_config
 from fusion.init3d import FAR, NEAR, InitPriors
 from fusion.mtt import Initiator, MultiTargetMethod
@@ -262,10 +262,9 @@ def test_a_second_track_on_a_target_is_merged_away(crossing, merge_frames):
             if copied is None and t_prev >= 20.0:
                 original = method.tracks[0]
                 twin = copy.deepcopy(original)
-                twin.method.track, twin.birth = method._ids.next(), method._births + 1
-                method._births += 1
-                method.tracks.append(twin)
-                copied = (original.method.track, twin.method.track, t_prev)
+                twin.id = method.table.ids.next()
+                method.table.add(twin)
+                copied = (original.id, twin.id, t_prev)
         out += method.process(m)
         t_prev = m.t
     out += method.finish()
@@ -381,7 +380,7 @@ def _run_frames(sc, plots):
 
 def _nearest_track(method, sc, run, t):
     """Per aircraft, the distance (m) from its true position at t to the nearest track."""
-    X = np.array([tr.method.filter.x[:3] for tr in method.tracks])
+    X = np.array([tr.filter.x[:3] for tr in method.tracks])
     return {tid: float(np.min(np.linalg.norm(X - truth_trajectory(sc, tid, run).position(t)[:3], axis=1)))
             for tid in sc.targets}
 
@@ -414,6 +413,6 @@ def test_sequential_gating_keeps_a_neighbour_s_radar_plot_out_of_a_new_track():
     sc, plots, _ = _labelled_frames(0, 3)
     method = _run_frames(sc, plots)
     confirmed = [tr for tr in method.tracks if tr.logic.status == CONFIRMED]
-    X = np.array([tr.method.filter.x[:3] for tr in confirmed])
+    X = np.array([tr.filter.x[:3] for tr in confirmed])
     for tid in ("N10", "N11"):
         assert np.min(np.linalg.norm(X - truth_trajectory(sc, tid, 0).position(2.0)[:3], axis=1)) < 100.0

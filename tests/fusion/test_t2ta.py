@@ -1,5 +1,5 @@
 """Many targets in the distributed topologies (fusion.network, "Many targets"):
-track-to-track gating and association (fusion.association), the nodes and centre of
+track-to-track gating and association (fusion.tracking), the nodes and centre of
 HNV / PHHNV / DDHNV with association, and their reduction to the one-target methods."""
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ import math
 import numpy as np
 import pytest
 
-from fusion.association import track_distance2
+from fusion.tracking.hypotheses import track_distance2
 from fusion.motion import make_motion
 from fusion.mtt_metrics import score_tracks
 from fusion.methods import make_method
