@@ -156,13 +156,18 @@ class PlotHypothesiser:
 
     def hypothesise(self, states: Sequence[tuple[np.ndarray, np.ndarray]], tracks: Sequence, scan: Sequence) -> Hypotheses:
         """The scan's hypotheses against the tracks at their gating ``states``."""
+        return self.hypotheses(states, scan, [tr.confirmed for tr in tracks])
+
+    def hypotheses(self, states: Sequence[tuple[np.ndarray, np.ndarray]], scan: Sequence,
+                   confirmed: Sequence[bool]) -> Hypotheses:
+        """The scan's hypotheses against tracks at ``states`` (``confirmed``: which are)."""
         model = model_of(scan[0], self.n_x)
         Z = np.array([m.z for m in scan])
         d2 = np.full((len(states), len(scan)), np.inf)
         for r, cols in self.candidates(states, Z):
             d2[r, cols] = mahalanobis2(model, *states[r], Z[cols])
         gate = np.full(len(states), gate_threshold(model.n_z, self.gate_prob))
-        return Hypotheses(scan, range(len(states)), d2, gate, np.array([tr.confirmed for tr in tracks], dtype=bool), model)
+        return Hypotheses(scan, range(len(states)), d2, gate, np.array(confirmed, dtype=bool), model)
 
     def candidates(self, states: Sequence[tuple[np.ndarray, np.ndarray]], Z: np.ndarray) -> Iterable[tuple[int, Any]]:
         """``(row, columns)``: the plots (rows of ``Z``) whose ``d²`` against each track is

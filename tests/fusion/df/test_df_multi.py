@@ -156,21 +156,22 @@ def test_a_station_is_gated_with_an_estimate_that_leaves_it_out():
     in that gate and the wrong one is not; with one
     other station there is no such estimate and the track's own is used."""
     from fusion.tracking.table import ManagementRule, TrackLogic
-    from fusion.df.multi import _Emitter
+    from fusion.df.multi import Bearings, _Emitter
     from fusion.types import Estimate
 
     x_off = A + np.array([1000.0, 0.0])
     tr = _Emitter(None, Estimate(0.0, x_off, np.eye(2) * 100.0**2, "EKF", "centre"), window=3,
                   logic=TrackLogic(ManagementRule()))
     for _ in range(3):  # noise-free bearings of A from S1, S2; S3's is of B
-        tr.taken.append((np.array([S1, S2, S3]), np.array([bearing(A, S1), bearing(A, S2), bearing(B, S3)]),
-                         np.full(3, SIGMA), ["df1", "df2", "df3"]))
+        tr.taken.append(Bearings(np.array([S1, S2, S3]), np.array([bearing(A, S1), bearing(A, S2), bearing(B, S3)]),
+                                 np.full(3, SIGMA), ["df1", "df2", "df3"], [], 0.0))
     x, P = tr.without("df3")
     assert np.linalg.norm(x - A) < 100.0 and np.all(np.linalg.eigvalsh(P) > 0)
     d2 = bearing_d2(x, P, np.array([S3, S3]), np.array([bearing(A, S3), bearing(B, S3)]), np.full(2, SIGMA))
     assert d2[0] < 1.0 and d2[1] > G
     tr.taken.clear()
-    tr.taken.append((np.array([S1, S3]), np.array([bearing(A, S1), bearing(B, S3)]), np.full(2, SIGMA), ["df1", "df3"]))
+    tr.taken.append(Bearings(np.array([S1, S3]), np.array([bearing(A, S1), bearing(B, S3)]), np.full(2, SIGMA),
+                             ["df1", "df3"], [], 0.0))
     x, P = tr.without("df3")
     assert x is tr.last.x and P is tr.last.P
 
