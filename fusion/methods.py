@@ -27,7 +27,8 @@ from .df.methods import DF_METHODS
 from .df.multi import MultiEmitterMethod
 from .measurement.kinds import KINDS, RAY, SPHERE, kinds_of
 from .mtt import MultiTargetMethod
-from .network import NetworkMethod, Split, station_split, track_split
+from .df.stations import station_split
+from .network import NetworkMethod, Split, track_split
 from .patent import KINDS_3D, TrackerConfig, centralised, pieces_hndd, pieces_lcdd, pieces_stacked
 from .topology import TOPOLOGIES, scheme_of
 from .tracking.config import AssociationConfig

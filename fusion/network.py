@@ -22,12 +22,14 @@ KF+TR,     distributed  smooth each bearing             Torrieri on the latest s
 MKF+TR                                                  bearing of every station
 =========  ===========  ==============================  ================================
 
+(KF+TR and MKF+TR's nodes and centre: :mod:`fusion.df.stations`.)
+
 Tracks are initialised at the centre from the nodes' first measurements; a fed-back
 node waits for the centre's *horizon* so the result never depends on message timing
 (or runs on alone, timing-dependent, when told so). With ``association`` the nodes and
-centre track many targets (:class:`MultiTrackNode`, :class:`MultiTrackCentre`,
-:class:`MultiStationNode`, :class:`StationCentre`). The protocol, its ordering argument
-and the many-target rules in full: docs/network.md.
+centre track many targets (:class:`MultiTrackNode`, :class:`MultiTrackCentre`; the
+centre a configuration of :class:`fusion.tracking.manager.MultiTargetTracker`). The
+protocol, its ordering argument and the many-target rules in full: docs/network.md.
 """
 
 from __future__ import annotations
@@ -39,19 +41,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .angles import wrap_pi
-from .tracking.associators import gnn
 from .tracking.config import AssociationConfig
 from .tracking.hypotheses import Hypotheses, PlotHypothesiser, gate_threshold, track_distance2
 from .tracking.initiators import Initiator
 from .tracking.manager import Frame, MultiTargetTracker, Taken
 from .tracking.table import Track, TrackIds, TrackTable, scores_hit
-from .df.methods import DFConfig, SmootherTorrieriMethod, make_station_smoother
-from .df.models import bearing_of
-from .df.multi import MultiEmitterMethod
 from .init3d import initial_state
 from .grouping import TimeGrouper
-from .measurement.kinds import kinds_of
 from .patent import KINDS_3D, LocalTracker, TrackerConfig
 from .topology import Scheme
 from .track_fusion import TrackFuser
@@ -230,21 +226,6 @@ class TrackNode(LocalNode):
         return [self._uplink(m.t, self.tracker.update(m))]
 
 
-class StationNode(LocalNode):
-    """A DF station of KF+TR / MKF+TR: smooths its bearings, sends each smoothed
-    bearing (a ``bearing`` measurement with the smoothed std) up."""
-
-    kinds = kinds_of("df")
-
-    def __init__(self, sensor: str, config: dict | None, cross_fed: bool):
-        c = DFConfig.from_dict(config)
-        super().__init__(sensor, c.pair_tol)
-        self.smoother = make_station_smoother(c, cross_fed)
-
-    def _process(self, m, alone):
-        return [self._uplink(m.t, measurement=self.smoother.update(m))]
-
-
 # Centres -----------------------------------------------------------------------------
 class Centre:
     """Streaming interface of a centre: uplinks in ``(t, node, seq)`` order in,
@@ -393,33 +374,6 @@ def _at(e: Estimate, t: float) -> Estimate:
     return e if e.t == t else Estimate(t, e.x, e.P, e.method, e.node, e.track, e.nis, e.nis_dof, e.extra)
 
 
-class StationCentre(Centre):
-    """The centre of KF+TR / MKF+TR: Torrieri on the latest smoothed bearings
-    (:class:`fusion.df.methods.SmootherTorrieriMethod` with the smoothing done upstream);
-    with ``association`` in the table, on each emitter's: the smoothed bearings are
-    associated into emitters as raw ones are (:class:`fusion.df.multi.MultiEmitterMethod`)."""
-
-    def __init__(self, name: str, config: dict | None):
-        super().__init__()
-        self.name = name
-        association, rest = AssociationConfig.split(config)
-
-        def make() -> SmootherTorrieriMethod:
-            return SmootherTorrieriMethod(name == "MKF+TR", rest, smoothed_upstream=True)
-
-        self.method = make() if association is None else MultiEmitterMethod(name, make, association)
-
-    def process(self, u: Uplink) -> list[Estimate]:
-        return self.method.process(u.measurement)
-
-    def advance(self, t: float) -> list[Estimate]:
-        # t = inf is the end, which finish() closes (the DF methods take finite watermarks)
-        return self.method.advance(t) if math.isfinite(t) else []
-
-    def finish(self) -> list[Estimate]:
-        return self.method.finish()
-
-
 # Many targets --------------------------------------------------------------------------
 class FramedNode(LocalNode):
     """Base of the many-target nodes: the sensor's reports are grouped into frames
@@ -538,49 +492,6 @@ class MultiTrackNode(FramedNode):
         self.misses[lid] = 0
 
 
-class MultiStationNode(FramedNode):
-    """A DF station of KF+TR / MKF+TR with many emitters (module docstring, "Many
-    targets"): the bearings of a scan are plots of *bearing tracks*, one smoother each
-    (:func:`fusion.df.methods.make_station_smoother`), taken by χ²(1) gate on the
-    smoother's prediction and global nearest neighbour. A bearing no track takes starts
-    one; a track without a bearing for ``delete_misses`` scans is deleted. Every track's
-    smoothed bearing goes up as a bearing of the station: nothing says which emitter,
-    the centre associates them as it does raw bearings."""
-
-    kinds = kinds_of("df")
-
-    def __init__(self, sensor: str, config: dict | None, cross_fed: bool, association):
-        c = DFConfig.from_dict(config)
-        super().__init__(sensor, c.pair_tol)
-        self.config, self.cross_fed, self.association = c, cross_fed, association
-        self.tracks: list = []  # bearing smoothers, in birth order
-        self.misses: list[int] = []
-
-    def _process(self, frame: list[Measurement], alone: bool) -> list[Uplink]:
-        betas = np.array([bearing_of(m)[1] for m in frame])
-        sigmas = np.array([self.config.sigma_of(m) for m in frame])
-        taken: dict[int, int] = {}  # bearing -> track
-        if self.tracks:
-            x = np.array([tr.x[0] for tr in self.tracks])
-            var = np.array([tr.P[0, 0] + tr.q for tr in self.tracks])  # the smoother's predicted variance
-            r = wrap_pi(betas[None, :] - x[:, None])
-            taken = {c: k for k, c in gnn(r * r / (var[:, None] + sigmas[None, :] ** 2),
-                                          gate_threshold(1, self.association.gate_prob))}
-        old = len(self.tracks)
-        self.misses = [0 if k in taken.values() else n + 1 for k, n in enumerate(self.misses)]
-        out = []
-        for c, m in enumerate(frame):
-            if c not in taken:
-                taken[c] = len(self.tracks)
-                self.tracks.append(make_station_smoother(self.config, self.cross_fed))
-                self.misses.append(0)
-            out.append(self._uplink(m.t, measurement=self.tracks[taken[c]].update(m)))
-        keep = [k for k in range(len(self.tracks)) if k >= old or self.misses[k] < self.association.delete_misses]
-        self.tracks = [self.tracks[k] for k in keep]
-        self.misses = [self.misses[k] for k in keep]
-        return out
-
-
 class _Fused(Track):
     """One track of the centre's picture: its fuser (``filter``), its life, and its local tracks."""
 
@@ -696,7 +607,7 @@ class MultiTrackCentre(GroupedCentre):
         took: a local id the centre does not know (its fused track was deleted, or the
         node started it alone) is dropped; a mapped local track that left its gate is
         dropped and its node is sent the fused track again."""
-        if hyp.model is not None:
+        if not isinstance(hyp.plots[0], Uplink):  # the requests' plots
             return [hyp.plots[c] for c in columns]
         for c in columns:
             u = hyp.plots[c]
@@ -833,19 +744,6 @@ def track_split(name: str, scheme: Scheme) -> Split:
         return MultiTrackCentre(name, TrackerConfig.from_dict(rest), scheme, association)
 
     return Split(name, node, centre)
-
-
-def station_split(name: str, cross_fed: bool) -> Split:
-    """KF+TR (``cross_fed=False``) / MKF+TR: one emitter, or many with ``association``
-    in the table."""
-
-    def node(sensor, config):
-        association, rest = AssociationConfig.split(config)
-        if association is None:
-            return StationNode(sensor, rest, cross_fed)
-        return MultiStationNode(sensor, rest, cross_fed, association)
-
-    return Split(name, node, lambda c: StationCentre(name, c))
 
 
 # In-process composition -----------------------------------------------------------------

@@ -226,7 +226,7 @@ def test_a_station_of_the_distributed_kf_tr_smooths_each_emitter_apart():
     track of its own, which is deleted after ``delete_misses`` scans without a bearing."""
     from fusion.df.smoothing import BearingSmoother
     from fusion.mtt import AssociationConfig
-    from fusion.network import MultiStationNode
+    from fusion.df.stations import MultiStationNode
 
     association, rest = AssociationConfig.split({"association": "gnn", "delete_misses": 3, "sigma": SIGMA})
     node = MultiStationNode("df1", rest, False, association)
