@@ -162,19 +162,22 @@ class PlotHypothesiser:
                    confirmed: Sequence[bool]) -> Hypotheses:
         """The scan's hypotheses against tracks at ``states`` (``confirmed``: which are)."""
         model = model_of(scan[0], self.n_x)
+        gate = gate_threshold(model.n_z, self.gate_prob)
         Z = np.array([m.z for m in scan])
         d2 = np.full((len(states), len(scan)), np.inf)
-        for r, cols in self.candidates(states, Z):
+        for r, cols in self.candidates(model, gate, states, Z):
             d2[r, cols] = mahalanobis2(model, *states[r], Z[cols])
-        gate = np.full(len(states), gate_threshold(model.n_z, self.gate_prob))
-        return Hypotheses(scan, range(len(states)), d2, gate, np.array(confirmed, dtype=bool), model)
+        return Hypotheses(scan, range(len(states)), d2, np.full(len(states), gate), np.array(confirmed, dtype=bool),
+                          model)
 
-    def candidates(self, states: Sequence[tuple[np.ndarray, np.ndarray]], Z: np.ndarray) -> Iterable[tuple[int, Any]]:
-        """``(row, columns)``: the plots (rows of ``Z``) whose ``d²`` against each track is
-        worth computing. Today every plot for every track. A spatial index goes here — a
-        grid of the cells a track's gate can reach, or a k-d tree of the plots — so that
-        thousands of tracks do not cost tracks × plots distances; a pair it leaves out
-        must lie outside the gate (it stays at ``d² = inf``)."""
+    def candidates(self, model, gate: float, states: Sequence[tuple[np.ndarray, np.ndarray]],
+                   Z: np.ndarray) -> Iterable[tuple[int, Any]]:
+        """``(row, columns)``: the plots (rows of ``Z``, of the sensor ``model``) whose
+        ``d²`` against each track is worth computing. Today every plot for every track.
+        A spatial index goes here — a grid of the cells a track's gate ``G`` can reach,
+        or a k-d tree of the plots — so that thousands of tracks do not cost tracks ×
+        plots distances; a pair it leaves out must lie outside the gate (it stays at
+        ``d² = inf``)."""
         every = slice(None)
         return ((r, every) for r in range(len(states)))
 
