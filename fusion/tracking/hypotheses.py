@@ -30,6 +30,7 @@ from scipy.linalg import cho_factor, cho_solve
 from scipy.special import chdtri  # χ²⁻¹ without importing scipy.stats (0.3 s a process)
 
 from .. import kalman
+from .pda import ekf_update_weighted
 from ..angles import wrap_pi
 from ..measurement.kinds import model_of
 
@@ -184,15 +185,16 @@ class PlotHypothesiser:
     def condition(self, states: list, hyp: Hypotheses, association) -> None:
         """Sequential gating: the gating state of each track that took a plot of the
         scan, updated with it (``association``: the scan's, see
-        :mod:`fusion.tracking.associators`)."""
+        :mod:`fusion.tracking.associators`); with weights, the EKF's weighted update."""
         if not self.sequential:
             return
         for r, cols, beta, miss in association.per_row():
             i = hyp.rows[r]
             if len(cols) == 1 and miss == 0.0:
                 states[i] = gating_update(hyp.model, *states[i], hyp.plots[cols[0]].z)
-            else:
-                raise NotImplementedError("sequential gating on a weighted association")
+            else:  # weighted: the PDA mixture of the plots (fusion.tracking.pda)
+                Z = np.array([hyp.plots[c].z for c in cols])
+                states[i] = tuple(ekf_update_weighted(hyp.model, *states[i], Z, beta, miss)[:2])
 
     @staticmethod
     def unclaimed(hyp: Hypotheses, columns: Sequence[int]) -> list:

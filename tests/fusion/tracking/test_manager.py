@@ -7,11 +7,13 @@ from __future__ import annotations
 import numpy as np
 
 from fusion.methods import make_method
-from fusion.tracking.associators import GNN, Weights
-from fusion.tracking.hypotheses import Hypotheses, PlotHypothesiser, mahalanobis2
+from fusion.measurement.models import SphericalModel
+from fusion.tracking.associators import GNN, Assignment, Weights
+from fusion.tracking.hypotheses import Hypotheses, PlotHypothesiser, gating_update, mahalanobis2
 from fusion.tracking.manager import MultiTargetTracker
+from fusion.tracking.pda import ekf_update_weighted
 from fusion.tracking.table import CONFIRMED, DELETED, ManagementRule, Track, TrackLogic, TrackTable
-from fusion.types import Estimate
+from fusion.types import Estimate, Measurement
 from services.evaluation import merged_measurements, run_method
 
 
@@ -181,3 +183,21 @@ class _Plot:
     def __repr__(self):
         return f"_Plot({self.t}, {self.sensor!r})"
 
+
+def test_sequential_gating_on_weights_is_the_weighted_update():
+    """A scan decided by weights conditions the gating state on the PDA mixture of its
+    plots (the next sensor is gated against that); an assignment on the one plot taken."""
+    model = SphericalModel(("az", "range"), [0.0, 0.0, 0.0], [1e-3, 20.0], 9)
+    x = np.r_[0.0, 20e3, 3e3, np.zeros(6)]
+    P = np.diag(np.r_[[200.0**2] * 3, [50.0**2] * 3, [1.0] * 3])
+    plots = [Measurement(0.0, "r", "range_az", model.h(x) + d, np.array([1e-3, 20.0]), np.zeros(3), k)
+             for k, d in enumerate(([2e-3, 30.0], [-1e-3, -40.0], [0.0, 300.0]))]
+    hyp = PlotHypothesiser(9, 0.999).hypotheses([(x, P)], plots, [True])
+    states = [(x, P)]
+    PlotHypothesiser(9, 0.999).condition(states, hyp, Weights(np.array([[0.5, 0.3, 0.0]]), np.array([0.2])))
+    want = ekf_update_weighted(model, x, P, np.array([plots[0].z, plots[1].z]), [0.5, 0.3], 0.2)
+    np.testing.assert_array_equal(states[0][0], want.x)
+    np.testing.assert_array_equal(states[0][1], want.P)
+    states = [(x, P)]
+    PlotHypothesiser(9, 0.999).condition(states, hyp, Assignment(((0, 1),)))
+    np.testing.assert_array_equal(states[0][0], gating_update(model, x, P, plots[1].z)[0])
