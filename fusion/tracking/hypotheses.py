@@ -30,8 +30,8 @@ from scipy.linalg import cho_factor, cho_solve
 from scipy.special import chdtri  # χ²⁻¹ without importing scipy.stats (0.3 s a process)
 
 from .. import kalman
-from .pda import ekf_update_weighted
 from ..angles import wrap_pi
+from ..ekf import ekf_update_weighted
 from ..measurement.kinds import model_of
 
 
@@ -192,9 +192,10 @@ class PlotHypothesiser:
             i = hyp.rows[r]
             if len(cols) == 1 and miss == 0.0:
                 states[i] = gating_update(hyp.model, *states[i], hyp.plots[cols[0]].z)
-            else:  # weighted: the PDA mixture of the plots (fusion.tracking.pda)
+            else:  # weighted: the PDA mixture of the plots (fusion.pda)
                 Z = np.array([hyp.plots[c].z for c in cols])
-                states[i] = tuple(ekf_update_weighted(hyp.model, *states[i], Z, beta, miss)[:2])
+                res, _ = ekf_update_weighted(hyp.model, *states[i], Z, beta, miss)
+                states[i] = res.x, res.P
 
     @staticmethod
     def unclaimed(hyp: Hypotheses, columns: Sequence[int]) -> list:

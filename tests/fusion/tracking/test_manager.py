@@ -6,12 +6,12 @@ from __future__ import annotations
 
 import numpy as np
 
+from fusion.ekf import ekf_update_weighted
 from fusion.methods import make_method
 from fusion.measurement.models import SphericalModel
 from fusion.tracking.associators import GNN, Assignment, Weights
 from fusion.tracking.hypotheses import Hypotheses, PlotHypothesiser, gating_update, mahalanobis2
 from fusion.tracking.manager import MultiTargetTracker
-from fusion.tracking.pda import ekf_update_weighted
 from fusion.tracking.table import CONFIRMED, DELETED, ManagementRule, Track, TrackLogic, TrackTable
 from fusion.types import Estimate, Measurement
 from services.evaluation import merged_measurements, run_method
@@ -195,7 +195,7 @@ def test_sequential_gating_on_weights_is_the_weighted_update():
     hyp = PlotHypothesiser(9, 0.999).hypotheses([(x, P)], plots, [True])
     states = [(x, P)]
     PlotHypothesiser(9, 0.999).condition(states, hyp, Weights(np.array([[0.5, 0.3, 0.0]]), np.array([0.2])))
-    want = ekf_update_weighted(model, x, P, np.array([plots[0].z, plots[1].z]), [0.5, 0.3], 0.2)
+    want, _ = ekf_update_weighted(model, x, P, np.array([plots[0].z, plots[1].z]), [0.5, 0.3], 0.2)
     np.testing.assert_array_equal(states[0][0], want.x)
     np.testing.assert_array_equal(states[0][1], want.P)
     states = [(x, P)]

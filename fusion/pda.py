@@ -18,10 +18,12 @@ track's" (``N(x⁻ + K νⱼ, Pᶜ)``, weight ``βⱼ``) and "none is" (``N(x⁻
 ``β₀``), moment-matched (Bar-Shalom, Daum and Huang 2009). One plot with ``β₁ = 1`` is
 the filter's own update; ``β₀ = 1`` leaves the prediction.
 
-:func:`pda_moments` is the combination given any filter's ``K`` and ``Pᶜ``;
-:func:`ekf_update_weighted` linearises the measurement model at ``x⁻`` as the EKF does
-(one ``H``, angle-wrapped ``νⱼ``, ``Pᶜ`` in Joseph form). Tested against the mixture and
-against Stone Soup's ``PDAUpdater`` (tests/fusion/tracking/test_pda.py).
+:func:`pda_moments` is the combination given any filter's ``K`` and ``Pᶜ``; each filter's
+``update_weighted`` forms them its own way (:func:`fusion.ekf.ekf_update_weighted`: ``H``
+at ``x⁻``, ``Pᶜ`` in Joseph form; :meth:`fusion.ukf.TrackUKF.update_weighted`: sigma
+points; :meth:`fusion.imm.TrackIMM.update_weighted`: per model, with the mode
+probabilities). Tested against the mixture and against Stone Soup's ``PDAUpdater``
+(tests/fusion/test_pda.py).
 """
 
 from __future__ import annotations
@@ -30,7 +32,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .. import kalman
+from . import kalman
 
 
 class WeightedUpdate(NamedTuple):
@@ -68,17 +70,3 @@ def pda_moments(x: np.ndarray, P: np.ndarray, K: np.ndarray, P_c: np.ndarray, nu
     spread = np.einsum("j,ja,jb->ab", beta, nus, nus) - np.outer(nu, nu)
     P_new = beta0 * P + (1.0 - beta0) * P_c + K @ spread @ K.T
     return x + K @ nu, kalman.symmetrise(P_new), nu
-
-
-def ekf_update_weighted(model, x: np.ndarray, P: np.ndarray, Z: np.ndarray, beta, beta0: float) -> WeightedUpdate:
-    """The weighted update of ``(x, P)`` (the prediction) with the plots ``Z (m, n_z)`` of
-    one sensor ``model`` (``innovation_and_jacobian``, ``R``), linearised at ``x``."""
-    Z = np.atleast_2d(np.asarray(Z, dtype=float))
-    if len(Z) == 0:
-        raise ValueError("a weighted update needs at least one plot (no plot: the prediction)")
-    pairs = [model.innovation_and_jacobian(z, x) for z in Z]
-    nus = np.array([nu for nu, _ in pairs])
-    H = pairs[0][1]  # linearised at x: one H for every plot
-    one = kalman.update(x, P, np.zeros(len(nus[0])), H, model.R)  # K, S and Pᶜ (Joseph form) at x
-    x_new, P_new, nu = pda_moments(x, P, one.K, one.P, nus, beta, beta0)
-    return WeightedUpdate(x_new, P_new, nus, nu, one.S, one.K)
