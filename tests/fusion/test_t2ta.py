@@ -293,7 +293,7 @@ RUNS = 5
 #   PHHNV    0.92–1.18 (1.01)   ≥ .988  9 (≤ 2 per run)   0             .935
 #   DDHNV    0.92–1.18 (1.01)   ≥ .988  9 (≤ 2 per run)   0             .935
 # (The breaks of SS, PHHNV and DDHNV: a track fed by an angle sensor alone at a
-# crossing scores misses (fusion.mtt.scores_hit), is lost and started again a few
+# crossing scores misses (fusion.tracking.table.scores_hit), is lost and started again a few
 # frames later; every target is held at the end of every run.)
 # HNV's local angle tracks cannot observe range and its radar tracks not altitude
 # (docs/consistency.md §5): at a crossing a radar track may leave its fused track's
