@@ -7,8 +7,9 @@ model's ``f(x)`` and its Jacobian), update with any
     H = ∂h/∂x(x⁻),   ν = z − h(x⁻) (angle rows wrapped),   then fusion.kalman.update
 
 (Joseph form, NIS). :func:`iterated_ekf_update` relinearises at the updated state
-(Gauss–Newton on the MAP cost). :class:`TrackEKF` is the filter of the
-:class:`fusion.filters.Filter` protocol built on them.
+(Gauss–Newton on the MAP cost). :func:`ekf_update_weighted` is the weighted (PDA) update
+of several plots of one scan, linearised at the prediction (:mod:`fusion.pda`).
+:class:`TrackEKF` is the filter of the :class:`fusion.filters.Filter` protocol built on them.
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ import numpy as np
 
 from . import kalman
 from .measurement.models import MeasurementModel
+from .pda import WeightedUpdate, pda_moments
 
 
 def motion_predict(motion, x: np.ndarray, P: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
@@ -77,6 +79,30 @@ def ekf_update(model: MeasurementModel, x: np.ndarray, P: np.ndarray, z: np.ndar
     return _ekf_update(model, x, P, z)[0]
 
 
+def ekf_innovations(model: MeasurementModel, x: np.ndarray, P: np.ndarray,
+                    Z: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(νs (m, n_z), S, H)``: the angle-wrapped innovations of the plots ``Z (m, n_z)``
+    of ``model`` against the prediction ``(x, P)``, their covariance ``S = H P Hᵀ + R``
+    and ``H = ∂h/∂x(x)``."""
+    Z = np.atleast_2d(np.asarray(Z, dtype=float))
+    if len(Z) == 0:
+        raise ValueError("innovations of no plot")
+    pairs = [model.innovation_and_jacobian(z, x) for z in Z]
+    H = pairs[0][1]  # linearised at x: one H for every plot
+    return np.array([nu for nu, _ in pairs]), kalman.symmetrise(H @ P @ H.T + model.R), H
+
+
+def ekf_update_weighted(model: MeasurementModel, x: np.ndarray, P: np.ndarray, Z: np.ndarray, beta,
+                        beta0: float) -> tuple[WeightedUpdate, np.ndarray]:
+    """The weighted (PDA) update of the prediction ``(x, P)`` with the plots ``Z (m, n_z)``
+    of one sensor ``model``, linearised at ``x`` (one ``H``, wrapped ``νⱼ``; ``K`` and
+    ``Pᶜ`` those of :func:`fusion.kalman.update`, Joseph form): the result and ``H``."""
+    nus, _, H = ekf_innovations(model, x, P, Z)
+    one = kalman.update(x, P, np.zeros(nus.shape[1]), H, model.R)  # K, S and Pᶜ at x
+    x_new, P_new, nu = pda_moments(x, P, one.K, one.P, nus, beta, beta0)
+    return WeightedUpdate(x_new, P_new, nus, nu, one.S, one.K), H
+
+
 class TrackEKF:
     r"""Extended Kalman filter of one 3D track.
 
@@ -118,6 +144,20 @@ class TrackEKF:
             res, self.H = iterated_ekf_update(model, self.x, self.P, z, self.iterations)
         else:
             res, self.H = _ekf_update(model, self.x, self.P, z)
+        self.x, self.P, self._K = res.x, res.P, res.K
+        return res
+
+    def innovations(self, model: MeasurementModel, Z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The plots' innovations against the filter's state and their covariance ``S``
+        (:func:`ekf_innovations`), without changing the filter."""
+        return ekf_innovations(model, self.x, self.P, Z)[:2]
+
+    def update_weighted(self, model: MeasurementModel, Z: np.ndarray, beta, beta0: float) -> WeightedUpdate:
+        """The weighted (PDA) update at the filter's current time with the plots ``Z`` of
+        one scan, ``beta`` each and ``beta0`` for none (:mod:`fusion.pda`); linearised
+        once at the prediction, whatever ``iterations``. ``K·H`` is then the gain of the
+        combined innovation."""
+        res, self.H = ekf_update_weighted(model, self.x, self.P, Z, beta, beta0)
         self.x, self.P, self._K = res.x, res.P, res.K
         return res
 

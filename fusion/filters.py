@@ -10,6 +10,11 @@ A filter holds a Gaussian ``(x, P)`` at time ``t`` and offers
 * :meth:`Filter.update` ``(model, z)``, the update with a measurement ``z`` of a
   :class:`fusion.measurement.models.MeasurementModel` at the current time, returning the
   step's ``UpdateResult`` (ν, S, NIS, K);
+* :meth:`Filter.update_weighted` ``(model, Z, β, β₀)``, the weighted (PDA) update with
+  several plots of one scan, each the track's with probability ``βⱼ`` and none with
+  ``β₀`` (:mod:`fusion.pda`; the IMM's per model, with its mode probabilities);
+* :meth:`Filter.innovations` ``(model, Z)``, the plots' innovations and their ``S``
+  without changing the filter (an EKF's or UKF's; what an associator's likelihoods need);
 * :attr:`Filter.KH`, ``K·H`` of the last update: what the track-fusion rules need of a
   local update (:mod:`fusion.track_fusion`). For a filter that does not linearise,
   ``H`` is the statistical linearisation ``Pₓᵤᵀ P⁻⁻¹``, so ``P⁺ = (I − K·H) P⁻``
@@ -32,6 +37,7 @@ from .imm import ModelSet, TrackIMM
 from .ekf import TrackEKF
 from .kalman import UpdateResult
 from .measurement.models import MeasurementModel
+from .pda import WeightedUpdate
 from .ukf import TrackUKF
 
 
@@ -46,6 +52,7 @@ class Filter(Protocol):
     def predicted(self, t: float) -> tuple[np.ndarray, np.ndarray]: ...
     def predict(self, t: float) -> None: ...
     def update(self, model: MeasurementModel, z: np.ndarray) -> UpdateResult: ...
+    def update_weighted(self, model: MeasurementModel, Z: np.ndarray, beta, beta0: float) -> WeightedUpdate: ...
 
     @property
     def KH(self) -> np.ndarray: ...

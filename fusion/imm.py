@@ -42,6 +42,7 @@ import numpy as np
 from scipy.linalg import expm
 
 from . import kalman
+from .pda import WeightedUpdate, check_weights
 from .motion import ConstantAcceleration, ConstantTurn, CoordinatedTurn, KinematicModel, PaddedConstantVelocity
 from .ekf import motion_predict
 
@@ -248,6 +249,54 @@ class TrackIMM:
         v = L_inv @ nu
         K = np.outer(self.x - x_prior, L_inv.T @ v) / max(float(v @ v), np.finfo(float).tiny)
         return kalman.UpdateResult(self.x, self.P, nu, S, float(v @ v), K)
+
+    def update_weighted(self, model, Z: np.ndarray, beta, beta0: float) -> WeightedUpdate:
+        r"""The weighted (PDA) update at the filter's time with the plots ``Z`` of one
+        scan, ``beta`` each and ``beta0`` for none (:mod:`fusion.pda`), per model.
+
+        With ``Nᵢⱼ = N(νᵢⱼ; 0, Sⱼ)`` the likelihood of plot ``i`` under model ``j``
+        (its own innovation and ``S``) and ``N̄ᵢ = Σⱼ c̄ⱼ Nᵢⱼ`` the mixture's::
+
+            Λⱼ = β₀ + Σᵢ βᵢ Nᵢⱼ / N̄ᵢ,      μⱼ = c̄ⱼ Λⱼ                (Σⱼ μⱼ = 1)
+            βᵢ|ⱼ = βᵢ Nᵢⱼ / (N̄ᵢ Λⱼ),       β₀|ⱼ = β₀ / Λⱼ
+
+        and model ``j``'s filter takes the weighted update with ``βᵢ|ⱼ, β₀|ⱼ``. This is
+        the joint posterior over (model, association) when ``β`` came from the IMM's
+        own predicted likelihood of the plots, ``N̄ᵢ`` (IMM-PDA): the association
+        probabilities ``βᵢ ∝ P_D N̄ᵢ / λ``, ``β₀ ∝ 1 − P_D P_G`` carry ``P_D`` and the
+        clutter density ``λ``, and dividing by ``N̄ᵢ`` leaves what each model adds. From
+        ``β`` computed on the moment-matched prediction it is an approximation. One
+        sure plot (``β₁ = 1``) is :meth:`update`; ``β₀ = 1`` changes nothing. The
+        track's Gaussian is the mixture; the returned ``νs``, ``S`` are the
+        ``c̄``-weighted means of the models', ``K`` a least-squares gain as in
+        :meth:`update`."""
+        Z = np.atleast_2d(np.asarray(Z, dtype=float))
+        beta = check_weights(beta, beta0, len(Z))
+        prior = self.mu
+        self._prior_P, x_prior = self.P, self.x
+        stats = [f.innovations(model, Z) for f in self.filters]
+        logn = np.array([[kalman.gaussian_loglikelihood(nu, S) for nu in nus] for nus, S in stats])  # (models, plots)
+        with np.errstate(divide="ignore"):
+            ell = np.log(prior)[:, None] + logn
+        top = ell.max(axis=0)
+        log_mix = top + np.log(np.exp(ell - top).sum(axis=0))  # log N̄ᵢ
+        ratio = np.exp(logn - log_mix)  # Nᵢⱼ / N̄ᵢ
+        lam = beta0 + ratio @ beta
+        mu = prior * lam
+        for f, r, l in zip(self.filters, ratio, lam):
+            if l > 0.0:
+                f.update_weighted(model, Z, beta * r / l, beta0 / l)
+        self.mu = mu / mu.sum()
+        self.x, self.P = kalman.gaussian_mixture(self.mu, np.array([f.x for f in self.filters]),
+                                                 np.array([f.P for f in self.filters]))
+        self._post_P = self.P
+        nus = np.einsum("j,jia->ia", prior, np.array([n for n, _ in stats]))
+        S = np.einsum("j,jab->ab", prior, np.array([S for _, S in stats]))
+        nu = beta @ nus
+        L_inv = kalman.inverse_cholesky_factor(S)
+        v = L_inv @ nu
+        K = np.outer(self.x - x_prior, L_inv.T @ v) / max(float(v @ v), np.finfo(float).tiny)
+        return WeightedUpdate(self.x, self.P, nus, nu, S, K)
 
     @property
     def KH(self) -> np.ndarray:

@@ -10,10 +10,11 @@ patent's). The command line's choices, the evaluation's default methods and the
 launcher's defaults read it; nothing else lists methods.
 
 Many targets: a ``[tracker]`` table with ``association`` makes the named method a
-many-target one and it keeps its name. A centralised 3D method is wrapped in
-:class:`fusion.mtt.MultiTargetMethod` (one instance per track), a DF method in
-:class:`fusion.df.multi.MultiEmitterMethod`; the split methods associate in their own
-nodes and centre (:mod:`fusion.network`).
+many-target one and it keeps its name; its record says how (``many``): a centralised 3D
+method is a :class:`fusion.mtt.MultiTargetMethod` (a filter per track, updated with the
+method's scan update), a centralised DF method a :class:`fusion.df.multi.MultiEmitterMethod`
+(an instance of it per emitter); the split methods associate in their own nodes and
+centre (:mod:`fusion.network`).
 """
 
 from __future__ import annotations
@@ -25,10 +26,12 @@ from typing import Any, Callable, Mapping, Sequence
 from .df.methods import DF_METHODS
 from .df.multi import MultiEmitterMethod
 from .measurement.kinds import KINDS, RAY, SPHERE, kinds_of
-from .mtt import AssociationConfig, MultiTargetMethod
-from .network import NetworkMethod, Split, station_split, track_split
+from .mtt import MultiTargetMethod
+from .df.stations import station_split
+from .network import NetworkMethod, Split, track_split
 from .patent import KINDS_3D, TrackerConfig, centralised, pieces_hndd, pieces_lcdd, pieces_stacked
 from .topology import TOPOLOGIES, scheme_of
+from .tracking.config import AssociationConfig
 
 FAMILIES = ("df", "3d")
 BEARING = kinds_of("df")
@@ -50,6 +53,8 @@ class MethodSpec:
         fixed_stations: needs fixed DF stations (per-station bearing smoothers).
         split: its local node and centre (``None`` for a centralised method); with
             many targets a split method runs them (:class:`fusion.network.NetworkMethod`).
+        many: ``many(table) -> Method`` from a resolved ``[tracker]`` table with
+            ``association`` (many targets).
     """
 
     name: str
@@ -62,6 +67,7 @@ class MethodSpec:
     colocated: bool = False
     fixed_stations: bool = False
     split: Split | None = None
+    many: Callable[[dict], Any] | None = None
 
     def __post_init__(self):
         if self.family not in FAMILIES or self.topology not in TOPOLOGIES:
@@ -76,19 +82,25 @@ class MethodSpec:
 
 
 def _centralised(name: str, pieces, kinds=KINDS_3D, **facts) -> MethodSpec:
-    return MethodSpec(name, "3d", "centralised", frozenset(kinds), partial(centralised, name, pieces, kinds), **facts)
+    return MethodSpec(name, "3d", "centralised", frozenset(kinds), partial(centralised, name, pieces, kinds),
+                      many=partial(MultiTargetMethod.from_table, name, pieces, kinds), **facts)
 
 
 def _track_split(name: str, topology: str) -> MethodSpec:
     split = track_split(name, scheme_of(topology))
-    return MethodSpec(name, "3d", topology, KINDS_3D, partial(NetworkMethod, split), fuses_tracks=True, split=split)
+    network = partial(NetworkMethod, split)
+    return MethodSpec(name, "3d", topology, KINDS_3D, network, fuses_tracks=True, split=split, many=network)
 
 
 def _df(name: str, split: Split | None = None) -> MethodSpec:
     """A DF method; in-process, a split one runs as one method (:data:`DF_METHODS`), which
-    equals its nodes and centre wired back to back."""
-    topology = "centralised" if split is None else "distributed"
-    return MethodSpec(name, "df", topology, BEARING, DF_METHODS[name], fixed_stations=split is not None, split=split)
+    equals its nodes and centre wired back to back (with many emitters, as the nodes
+    and centre themselves)."""
+    if split is None:
+        return MethodSpec(name, "df", "centralised", BEARING, DF_METHODS[name],
+                          many=partial(MultiEmitterMethod.from_table, name, DF_METHODS[name]))
+    return MethodSpec(name, "df", "distributed", BEARING, DF_METHODS[name], fixed_stations=True, split=split,
+                      many=partial(NetworkMethod, split))
 
 
 _PAIR = frozenset(k for k in KINDS_3D if KINDS[k].start in (RAY, SPHERE))  # a ray and a sphere (LCDD, HNDD)
@@ -142,16 +154,8 @@ def topology_default(topology: str, family: str) -> str | None:
 def make_method(name: str, config: dict | None = None) -> Any:
     """Build method ``name`` from a resolved ``[tracker]`` table (:func:`method_config`)."""
     s = spec(name)
-    association, rest = AssociationConfig.split(config)
-    if association is None:
-        return s.make(dict(config or {}))
-    if s.split is not None:  # it associates in its own nodes and centre
-        return NetworkMethod(s.split, dict(config or {}))
-    if s.family == "df" and rest.get("motion", "static") != "static":
-        raise ValueError(f"association with motion = {rest['motion']!r}: many emitters are tracked as static ones "
-                         "(the bearing association gates on their latest positions)")
-    wrap = MultiEmitterMethod if s.family == "df" else MultiTargetMethod
-    return wrap(name, lambda: s.make(dict(rest)), association)
+    association, _ = AssociationConfig.split(config)
+    return (s.make if association is None else s.many)(dict(config or {}))
 
 
 def method_config(table: Mapping[str, Any] | None, method: str | None,

@@ -22,12 +22,14 @@ KF+TR,     distributed  smooth each bearing             Torrieri on the latest s
 MKF+TR                                                  bearing of every station
 =========  ===========  ==============================  ================================
 
+(KF+TR and MKF+TR's nodes and centre: :mod:`fusion.df.stations`.)
+
 Tracks are initialised at the centre from the nodes' first measurements; a fed-back
 node waits for the centre's *horizon* so the result never depends on message timing
 (or runs on alone, timing-dependent, when told so). With ``association`` the nodes and
-centre track many targets (:class:`MultiTrackNode`, :class:`MultiTrackCentre`,
-:class:`MultiStationNode`, :class:`StationCentre`). The protocol, its ordering argument
-and the many-target rules in full: docs/network.md.
+centre track many targets (:class:`MultiTrackNode`, :class:`MultiTrackCentre`; the
+centre a configuration of :class:`fusion.tracking.manager.MultiTargetTracker`). The
+protocol, its ordering argument and the many-target rules in full: docs/network.md.
 """
 
 from __future__ import annotations
@@ -39,15 +41,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .angles import wrap_pi
-from .association import CONFIRMED, DELETED, TrackIds, TrackLogic, gate_threshold, gnn, mahalanobis2, track_distance2
-from .df.methods import DFConfig, SmootherTorrieriMethod, make_station_smoother
-from .df.models import bearing_of
-from .df.multi import MultiEmitterMethod
+from .tracking.config import AssociationConfig
+from .tracking.hypotheses import Hypotheses, PlotHypothesiser, gate_threshold, track_distance2
+from .tracking.initiators import Initiator
+from .tracking.manager import Frame, MultiTargetTracker, Taken
+from .tracking.table import Track, TrackIds, TrackTable, scores_hit
 from .init3d import initial_state
 from .grouping import TimeGrouper
-from .measurement.kinds import kinds_of, model_of
-from .mtt import AssociationConfig, Initiator, scores_hit
 from .patent import KINDS_3D, LocalTracker, TrackerConfig
 from .topology import Scheme
 from .track_fusion import TrackFuser
@@ -226,21 +226,6 @@ class TrackNode(LocalNode):
         return [self._uplink(m.t, self.tracker.update(m))]
 
 
-class StationNode(LocalNode):
-    """A DF station of KF+TR / MKF+TR: smooths its bearings, sends each smoothed
-    bearing (a ``bearing`` measurement with the smoothed std) up."""
-
-    kinds = kinds_of("df")
-
-    def __init__(self, sensor: str, config: dict | None, cross_fed: bool):
-        c = DFConfig.from_dict(config)
-        super().__init__(sensor, c.pair_tol)
-        self.smoother = make_station_smoother(c, cross_fed)
-
-    def _process(self, m, alone):
-        return [self._uplink(m.t, measurement=self.smoother.update(m))]
-
-
 # Centres -----------------------------------------------------------------------------
 class Centre:
     """Streaming interface of a centre: uplinks in ``(t, node, seq)`` order in,
@@ -389,33 +374,6 @@ def _at(e: Estimate, t: float) -> Estimate:
     return e if e.t == t else Estimate(t, e.x, e.P, e.method, e.node, e.track, e.nis, e.nis_dof, e.extra)
 
 
-class StationCentre(Centre):
-    """The centre of KF+TR / MKF+TR: Torrieri on the latest smoothed bearings
-    (:class:`fusion.df.methods.SmootherTorrieriMethod` with the smoothing done upstream);
-    with ``association`` in the table, on each emitter's: the smoothed bearings are
-    associated into emitters as raw ones are (:class:`fusion.df.multi.MultiEmitterMethod`)."""
-
-    def __init__(self, name: str, config: dict | None):
-        super().__init__()
-        self.name = name
-        association, rest = AssociationConfig.split(config)
-
-        def make() -> SmootherTorrieriMethod:
-            return SmootherTorrieriMethod(name == "MKF+TR", rest, smoothed_upstream=True)
-
-        self.method = make() if association is None else MultiEmitterMethod(name, make, association)
-
-    def process(self, u: Uplink) -> list[Estimate]:
-        return self.method.process(u.measurement)
-
-    def advance(self, t: float) -> list[Estimate]:
-        # t = inf is the end, which finish() closes (the DF methods take finite watermarks)
-        return self.method.advance(t) if math.isfinite(t) else []
-
-    def finish(self) -> list[Estimate]:
-        return self.method.finish()
-
-
 # Many targets --------------------------------------------------------------------------
 class FramedNode(LocalNode):
     """Base of the many-target nodes: the sensor's reports are grouped into frames
@@ -463,6 +421,8 @@ class MultiTrackNode(FramedNode):
         self.association = association
         self.motion = config.motion_model()
         self._new_filter = config.new_filter(self.motion)
+        self._hypothesiser = PlotHypothesiser(self.motion.n_x, association.gate_prob, sequential=False)
+        self._associator = association.associator()
         self.tracks: dict[str, LocalTracker] = {}  # local id -> tracker, in creation order
         self.misses: dict[str, int] = {}
         # The centre names the local tracks it starts (the init's ``track``); a track the
@@ -500,15 +460,10 @@ class MultiTrackNode(FramedNode):
     def _process(self, frame: list[Measurement], alone: bool) -> list[Uplink]:
         t = frame[0].t
         ids = list(self.tracks)
-        model = model_of(frame[0], self.motion.n_x)
-        pairs = []
-        if ids:
-            Z = np.array([m.z for m in frame])
-            d2 = np.array([mahalanobis2(model, *self.tracks[i].predicted(t), Z) for i in ids])
-            pairs = gnn(d2, gate_threshold(model.n_z, self.association.gate_prob))
+        hyp = self._hypothesiser.hypotheses([self.tracks[i].predicted(t) for i in ids], frame, [True] * len(ids))
         out: list[Uplink] = []
         taken = {}
-        for r, c in pairs:
+        for r, c in self._associator.associate(hyp).pairs:
             lid, m = ids[r], frame[c]
             taken[c] = lid
             tr = self.tracks[lid]
@@ -537,64 +492,36 @@ class MultiTrackNode(FramedNode):
         self.misses[lid] = 0
 
 
-class MultiStationNode(FramedNode):
-    """A DF station of KF+TR / MKF+TR with many emitters (module docstring, "Many
-    targets"): the bearings of a scan are plots of *bearing tracks*, one smoother each
-    (:func:`fusion.df.methods.make_station_smoother`), taken by χ²(1) gate on the
-    smoother's prediction and global nearest neighbour. A bearing no track takes starts
-    one; a track without a bearing for ``delete_misses`` scans is deleted. Every track's
-    smoothed bearing goes up as a bearing of the station: nothing says which emitter,
-    the centre associates them as it does raw bearings."""
+class _Fused(Track):
+    """One track of the centre's picture: its fuser (``filter``), its life, and its local tracks."""
 
-    kinds = kinds_of("df")
+    __slots__ = ("members", "joins")
 
-    def __init__(self, sensor: str, config: dict | None, cross_fed: bool, association):
-        c = DFConfig.from_dict(config)
-        super().__init__(sensor, c.pair_tol)
-        self.config, self.cross_fed, self.association = c, cross_fed, association
-        self.tracks: list = []  # bearing smoothers, in birth order
-        self.misses: list[int] = []
-
-    def _process(self, frame: list[Measurement], alone: bool) -> list[Uplink]:
-        betas = np.array([bearing_of(m)[1] for m in frame])
-        sigmas = np.array([self.config.sigma_of(m) for m in frame])
-        taken: dict[int, int] = {}  # bearing -> track
-        if self.tracks:
-            x = np.array([tr.x[0] for tr in self.tracks])
-            var = np.array([tr.P[0, 0] + tr.q for tr in self.tracks])  # the smoother's predicted variance
-            r = wrap_pi(betas[None, :] - x[:, None])
-            taken = {c: k for k, c in gnn(r * r / (var[:, None] + sigmas[None, :] ** 2),
-                                          gate_threshold(1, self.association.gate_prob))}
-        old = len(self.tracks)
-        self.misses = [0 if k in taken.values() else n + 1 for k, n in enumerate(self.misses)]
-        out = []
-        for c, m in enumerate(frame):
-            if c not in taken:
-                taken[c] = len(self.tracks)
-                self.tracks.append(make_station_smoother(self.config, self.cross_fed))
-                self.misses.append(0)
-            out.append(self._uplink(m.t, measurement=self.tracks[taken[c]].update(m)))
-        keep = [k for k in range(len(self.tracks)) if k >= old or self.misses[k] < self.association.delete_misses]
-        self.tracks = [self.tracks[k] for k in keep]
-        self.misses = [self.misses[k] for k in keep]
-        return out
-
-
-class _Fused:
-    """One track of the centre's picture: its fuser, its life, and its local tracks."""
-
-    def __init__(self, key: str, fuser: TrackFuser, logic, last: Estimate):
-        self.key, self.fuser, self.logic, self.last = key, fuser, logic, last
-        self.id: str | None = None  # published id, given at confirmation
+    def __init__(self, fuser: TrackFuser, last: Estimate):
+        super().__init__(fuser, last)
         self.members: dict[str, str] = {}  # node -> its local id on this track
         self.joins: set[str] = set()  # nodes to send an init after this frame
+
+    @property
+    def fuser(self) -> TrackFuser:
+        return self.filter
+
+    @property
+    def key(self) -> str:
+        """The centre's own name of the track, from birth (``F<n>``)."""
+        return f"F{self.birth}"
 
 
 class MultiTrackCentre(GroupedCentre):
     """The centre of HNV / PHHNV / DDHNV with many targets (module docstring, "Many
-    targets"): frames of uplinks; track-to-track association of every node's local
-    tracks with the fused tracks; one :class:`~fusion.track_fusion.TrackFuser` per
-    fused track; initiation from the initialisation requests; M-of-N management."""
+    targets"): frames of uplinks through a :class:`~fusion.tracking.manager.MultiTargetTracker`
+    whose plots are the nodes' local tracks (track-to-track costs) and their
+    initialisation requests, one :class:`~fusion.track_fusion.TrackFuser` per fused
+    track, initiation from the requests no fused track took, M-of-N management.
+
+    The tracker's parts are this centre's methods: :meth:`predict`, :meth:`scans`,
+    :meth:`hypothesise`, :meth:`condition`, :meth:`unclaimed` (hypothesiser),
+    :meth:`update`, :meth:`position_cov`, :meth:`start` (updater), :meth:`review`."""
 
     def __init__(self, name: str, config: TrackerConfig, scheme: Scheme, association):
         super().__init__()
@@ -602,105 +529,151 @@ class MultiTrackCentre(GroupedCentre):
         self.config = config
         self.scheme = scheme
         self.association = association
-        self.rule = association.rule()
         self.motion = config.motion_model()
         self._new_filter = config.new_filter(self.motion)
-        self.tracks: list[_Fused] = []  # confirmed in id order, then tentative in birth order
-        self._initiator = Initiator(self.motion.n_x, config.priors(), association.gate_prob)
         self._grouper = TimeGrouper(config.pair_tol)
-        self._ids = TrackIds()
-        self._births = 0
+        self._plots = PlotHypothesiser(self.motion.n_x, association.gate_prob, sequential=False)
         self._duplicates = association.duplicate_watch()
+        self.tracker = MultiTargetTracker(self, association.associator(confirmed_first=False),
+                                          Initiator(self.motion.n_x, config.priors(), association.gate_prob),
+                                          self, association.table(), self)
         self._mapped: dict[tuple[str, str], _Fused] = {}  # (node, local id) -> fused track
         self._local_ids: dict[str, TrackIds] = {}  # node -> the names of the local tracks it is sent
         self._kinds: dict[str, str] = {}  # node -> its sensor's measurement kind
+        self._t = -math.inf  # this frame's time
+        self._predicted: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # birth -> prediction, this frame
+
+    @property
+    def table(self) -> TrackTable:
+        return self.tracker.table
+
+    @property
+    def tracks(self) -> list[_Fused]:
+        """The fused tracks, in priority order."""
+        return self.tracker.tracks
 
     # -- one frame -------------------------------------------------------------------------
     def _group(self, frame: list[Uplink]) -> list[Estimate]:
-        t = frame[0].t
-        predicted = {f.key: f.fuser.predicted(t) for f in self.tracks}
-        reports: dict[str, list[Uplink]] = {f.key: [] for f in self.tracks}
         for u in frame:
             if u.drop:  # the node deleted a local track: it is no member any more
                 self._forget(u.node, u.estimate.track)
-        for node, ups in _by_node(u for u in frame if u.report).items():
-            for f, u in self._associate_reports(node, ups, t, predicted):
-                reports[f.key].append(u)
-        seen: dict[str, set[str]] = {f.key: {u.node for u in reports[f.key] if _hit(u)} for f in self.tracks}
-        left = []
-        for u in frame:
             if u.measurement is not None:
                 self._kinds[u.node] = u.measurement.kind
-        for node, ups in _by_node(u for u in frame if u.init_request).items():
-            rest, gated = self._associate_requests(node, [u.measurement for u in ups], t, predicted)
-            left += rest
-            for f in gated:
-                seen[f.key].add(node)
-        evidence = min(2, len({u.node for u in frame}))
-        for f in self.tracks:
-            if reports[f.key]:
-                f.last, per_node = fuse_reports(f.fuser, self.scheme, t, reports[f.key], f.key, self._new_filter)
-                if self.scheme.feeds_back:
-                    for node, lid in sorted(f.members.items()):
-                        self._send(node, _feedback(f.last, per_node.get(node), lid, f.fuser.model_extra()), False)
-            else:
-                x, P = predicted[f.key]
-                f.last = Estimate(t, x, P, self.name, "centre", f.key)
-            f.logic.record(self._hit(seen[f.key], f.logic.status == CONFIRMED, evidence), f.fuser.P[:3, :3])
-        live = {f.key: f for f in self.tracks if f.logic.status != DELETED}  # in priority order
-        for key in self._duplicates.duplicates([(k, f.last.x, f.last.P) for k, f in live.items()]):
-            live[key].logic.status = DELETED
-        for first, more, x, P in self._initiator.groups(sorted(left, key=lambda m: m.order_key)):
-            self._births += 1
-            fuser = TrackFuser(self.config.fusion_rule, self.motion, self.config.ci_criterion, self.name, "")
-            fuser.initialise(x, P, t)
-            f = _Fused(f"F{self._births}", fuser, TrackLogic(self.rule), Estimate(t, x, P, self.name, "centre"))
-            f.joins = {m.sensor for m in (*first, *more)}
-            self.tracks.append(f)
-        for f in self.tracks:
-            if f.logic.status == DELETED:
+        return [dataclasses.replace(f.last, track=f.id) for f in self.tracker.frame(frame)]
+
+    # -- hypothesiser ----------------------------------------------------------------------
+    def predict(self, tracks: list[_Fused], frame: Frame) -> list[tuple[np.ndarray, np.ndarray]]:
+        """Every fused track predicted to the frame's time."""
+        states = self._plots.predict(tracks, frame)
+        self._t = frame.t
+        self._predicted = {f.birth: s for f, s in zip(tracks, states)}
+        return states
+
+    @staticmethod
+    def scans(frame: Frame) -> list[list[Uplink]]:
+        """Each node's local-track reports, then each node's initialisation requests."""
+        return [*_by_node(u for u in frame.plots if u.report).values(),
+                *_by_node(u for u in frame.plots if u.init_request).values()]
+
+    def hypothesise(self, states, tracks: list[_Fused], scan: list[Uplink]) -> Hypotheses:
+        """Requests: their plots against the fused tracks (χ²). Reports: each local
+        track against the fused track it is a member of, and no other — every local
+        track the centre knows was started by its init, so it is mapped from birth; it
+        keeps its fused track while the pair stays in the track-to-track χ² gate (of
+        the rank of their difference's covariance)."""
+        if scan[0].init_request:
+            return self._plots.hypothesise(states, tracks, [u.measurement for u in scan])
+        t = self._t
+        row = {f.birth: r for r, f in enumerate(tracks)}
+        d2 = np.full((len(tracks), len(scan)), np.inf)
+        gate = np.ones(len(tracks))  # rank 0 (identical tracks): d² = 0, inside a gate of 1
+        for c, u in enumerate(scan):
+            f = self._mapped.get((u.node, u.estimate.track))
+            if f is None or f.birth not in row:
+                continue
+            r = row[f.birth]
+            e = _at(u.estimate, t)
+            d2[r, c], rank = track_distance2(e.x, e.P, *states[r], f.fuser.cross_covariance(t, e), _COMPARED)
+            if rank:
+                gate[r] = gate_threshold(rank, self.association.gate_prob)
+        return Hypotheses(scan, range(len(tracks)), d2, gate, np.array([f.confirmed for f in tracks], dtype=bool))
+
+    @staticmethod
+    def condition(states, hyp: Hypotheses, association) -> None:
+        """No sequential gating at the centre: every node is gated at the predictions."""
+
+    def unclaimed(self, hyp: Hypotheses, columns) -> list[Measurement]:
+        """Requests no fused track took: left for initiation. Reports no fused track
+        took: a local id the centre does not know (its fused track was deleted, or the
+        node started it alone) is dropped; a mapped local track that left its gate is
+        dropped and its node is sent the fused track again."""
+        if not isinstance(hyp.plots[0], Uplink):  # the requests' plots
+            return [hyp.plots[c] for c in columns]
+        for c in columns:
+            u = hyp.plots[c]
+            f = self._mapped.get((u.node, u.estimate.track))
+            self._drop(u.node, u.estimate.track, u.estimate)
+            if f is not None:
+                f.joins.add(u.node)
+        return []
+
+    # -- updater ---------------------------------------------------------------------------
+    def update(self, f: _Fused, taken: list[Taken], frame: Frame) -> bool:
+        """Fuse the fused track's reports (feeding the result back), or predict it. The
+        nodes whose requests it took join it after the frame. Scores a hit by
+        :meth:`_hit` on the nodes that measured it (reports that used a measurement,
+        requests)."""
+        t = frame.t
+        ups = [u for tk in taken for u in tk.plots]
+        reports = [u for u in ups if u.report]
+        requests = [u for u in ups if u.init_request]
+        f.joins |= {u.node for u in requests}
+        if reports:
+            f.last, per_node = fuse_reports(f.fuser, self.scheme, t, reports, f.key, self._new_filter)
+            if self.scheme.feeds_back:
+                for node, lid in sorted(f.members.items()):
+                    self._send(node, _feedback(f.last, per_node.get(node), lid, f.fuser.model_extra()), False)
+        else:
+            x, P = self._predicted[f.birth]
+            f.last = Estimate(t, x, P, self.name, "centre", f.key)
+        seen = {u.node for u in reports if _hit(u)} | {u.node for u in requests}
+        return self._hit(seen, f.confirmed, min(2, frame.sensors))
+
+    @staticmethod
+    def position_cov(f: _Fused) -> np.ndarray:
+        return f.fuser.P[:3, :3]
+
+    def start(self, group, frame: Frame) -> _Fused:
+        """A fused track from :meth:`Initiator.groups`' ``(first, more, x, P)``; the
+        nodes of its plots are invited at once."""
+        first, more, x, P = group
+        fuser = TrackFuser(self.config.fusion_rule, self.motion, self.config.ci_criterion, self.name, "")
+        fuser.initialise(x, P, frame.t)
+        f = _Fused(fuser, Estimate(frame.t, x, P, self.name, "centre"))
+        for node in sorted({m.sensor for m in (*first, *more)}):
+            self._join(node, f)
+        return f
+
+    def review(self, tracks: list[_Fused]) -> None:
+        """After the updates: duplicates deleted; the members of every deleted track
+        told to drop their local tracks, and the nodes a track took requests from (or
+        lost a member of) invited, from the latest fused state."""
+        self._duplicates.review(tracks)
+        for f in tracks:
+            if f.deleted:
                 for node, lid in sorted(f.members.items()):
                     self._drop(node, lid, f.last)
                 continue
-            if f.logic.status == CONFIRMED and f.id is None:
-                f.id = self._ids.next()
-            for node in sorted(f.joins):  # from the latest fused state (late joiners too)
+            for node in sorted(f.joins):
                 self._join(node, f)
             f.joins = set()
-        self.tracks = [f for f in self.tracks if f.logic.status != DELETED]
-        confirmed = sorted((f for f in self.tracks if f.id is not None), key=lambda f: int(f.id[1:]))
-        self.tracks = confirmed + [f for f in self.tracks if f.id is None]
-        return [dataclasses.replace(f.last, track=f.id) for f in confirmed]
 
     def _hit(self, nodes: set[str], confirmed: bool, evidence: int) -> bool:
-        """:func:`fusion.mtt.scores_hit` on the kinds of the nodes' sensors. Here the
+        """:func:`fusion.tracking.table.scores_hit` on the kinds of the nodes' sensors. Here the
         ghost along an angle sensor's ray is a local angle track alone holding a fused
         track (fed back to it under PHHNV/DDHNV) whose range drifts away from the radar
         plots, which then start a second track on the target."""
         return scores_hit([self._kinds.get(n, "azel") for n in nodes], confirmed, evidence)
-
-    def _associate_reports(self, node: str, ups: list[Uplink], t: float, predicted) -> list[tuple[_Fused, Uplink]]:
-        """Track-to-track association of one node's reports with the fused tracks. Every
-        local track the centre knows was started by its init, so it is mapped from
-        birth; it keeps its fused track while the pair stays in the χ² gate
-        (``d²/G ≤ 1``). A mapped track leaving its gate is dropped and the node is sent
-        the fused track again; a local id the centre does not know (its fused track was
-        deleted, or the node started it alone) is dropped."""
-        out = []
-        for u in ups:
-            lid = u.estimate.track
-            f = self._mapped.get((node, lid))
-            if f is None:
-                self._drop(node, lid, u.estimate)
-                continue
-            e = _at(u.estimate, t)
-            d2, rank = track_distance2(e.x, e.P, *predicted[f.key], f.fuser.cross_covariance(t, e), _COMPARED)
-            if not rank or d2 <= gate_threshold(rank, self.association.gate_prob):
-                out.append((f, u))
-            else:  # left its gate: the node starts again from the fused track
-                self._drop(node, lid, u.estimate)
-                f.joins.add(node)
-        return out
 
     def _join(self, node: str, f: _Fused) -> None:
         """Send ``node`` a new local track on ``f`` from the latest fused state, named
@@ -726,24 +699,6 @@ class MultiTrackCentre(GroupedCentre):
         downlink carries ``e``, whose state does not matter)."""
         self._forget(node, lid)
         self._send(node, Estimate(e.t, e.x, e.P, self.name, "centre", lid), False, drop=True)
-
-    def _associate_requests(self, node: str, plots: list[Measurement], t: float, predicted):
-        """χ²/GNN of one node's request plots with the fused tracks: a plot in a track's
-        gate makes the node join it (the request initialises, as in the one-target
-        handshake, and is not used again). A track the node is a member of takes part:
-        a plot its local track did not take says that track may be lost, and the new
-        one replaces it. Returns the plots left for initiation and the tracks joined."""
-        free = self.tracks
-        if not free:
-            return plots, []
-        model = model_of(plots[0], self.motion.n_x)
-        Z = np.array([m.z for m in plots])
-        d2 = np.array([mahalanobis2(model, *predicted[f.key], Z) for f in free])
-        pairs = gnn(d2, gate_threshold(model.n_z, self.association.gate_prob))
-        for r, _ in pairs:
-            free[r].joins.add(node)
-        used = {c for _, c in pairs}
-        return [m for c, m in enumerate(plots) if c not in used], [free[r] for r, _ in pairs]
 
 
 _COMPARED = (0, 1, 2, 3, 4, 5)  # position, velocity: what track-to-track association compares
@@ -789,19 +744,6 @@ def track_split(name: str, scheme: Scheme) -> Split:
         return MultiTrackCentre(name, TrackerConfig.from_dict(rest), scheme, association)
 
     return Split(name, node, centre)
-
-
-def station_split(name: str, cross_fed: bool) -> Split:
-    """KF+TR (``cross_fed=False``) / MKF+TR: one emitter, or many with ``association``
-    in the table."""
-
-    def node(sensor, config):
-        association, rest = AssociationConfig.split(config)
-        if association is None:
-            return StationNode(sensor, rest, cross_fed)
-        return MultiStationNode(sensor, rest, cross_fed, association)
-
-    return Split(name, node, lambda c: StationCentre(name, c))
 
 
 # In-process composition -----------------------------------------------------------------

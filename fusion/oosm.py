@@ -3,8 +3,9 @@ r"""Out-of-sequence measurements by re-filtering from a short buffer.
 A live fuser releases a lagging source's peers after a bounded wait, so the laggard's
 measurement may arrive for a time the estimator has passed (an *out-of-sequence
 measurement*, OOSM). :class:`Refiltering` applies it exactly. It keeps checkpoints of
-the estimator (deep copies of the method: filters, scans being grouped, track tables)
-and the measurements since the oldest one; on an OOSM at time ``τ`` it
+the estimator (deep copies of the method: filters, scans being grouped, track tables;
+the measurements it holds are values, shared with the log, not copied) and the
+measurements since the oldest one; on an OOSM at time ``τ`` it
 
 1. restores the latest checkpoint taken at a release time ``t_c < τ``;
 2. replays, in ``(t, sensor, seq)`` order, every measurement with ``t > t_c`` together
@@ -40,7 +41,8 @@ class Refiltering:
 
     Args:
         method: the estimator, an object with ``process(m) -> list`` and
-            ``advance(t) -> list``; copied with :func:`copy.deepcopy`.
+            ``advance(t) -> list``; copied with :func:`copy.deepcopy`, except for the
+            measurements of the log (immutable values: the copy shares them).
         window: buffer length ``W`` (s of the data's time base).
         shared: objects the method refers to that must not be copied (e.g. a
             rejection log it reports to).
@@ -58,13 +60,18 @@ class Refiltering:
         self.method = method
         self.window = float(window)
         self._shared = tuple(shared)
-        self._checkpoints: list[_Checkpoint] = [_Checkpoint(-math.inf, self._copy(method))]
         self._log: list[tuple[tuple, Any]] = []  # (order_key, item) with t > oldest checkpoint, sorted
+        self._checkpoints: list[_Checkpoint] = [_Checkpoint(-math.inf, self._copy(method))]
         self.t = -math.inf  # the latest released time
         self.replays = 0
 
     def _copy(self, method: Any) -> Any:
-        return copy.deepcopy(method, {id(o): o for o in self._shared})
+        """A checkpoint of ``method``: everything it holds copied but the ``shared``
+        objects and the measurements it was given (a frame it still groups holds them;
+        copying them was most of a checkpoint's cost, docs/design.md)."""
+        memo = {id(o): o for o in self._shared}
+        memo.update((id(m), m) for _, m in self._log)
+        return copy.deepcopy(method, memo)
 
     @property
     def oldest(self) -> float:

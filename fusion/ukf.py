@@ -22,7 +22,9 @@ to the fusion rules) takes the statistical linearisation ``H = Pₓᵤᵀ P⁻�
 ``P⁺ = (I − K H) P⁻`` exactly as for the EKF. No Jacobian is formed, so the update
 does not linearise the azimuth/elevation/range geometry at one point: it matters
 where the prior spans a curved part of it (a broad range prior seen by an angle
-sensor). The defaults α = 0.5, β = 2, κ = 0 are Stone Soup's.
+sensor). The defaults α = 0.5, β = 2, κ = 0 are Stone Soup's. The weighted (PDA)
+update of several plots (:meth:`TrackUKF.update_weighted`) takes this ``ẑ``, ``S`` and
+``K`` for all of them (:mod:`fusion.pda`).
 """
 
 from __future__ import annotations
@@ -30,6 +32,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import kalman
+from .pda import WeightedUpdate, pda_moments
 
 
 class TrackUKF:
@@ -96,12 +99,8 @@ class TrackUKF:
         self.x, self.P = self.predicted(t)
         self.t = float(t)
 
-    def update(self, model, z: np.ndarray) -> kalman.UpdateResult:
-        """Update at the filter's current time with ``z`` of ``model``; returns the step's
-        ν, S, NIS and K."""
-        z = np.asarray(z, dtype=float)
-        if z.shape != (model.n_z,):
-            raise ValueError(f"measurement must have shape ({model.n_z},) for {model.components}, got {z.shape}")
+    def _transform(self, model) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """``(ẑ, S, Pₓᵤ, angles)`` of ``model`` at the filter's state (module docstring)."""
         chi = self.sigma_points()
         Z = model.h(chi)  # (2n + 1, n_z)
         angles = np.asarray(model.angles, dtype=bool)
@@ -111,6 +110,21 @@ class TrackUKF:
         dX = chi - self.x
         S = kalman.symmetrise((dZ.T * self.Wc) @ dZ + model.R)
         Pxz = (dX.T * self.Wc) @ dZ
+        return z_hat, S, Pxz, angles
+
+    def _set_KH(self, K: np.ndarray, Pxz: np.ndarray) -> None:
+        try:
+            self._KH = K @ np.linalg.solve(self.P, Pxz).T  # K Pₓᵤᵀ P⁻⁻¹ (P⁻ symmetric)
+        except np.linalg.LinAlgError:  # a semi-definite P⁻ (sigma_points): its pseudo-inverse
+            self._KH = K @ (np.linalg.pinv(self.P, hermitian=True) @ Pxz).T
+
+    def update(self, model, z: np.ndarray) -> kalman.UpdateResult:
+        """Update at the filter's current time with ``z`` of ``model``; returns the step's
+        ν, S, NIS and K."""
+        z = np.asarray(z, dtype=float)
+        if z.shape != (model.n_z,):
+            raise ValueError(f"measurement must have shape ({model.n_z},) for {model.components}, got {z.shape}")
+        z_hat, S, Pxz, angles = self._transform(model)
         L_inv = kalman.inverse_cholesky_factor(S)
         S_inv = L_inv.T @ L_inv
         K = Pxz @ S_inv
@@ -118,12 +132,31 @@ class TrackUKF:
         w = L_inv @ nu
         x = self.x + K @ nu
         P = kalman.symmetrise(self.P - K @ S @ K.T)
-        try:
-            self._KH = K @ np.linalg.solve(self.P, Pxz).T  # K Pₓᵤᵀ P⁻⁻¹ (P⁻ symmetric)
-        except np.linalg.LinAlgError:  # a semi-definite P⁻ (sigma_points): its pseudo-inverse
-            self._KH = K @ (np.linalg.pinv(self.P, hermitian=True) @ Pxz).T
+        self._set_KH(K, Pxz)
         self.x, self.P = x, P
         return kalman.UpdateResult(x, P, nu, S, float(w @ w), K)
+
+    def innovations(self, model, Z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The plots' innovations ``Zⱼ − ẑ`` (angle rows wrapped) and their covariance
+        ``S``, without changing the filter."""
+        z_hat, S, _, angles = self._transform(model)
+        return kalman.innovation(np.atleast_2d(np.asarray(Z, dtype=float)), z_hat, angles), S
+
+    def update_weighted(self, model, Z: np.ndarray, beta, beta0: float) -> WeightedUpdate:
+        """The weighted (PDA) update at the filter's current time with the plots ``Z`` of
+        one scan, ``beta`` each and ``beta0`` for none (:mod:`fusion.pda`): the unscented
+        ``ẑ``, ``S``, ``K`` above, ``νⱼ = Zⱼ − ẑ``, ``Pᶜ = P⁻ − K S Kᵀ``."""
+        Z = np.atleast_2d(np.asarray(Z, dtype=float))
+        if len(Z) == 0:
+            raise ValueError("a weighted update needs at least one plot (no plot: the prediction)")
+        z_hat, S, Pxz, angles = self._transform(model)
+        L_inv = kalman.inverse_cholesky_factor(S)
+        K = Pxz @ (L_inv.T @ L_inv)
+        nus = kalman.innovation(Z, z_hat, angles)
+        x, P, nu = pda_moments(self.x, self.P, K, kalman.symmetrise(self.P - K @ S @ K.T), nus, beta, beta0)
+        self._set_KH(K, Pxz)
+        self.x, self.P = x, P
+        return WeightedUpdate(x, P, nus, nu, S, K)
 
     @property
     def KH(self) -> np.ndarray:

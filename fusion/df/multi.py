@@ -17,13 +17,13 @@ the ``K`` stations that reported:
    groups of the most stations, then least total cost;
 3. a group continues the tentative track whose gate holds it, else starts one; each
    track is one instance of the wrapped DF method, fed only its own bearings;
-4. tracks are managed by :class:`fusion.association.TrackLogic` (M-of-N, misses,
+4. tracks are managed by :class:`fusion.tracking.table.TrackLogic` (M-of-N, misses,
    ``max_pos_std``), a χ² consistency test over each confirmed track's window, and an
    exchange test that undoes a swap ghost pair;
 5. one estimate per confirmed track is reported, ids ``E1, E2, …`` in confirmation order.
 
 Switched on by ``association = "gnn"``; the keys are those of
-:class:`fusion.mtt.AssociationConfig` and of the wrapped method's
+:class:`fusion.tracking.config.AssociationConfig` and of the wrapped method's
 :class:`fusion.df.methods.DFConfig`. docs/algorithms.md ("Many emitters") gives the
 reasoning, docs/notes.md what the tests on ``df-multi`` showed.
 """
@@ -33,15 +33,18 @@ from __future__ import annotations
 import dataclasses
 import itertools
 from collections import deque
-from typing import Callable, Sequence
+from typing import Callable, NamedTuple, Sequence
 
 import numpy as np
 from scipy.optimize import Bounds, LinearConstraint, milp
 
 from ..angles import wrap_pi
-from ..association import CONFIRMED, DELETED, TrackIds, TrackLogic, gate_threshold, gnn
+from ..tracking.associators import gnn
+from ..tracking.config import AssociationConfig
+from ..tracking.hypotheses import Hypotheses, gate_threshold
+from ..tracking.manager import Frame, MultiTargetTracker, Taken
+from ..tracking.table import CONFIRMED, DELETED, Track, TrackLogic
 from ..grouping import TimeGrouper
-from ..mtt import AssociationConfig
 from ..types import Estimate, Measurement
 from .init import usable_pairs
 from .methods import DFMethod
@@ -205,17 +208,42 @@ def _solve(c, constraints):
     return res
 
 
-class _Emitter:
-    """One emitter track: its DF method instance, its life, its latest estimate, and the
-    bearings it took in its last ``window`` epochs."""
+class Bearings(NamedTuple):
+    """Bearings of one epoch, or a track's share of one, decoded once: row ``i`` of each
+    array is bearing ``i``."""
 
-    __slots__ = ("method", "logic", "birth", "last", "id", "nis", "taken")
+    sites: np.ndarray            # (n, 2) station positions
+    betas: np.ndarray            # (n,) math bearings
+    sigmas: np.ndarray           # (n,) their std
+    stations: list[str]          # (n,) station ids
+    measurements: list[Measurement]
+    t0: float                    # the epoch's start
 
-    def __init__(self, method: DFMethod, logic: TrackLogic, birth: int, last: Estimate, window: int):
-        self.method, self.logic, self.birth, self.last = method, logic, birth, last
-        self.id: str | None = None  # issued at confirmation
+    def subset(self, idx) -> "Bearings":
+        """The bearings ``idx`` (indices, in order)."""
+        idx = list(idx)
+        return Bearings(self.sites[idx], self.betas[idx], self.sigmas[idx], [self.stations[i] for i in idx],
+                        [self.measurements[i] for i in idx], self.t0)
+
+
+class _Emitter(Track):
+    """One emitter track: its DF method instance (``filter``), its life, its latest
+    estimate, and the bearings it took in its last ``window`` epochs."""
+
+    __slots__ = ("nis", "taken")
+
+    def __init__(self, method: DFMethod, last: Estimate, window: int, logic: TrackLogic | None = None):
+        super().__init__(method, last, logic)
         self.nis: deque = deque(maxlen=window)  # (Σ d², number of bearings) of its last epochs as confirmed
-        self.taken: deque = deque(maxlen=window)  # per epoch: (sites, betas, sigmas, stations, bearings, t0)
+        self.taken: deque[Bearings] = deque(maxlen=window)  # its bearings of each epoch
+
+    @property
+    def method(self) -> DFMethod:
+        return self.filter
+
+    @method.setter
+    def method(self, method: DFMethod) -> None:
+        self.filter = method
 
     def without(self, station: str) -> tuple[np.ndarray, np.ndarray]:
         """``(x, P)`` to gate ``station``'s bearings with: one Torrieri step from the
@@ -233,10 +261,15 @@ class _Emitter:
 
 
 class MultiEmitterMethod:
-    """A streaming method (``process``/``advance``/``finish``) that tracks many emitters:
-    per epoch it assigns bearings to confirmed tracks, groups the rest into new tracks,
-    localises each track with its own instance of the wrapped DF method, manages the
-    tracks and reports the confirmed ones.
+    """A streaming method (``process``/``advance``/``finish``) that tracks many emitters
+    (module docstring): a :class:`~fusion.tracking.manager.MultiTargetTracker` whose
+    plots are the epoch's bearings (by their index in it), each track localised by its
+    own instance of the wrapped DF method.
+
+    The tracker's parts are this object's methods: :meth:`predict`, :meth:`scans`,
+    :meth:`hypothesise`, :meth:`condition`, :meth:`unclaimed` (steps 1 and 2's
+    hypotheses: confirmed tracks, station by station), :meth:`initiate` (2, 3),
+    :meth:`update`, :meth:`position_cov`, :meth:`start` and :meth:`review` (4).
 
     Args:
         name: the wrapped DF method's name (the estimates carry it).
@@ -246,21 +279,39 @@ class MultiEmitterMethod:
 
     def __init__(self, name: str, make_emitter: Callable[[], DFMethod], config: AssociationConfig):
         proto = make_emitter()
-        if not isinstance(proto, DFMethod):
-            raise ValueError(f"MultiEmitterMethod needs a DF method, got {name}")
         if config.local_max_pos_std is not None or config.merge_frames != AssociationConfig.merge_frames:
             raise ValueError(f"{name}: 'merge_frames' and 'local_max_pos_std' apply to 3D tracks, not to emitters")
         self.name = name
         self.config = config
         self.df = proto.config
         self._make_emitter = make_emitter
-        self._rule = config.rule()
         self._gate = gate_threshold(1, config.gate_prob)
         self._grouper = TimeGrouper(self.df.pair_tol)
-        self._ids = TrackIds(prefix="E")
-        self._births = 0
         self._window: deque = deque(maxlen=int(self.df.init_epochs) - 1)  # earlier epochs, newest first
-        self.tracks: list[_Emitter] = []  # confirmed in id order, then tentative in birth order
+        self.tracker = MultiTargetTracker(self, config.associator(confirmed_first=True), self, self,
+                                          config.table(prefix="E"), self)
+        self._epoch = Bearings(np.zeros((0, 2)), np.zeros(0), np.zeros(0), [], [], 0.0)  # the frame's bearings
+
+    @classmethod
+    def from_table(cls, name: str, make: Callable[[dict], DFMethod], table: dict) -> "MultiEmitterMethod":
+        """DF method ``name`` (``make(table)`` builds one instance) for many emitters,
+        from a resolved ``[tracker]`` table with ``association``."""
+        association, rest = AssociationConfig.split(table)
+        if association is None:
+            raise ValueError(f"{name}: many emitters need 'association' in the tracker table")
+        if rest.get("motion", "static") != "static":
+            raise ValueError(f"association with motion = {rest['motion']!r}: many emitters are tracked as static "
+                             "ones (the bearing association gates on their latest positions)")
+        return cls(name, lambda: make(dict(rest)), association)
+
+    @property
+    def table(self):
+        return self.tracker.table
+
+    @property
+    def tracks(self) -> list[_Emitter]:
+        """The emitter tracks, in priority order."""
+        return self.tracker.tracks
 
     def __repr__(self) -> str:
         return f"MultiEmitterMethod({self.name!r})"
@@ -281,81 +332,116 @@ class MultiEmitterMethod:
         return self._run(self._grouper.finish())
 
     def _run(self, epochs: list[list[Measurement]]) -> list[Estimate]:
-        return [e for epoch in epochs for e in self._epoch(epoch)]
+        out = []
+        for epoch in epochs:
+            t = max(m.t for m in epoch)
+            self._epoch = self._bearings(epoch, epoch[0].t)  # decoded once; tracks take subsets of it
+            out += [dataclasses.replace(tr.last, t=t, track=tr.id, node="centre") for tr in self.tracker.frame(epoch)]
+        return out
 
-    # One epoch -----------------------------------------------------------------------
-    def _bearings(self, ms: list[Measurement], t0: float) -> tuple:
-        """``(sites (n, 2), betas (n,), sigmas (n,), stations, ms, t0)`` of one epoch's
-        bearing measurements ``ms`` (the epoch starting at ``t0``)."""
+    def _bearings(self, ms: list[Measurement], t0: float) -> Bearings:
+        """The bearing measurements ``ms`` of the epoch starting at ``t0``, decoded."""
         pairs = [bearing_of(m) for m in ms]
-        return (np.array([p[0][:2] for p in pairs]).reshape(-1, 2), np.array([p[1] for p in pairs]),
-                np.array([self.df.sigma_of(m) for m in ms]), [m.sensor for m in ms], list(ms), t0)
+        return Bearings(np.array([p[0][:2] for p in pairs]).reshape(-1, 2), np.array([p[1] for p in pairs]),
+                        np.array([self.df.sigma_of(m) for m in ms]), [m.sensor for m in ms], list(ms), t0)
 
-    def _epoch(self, epoch: list[Measurement]) -> list[Estimate]:
-        t = max(m.t for m in epoch)
-        bearings = self._bearings(epoch, epoch[0].t)  # decoded once; tracks take slices of it
-        sites, betas, sigmas, stations = bearings[:4]
-        need = min(SUPPORT, len(set(stations)))
+    # Steps 1–2: hypotheses of the confirmed tracks, station by station --------------------
+    @staticmethod
+    def predict(tracks: list[_Emitter], frame: Frame) -> list[int]:
+        """The confirmed tracks (their places): the rows of every station's hypotheses."""
+        return [i for i, tr in enumerate(tracks) if tr.confirmed]
 
-        confirmed = [tr for tr in self.tracks if tr.logic.status == CONFIRMED]
-        tentative = [tr for tr in self.tracks if tr.logic.status != CONFIRMED]
+    def scans(self, frame: Frame) -> list[list[int]]:
+        """The epoch's bearings (their indices) by station, stations in name order."""
+        stations = self._epoch.stations
+        return [[c for c, sid in enumerate(stations) if sid == s] for s in sorted(set(stations))]
 
-        # 1. Confirmed tracks take their bearings, station by station.
-        taken: dict[int, list[int]] = {}  # confirmed track index -> its bearings
-        nis = np.zeros(len(confirmed))     # and the sum of their d²
-        free = np.ones(len(epoch), dtype=bool)
-        for s in sorted(set(stations)) if confirmed else ():
-            cols = [c for c, sid in enumerate(stations) if sid == s]
-            d2 = np.array([bearing_d2(*tr.without(s), sites[cols], betas[cols], sigmas[cols]) for tr in confirmed])
-            for r, c in gnn(d2, self._gate):
-                taken.setdefault(r, []).append(cols[c])
-                free[cols[c]] = False
-                nis[r] += d2[r, c]
+    def hypothesise(self, rows: list[int], tracks: list[_Emitter], scan: list[int]) -> Hypotheses:
+        """A station's bearings against the confirmed tracks, each gated with the
+        estimate that leaves that station out (:meth:`_Emitter.without`)."""
+        e = self._epoch
+        s = e.stations[scan[0]]
+        d2 = np.array([bearing_d2(*tracks[i].without(s), e.sites[scan], e.betas[scan], e.sigmas[scan])
+                       for i in rows]).reshape(len(rows), len(scan))
+        return Hypotheses(scan, rows, d2, np.full(len(rows), self._gate), np.ones(len(rows), dtype=bool))
 
-        # 2. The rest is grouped afresh (with the window's persistence cost); a group
-        #    continues the tentative track whose gate holds all its bearings, else starts one.
-        idx = np.flatnonzero(free)
+    @staticmethod
+    def condition(rows, hyp: Hypotheses, association) -> None:
+        """No sequential gating: each station is gated on its own estimate anyway."""
+
+    @staticmethod
+    def unclaimed(hyp: Hypotheses, columns) -> list[int]:
+        return [hyp.plots[c] for c in columns]
+
+    # Steps 2–3: new groups, and the tentative tracks they continue ---------------------------
+    def initiate(self, left: list[int], tracks: list[_Emitter], frame: Frame) -> tuple[dict[int, list[Taken]], list]:
+        """The bearings no confirmed track took, grouped afresh (with the window's
+        persistence cost); a group continues the tentative track whose gate holds all
+        its bearings (GNN on their mean ``d²``), else starts one."""
+        e = self._epoch
+        idx = np.array(sorted(left), dtype=int)
+        need = min(SUPPORT, frame.sensors)
         groups = [[int(idx[c]) for c in g] for g in initiate(
-            sites[idx], betas[idx], sigmas[idx], [stations[c] for c in idx], self._gate, need, self.df.ipu_max_rel,
-            self._window)]
-        self._window.appendleft((sites, betas, sigmas, stations))
+            e.sites[idx], e.betas[idx], e.sigmas[idx], [e.stations[c] for c in idx], self._gate, need,
+            self.df.ipu_max_rel, self._window)]
+        self._window.appendleft((e.sites, e.betas, e.sigmas, e.stations))
+        tentative = [i for i, tr in enumerate(tracks) if not tr.confirmed]
         cost = np.full((len(tentative), len(groups)), np.inf)
-        for r, tr in enumerate(tentative):
+        for r, i in enumerate(tentative):
             for c, g in enumerate(groups):
-                d2 = bearing_d2(tr.last.x, tr.last.P, sites[g], betas[g], sigmas[g])
+                d2 = bearing_d2(tracks[i].last.x, tracks[i].last.P, e.sites[g], e.betas[g], e.sigmas[g])
                 if np.all(d2 <= self._gate):
                     cost[r, c] = float(np.mean(d2))
         continued = dict(gnn(cost, self._gate))
+        return ({tentative[r]: [Taken(tuple(groups[c]), (cost[r, c],))] for r, c in continued.items()},
+                [g for c, g in enumerate(groups) if c not in continued.values()])
 
-        for k, tr in enumerate(confirmed):
-            self._update(tr, _subset(bearings, sorted(taken.get(k, ()))), 2)
-            tr.nis.append((nis[k], len(taken.get(k, ()))))
-            self._check_consistency(tr)
-        self._resolve_swaps([tr for tr in confirmed if tr.logic.status == CONFIRMED])
-        for r, tr in enumerate(tentative):
-            self._update(tr, _subset(bearings, groups[continued[r]] if r in continued else []), need)
-        for c, g in enumerate(groups):
-            if c not in continued.values():
-                self._start(_subset(bearings, g))
+    # Step 4: updates and management ----------------------------------------------------
+    def update(self, tr: _Emitter, taken: list[Taken], frame: Frame) -> bool:
+        """A confirmed track localised on the bearings it took (in epoch order), a
+        tentative one on the group it continues; a hit with bearings of 2 stations
+        (confirmed) or of the ``need`` a new track needs (tentative)."""
+        mine = [i for tk in taken for i in tk.plots]
+        if tr.confirmed:
+            bearings, enough = self._epoch.subset(sorted(mine)), 2
+            tr.nis.append((sum((d for tk in taken for d in tk.d2), 0.0), len(mine)))
+        else:
+            bearings, enough = self._epoch.subset(mine), min(SUPPORT, frame.sensors)
+        self._update(tr, bearings, enough)
+        return len(set(bearings.stations)) >= enough
 
-        for tr in self.tracks:
-            if tr.logic.status == CONFIRMED and tr.id is None:
-                tr.id = self._ids.next()
-        live = [tr for tr in self.tracks if tr.logic.status != DELETED]
-        confirmed = sorted((tr for tr in live if tr.logic.status == CONFIRMED), key=lambda tr: int(tr.id[1:]))
-        self.tracks = confirmed + sorted((tr for tr in live if tr.logic.status != CONFIRMED), key=lambda tr: tr.birth)
-        return [dataclasses.replace(tr.last, t=t, track=tr.id, node="centre") for tr in confirmed]
-
-    def _update(self, tr: _Emitter, mine: tuple, enough: int) -> None:
-        """Track ``tr`` with its bearings ``mine`` of the epoch (as :meth:`_bearings`):
-        localise, then score a hit if they come from ``enough`` stations; delete it when
-        its position std exceeds ``max_pos_std``."""
-        if mine[4]:
-            est = self._localise(tr.method, mine[4], mine[5])
+    def _update(self, tr: _Emitter, mine: Bearings, enough: int) -> None:
+        """Track ``tr`` with its bearings ``mine`` of the epoch: localise, and keep them
+        in its window."""
+        if mine.measurements:
+            est = self._localise(tr.method, mine.measurements, mine.t0)
             if est is not None:
                 tr.last = est
         tr.taken.append(mine)
-        tr.logic.record(len(set(mine[3])) >= enough, tr.last.P)
+
+    @staticmethod
+    def position_cov(tr: _Emitter) -> np.ndarray:
+        return tr.last.P
+
+    def start(self, group: list[int], frame: Frame) -> _Emitter | None:
+        """A tentative track from one initiation group (bearing indices), if its method
+        gives a fix on it."""
+        mine = self._epoch.subset(group)
+        method = self._make_emitter()
+        est = self._localise(method, mine.measurements, mine.t0)
+        if est is None:
+            return None
+        tr = _Emitter(method, est, int(self.df.init_epochs))
+        tr.taken.append(mine)
+        return tr
+
+    def review(self, tracks: list[_Emitter]) -> None:
+        """The tracks confirmed before this epoch (they have ids): the consistency test
+        of each, then the exchange test of the pairs still confirmed."""
+        confirmed = [tr for tr in tracks if tr.id is not None]
+        for tr in confirmed:
+            self._check_consistency(tr)
+        self._resolve_swaps([tr for tr in confirmed if tr.logic.status == CONFIRMED])
 
     def _resolve_swaps(self, tracks: list[_Emitter]) -> None:
         """Exchange some stations' bearings between two confirmed tracks when that fits
@@ -369,9 +455,9 @@ class MultiEmitterMethod:
         suspect = {id(tr) for tr in full if cost[id(tr)] is not None and cost[id(tr)][0] > cost[id(tr)][1]}
         for a, b in itertools.combinations(full, 2):
             if not ({id(a), id(b)} & suspect) or cost[id(a)] is None or cost[id(b)] is None \
-                    or [e[5] for e in a.taken] != [e[5] for e in b.taken]:
+                    or [e.t0 for e in a.taken] != [e.t0 for e in b.taken]:
                 continue
-            shared = sorted({st for e in a.taken for st in e[3]} & {st for e in b.taken for st in e[3]})
+            shared = sorted({st for e in a.taken for st in e.stations} & {st for e in b.taken for st in e.stations})
             base = cost[id(a)][0] + cost[id(b)][0]
             best = None
             for k in range(1, len(shared)):
@@ -390,13 +476,13 @@ class MultiEmitterMethod:
                     cost[id(tr)] = _fit_cost(tr.taken, tr.last.x)
                 suspect -= {id(a), id(b)}
 
-    def _rebuild(self, tr: _Emitter, window) -> None:
+    def _rebuild(self, tr: _Emitter, window: list[Bearings]) -> None:
         """Track ``tr`` (its id and life kept) restarted from the bearings ``window``."""
         tr.method = self._make_emitter()
         tr.taken.clear()
         tr.nis.clear()
         for epoch in window:
-            est = self._localise(tr.method, epoch[4], epoch[5]) if epoch[4] else None
+            est = self._localise(tr.method, epoch.measurements, epoch.t0) if epoch.measurements else None
             if est is not None:
                 tr.last = est
             tr.taken.append(epoch)
@@ -417,38 +503,20 @@ class MultiEmitterMethod:
         out += method.advance(t0 + self.df.pair_tol)
         return out[-1] if out else None
 
-    def _start(self, group: tuple) -> None:
-        """A tentative track from one initiation group (as :meth:`_bearings`), if its
-        method gives a fix on it."""
-        method = self._make_emitter()
-        est = self._localise(method, group[4], group[5])
-        if est is None:
-            return
-        self._births += 1
-        tr = _Emitter(method, TrackLogic(self._rule), self._births, est, int(self.df.init_epochs))
-        tr.taken.append(group)
-        self.tracks.append(tr)
 
-
-def _subset(bearings: tuple, idx) -> tuple:
-    """The bearings ``idx`` (indices, in order) of an epoch's :meth:`MultiEmitterMethod._bearings`."""
-    idx = list(idx)
-    sites, betas, sigmas, stations, ms, t0 = bearings
-    return sites[idx], betas[idx], sigmas[idx], [stations[i] for i in idx], [ms[i] for i in idx], t0
-
-
-def _stacked(window) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """The bearings of ``window`` (epochs as in ``_Emitter.taken``) as one set:
+def _stacked(window: Sequence[Bearings]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The bearings of ``window`` (a track's epochs) as one set:
     ``(sites (n, 2), betas (n,), sigmas (n,), stations (n,))``, in epoch order."""
     if not window:
         return np.zeros((0, 2)), np.zeros(0), np.zeros(0), np.array([], dtype=object)
-    return (np.concatenate([e[0] for e in window]), np.concatenate([e[1] for e in window]),
-            np.concatenate([e[2] for e in window]), np.array([st for e in window for st in e[3]], dtype=object))
+    return (np.concatenate([e.sites for e in window]), np.concatenate([e.betas for e in window]),
+            np.concatenate([e.sigmas for e in window]),
+            np.array([st for e in window for st in e.stations], dtype=object))
 
 
-def _fit_cost(window, x0=None) -> tuple[float, float] | None:
+def _fit_cost(window: Sequence[Bearings], x0=None) -> tuple[float, float] | None:
     """``(χ² cost, its SUSPECT_PROB point)`` of the static least-squares fix of the
-    bearings of ``window`` (epochs as in ``_Emitter.taken``), or None without two
+    bearings of ``window`` (a track's epochs), or None without two
     stations: three Gauss–Newton steps (Torrieri) from ``x0`` or the bearings' mean
     pairwise intersection, enough to tell a ghost's tens from the noise."""
     sites, betas, sigmas, stations = _stacked(window)
@@ -465,25 +533,22 @@ def _suspect_level(dof: int) -> float:
     return gate_threshold(dof, SUSPECT_PROB)
 
 
-def _exchange(a, b, stations: set) -> tuple[list, list]:
+def _exchange(a: Sequence[Bearings], b: Sequence[Bearings], stations: set) -> tuple[list[Bearings], list[Bearings]]:
     """The windows of two tracks with their bearings of ``stations`` exchanged, epoch
     by epoch (the epochs of both windows are the same)."""
-    def split(e):
-        keep = [i for i, st in enumerate(e[3]) if st not in stations]
-        give = [i for i, st in enumerate(e[3]) if st in stations]
-        return keep, give
-
-    def build(e, keep, other, give):
-        rows = [(e, i) for i in keep] + [(other, i) for i in give]
-        rows.sort(key=lambda r: r[0][4][r[1]].order_key)
-        return (np.array([r[0][0][r[1]] for r in rows]).reshape(-1, 2), np.array([r[0][1][r[1]] for r in rows]),
-                np.array([r[0][2][r[1]] for r in rows]), [r[0][3][r[1]] for r in rows],
-                [r[0][4][r[1]] for r in rows], e[5])
-
     out_a, out_b = [], []
     for ea, eb in zip(a, b):
-        ka, ga = split(ea)
-        kb, gb = split(eb)
-        out_a.append(build(ea, ka, eb, gb))
-        out_b.append(build(eb, kb, ea, ga))
+        out_a.append(_merged(ea, eb, stations))
+        out_b.append(_merged(eb, ea, stations))
     return out_a, out_b
+
+
+def _merged(mine: Bearings, other: Bearings, stations: set) -> Bearings:
+    """``mine``'s bearings of the stations not in ``stations`` and ``other``'s of those,
+    in stream order."""
+    rows = [(mine, i) for i, st in enumerate(mine.stations) if st not in stations]
+    rows += [(other, i) for i, st in enumerate(other.stations) if st in stations]
+    rows.sort(key=lambda r: r[0].measurements[r[1]].order_key)
+    return Bearings(np.array([e.sites[i] for e, i in rows]).reshape(-1, 2), np.array([e.betas[i] for e, i in rows]),
+                    np.array([e.sigmas[i] for e, i in rows]), [e.stations[i] for e, i in rows],
+                    [e.measurements[i] for e, i in rows], mine.t0)

@@ -1,4 +1,4 @@
-"""``max_pos_std`` deletion (:class:`fusion.association.TrackLogic`) in the many-target
+"""``max_pos_std`` deletion (:class:`fusion.tracking.table.TrackLogic`) in the many-target
 trackers: a centralised track that coasts is deleted at the first frame where its
 predicted position σ (√trace P_pos) exceeds the limit — the frame the motion model's
 covariance growth from its last update says, computed here independently — and lives
@@ -17,7 +17,7 @@ import pytest
 
 from sim3d import run_method  # noqa: E402
 
-from fusion.association import CONFIRMED, DELETED, ManagementRule, TrackLogic  # noqa: E402
+from fusion.tracking.table import CONFIRMED, DELETED, ManagementRule, TrackLogic  # noqa: E402
 from fusion.methods import make_method, method_config  # noqa: E402
 from fusion.motion import make_motion  # noqa: E402
 from fusion.measurement.models import SphericalModel  # noqa: E402

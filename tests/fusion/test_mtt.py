@@ -1,5 +1,6 @@
-"""Many targets: the association wrapper around the patent methods (fusion.mtt), its
-reduction to the one-target method, and the track-quality metrics (fusion.mtt_metrics)."""
+"""Many targets: the centralised many-target methods (fusion.mtt, a configuration of
+fusion.tracking), their reduction to the one-target method, and the track-quality metrics
+(fusion.mtt_metrics)."""
 
 from __future__ import annotations
 
@@ -10,10 +11,11 @@ import subprocess
 import numpy as np
 import pytest
 
-from fusion.association import CONFIRMED
+from fusion.tracking.table import CONFIRMED
 from fusion.methods import make_method, method_config
-from fusion.init3d import FAR, NEAR, InitPriors
-from fusion.mtt import Initiator, MultiTargetMethod
+from fusion.init3d import InitPriors
+from fusion.mtt import MultiTargetMethod
+from fusion.tracking.initiators import Initiator
 from fusion.mtt_metrics import Step, score_tracks
 from fusion.types import Measurement
 from sensors_sim import load_scenario, sensor_events, truth_trajectory
@@ -88,7 +90,7 @@ def test_a_confirmed_track_fed_by_an_angle_sensor_alone_scores_misses(alone, kep
     """SS, one aircraft, both sensors for 6 scans (confirmed), then for 4 scans one
     sensor alone sees it (the other reports something far away; delete_misses = 3).
     The angle sensor's plots fix only a ray: a track they alone keep alive can drift
-    along it (fusion.mtt.scores_hit), so they score no hit and the track is deleted; a
+    along it (fusion.tracking.table.scores_hit), so they score no hit and the track is deleted; a
     2D radar's plots fix the range and keep it."""
     method = make_method("SS", {"association": "gnn", "confirm_m": 3, "confirm_n": 4, "delete_misses": 3})
     v, p0 = np.array([150.0, 0.0, 0.0]), np.array([0.0, 40e3, 5e3])
@@ -147,7 +149,7 @@ def test_three_crossing_aircraft_in_clutter_are_all_held(crossing):
     (mean 0.935; 2 of the 61 steps per target are the 3-of-4 confirmation delay), and
     16 breaks in 60 runs (≤ 2 per run, of ~10 000 chances): at a crossing the other
     track may take the radar plots for three frames, and a track fed by an angle sensor
-    alone scores misses (fusion.mtt.scores_hit) and is restarted (1 break in 60 when a
+    alone scores misses (fusion.tracking.table.scores_hit) and is restarted (1 break in 60 when a
     hit from any one sensor counted). Runs 0–4 have no break: exactly 3 tracks."""
     held = []
     breaks = 0
@@ -262,10 +264,9 @@ def test_a_second_track_on_a_target_is_merged_away(crossing, merge_frames):
             if copied is None and t_prev >= 20.0:
                 original = method.tracks[0]
                 twin = copy.deepcopy(original)
-                twin.method.track, twin.birth = method._ids.next(), method._births + 1
-                method._births += 1
-                method.tracks.append(twin)
-                copied = (original.method.track, twin.method.track, t_prev)
+                twin.id = method.table.ids.next()
+                method.table.add(twin)
+                copied = (original.id, twin.id, t_prev)
         out += method.process(m)
         t_prev = m.t
     out += method.finish()
@@ -279,79 +280,6 @@ def test_a_second_track_on_a_target_is_merged_away(crossing, merge_frames):
         assert all(a.get(truth) == kept for a in s.assignments[i:])
     else:
         assert len(twin_times) > 3, twin_times
-
-
-# Initiation at either crossing of a range sphere ------------------------------------------
-_RADAR, _ANGLE_OUT, _ANGLE_IN = np.zeros(3), np.array([0.0, 50e3, 0.0]), np.array([0.0, 10e3, 0.0])
-
-
-def _pair(p, angle_site, rng=None):
-    """Noise-free plots of the point p: an angle sensor at ``angle_site`` (az, el) and a
-    2D radar at the origin (az, slant range ``rng``, default |p|); σ 1 mrad, 1°, 20 m."""
-    e, n, u = p - angle_site
-    a = Measurement(0.0, "angle", "azel", np.array([math.atan2(e, n) % (2 * math.pi), math.atan2(u, math.hypot(e, n))]),
-                    np.array([1e-3, 1e-3]), angle_site, 0)
-    r = Measurement(0.0, "radar", "range_az", np.array([math.atan2(p[0], p[1]) % (2 * math.pi),
-                                                         np.linalg.norm(p) if rng is None else rng]),
-                    np.array([math.radians(1.0), 20.0]), _RADAR, 0)
-    return a, r
-
-
-def _crossings(a, r):
-    """Closed form: the distances t along the ray where |s + t·u − s_r| = r, t > 0."""
-    az, el = a.z
-    u = np.array([math.cos(el) * math.sin(az), math.cos(el) * math.cos(az), math.sin(el)])
-    w = a.site - r.site
-    b, c = u @ w, w @ w - r.z[1] ** 2
-    disc = b * b - c
-    return [] if disc <= 0 else [t for t in (-b - math.sqrt(disc), -b + math.sqrt(disc)) if t > 0]
-
-
-@pytest.mark.parametrize("site, p, root", [
-    (_ANGLE_OUT, np.array([3e3, 30e3, 5e3]), NEAR),   # angle sensor outside the sphere, aircraft at its near crossing
-    (_ANGLE_OUT, np.array([1e3, -10e3, 3e3]), FAR),   # outside, the ray goes past the radar: aircraft at the far one
-    (_ANGLE_IN, np.array([3e3, 30e3, 5e3]), FAR),     # inside the sphere: the near root is behind the sensor
-])
-def test_a_pair_starts_at_the_crossing_the_radar_azimuth_confirms(site, p, root):
-    """The ray of an angle plot crosses the radar plot's range sphere at
-    t± = −b ± √(b² − c) (fusion.init3d); ahead of the sensor are both when it lies
-    outside the sphere, only t₊ inside. The pair keeps the crossing(s) whose radar
-    azimuth is in the gate, and the track starts there. The old rule took t₊ always: the
-    first case started no track."""
-    a, r = _pair(p, site)
-    ts = _crossings(a, r)
-    assert len(ts) == (2 if site is _ANGLE_OUT else 1)
-    t_true = float(np.linalg.norm(p - site))
-    assert min(abs(t - t_true) for t in ts) < 1e-6 * t_true  # the closed form finds the aircraft
-    cands = Initiator(9, InitPriors(), 0.999).pair_consistency(a, r)
-    assert [c[0] for c in cands] == [root]
-    np.testing.assert_allclose(cands[0][2][:3], p, atol=1e-6 * t_true)
-    assert cands[0][1] < 1e-12  # noise-free: the radar azimuth fits exactly
-    method = make_method("SS", {"association": "gnn", "confirm_m": 1, "confirm_n": 1})
-    out = []
-    for m in sorted([a, r], key=lambda m: m.order_key):
-        out += method.advance(m.t - 0.5) + method.process(m)
-    out += method.finish()
-    assert len(out) == 1
-    np.testing.assert_allclose(out[0].x[:3], p, atol=1e-6 * t_true)
-
-
-@pytest.mark.parametrize("rng", [10e3, 9e3])
-def test_a_ray_that_touches_or_misses_the_sphere_makes_no_pair(rng):
-    """A horizontal ray due north from (10, −50, 0) km passes the radar at 10 km: a
-    sphere of 10 km it touches (b² = c exactly, where t no longer depends on r: the
-    Jacobian is singular), one of 9 km it misses — no candidate either way, and the
-    frame's two plots start no pair (each waits: a partner kind is in the frame)."""
-    a = Measurement(0.0, "angle", "azel", np.array([0.0, 0.0]), np.array([1e-3, 1e-3]), np.array([10e3, -50e3, 0.0]), 0)
-    r = Measurement(0.0, "radar", "range_az", np.array([math.pi / 2, rng]), np.array([math.radians(1.0), 20.0]), _RADAR, 0)
-    assert _crossings(a, r) == []
-    ini = Initiator(9, InitPriors(), 0.999)
-    assert ini.pair_consistency(a, r) == []
-    assert [g[:2] for g in ini.groups([a, r])] == []
-    inside = Measurement(0.0, "radar", "range_az", np.array([math.pi / 2, 10_001.0]), r.std, _RADAR, 0)
-    assert len(_crossings(a, inside)) == 2  # 1 m larger: crossings 141 m either side of the tangent point, both in the gate
-    assert {c[0] for c in ini.pair_consistency(a, inside)} == {NEAR, FAR}
-    assert len(ini.groups([a, inside])) == 1  # one track from the pair, not two
 
 
 # Initiation and sequential gating on air-picture's first frames ---------------------------
@@ -381,7 +309,7 @@ def _run_frames(sc, plots):
 
 def _nearest_track(method, sc, run, t):
     """Per aircraft, the distance (m) from its true position at t to the nearest track."""
-    X = np.array([tr.method.filter.x[:3] for tr in method.tracks])
+    X = np.array([tr.filter.x[:3] for tr in method.tracks])
     return {tid: float(np.min(np.linalg.norm(X - truth_trajectory(sc, tid, run).position(t)[:3], axis=1)))
             for tid in sc.targets}
 
@@ -414,6 +342,6 @@ def test_sequential_gating_keeps_a_neighbour_s_radar_plot_out_of_a_new_track():
     sc, plots, _ = _labelled_frames(0, 3)
     method = _run_frames(sc, plots)
     confirmed = [tr for tr in method.tracks if tr.logic.status == CONFIRMED]
-    X = np.array([tr.method.filter.x[:3] for tr in confirmed])
+    X = np.array([tr.filter.x[:3] for tr in confirmed])
     for tid in ("N10", "N11"):
         assert np.min(np.linalg.norm(X - truth_trajectory(sc, tid, 0).position(2.0)[:3], axis=1)) < 100.0

@@ -1,5 +1,5 @@
 """Many targets in the distributed topologies (fusion.network, "Many targets"):
-track-to-track gating and association (fusion.association), the nodes and centre of
+track-to-track gating and association (fusion.tracking), the nodes and centre of
 HNV / PHHNV / DDHNV with association, and their reduction to the one-target methods."""
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ import math
 import numpy as np
 import pytest
 
-from fusion.association import track_distance2
+from fusion.tracking.hypotheses import track_distance2
 from fusion.motion import make_motion
 from fusion.mtt_metrics import score_tracks
 from fusion.methods import make_method
@@ -293,7 +293,7 @@ RUNS = 5
 #   PHHNV    0.92–1.18 (1.01)   ≥ .988  9 (≤ 2 per run)   0             .935
 #   DDHNV    0.92–1.18 (1.01)   ≥ .988  9 (≤ 2 per run)   0             .935
 # (The breaks of SS, PHHNV and DDHNV: a track fed by an angle sensor alone at a
-# crossing scores misses (fusion.mtt.scores_hit), is lost and started again a few
+# crossing scores misses (fusion.tracking.table.scores_hit), is lost and started again a few
 # frames later; every target is held at the end of every run.)
 # HNV's local angle tracks cannot observe range and its radar tracks not altitude
 # (docs/consistency.md §5): at a crossing a radar track may leave its fused track's

@@ -128,7 +128,7 @@ def test_the_filter_key_chooses_every_track_filter(name):
                         for tr in (node.tracks.values() if hasattr(node, "tracks") else [node.tracker])]
             filters = [tr.filter for tr in trackers]
         else:
-            filters = [tr.method.filter for tr in method.tracks] if hasattr(method, "tracks") else [method.filter]
+            filters = [tr.filter for tr in method.tracks] if hasattr(method, "tracks") else [method.filter]
         assert filters and all(isinstance(f, TrackUKF) for f in filters)
     with pytest.raises(ValueError, match="'filter' must be one of"):
         make_method(name, {"filter": "pf"})

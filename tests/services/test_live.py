@@ -11,7 +11,6 @@ import numpy as np
 import pytest
 
 from fusion.methods import make_method, method_config
-from fusion.oosm import Refiltering
 from schemas import KeySpace, encode, encode_measurement
 from sensors_sim import Scenario, ScenarioError, SiteSpec, load_scenario, load_site
 from services.evaluation import merged_measurements, run_method
@@ -211,79 +210,6 @@ def test_scenario_merger_is_unchanged_without_max_delay():
     assert m.add("slow", 1.0, 0, "s0", 1e6, ev).cause == "late"
 
 
-# --- re-filtering ---------------------------------------------------------------------------
-
-
-def _late_stream(scenario, late_sensor: str, delay_scans: int):
-    """The scenario's measurements, the others in order, ``late_sensor``'s ``delay_scans``
-    scans late: yields (released batch, release time, late batch)."""
-    ms = merged_measurements(scenario, 0)
-    times = sorted({m.t for m in ms})
-    on_time = {t: [m for m in ms if m.t == t and m.sensor != late_sensor] for t in times}
-    late = {t: [m for m in ms if m.t == t and m.sensor == late_sensor] for t in times}
-    for k, t in enumerate(times):
-        back = times[k - delay_scans] if k >= delay_scans else None
-        yield on_time[t], t, (late[back] if back is not None else [])
-
-
-def _in_order(sc, method: str, received: list) -> dict:
-    """The in-order result: the method run on what was received, sorted, as if nothing
-    had been late; its (last) centre estimate at each time."""
-    out = run_method(sc, method, measurements=sorted(received, key=lambda m: m.order_key))
-    return {e.t: e for e in out if e.node == "centre"}
-
-
-@pytest.mark.parametrize("scenario_name, method, late_sensor", [
-    ("patent-3d", "SS", "angle"),
-    ("patent-3d", "LCDD", "radar2d"),
-    ("thesis-fixed-c1", "EKF", None),
-])
-def test_refiltering_gives_the_in_order_estimate(scenario_name, method, late_sensor):
-    sc = load_scenario(scenario_name)
-    late_sensor = late_sensor or list(sc.sensors)[0]
-    rf = Refiltering(make_method(method, method_config(sc.tracker, method)), window=10.0)
-    received: list = []
-    republished = 0
-    for batch, t, late in _late_stream(sc, late_sensor, delay_scans=2):
-        received += late
-        fixed = [e for e in rf.insert(late) if e.node == "centre"]
-        if fixed:  # the corrected history, from the late data's time to the current picture
-            assert fixed[-1].t >= max(m.t for m in late) and fixed == sorted(fixed, key=lambda e: e.t)
-            ref = _in_order(sc, method, received)
-            for e in fixed:
-                np.testing.assert_allclose(e.x, ref[e.t].x, rtol=0, atol=1e-9)
-                np.testing.assert_allclose(e.P, ref[e.t].P, rtol=0, atol=1e-9 * max(1.0, np.abs(ref[e.t].P).max()))
-            republished += 1
-        received += batch
-        rf.step(batch, t)
-    assert republished >= 10
-    assert len(rf) <= 10 / min(s.period for s in sc.sensors.values()) + 3  # bounded by the window
-
-
-def test_a_late_measurement_dropped_would_change_the_estimate():
-    """The guard of the test above: without re-filtering the late sensor, the estimate is
-    not the in-order one (so equality there is not an accident of the scenario)."""
-    sc = load_scenario("patent-3d")
-    ref = [e for e in run_method(sc, "SS") if e.node == "centre"]
-    rf = Refiltering(make_method("SS", method_config(sc.tracker, "SS")), window=10.0)
-    out = []
-    for batch, t, _late in _late_stream(sc, "angle", delay_scans=2):
-        out.extend(rf.step(batch, t))
-    assert abs(out[-1].x[0] - ref[-1].x[0]) > 1e-3 or abs(out[-1].x[1] - ref[-1].x[1]) > 1e-3
-
-
-def test_refiltering_refuses_what_is_older_than_its_buffer():
-    sc = load_scenario("patent-3d")
-    rf = Refiltering(make_method("SS", method_config(sc.tracker, "SS")), window=3.0)
-    stream = list(_late_stream(sc, "angle", delay_scans=0))
-    for batch, t, _ in stream[:10]:
-        rf.step(batch, t)
-    assert rf.oldest <= 9.0 - 3.0 and rf.oldest > 9.0 - 3.0 - 1.0 - 1e-9
-    old = [m for m in merged_measurements(sc, 0) if m.sensor == "angle" and m.t <= rf.oldest][-1]
-    with pytest.raises(ValueError, match="older than the re-filtering buffer"):
-        rf.insert([old])
-
-
 # --- the live fuser core, bytes in ------------------------------------------------------------
 
 
@@ -329,6 +255,7 @@ def test_live_core_applies_late_data_and_refuses_the_future():
     assert core.republished >= 29
     # each corrected estimate is the in-order result of what had been received by then
     assert len(fixed) >= 20
-    for e, received in fixed[::5]:
-        ref = _in_order(sc, "SS", received)[round(e.t - EPOCH)]
+    for e, received in fixed[::5]:  # the in-order run on what was received, its centre estimate at e's time
+        ref = {r.t: r for r in run_method(sc, "SS", measurements=sorted(received, key=lambda m: m.order_key))
+               if r.node == "centre"}[round(e.t - EPOCH)]
         np.testing.assert_allclose(e.x, ref.x, rtol=0, atol=1e-6)  # UTC stamps: t is ~1e9 here

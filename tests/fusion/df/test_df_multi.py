@@ -10,7 +10,7 @@ import subprocess
 import numpy as np
 import pytest
 
-from fusion.association import gate_threshold
+from fusion.tracking.hypotheses import gate_threshold
 from fusion.angles import math_to_compass, wrap_pi
 from fusion.df.models import bearing, bearing_measurements
 from fusion.df.multi import MultiEmitterMethod, bearing_d2, initiate
@@ -155,22 +155,23 @@ def test_a_station_is_gated_with_an_estimate_that_leaves_it_out():
     A (one linearised step from 1 km off: within 100 m), so S3's true bearing of A is
     in that gate and the wrong one is not; with one
     other station there is no such estimate and the track's own is used."""
-    from fusion.association import ManagementRule, TrackLogic
-    from fusion.df.multi import _Emitter
+    from fusion.tracking.table import ManagementRule, TrackLogic
+    from fusion.df.multi import Bearings, _Emitter
     from fusion.types import Estimate
 
     x_off = A + np.array([1000.0, 0.0])
-    tr = _Emitter(None, TrackLogic(ManagementRule()), 1, Estimate(0.0, x_off, np.eye(2) * 100.0**2, "EKF", "centre"),
-                  window=3)
+    tr = _Emitter(None, Estimate(0.0, x_off, np.eye(2) * 100.0**2, "EKF", "centre"), window=3,
+                  logic=TrackLogic(ManagementRule()))
     for _ in range(3):  # noise-free bearings of A from S1, S2; S3's is of B
-        tr.taken.append((np.array([S1, S2, S3]), np.array([bearing(A, S1), bearing(A, S2), bearing(B, S3)]),
-                         np.full(3, SIGMA), ["df1", "df2", "df3"]))
+        tr.taken.append(Bearings(np.array([S1, S2, S3]), np.array([bearing(A, S1), bearing(A, S2), bearing(B, S3)]),
+                                 np.full(3, SIGMA), ["df1", "df2", "df3"], [], 0.0))
     x, P = tr.without("df3")
     assert np.linalg.norm(x - A) < 100.0 and np.all(np.linalg.eigvalsh(P) > 0)
     d2 = bearing_d2(x, P, np.array([S3, S3]), np.array([bearing(A, S3), bearing(B, S3)]), np.full(2, SIGMA))
     assert d2[0] < 1.0 and d2[1] > G
     tr.taken.clear()
-    tr.taken.append((np.array([S1, S3]), np.array([bearing(A, S1), bearing(B, S3)]), np.full(2, SIGMA), ["df1", "df3"]))
+    tr.taken.append(Bearings(np.array([S1, S3]), np.array([bearing(A, S1), bearing(B, S3)]), np.full(2, SIGMA),
+                             ["df1", "df3"], [], 0.0))
     x, P = tr.without("df3")
     assert x is tr.last.x and P is tr.last.P
 
@@ -182,7 +183,7 @@ def test_a_swap_ghost_pair_is_exchanged_into_the_two_emitters():
     free bearings) against 0 for the real pairing. Exchanging df2's and df4's bearings
     between them makes each a real emitter: both tracks end on P and Q, within metres,
     every bearing of each from one emitter."""
-    from fusion.association import CONFIRMED, ManagementRule, TrackLogic
+    from fusion.tracking.table import CONFIRMED, ManagementRule, TrackLogic
     from fusion.df.multi import _Emitter
 
     sites = np.array([[0.0, 0.0], [40.0, 0.0], [40.0, 40.0], [0.0, 40.0]]) * KM
@@ -197,7 +198,7 @@ def test_a_swap_ghost_pair_is_exchanged_into_the_two_emitters():
                 SIGMA)[0], seq=s) for s in range(4)]
             if tr is None:
                 emitter = method._make_emitter()
-                tr = _Emitter(emitter, TrackLogic(ManagementRule(1, 1)), k, method._localise(emitter, ms, k + 1.0), 5)
+                tr = _Emitter(emitter, method._localise(emitter, ms, k + 1.0), 5, TrackLogic(ManagementRule(1, 1)))
             else:
                 tr.last = method._localise(tr.method, ms, k + 1.0)
             tr.taken.append(method._bearings(ms, k + 1.0))
@@ -225,7 +226,7 @@ def test_a_station_of_the_distributed_kf_tr_smooths_each_emitter_apart():
     track of its own, which is deleted after ``delete_misses`` scans without a bearing."""
     from fusion.df.smoothing import BearingSmoother
     from fusion.mtt import AssociationConfig
-    from fusion.network import MultiStationNode
+    from fusion.df.stations import MultiStationNode
 
     association, rest = AssociationConfig.split({"association": "gnn", "delete_misses": 3, "sigma": SIGMA})
     node = MultiStationNode("df1", rest, False, association)

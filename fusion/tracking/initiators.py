@@ -1,0 +1,163 @@
+r"""Initiation of 3D tracks from the plots of a frame that no track took.
+
+A 2D radar plot fixes a sphere and an angle plot a ray, so a track starts from a *pair*
+across sensors: the ray meets the range sphere (:func:`fusion.init3d.spherical_to_position`;
+no pair if they do not meet, or only touch), and the radar's own azimuth, which the point
+did not use, must agree with it within the χ²(1) gate — at either crossing when the
+angle sensor is outside the sphere, each crossing a candidate of its own. Each
+consistent pair gathers the nearest plot in its gate from every other sensor of the
+frame, so one target seen by four sensors starts one track, and the pairs are taken by
+*support*: most sensors first, then least total ``d²``. A plot starts a track alone only
+if nothing in its frame could pair with it (a 2D radar plot in a frame without angle
+plots, or the reverse; a 3D radar plot always): a lone plot's broad prior attracts
+clutter. The reasons and the cases: docs/algorithms.md, "Initiation from sensors that
+see part of the position".
+"""
+
+from __future__ import annotations
+
+import heapq
+import math
+from typing import Sequence
+
+import numpy as np
+
+from ..angles import wrap_pi
+from ..init3d import FAR, NEAR, initial_state, spherical_to_position
+from ..measurement.kinds import KINDS, RAY, SPHERE, model_of, partners
+from ..measurement.models import SphericalModel
+from ..types import Measurement
+from .hypotheses import by_sensor, gate_threshold, mahalanobis2
+
+_PAIR_PREFILTER = 10.0  # × the gate's σ: azimuth misfit beyond which a pair is not evaluated
+
+
+class Initiator:
+    """New 3D tracks from the plots of one frame that no track took (module docstring);
+    the centralised many-target methods and the distributed centre use it.
+
+    Args:
+        n_x: the state size.
+        priors: the initial-state priors (:class:`fusion.init3d.InitPriors`).
+        gate_prob: ``P_G`` of the pair consistency and gathering gates.
+    """
+
+    def __init__(self, n_x: int, priors, gate_prob: float):
+        self.n_x = n_x
+        self._priors = priors
+        self.gate_prob = gate_prob
+
+    def _gate(self, dof: int) -> float:
+        return gate_threshold(dof, self.gate_prob)
+
+    def initiate(self, left: list[Measurement], tracks=(), frame=None) -> tuple[dict, list]:
+        """The :class:`~fusion.tracking.manager.Initiator` step: no group continues a
+        track; :meth:`groups` of the plots left, in stream order, start new ones."""
+        return {}, self.groups(sorted(left, key=lambda m: m.order_key))
+
+    def groups(self, left: list[Measurement]) -> list[tuple[list[Measurement], list[Measurement], np.ndarray, np.ndarray]]:
+        """``(first, more, x, P)`` per new track from the unclaimed plots: the plots it
+        starts from, those it gathers in the same frame (module docstring) and the
+        initial state ``(x, P)`` it starts from (``first``'s).
+
+        Every consistent pair gathers first; pairs are then taken best first by their
+        *support* — most sensors in the group, then least total ``d²`` (pair and gathered
+        plots) — so a pair of one aircraft's ray with a neighbour's range sphere, which
+        only its own sensors agree with, loses to the pairs of either aircraft, which the
+        other sensors confirm. A pair whose gathered plots a better group took gathers
+        again from what is left and waits its turn with its new support. When the angle
+        sensor is outside the radar's range sphere its ray crosses it twice ahead of it:
+        each crossing in the gate is a candidate of its own (:meth:`pair_consistency`),
+        and the support decides between them as between any two pairs."""
+        candidates = []
+        radars = [r for r in left if KINDS[r.kind].start == SPHERE]
+        for a in left:
+            if KINDS[a.kind].start != RAY:
+                continue  # the ray: an angle sensor's az/el
+            for r, roots in _near_spheres(a, [r for r in radars if r.sensor != a.sensor],
+                                          _PAIR_PREFILTER * math.sqrt(self._gate(1))):
+                candidates += [(a, r, *pair) for pair in self.pair_consistency(a, r, roots)]
+        used: set[tuple] = set()
+        queue = []
+        for a, r, root, d2, x, P in candidates:
+            more, d2_more = self._gather(a, r, x, P, left, used)
+            queue.append((-len(more), d2 + d2_more, a.order_key, r.order_key, root, d2, a, r, x, P, more))
+        heapq.heapify(queue)  # (ka, kr, root) is unique: the comparison never reaches the plots
+        groups = []
+        while queue:
+            _, _, ka, kr, root, d2, a, r, x, P, more = heapq.heappop(queue)
+            if ka in used or kr in used:
+                continue
+            if any(m.order_key in used for m in more):  # a better group took some: gather again
+                more, d2_more = self._gather(a, r, x, P, left, used)
+                heapq.heappush(queue, (-len(more), d2 + d2_more, ka, kr, root, d2, a, r, x, P, more))
+                continue
+            used |= {ka, kr, *(m.order_key for m in more)}
+            groups.append((sorted([a, r], key=lambda m: m.order_key), sorted(more, key=lambda m: m.order_key), x, P))
+        # A plot starts a track alone only if nothing in the frame could pair with it
+        # (lone 2D radar and angle plots attract clutter through their broad priors).
+        kinds = {m.kind for m in left}
+        alone = [m for m in left if m.order_key not in used and not (partners(m.kind) & kinds)]
+        alone.sort(key=lambda m: (not KINDS[m.kind].fixes_range, m.order_key))  # radars first
+        return groups + [([m], [], *initial_state([m], self.n_x, self._priors)) for m in alone]
+
+    def _gather(self, a: Measurement, r: Measurement, x: np.ndarray, P: np.ndarray, left: list[Measurement],
+                used: set):
+        """The nearest plot in the χ² gate of the pair's initial state ``(x, P)`` from
+        every other sensor, among the plots not ``used``; and the sum of their ``d²``."""
+        more, total = [], 0.0
+        for plots in by_sensor([m for m in left if m.order_key not in used and m.sensor not in (a.sensor, r.sensor)]):
+            model = model_of(plots[0], self.n_x)
+            d2 = mahalanobis2(model, x, P, np.array([p.z for p in plots]))
+            j = int(np.argmin(d2))
+            if d2[j] <= self._gate(model.n_z):
+                more.append(plots[j])
+                total += float(d2[j])
+        return more, total
+
+    def pair_consistency(self, a: Measurement, r: Measurement,
+                         roots: Sequence[int] = (FAR, NEAR)) -> list[tuple[int, float, np.ndarray, np.ndarray]]:
+        """``(root, d², x, P)`` per crossing (among ``roots``) of the angle plot's ray with
+        the radar plot's range sphere that is ahead of the angle sensor (``root``:
+        :data:`fusion.init3d.FAR` or ``NEAR``, module docstring of :mod:`fusion.init3d`)
+        and consistent with the radar's azimuth: ``(x, P)`` the pair's initial state at
+        that crossing, ``d²`` of the radar's azimuth against it inside the χ²(1) gate.
+        Empty if the ray misses or touches the sphere or no crossing is in the gate."""
+        pair = sorted([a, r], key=lambda m: m.order_key)
+        model = SphericalModel(("az",), r.site, [r.std[0]], self.n_x)
+        out = []
+        for root in roots:
+            if spherical_to_position(a.site, float(a.z[0]), float(a.z[1]), float(r.z[1]), r.site, root) is None:
+                continue
+            x, P = initial_state(pair, self.n_x, self._priors, root)
+            d2 = float(mahalanobis2(model, x, P, np.array([[r.z[0]]]))[0])
+            if d2 <= self._gate(1) and not any(np.array_equal(x, o[2]) for o in out):  # one state: one candidate
+                out.append((root, d2, x, P))
+        return out
+
+
+def _near_spheres(a: Measurement, radars: list[Measurement], k: float) -> list[tuple[Measurement, tuple[int, ...]]]:
+    """The 2D radar plots whose range sphere the angle plot's ray crosses ahead of it at a
+    point within ``k`` azimuth σ of the radar's own azimuth, each with the roots that do —
+    a cheap screen, all radars at once, before :meth:`Initiator.pair_consistency` (``k`` ≫
+    the gate: a crossing it drops is far outside it). The ray-sphere points are
+    :func:`fusion.init3d.spherical_to_position`'s."""
+    if not radars:
+        return []
+    az, el = float(a.z[0]), float(a.z[1])
+    u = np.array([math.cos(el) * math.sin(az), math.cos(el) * math.cos(az), math.sin(el)])
+    sites = np.array([r.site for r in radars], dtype=float)
+    Z = np.array([r.z for r in radars], dtype=float)
+    std_az = np.array([r.std[0] for r in radars], dtype=float)
+    w = np.asarray(a.site, dtype=float) - sites
+    b = w @ u
+    disc = b * b - (np.sum(w * w, axis=1) - Z[:, 1] ** 2)
+    sq = np.sqrt(np.where(disc > 0.0, disc, 0.0))
+    keep = {}
+    for root in (FAR, NEAR):
+        t = -b + root * sq
+        d = w + t[:, None] * u  # the point from the radar's site
+        misfit = np.abs(wrap_pi(Z[:, 0] - np.arctan2(d[:, 0], d[:, 1])))
+        keep[root] = (disc > 0.0) & (t > 0.0) & (misfit <= k * std_az)
+    out = [(r, tuple(root for root in (FAR, NEAR) if keep[root][i])) for i, r in enumerate(radars)]
+    return [(r, roots) for r, roots in out if roots]

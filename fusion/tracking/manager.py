@@ -1,0 +1,161 @@
+r"""One many-target tracker over injected parts.
+
+:class:`MultiTargetTracker` runs one *frame* (the plots within ``pair_tol`` of its first
+one) at a time:
+
+1. **associate** scan by scan (a scan: one sensor's plots): the hypothesiser gives the
+   scan's gated costs against every track, the associator decides who took what, and
+   the hypothesiser conditions the tracks' gating states on it before the next scan
+   (sequential gating);
+2. **initiate**: the initiator groups the plots no track took into new tracks (and
+   may hand a group to a tentative track instead);
+3. **update** each track with what it took, or coast it; record the frame's hit or
+   miss in its logic;
+4. **review** the table (duplicates; a configuration's own checks);
+5. **start** the new tracks; **close** the frame: ids at confirmation, the deleted
+   gone, the priority order restored (:class:`~fusion.tracking.table.TrackTable`).
+
+The parts are protocols (below). The centralised many-target methods
+(:class:`fusion.mtt.MultiTargetMethod`), the distributed centre
+(:class:`fusion.network.MultiTrackCentre`: local tracks as plots, track-to-track costs)
+and the emitter tracker (:class:`fusion.df.multi.MultiEmitterMethod`) are configurations
+of it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import cached_property
+from typing import Any, Protocol, Sequence
+
+import numpy as np
+
+from .associators import Associator
+from .hypotheses import Hypotheses
+from .table import Track, TrackTable
+
+
+@dataclass(frozen=True)
+class Frame:
+    """The plots of one frame, in stream order; ``t`` is the first one's time."""
+
+    plots: Sequence
+
+    @property
+    def t(self) -> float:
+        return self.plots[0].t
+
+    @cached_property
+    def sensors(self) -> int:
+        """How many sensors (or nodes) the frame holds."""
+        return len({p.sensor for p in self.plots})
+
+
+@dataclass(frozen=True)
+class Taken:
+    """What one track took from one scan: the plots, their ``d²``, their association
+    weights ``β`` (1 for an assignment) and the weight ``β₀`` that the track made none
+    of them (0 for an assignment)."""
+
+    plots: tuple
+    d2: tuple[float, ...]
+    beta: tuple[float, ...] = (1.0,)
+    miss: float = 0.0
+
+
+class Hypothesiser(Protocol):
+    def predict(self, tracks: Sequence[Track], frame: Frame) -> Any:
+        """The tracks' gating states at the frame's time (opaque to the tracker)."""
+
+    def scans(self, frame: Frame) -> Sequence[Sequence]:
+        """The frame's plots as scans, in the order they are associated."""
+
+    def hypothesise(self, states: Any, tracks: Sequence[Track], scan: Sequence) -> Hypotheses: ...
+
+    def condition(self, states: Any, hyp: Hypotheses, association) -> None:
+        """Sequential gating: condition the gating states on the scan's association."""
+
+    def unclaimed(self, hyp: Hypotheses, columns: Sequence[int]) -> list:
+        """What becomes of the plots no track took: those left for initiation."""
+
+
+class Initiator(Protocol):
+    def initiate(self, left: list, tracks: Sequence[Track], frame: Frame) -> tuple[dict[int, list[Taken]], list]:
+        """From the plots no track took: ``(continued, births)`` — groups handed to
+        existing (tentative) tracks by their place in ``tracks``, and the groups that
+        start new tracks."""
+
+
+class Updater(Protocol):
+    def update(self, track: Track, taken: list[Taken], frame: Frame) -> bool:
+        """Update (or coast) the track with what it took; returns whether it scores a hit."""
+
+    def position_cov(self, track: Track) -> np.ndarray:
+        """The covariance ``max_pos_std`` is checked on."""
+
+    def start(self, group, frame: Frame) -> Track | None:
+        """A new track from an initiation group (None: the group gives no state)."""
+
+
+class Reviewer(Protocol):
+    def review(self, tracks: Sequence[Track]) -> None:
+        """After the updates: mark tracks deleted (duplicates, a failed consistency test)."""
+
+
+class MultiTargetTracker:
+    """Many targets over injected parts (module docstring).
+
+    Args:
+        hypothesiser, associator, initiator, updater: the parts.
+        table: the track table (its logic is the track management).
+        reviewer: an optional review after the updates (e.g. a
+            :class:`~fusion.tracking.table.DuplicateWatch`).
+    """
+
+    def __init__(self, hypothesiser: Hypothesiser, associator: Associator, initiator: Initiator, updater: Updater,
+                 table: TrackTable, reviewer: Reviewer | None = None):
+        self.hypothesiser = hypothesiser
+        self.associator = associator
+        self.initiator = initiator
+        self.updater = updater
+        self.table = table
+        self.reviewer = reviewer
+
+    @property
+    def tracks(self) -> list[Track]:
+        """The tracks, in priority order (confirmed in id order, then tentative in birth order)."""
+        return self.table.tracks
+
+    def frame(self, plots: Sequence) -> list[Track]:
+        """One frame (module docstring); returns its confirmed tracks, in id order."""
+        frame = Frame(plots)
+        tracks = list(self.table.tracks)
+        taken, left = self.associate(tracks, frame)
+        continued, births = self.initiator.initiate(left, tracks, frame)
+        for i, track in enumerate(tracks):
+            hit = self.updater.update(track, taken[i] + continued.get(i, []), frame)
+            track.logic.record(hit, self.updater.position_cov(track))
+        if self.reviewer is not None:
+            self.reviewer.review(tracks)
+        for group in births:
+            track = self.updater.start(group, frame)
+            if track is not None:
+                self.table.add(track)
+        return self.table.close_frame()
+
+    def associate(self, tracks: list[Track], frame: Frame) -> tuple[list[list[Taken]], list]:
+        """Scan by scan: what each track took, and the plots left for initiation."""
+        states = self.hypothesiser.predict(tracks, frame)
+        taken: list[list[Taken]] = [[] for _ in tracks]
+        left: list = []
+        scans = self.hypothesiser.scans(frame)
+        for k, scan in enumerate(scans):
+            hyp = self.hypothesiser.hypothesise(states, tracks, scan)
+            association = self.associator.associate(hyp)
+            for r, cols, beta, miss in association.per_row():
+                taken[hyp.rows[r]].append(Taken(tuple(scan[c] for c in cols), tuple(hyp.d2[r, list(cols)]), beta, miss))
+            used = association.used
+            left += self.hypothesiser.unclaimed(hyp, [c for c in range(len(scan)) if c not in used])
+            if k + 1 < len(scans):
+                self.hypothesiser.condition(states, hyp, association)
+        return taken, left
