@@ -46,6 +46,7 @@ from .df.models import bearing_of
 from .df.multi import MultiEmitterMethod
 from .init3d import initial_state
 from .grouping import TimeGrouper
+from .guards import gap_too_long, positive_definite
 from .measurement.kinds import kinds_of, model_of
 from .mtt import AssociationConfig, Initiator, scores_hit
 from .patent import KINDS_3D, LocalTracker, TrackerConfig
@@ -190,10 +191,14 @@ class TrackNode(LocalNode):
 
     def centre_restarted(self) -> bool:
         super().centre_restarted()
+        self._start_afresh()
+        return True
+
+    def _start_afresh(self) -> None:
+        """Drop the track: the next measurement asks the centre for an initial state."""
         old = self.tracker
         self.tracker = LocalTracker(self.node, old.motion, old.method, old.track, old.new_filter)
         self._requested = False
-        return True
 
     def receive(self, d: Downlink) -> None:
         e = d.estimate
@@ -214,6 +219,10 @@ class TrackNode(LocalNode):
         return None
 
     def _process(self, m, alone):
+        # A track more than max_gap_s old, or left not positive definite, starts afresh
+        # (fusion.guards); the centre, as old, starts afresh from the nodes' requests.
+        if self.tracker.initialised and gap_too_long(m.t - self.tracker.t, self.config.max_gap_s):
+            self._start_afresh()
         if not self.tracker.initialised:
             if alone:  # no centre: start from this sensor's own measurement
                 x, P = initial_state([m], self.tracker.motion.n_x, self.config.priors())
@@ -223,7 +232,11 @@ class TrackNode(LocalNode):
             return [self._uplink(m.t, measurement=m)]
         if self.scheme.predicts:
             return [self._uplink(m.t, self.tracker.predict(m.t), m)]
-        return [self._uplink(m.t, self.tracker.update(m))]
+        e = self.tracker.update(m)
+        if not positive_definite(e.P):
+            self._start_afresh()
+            return self._process(m, alone)
+        return [self._uplink(m.t, e)]
 
 
 class StationNode(LocalNode):
@@ -316,6 +329,14 @@ class TrackCentre(GroupedCentre):
         t = scan[0].t
         requests = [u for u in scan if u.init_request]
         reports = [u for u in scan if not u.init_request]
+        if self.fuser.initialised and gap_too_long(t - self.fuser.t, self.config.max_gap_s):
+            # Start afresh (fusion.guards): the nodes, as old, ask for initial states again.
+            self.fuser = TrackFuser(self.config.fusion_rule, self.motion, self.config.ci_criterion, self.name,
+                                    self.track)
+            self.nodes = set()
+            reports = []
+            if not requests:
+                return []
         if not self.fuser.initialised:
             if reports:
                 raise ValueError(f"{self.name}: local estimates before the shared initial state: "
