@@ -42,13 +42,16 @@ NIS_MAX_DOF = 64
 
 
 def positive_definite(P: np.ndarray) -> bool:
-    """Whether the (symmetric) covariance ``P`` is finite and positive definite: its
-    Cholesky factor exists."""
+    """Whether the symmetric covariance ``P`` is finite and positive definite to working
+    precision: a positive diagonal and a Cholesky factor of ``D^-1/2 P D^-1/2`` (``D`` its
+    diagonal; the test the track-fusion rules' inverses apply)."""
     P = np.asarray(P, dtype=float)
-    if not np.isfinite(P).all() or not (np.diagonal(P) > 0.0).all():
+    d = np.diagonal(P)
+    if not np.isfinite(P).all() or not (d > 0.0).all():
         return False
+    s = 1.0 / np.sqrt(d)
     try:
-        np.linalg.cholesky(P)
+        np.linalg.cholesky(P * s[:, None] * s[None, :])
     except np.linalg.LinAlgError:
         return False
     return True
