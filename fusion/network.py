@@ -202,8 +202,9 @@ class TrackNode(LocalNode):
 
     def receive(self, d: Downlink) -> None:
         e = d.estimate
-        if d.drop:  # the centre dropped the track (fusion.guards)
-            self._start_afresh()
+        if d.drop:  # the centre dropped the track (fusion.guards), unless this node has already
+            if self.tracker.initialised:
+                self._start_afresh()
             return
         if not d.init and not self.tracker.initialised:
             return  # feedback for the track this node dropped (fusion.guards); it waits for an init
