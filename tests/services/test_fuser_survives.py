@@ -60,7 +60,8 @@ DF_SENSORS = {"df1": ((0.0, 0.0, 0.0), "bearing", (0.0175,)),
               "df3": ((0.0, 14000.0, 0.0), "bearing", (0.0175,))}
 SENSORS_3D = {"radar2d": ((0.0, 0.0, 0.0), "range_az", (0.0175, 20.0)),
               "angle": ((0.0, 0.0, 0.0), "azel", (0.001, 0.001)),
-              "radar3d": ((10000.0, 0.0, 0.0), "az_el_range", (0.01, 0.01, 30.0))}
+              "radar3d": ((10000.0, 0.0, 0.0), "az_el_range", (0.01, 0.01, 30.0)),
+              "adsb": ((0.0, 0.0, 0.0), "position", (30.0, 30.0, 50.0))}
 
 # every method with its registry defaults, and a few [tracker] variants
 CONFIGS = [(name, {}) for name in METHODS] + [
@@ -116,8 +117,13 @@ class Sky:
         az = math.atan2(d[0], d[1])
         el = math.atan2(d[2], math.hypot(d[0], d[1]))
         rg = float(np.linalg.norm(d))
-        true = {"bearing": [az], "range_az": [az, rg], "azel": [az, el], "az_el_range": [az, el, rg]}[kind]
+        true = {"bearing": [az], "range_az": [az, rg], "azel": [az, el], "az_el_range": [az, el, rg],
+                "position": list(d + site)}[kind]
         z = np.array(true) + self.rng.normal(0.0, 1.0, len(std)) * std
+        if kind == "position":  # a position in the site's frame: any finite metres
+            if self.rng.random() < outliers:
+                z = self.rng.uniform(-1e7, 1e7, 3)
+            return Measurement(t=t, sensor=sid, kind=kind, z=z, std=std, site=site, seq=seq)
         if self.rng.random() < outliers:  # anywhere the schema allows
             z = np.array(true)
             z[0] = self.rng.uniform(0.0, TWO_PI)
