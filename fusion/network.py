@@ -48,6 +48,7 @@ from .tracking.manager import Frame, MultiTargetTracker, Taken
 from .tracking.table import Track, TrackIds, TrackTable, scores_hit
 from .init3d import initial_state
 from .grouping import TimeGrouper
+from .guards import epoch_nis, gap_too_long, positive_definite
 from .patent import KINDS_3D, LocalTracker, TrackerConfig
 from .topology import Scheme
 from .track_fusion import TrackFuser
@@ -190,13 +191,23 @@ class TrackNode(LocalNode):
 
     def centre_restarted(self) -> bool:
         super().centre_restarted()
+        self._start_afresh()
+        return True
+
+    def _start_afresh(self) -> None:
+        """Drop the track: the next measurement asks the centre for an initial state."""
         old = self.tracker
         self.tracker = LocalTracker(self.node, old.motion, old.method, old.track, old.new_filter)
         self._requested = False
-        return True
 
     def receive(self, d: Downlink) -> None:
         e = d.estimate
+        if d.drop:  # the centre dropped the track (fusion.guards), unless this node has already
+            if self.tracker.initialised:
+                self._start_afresh()
+            return
+        if not d.init and not self.tracker.initialised:
+            return  # feedback for the track this node dropped (fusion.guards); it waits for an init
         if d.init or self.scheme.feeds_back:
             if self.tracker.initialised and e.t < self.tracker.t:
                 return  # older than where this node already is (it ran alone meanwhile)
@@ -214,6 +225,10 @@ class TrackNode(LocalNode):
         return None
 
     def _process(self, m, alone):
+        # A track more than max_gap_s old, or left not positive definite, starts afresh
+        # (fusion.guards); the centre, as old, starts afresh from the nodes' requests.
+        if self.tracker.initialised and gap_too_long(m.t - self.tracker.t, self.config.max_gap_s):
+            self._start_afresh()
         if not self.tracker.initialised:
             if alone:  # no centre: start from this sensor's own measurement
                 x, P = initial_state([m], self.tracker.motion.n_x, self.config.priors())
@@ -223,7 +238,11 @@ class TrackNode(LocalNode):
             return [self._uplink(m.t, measurement=m)]
         if self.scheme.predicts:
             return [self._uplink(m.t, self.tracker.predict(m.t), m)]
-        return [self._uplink(m.t, self.tracker.update(m))]
+        e = self.tracker.update(m)
+        if not all(map(positive_definite, _covariances(e))):
+            self._start_afresh()
+            return self._process(m, alone)
+        return [self._uplink(m.t, e)]
 
 
 # Centres -----------------------------------------------------------------------------
@@ -294,43 +313,76 @@ class TrackCentre(GroupedCentre):
         self._new_filter = config.new_filter(self.motion)
         self.fuser = TrackFuser(config.fusion_rule, self.motion, config.ci_criterion, name, track)
         self.nodes: set[str] = set()
+        self.restarts = 0  # tracks started afresh (fusion.guards)
         self._grouper = TimeGrouper(config.pair_tol, one_per_sensor=True)
 
     # -- scans ----------------------------------------------------------------------------
     def _group(self, scan: list[Uplink]) -> list[Estimate]:
         t = scan[0].t
+        if self.fuser.initialised and gap_too_long(t - self.fuser.t, self.config.max_gap_s):
+            self._start_afresh(t)
         requests = [u for u in scan if u.init_request]
-        reports = [u for u in scan if not u.init_request]
+        # A report of a node that is no member was sent before it heard that the track was dropped.
+        reports = [u for u in scan if not u.init_request and u.node in self.nodes]
+        out = self._fuse(t, reports) if reports else []
+        if not requests:
+            return out
         if not self.fuser.initialised:
-            if reports:
-                raise ValueError(f"{self.name}: local estimates before the shared initial state: "
-                                 f"{[u.node for u in reports]}")
             x, P = initial_state([u.measurement for u in requests], self.motion.n_x, self.config.priors())
             self.fuser.initialise(x, P, t)
             e = Estimate(t, x, P, self.name, "centre", self.track)
-            for u in requests:
-                self._join(u.node, e)
-            return [e]
-        out: list[Estimate] = []
-        if reports:
-            out.append(self._fuse(t, reports))
-        if requests:  # late joiners start from the latest fused state
+            out.append(e)
+        else:  # late joiners start from the latest fused state
             e = Estimate(self.fuser.t, self.fuser.x, self.fuser.P, self.name, "centre", self.track)
-            for u in requests:
-                self._join(u.node, e)
+        for u in requests:
+            self._join(u.node, e)
         return out
+
+    def _start_afresh(self, t: float) -> None:
+        """Drop the fused track (:mod:`fusion.guards`): a new fuser with no member nodes;
+        each node is told to drop its track (a ``drop`` downlink, which carries no state)
+        and asks for an initial state with its next measurement."""
+        n = self.motion.n_x
+        for node in sorted(self.nodes):
+            self._send(node, Estimate(t, np.zeros(n), np.eye(n), self.name, "centre", self.track), False, drop=True)
+        self.fuser = TrackFuser(self.config.fusion_rule, self.motion, self.config.ci_criterion, self.name, self.track)
+        self.nodes = set()
+        self.restarts += 1
 
     def _join(self, node: str, e: Estimate) -> None:
         self.nodes.add(node)
         self.fuser.add_node(node)
         self._send(node, e, init=True)
 
-    def _fuse(self, t: float, reports: list[Uplink]) -> Estimate:
-        centre, per_node = fuse_reports(self.fuser, self.scheme, t, reports, self.track, self._new_filter)
+    def _fuse(self, t: float, reports: list[Uplink]) -> list[Estimate]:
+        """The scan's fused estimate; a scan the rules cannot fuse (a covariance that is
+        not positive definite), or whose fused covariance is not, drops the track."""
+        try:
+            centre, per_node = fuse_reports(self.fuser, self.scheme, t, reports, self.track, self._new_filter)
+        except ValueError:  # (np.linalg.LinAlgError is one)
+            centre = None
+        if centre is None or not all(map(positive_definite, _covariances(centre, self.fuser.model_extra()))):
+            self._start_afresh(t)
+            return []
         if self.scheme.feeds_back:
             for node in sorted(self.nodes):
                 self._send(node, _feedback(centre, per_node.get(node), self.track, self.fuser.model_extra()), False)
-        return centre
+        return [centre]
+
+
+def _covariances(e: Estimate, models: dict | None = None) -> list[np.ndarray]:
+    """The covariances an estimate (and an IMM's per-model terms) carries: its ``P`` and
+    each model's ``imm_Ps`` block on the coordinates the model has (a model of fewer
+    states, CV among CA ones, has none on the others)."""
+    out = [e.P]
+    for extra in (e.extra, models or {}):
+        if "imm_Ps" in extra:
+            Ps = np.asarray(extra["imm_Ps"], dtype=float)
+            n = Ps.shape[1]
+            for P in (Ps[k:k + n] for k in range(0, Ps.shape[0], n)):
+                has = np.diagonal(P) != 0.0
+                out.append(P[np.ix_(has, has)])
+    return out
 
 
 def fuse_reports(fuser: TrackFuser, scheme: Scheme, t: float, reports: list[Uplink], track: str, new_filter):
@@ -355,8 +407,7 @@ def fuse_reports(fuser: TrackFuser, scheme: Scheme, t: float, reports: list[Upli
     else:
         fused = fuser.fuse(t, local)
         nis_from = [e for e in local if e.nis is not None]
-    nis = sum(e.nis for e in nis_from) if nis_from else None
-    dof = sum(e.nis_dof for e in nis_from) if nis_from else None
+    nis, dof = epoch_nis((e.nis, e.nis_dof) for e in nis_from)
     extra = {"omega": fused.extra["omega"]} if "omega" in fused.extra else {}  # CI weights
     return Estimate(t, fused.x, fused.P, fuser.method, "centre", track, nis, dof, extra), per_node
 

@@ -37,6 +37,7 @@ from .init3d import InitPriors, initial_state
 from .motion import make_motion, NOISE_FORMS
 from .filters import FILTERS, Filter, NewFilter, filter_factory
 from .grouping import TimeGrouper
+from .guards import MAX_GAP_S, epoch_nis, gap_too_long, positive_definite
 from .imm import IMM_MODELS, TrackIMM, model_set
 from .measurement.kinds import KINDS, RAY, SPHERE, kinds_of, model_of
 from .measurement.models import MeasurementModel, SphericalModel, stack
@@ -89,6 +90,7 @@ class TrackerConfig:
     imm_sojourn_ct: float = 15.0
     imm_sojourn_turn: float = 15.0
     imm_sojourn_ca: float = 2.0
+    max_gap_s: float = MAX_GAP_S
 
     @classmethod
     def from_dict(cls, config: dict | None) -> "TrackerConfig":
@@ -115,6 +117,8 @@ class TrackerConfig:
             raise ValueError(f"tracker config 'q' must be >= 0, got {self.q}")
         if self.pair_tol < 0.0:
             raise ValueError(f"tracker config 'pair_tol' must be >= 0, got {self.pair_tol}")
+        if not self.max_gap_s > 0.0:
+            raise ValueError(f"tracker config 'max_gap_s' must be > 0, got {self.max_gap_s}")
         for key in ("init_range", "init_range_std", "init_el_std", "init_vel_std", "init_vel_std_up", "init_acc_std", "init_acc_std_up"):
             if getattr(self, key) <= 0.0:
                 raise ValueError(f"tracker config {key!r} must be > 0, got {getattr(self, key)}")
@@ -315,21 +319,25 @@ class CentralisedMethod(ScanMethod):
         self._pieces = pieces
         self._new_filter = config.new_filter(self.motion, centralised=True)
         self.filter: Filter | None = None
+        self.restarts = 0  # tracks started afresh (fusion.guards)
 
     def process_scan(self, scan):
+        """The scan's update; a first scan, or one after a gap of more than ``max_gap_s``
+        or that leaves the covariance not positive definite, starts the track afresh
+        (:mod:`fusion.guards`; counted in ``restarts``)."""
         t = scan[0].t
-        if self.filter is None:
+        if self.filter is None or gap_too_long(t - self.filter.t, self.config.max_gap_s):
             return [self.start(*initial_state(scan, self.n_x, self.priors), t)]
         self.filter.predict(t)
-        nis, dof = 0.0, 0
-        for model, z in self._pieces(scan, self.n_x):
-            nis += self.filter.update(model, z).nis
-            dof += model.n_z
-        return [Estimate(t, self.filter.x, self.filter.P, self.name, "centre", self.track, nis, dof)]
+        terms = [(self.filter.update(model, z).nis, model.n_z) for model, z in self._pieces(scan, self.n_x)]
+        if not positive_definite(self.filter.P):
+            return [self.start(*initial_state(scan, self.n_x, self.priors), t)]
+        return [Estimate(t, self.filter.x, self.filter.P, self.name, "centre", self.track, *epoch_nis(terms))]
 
     def start(self, x: np.ndarray, P: np.ndarray, t: float) -> Estimate:
         """Start the track's filter at ``(x, P)`` at ``t`` (what :meth:`process_scan` does
         with a first scan's initial state; a many-target manager passes its own)."""
+        self.restarts += self.filter is not None
         self.filter = self._new_filter(x, P, t)
         return Estimate(t, x, P, self.name, "centre", self.track)
 

@@ -28,8 +28,9 @@ import json
 import math
 import queue
 import time
+from collections import Counter
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, Callable, Mapping
 
 from fusion.measurement.kinds import KINDS
 from fusion.methods import METHODS, make_method, method_config, split, track_fusion_rule
@@ -37,7 +38,7 @@ from fusion.mtt import AssociationConfig
 from fusion.network import TrackCentre
 from fusion.oosm import Refiltering
 from fusion.types import Estimate
-from schemas import KeySpace, Message, decode, encode_estimate, to_estimate, to_measurement, tracker_id
+from schemas import KeySpace, Message, SchemaError, decode, encode_estimate, to_estimate, to_measurement, tracker_id
 from schemas.links import encode_downlink, horizon_message, uplink
 
 from .intake import HORIZON_SLACK_S, Intake
@@ -165,6 +166,7 @@ class FuserCore:
         self.clock = ClockGuard(live.max_skew) if live else None
         self.periods = dict(periods or {})
         self.republished = 0  # estimates re-published after a re-filtering
+        self.unpublished: Counter[str] = Counter()  # outputs the wire refused, by cause (:meth:`encoded`)
         self.events: list[str] = []
         self.received = 0
         self.processed = 0
@@ -246,6 +248,19 @@ class FuserCore:
             out.extend(self.method.finish())
             self.finished = True
         return out
+
+    def encoded(self, encode: Callable[..., bytes], *args: Any) -> bytes | None:
+        """``encode(*args)``: an estimate or downlink as the wire carries it; None if the
+        wire refuses it (an estimator's output the schema cannot carry), counted by cause
+        in :attr:`unpublished` (the first of each cause said in an event) and dropped, so
+        that nothing the estimator emits can stop the process."""
+        try:
+            return encode(*args)
+        except SchemaError as e:
+            self.unpublished[e.cause] += 1
+            if self.unpublished[e.cause] == 1:
+                self.events.append(f"output not published ({e.cause}): {e}")
+            return None
 
     def sources_report(self) -> dict:
         """Per source: dead intervals and rejections; live also ``oosm``, ``stale`` and its
@@ -338,8 +353,10 @@ def run(process_id: str, scenario_ref: str, method_name: str, overrides: dict, k
             except queue.Empty:
                 pass
             for e in core.step(time.monotonic()):
+                data = core.encoded(encode_estimate, e, process_id, seq + 1)
+                if data is None:
+                    continue
                 seq += 1
-                data = encode_estimate(e, process_id, seq)
                 pub.put(data)
                 if kept is not None:
                     kept.append(to_estimate(decode(data)))  # what a listener gets
@@ -348,8 +365,10 @@ def run(process_id: str, scenario_ref: str, method_name: str, overrides: dict, k
             if down:
                 method = core.method
                 for d in method.take_downlinks():
-                    down_seq += 1
-                    down[tracker_id(d.node)].put(encode_downlink(d, process_id, down_seq))
+                    data = core.encoded(encode_downlink, d, process_id, down_seq + 1)
+                    if data is not None:
+                        down_seq += 1
+                        down[tracker_id(d.node)].put(data)
                 # Fed-back nodes, and every many-target node, wait for the horizon.
                 if method.horizon > horizon and math.isfinite(method.horizon):
                     horizon = method.horizon
@@ -365,7 +384,9 @@ def run(process_id: str, scenario_ref: str, method_name: str, overrides: dict, k
             core.events.clear()
             node.counters.update(received=core.received, processed=core.processed, published=seq,
                                  late=core.merger.late, held=core.merger.held(),
-                                 inbox=inbox.qsize(), inbox_waits=inbox.waits)
+                                 inbox=inbox.qsize(), inbox_waits=inbox.waits,
+                                 unpublished=sum(core.unpublished.values()),
+                                 **{f"unpublished.{c}": n for c, n in core.unpublished.items()})
             if core.refilter is not None:
                 node.counters.update(oosm=sum(st.oosm for st in core.merger.sources.values()),
                                      republished=core.republished, checkpoints=len(core.refilter))

@@ -12,6 +12,13 @@ on the bearings alone. An epoch's bearings are processed in arrival order and on
 ``motion = "cv"``) is emitted, stamped with its latest bearing's time, from the first
 epoch with a fix; an incomplete epoch is processed as it is.
 
+**Start-up and restarts.** Until two bearings give a fix, the recursive methods hold
+bearings: at most :data:`HELD_PER_STATION` per station (its latest) and none more than
+``max_gap_s`` older than the newest; what the bound drops is counted (``n_dropped`` in
+every estimate's ``extra``). A filter not updated for ``max_gap_s``, or whose covariance
+is no longer positive definite, starts afresh from the epoch at hand; an epoch's NIS
+sums at most 64 terms, its latest (:mod:`fusion.guards`).
+
 **Methods** (``DF_METHODS[name](config)``): EKF, MEKF1..5 (two cross-fed filters), IMM
 (clean and outlier bearing models), TORRIERI (weighted least squares on all bearings),
 KF+TR and MKF+TR (per-station bearing smoothers, then Torrieri). The table of what each
@@ -22,12 +29,13 @@ does, the motion models, the initialisation and the maths: docs/algorithms.md
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Callable, Mapping
+from typing import Callable, Mapping, NamedTuple
 
 import numpy as np
 
 from ..config import config_values
 from ..grouping import TimeGrouper
+from ..guards import MAX_GAP_S, epoch_nis, gap_too_long, positive_definite
 from ..types import Estimate, Measurement
 from .filters import MEKF, MEKF_VARIANTS, BearingEKF, CrossFed
 from .imm import TRANSITIONS, BearingIMM, transition_matrix
@@ -47,6 +55,8 @@ from .triangulation import Fix, GeometryError, fix_from_bearings, ipu, leave_one
 
 #: initialisations of the recursive methods (config ``init``).
 INITS = ("ipu", "robust")
+#: bearings of one station a recursive method holds while it waits for a fix (its latest)
+HELD_PER_STATION = 16
 
 
 @dataclass(frozen=True)
@@ -90,6 +100,9 @@ class DFConfig:
     smoother_q             0.0         KF/MKF bearing-smoother process noise (rad² per bearing)
     gate                   0.0         leave-one-out bound (studentised residual, in σ) for
                                        TORRIERI and the KF+TR/MKF+TR centre; 0 = off
+    max_gap_s              600.0       EKF/MEKF/IMM: a filter not updated for longer starts
+                                       afresh from the next epoch, and held bearings older
+                                       than this before the newest are dropped (s; :mod:`fusion.guards`)
     ====================== =========== =======================================================
     """
 
@@ -112,6 +125,7 @@ class DFConfig:
     torrieri_iterations: int = 0
     smoother_q: float = 0.0
     gate: float = 0.0
+    max_gap_s: float = MAX_GAP_S
 
     def sigma_of(self, m: Measurement) -> float:
         """The std the filters and gates assume for the bearing ``m``: ``sigma``, or the
@@ -152,6 +166,7 @@ class DFConfig:
              "torrieri_iterations", "must be an integer >= 0")
         need(self.smoother_q >= 0, "smoother_q", "must be >= 0")
         need(self.gate >= 0, "gate", "must be >= 0")
+        need(self.max_gap_s > 0, "max_gap_s", "must be > 0")
 
     @property
     def Q(self) -> np.ndarray:
@@ -216,14 +231,31 @@ class DFMethod:
         raise NotImplementedError
 
 
+class Held(NamedTuple):
+    """A bearing as the recursive methods take it: site, math bearing β (rad), the std
+    the filters assume, time and station."""
+
+    site: np.ndarray
+    beta: float
+    sigma: float
+    t: float
+    sensor: str
+
+
 class _RecursiveMethod(DFMethod):
     """EKF, MEKF and IMM: ``ipu`` or robust initialisation, then one filter step per bearing.
 
-    Bearings are ``(site, β, σ, t)``. The filter's state is at ``self._t``, the latest
-    time it has processed; a bearing is predicted to over ``dt = t − self._t``. The fix
-    of a pair is stamped with the later bearing's time; with ``motion = "cv"`` a bearing
-    older than the state (replayed after the initial pair) is left out, since the
-    emitter has moved since (``replays_past``), with the static model it is processed.
+    The filter's state is at ``self._t``, the latest time it has processed; a bearing is
+    predicted to over ``dt = t − self._t``. The fix of a pair is stamped with the later
+    bearing's time; with ``motion = "cv"`` a bearing older than the state (replayed
+    after the initial pair) is left out, since the emitter has moved since
+    (``replays_past``), with the static model it is processed.
+
+    Until the first fix the bearings are held (:meth:`_hold`: the latest
+    :data:`HELD_PER_STATION` of each station, none ``max_gap_s`` older than the newest),
+    then replayed in arrival order. The filter starts afresh, holding again, at an epoch
+    more than ``max_gap_s`` after its state, and after an epoch that leaves its
+    covariance not positive definite (:mod:`fusion.guards`).
     """
 
     motions = EMITTER_MOTIONS
@@ -231,13 +263,41 @@ class _RecursiveMethod(DFMethod):
     def __init__(self, config: dict | None = None):
         super().__init__(config)
         self._model = self.config.model
+        self.n_dropped = 0  # held bearings the start-up bound dropped
+        self.n_restarts = 0  # filters started afresh (gap or covariance)
+        self._reset()
+
+    def _reset(self) -> None:
+        """No filter: hold bearings again (and reopen the robust initialiser's window)."""
         self._filter = None
         self._t = -np.inf
-        self._pending: list[tuple[np.ndarray, float, float, float]] = []
+        self._pending: list[Held] = []
         self._n = 0
         # robust initialisation: the window's bearings while it is open, else None
-        self._window: list[tuple[np.ndarray, float, float, float]] | None = [] if self.config.init == "robust" else None
+        self._window: list[Held] | None = [] if self.config.init == "robust" else None
         self._window_epochs = 0
+
+    def _restart(self) -> None:
+        self.n_restarts += 1
+        self._reset()
+
+    def _hold(self, held: list[Held], new: list[Held]) -> list[Held]:
+        """``held`` then ``new`` (arrival order), within the start-up bound: of each
+        station its latest :data:`HELD_PER_STATION`, and none more than ``max_gap_s``
+        before the newest. Counts what it drops in ``n_dropped``."""
+        out = held + new
+        newest = max(b.t for b in out)
+        per_station: dict[str, int] = {}
+        keep = [False] * len(out)
+        for k in range(len(out) - 1, -1, -1):
+            b = out[k]
+            n = per_station.get(b.sensor, 0)
+            if n < HELD_PER_STATION and not gap_too_long(newest - b.t, self.config.max_gap_s):
+                per_station[b.sensor] = n + 1
+                keep[k] = True
+        kept = [b for b, k in zip(out, keep) if k]
+        self.n_dropped += len(out) - len(kept)
+        return kept
 
     def _ipu(self, a, b, sa: float, sb: float, check: bool = True):
         """``ipu`` of bearings ``a``, ``b`` (site, β, σ); with ``check``, refuse (GeometryError)
@@ -259,57 +319,60 @@ class _RecursiveMethod(DFMethod):
         """The filter's initial state from a position fix (:meth:`EmitterModel.initial`)."""
         return self._model.initial(p, P, self.config.init_vel_std)
 
-    def _start(self, a, b) -> None:
+    def _start(self, a: Held, b: Held) -> None:
         """The filter from the pair ``a``, ``b`` (GeometryError if it is not usable)."""
         self._filter = self._build(a, b)
-        self._t = max(a[3], b[3])
+        self._t = max(a.t, b.t)
 
     def _step(self, site, beta, sigma, dt) -> float | None:
         """One bearing through the filter, ``dt`` after its state; returns its NIS (None
         if not defined)."""
         return self._filter.step(site, beta, sigma, dt).nis
 
-    def _feed(self, bearing) -> float | None:
+    def _feed(self, bearing: Held) -> float | None:
         """One bearing after the start: predicted to and processed, or, older than the
         state of a moving emitter, left out. Returns its NIS."""
-        site, beta, sigma, t = bearing
-        if t < self._t and not self._model.replays_past:
+        if bearing.t < self._t and not self._model.replays_past:
             return None
-        dt = max(t - self._t, 0.0)
-        self._t = max(self._t, t)
+        dt = max(bearing.t - self._t, 0.0)
+        self._t = max(self._t, bearing.t)
         self._n += 1
-        return self._step(site, beta, sigma, dt)
+        return self._step(bearing.site, bearing.beta, bearing.sigma, dt)
 
-    def _ingest(self, bearing) -> list[float | None]:
+    def _ingest(self, bearing: Held) -> list[float | None]:
         if self._filter is not None:
             return [self._feed(bearing)]
-        for i, a in enumerate(self._pending):
-            if np.linalg.norm(a[0] - bearing[0]) <= SAME_SITE:
+        held = self._hold(self._pending, [bearing])
+        self._pending = held
+        if not held or held[-1] is not bearing:  # (only with max_gap_s below pair_tol)
+            return []
+        for i, a in enumerate(held[:-1]):
+            if np.linalg.norm(a.site - bearing.site) <= SAME_SITE:
                 continue
             try:
                 self._start(a, bearing)
             except GeometryError:
                 continue
             self._n = 2
-            rest = self._pending[:i] + self._pending[i + 1:]
+            rest = held[:i] + held[i + 1:-1]
             self._pending = []
             return [r for b in rest for r in self._ingest(b)]
-        self._pending.append(bearing)
         return []
 
-    def _robust(self, bearings) -> list[float | None]:
+    def _robust(self, bearings: list[Held]) -> list[float | None]:
         """Robust initialisation (:mod:`fusion.df.init`) over the window so far plus
-        ``bearings``: rebuild the filter from the best usable pair and replay the others
-        in arrival order; the choice is final at the close of the ``init_epochs``-th epoch,
-        or at the first epoch after it that gives a usable pair. Returns the NIS of the
-        replayed bearings of this epoch."""
-        start = len(self._window)
-        self._window += bearings
+        ``bearings`` (within the start-up bound, :meth:`_hold`): rebuild the filter from
+        the best usable pair and replay the others in arrival order; the choice is final
+        at the close of the ``init_epochs``-th epoch, or at the first epoch after it that
+        gives a usable pair. Returns the NIS of the replayed bearings of this epoch."""
+        new = {id(b) for b in bearings}
+        self._window = w = self._hold(self._window, bearings)
+        start = next((k for k, b in enumerate(w) if id(b) in new), len(w))
         self._window_epochs += 1
-        w, c = self._window, self.config
-        sites = np.array([b[0] for b in w])
-        betas = np.array([b[1] for b in w])
-        sigmas = np.array([b[2] for b in w])
+        c = self.config
+        sites = np.array([b.site for b in w])
+        betas = np.array([b.beta for b in w])
+        sigmas = np.array([b.sigma for b in w])
         if self._window_epochs > c.init_epochs:  # overdue: only the new bearings' pairs need checking
             if not len(usable_pairs(sites, betas, sigmas, c.ipu_max_rel, new_from=start)[0]):
                 return []
@@ -334,18 +397,27 @@ class _RecursiveMethod(DFMethod):
             self._window = None
         return nis
 
-    def _epoch(self, group):
-        bearings = [(*bearing_of(m), self.config.sigma_of(m), m.t) for m in group]
+    def _run(self, bearings: list[Held]) -> list[float | None]:
+        """One epoch's bearings through the start-up or the filter; their NIS."""
         if self._window is not None:
-            nis = self._robust(bearings)
-        else:
-            nis = [v for b in bearings for v in self._ingest(b)]
+            return self._robust(bearings)
+        return [v for b in bearings for v in self._ingest(b)]
+
+    def _epoch(self, group):
+        bearings = [Held(*bearing_of(m), self.config.sigma_of(m), m.t, m.sensor) for m in group]
+        if self._filter is not None and gap_too_long(max(b.t for b in bearings) - self._t, self.config.max_gap_s):
+            self._restart()
+        nis = self._run(bearings)
+        if self._filter is not None and not positive_definite(self._filter.P):
+            self._restart()  # this epoch again, from nothing
+            nis = self._run(bearings)
+            if self._filter is not None and not positive_definite(self._filter.P):
+                self._restart()
         if self._filter is None:
             return None
-        nis = [v for v in nis if v is not None]
-        return self._estimate(group, self._filter.x, self._filter.P,
-                              nis=float(sum(nis)) if nis else None, nis_dof=len(nis) if nis else None,
-                              n_bearings=self._n, **self._extra())
+        nis, dof = epoch_nis((v, 1) for v in nis if v is not None)
+        return self._estimate(group, self._filter.x, self._filter.P, nis=nis, nis_dof=dof,
+                              n_bearings=self._n, n_dropped=self.n_dropped, **self._extra())
 
     def _extra(self) -> dict:
         return {}

@@ -40,7 +40,7 @@ from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from zoneinfo import ZoneInfo, ZoneInfoNotFoundError
 
-from .gateway import Rejected
+from .gateway import DECODE_ERRORS, Rejected, undecodable
 from .krakensdr import ParseError, Skipped
 
 FT = 0.3048  # m
@@ -296,8 +296,8 @@ def parse_aircraft_json(data: bytes | str) -> list[PositionReport | Rejected | S
         return [Rejected("too-large", f"{len(data)} bytes > {MAX_BODY}")]
     try:
         doc = json.loads(data)
-    except (ValueError, RecursionError, MemoryError) as e:  # UnicodeDecodeError is a ValueError
-        return [Rejected("json", f"not JSON ({type(e).__name__})")]
+    except DECODE_ERRORS as e:
+        return [undecodable(e, "json")]
     if not isinstance(doc, dict):
         return [Rejected("document", f"expected an object, got a {type(doc).__name__}")]
     if "hex" in doc and "aircraft" not in doc:

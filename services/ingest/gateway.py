@@ -54,6 +54,21 @@ class Rejected:
     detail: str
 
 
+#: what a decoder (``json.loads``, an XML parser) raises on a document it cannot read:
+#: malformed or not UTF-8 (``ValueError``, which ``UnicodeDecodeError`` is), nested
+#: deeper than the interpreter's recursion limit, or too big to hold
+DECODE_ERRORS = (ValueError, RecursionError, MemoryError)
+
+
+def undecodable(e: BaseException, fmt: str) -> Rejected:
+    """The refusal of a document whose decoder raised ``e`` (one of :data:`DECODE_ERRORS`),
+    by cause: ``too-deep`` (recursion), ``too-large`` (memory), ``encoding`` (not UTF-8),
+    else ``fmt`` (not valid JSON, XML, ...)."""
+    cause = ("too-deep" if isinstance(e, RecursionError) else "too-large" if isinstance(e, MemoryError)
+             else "encoding" if isinstance(e, UnicodeError) else fmt)
+    return Rejected(cause, f"not {fmt} ({type(e).__name__}: {str(e)[:80]})")
+
+
 @dataclass(frozen=True, eq=False)
 class SensorSite:
     """What the site file says of one sensor: measurement ``kind``, stated ``std`` (SI,

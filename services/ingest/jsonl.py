@@ -38,7 +38,7 @@ from fusion.angles import wrap_2pi
 from fusion.measurement.components import COMPONENTS, Component
 from fusion.measurement.kinds import KINDS
 
-from .gateway import Reading, Rejected
+from .gateway import DECODE_ERRORS, Reading, Rejected, undecodable
 
 MAX_LINE = 64 * 1024  # bytes: a line is ~200
 
@@ -106,7 +106,10 @@ def _num(d: dict, key: str, required: bool = True) -> float | None:
     x = d[key]
     if isinstance(x, bool) or not isinstance(x, (int, float)):
         raise _Bad("type", f"'{key}' must be a number, not {type(x).__name__}")
-    x = float(x)
+    try:
+        x = float(x)
+    except OverflowError:  # an integer beyond any float
+        raise _Bad("range", f"'{key}' is beyond any float") from None
     if not math.isfinite(x):
         raise _Bad("non-finite", f"'{key}' is {x!r}")
     lo, hi, lo_open, hi_open = _LIMITS.get(key, (-math.inf, math.inf, False, False))
@@ -122,7 +125,10 @@ def _vector(d: dict, key: str, n: int) -> np.ndarray | None:
     if not isinstance(v, list) or len(v) != n or any(isinstance(x, bool) or not isinstance(x, (int, float))
                                                      for x in v):
         raise _Bad("shape", f"'{key}' must be a list of {n} numbers")
-    a = np.array(v, dtype=float)
+    try:
+        a = np.array(v, dtype=float)
+    except OverflowError:  # an integer beyond any float
+        raise _Bad("range", f"'{key}' has a number beyond any float") from None
     if not np.all(np.isfinite(a)):
         raise _Bad("non-finite", f"'{key}' has NaN or inf")
     return a
@@ -160,8 +166,8 @@ def reading(line: bytes, sensor: str) -> Reading | Rejected:
     """One line -> a :class:`Reading` of ``sensor`` (SI units, radians) or why not."""
     try:
         d = json.loads(line)
-    except (ValueError, UnicodeDecodeError) as e:
-        return Rejected("json", f"not a JSON object ({type(e).__name__})")
+    except DECODE_ERRORS as e:
+        return undecodable(e, "json")
     if not isinstance(d, dict):
         return Rejected("json", f"a line must be a JSON object, not {type(d).__name__}")
     try:

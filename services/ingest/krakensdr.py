@@ -38,7 +38,7 @@ import numpy as np
 
 from fusion.angles import wrap_2pi
 
-from .gateway import Reading, Rejected
+from .gateway import DECODE_ERRORS, Reading, Rejected, undecodable
 
 FORMATS = ("csv", "xml", "json", "form")
 CSV_FIELDS = 17  # fixed fields before the spectrum
@@ -125,6 +125,8 @@ def _number(value, field: str, *, required: bool = False) -> float | None:
         x = float(value.strip() if isinstance(value, str) else value)
     except (TypeError, ValueError):
         raise ParseError("value", f"{field}: {str(value)[:40]!r} is not a number") from None
+    except OverflowError:  # an integer beyond any float
+        raise ParseError("range", f"{field}: {str(value)[:40]}... is beyond any float") from None
     if not math.isfinite(x):
         if required:
             raise ParseError("non-finite", f"{field}: {value!r}")
@@ -211,8 +213,8 @@ def parse_xml(data: bytes | str) -> list[DoaReport | Rejected]:
         return [Rejected("xml", "a DOCTYPE or ENTITY declaration (refused: entity expansion)")]
     try:
         root = ET.fromstring(text)
-    except ET.ParseError as e:
-        return [Rejected("xml", f"not well-formed XML ({e})")]
+    except (ET.ParseError, *DECODE_ERRORS) as e:  # (ET.ParseError is a SyntaxError)
+        return [undecodable(e, "xml")]
     if root.tag != "DATA":
         return [Rejected("xml", f"root element <{root.tag[:20]}>, expected <DATA>")]
     g = lambda p: _xml_text(root, p)  # noqa: E731
@@ -256,8 +258,8 @@ def parse_json(data: bytes | str) -> list[DoaReport | Rejected]:
     """A "Kraken Pro" POST body: one object (one VFO), or a list of them."""
     try:
         obj = json.loads(data)
-    except (ValueError, UnicodeDecodeError) as e:
-        return [Rejected("json", f"not JSON ({type(e).__name__})")]
+    except DECODE_ERRORS as e:
+        return [undecodable(e, "json")]
     items = obj if isinstance(obj, list) else [obj]
     out: list[DoaReport | Rejected] = []
     for i, d in enumerate(items[:64]):

@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from fusion.methods import make_method, method_config
-from schemas import encode_measurement
+from fusion.types import Estimate
+from schemas import encode_estimate, encode_measurement
 from sensors_sim import load_scenario, sensor_events
 from services.evaluation import run_method
 from services.fuser import FuserCore, MeasurementIntake
@@ -141,3 +142,19 @@ def test_reject_log_memory_is_bounded_by_invented_source_names():
     reject("mallory-1", "msgpack", "bad bytes")  # a known name keeps its own entry
     assert reject.total == 1001 and len(reject.by_pair) == 5
     assert reject.rejected_by_source() == {"mallory-0": 1, "mallory-1": 2, "mallory-2": 1, RejectLog.OTHER: 997}
+
+
+def test_an_estimate_the_wire_refuses_is_counted_and_dropped():
+    """The publish path (``FuserCore.encoded``): an estimate the wire cannot carry is
+    counted by cause and dropped, the first of each cause said once in an event; a valid
+    one is the bytes ``encode_estimate`` gives."""
+    sc = load_scenario("patent-3d")
+    core = FuserCore(make_method("SS", method_config(sc.tracker, "SS")), list(sc.sensors), KEYS, RejectLog("test"),
+                     timeout=1e9)
+    good_e = Estimate(1.0, np.array([1.0, 2.0]), np.eye(2), "SS", "centre", "T1", 3.0, 2)
+    negative = dataclasses.replace(good_e, P=np.diag([1.0, -1.0]))
+    too_many = dataclasses.replace(good_e, nis=81.0, nis_dof=81)
+    assert core.encoded(encode_estimate, good_e, "fuser", 1) == encode_estimate(good_e, "fuser", 1)
+    assert [core.encoded(encode_estimate, e, "fuser", 2) for e in (negative, negative, too_many)] == [None] * 3
+    assert dict(core.unpublished) == {"value": 2, "range": 1}
+    assert len(core.events) == 2 and "negative variance" in core.events[0] and "nis_dof" in core.events[1]
