@@ -8,7 +8,7 @@ down on ``feedback/<node>``. Either way it validates and orders its input
 (:class:`~services.ordering.WatermarkMerger`) and publishes its estimates on ``fused``.
 
 It keeps no state on disk: restarted after kill -9, it joins mid-stream at the first scan
-its sources release, and in the distributed topologies the nodes re-run the start-up
+it has heard whole (after a watermark of every sensor: :meth:`WatermarkMerger.join`), and in the distributed topologies the nodes re-run the start-up
 handshake, which rebuilds the common prior and cross-covariances the fusion rules need
 (docs/reliability.md, "Faults", says why and what is counted). It finishes when every
 source is final or dead and at least one is final: sources all dead at once (a router
@@ -207,6 +207,12 @@ class FuserCore:
                 self.reject(rej.src, rej.cause, rej.detail)
                 return msg
         if msg.kind == "watermark":
+            if self.intake.family == "meas" and msg.seq > 1 and st is not None and st.watermark == -math.inf:
+                # A sensor counts its watermarks from 1: this core joined its stream mid-way (a
+                # restarted fuser or tracker), and starts from the first scan it has whole.
+                n = self.merger.join(msg.t)
+                self.events.append(f"joined {msg.src}'s stream mid-way (first watermark heard: {msg.t:g} s); "
+                                   f"fusing from the first scan heard whole ({n} held measurements dropped)")
             rej = self.merger.watermark(msg.src, msg.t, msg.body["final"], now, self.events)
         else:
             what, item = self.intake.item(sample.ident, msg)
@@ -224,9 +230,8 @@ class FuserCore:
         if self.finished:
             return []
         self.merger.check_timeouts(now, self.events)
-        before = self.merger.released_until
         items, wm = self.merger.release(now)
-        if before == -math.inf and items:  # t > 0 for a fuser restarted mid-stream
+        if items and not self.processed:  # t > 0 for a fuser restarted mid-stream
             self.events.append(f"input starts at t = {items[0].t:g} s")
         out: list[Estimate] = []
         if self.refilter is not None:
