@@ -207,13 +207,14 @@ class FuserCore:
                 self.reject(rej.src, rej.cause, rej.detail)
                 return msg
         if msg.kind == "watermark":
-            if self.intake.family == "meas" and msg.seq > 1 and st is not None and st.watermark == -math.inf:
+            first = st is not None and st.watermark == -math.inf
+            rej = self.merger.watermark(msg.src, msg.t, msg.body["final"], now, self.events)
+            if rej is None and first and msg.seq > 1 and self.intake.family == "meas":
                 # A sensor counts its watermarks from 1: this core joined its stream mid-way (a
                 # restarted fuser or tracker), and starts from the first scan it has whole.
                 n = self.merger.join(msg.t)
                 self.events.append(f"joined {msg.src}'s stream mid-way (first watermark heard: {msg.t:g} s); "
                                    f"fusing from the first scan heard whole ({n} held measurements dropped)")
-            rej = self.merger.watermark(msg.src, msg.t, msg.body["final"], now, self.events)
         else:
             what, item = self.intake.item(sample.ident, msg)
             if what is None:

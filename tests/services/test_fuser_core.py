@@ -11,7 +11,7 @@ import pytest
 
 from fusion.methods import make_method, method_config
 from fusion.types import Estimate
-from schemas import encode_estimate, encode_measurement
+from schemas import encode, encode_estimate, encode_measurement
 from sensors_sim import load_scenario, sensor_events
 from services.evaluation import merged_measurements, run_method
 from services.fuser import FuserCore, MeasurementIntake
@@ -184,5 +184,26 @@ def test_a_core_joining_mid_stream_starts_from_a_whole_scan(cut):
     assert 10.0 <= t0 <= 12.0
     ref = run_method(sc, "SS", measurements=[m for m in merged_measurements(sc) if m.t >= t0])
     assert len(out) == len(ref) == 31 - t0
+    for a, b in zip(out, ref):
+        assert a.t == b.t and np.array_equal(a.x, b.x) and np.array_equal(a.P, b.P)
+
+
+def test_a_refused_watermark_is_not_a_join():
+    """Watermarks with ``seq`` > 1 refused before a sensor's first (beyond the scenario's
+    end) do not make the core think it joined mid-stream at their time: it fuses the whole
+    stream from t = 0, as the in-process evaluation does."""
+    sc = load_scenario("patent-3d")
+    reject = RejectLog("test")
+    core = FuserCore(make_method("SS", method_config(sc.tracker, "SS")), list(sc.sensors), KEYS, reject,
+                     timeout=1e9, horizon=sc.duration + 1.0, intake=MeasurementIntake(sc.sensors))
+    core.offer(KEYS.meas("radar2d"), encode("watermark", "radar2d", 7, 1e9, final=False), 0.0)
+    core.offer(KEYS.meas("angle"), encode("watermark", "angle", 9, 40.0, final=False), 0.0)
+    out = []
+    for key, data in wire_stream(sc):
+        core.offer(key, data, 0.0)
+        out.extend(core.step(0.0))
+    assert dict(reject.by_cause) == {"future": 2}
+    ref = run_method(sc, "SS")
+    assert core.finished and len(out) == len(ref) == 31
     for a, b in zip(out, ref):
         assert a.t == b.t and np.array_equal(a.x, b.x) and np.array_equal(a.P, b.P)
