@@ -173,7 +173,7 @@ def test_a_core_joining_mid_stream_starts_from_a_whole_scan(cut):
     starts = [i for i, (_, data) in enumerate(stream) if msgpack.unpackb(data)["t"] == 10.0]
     reject = RejectLog("test")
     core = FuserCore(make_method("SS", method_config(sc.tracker, "SS")), list(sc.sensors), KEYS, reject,
-                     timeout=1e9, intake=MeasurementIntake(sc.sensors))
+                     timeout=1e9, intake=MeasurementIntake(sc.sensors), schedule=_schedule(sc))
     out = []
     for key, data in stream[starts[cut]:]:
         core.offer(key, data, 0.0)
@@ -188,22 +188,35 @@ def test_a_core_joining_mid_stream_starts_from_a_whole_scan(cut):
         assert a.t == b.t and np.array_equal(a.x, b.x) and np.array_equal(a.P, b.P)
 
 
-def test_a_refused_watermark_is_not_a_join():
-    """Watermarks with ``seq`` > 1 refused before a sensor's first (beyond the scenario's
-    end) do not make the core think it joined mid-stream at their time: it fuses the whole
-    stream from t = 0, as the in-process evaluation does."""
+@pytest.mark.parametrize("case", ["refused", "first scan missed"])
+def test_a_core_that_heard_every_scan_does_not_join_mid_stream(case):
+    """Watermarks refused before a sensor's first (beyond the scenario's end), or a sensor
+    whose first scan had no plot (its first message is the watermark after it), are not
+    a join mid-way: the core fuses the whole stream, as the in-process evaluation does."""
     sc = load_scenario("patent-3d")
     reject = RejectLog("test")
     core = FuserCore(make_method("SS", method_config(sc.tracker, "SS")), list(sc.sensors), KEYS, reject,
-                     timeout=1e9, horizon=sc.duration + 1.0, intake=MeasurementIntake(sc.sensors))
-    core.offer(KEYS.meas("radar2d"), encode("watermark", "radar2d", 7, 1e9, final=False), 0.0)
-    core.offer(KEYS.meas("angle"), encode("watermark", "angle", 9, 40.0, final=False), 0.0)
+                     timeout=1e9, horizon=sc.duration + 1.0, intake=MeasurementIntake(sc.sensors),
+                     schedule=_schedule(sc))
+    stream, measurements = wire_stream(sc), merged_measurements(sc)
+    if case == "refused":
+        core.offer(KEYS.meas("radar2d"), encode("watermark", "radar2d", 7, 1e9, final=False), 0.0)
+        core.offer(KEYS.meas("angle"), encode("watermark", "angle", 9, 40.0, final=False), 0.0)
+    else:
+        first = next(i for i, (key, data) in enumerate(stream) if key == KEYS.meas("angle"))
+        stream = stream[:first] + stream[first + 1:]
+        measurements = [m for m in measurements if (m.sensor, m.t) != ("angle", 0.0)]
     out = []
-    for key, data in wire_stream(sc):
+    for key, data in stream:
         core.offer(key, data, 0.0)
         out.extend(core.step(0.0))
-    assert dict(reject.by_cause) == {"future": 2}
-    ref = run_method(sc, "SS")
+    assert dict(reject.by_cause) == ({"future": 2} if case == "refused" else {})
+    assert not [e for e in core.events if e.startswith("joined ")]
+    ref = run_method(sc, "SS", measurements=measurements)
     assert core.finished and len(out) == len(ref) == 31
     for a, b in zip(out, ref):
         assert a.t == b.t and np.array_equal(a.x, b.x) and np.array_equal(a.P, b.P)
+
+
+def _schedule(sc) -> dict[str, tuple[float, float]]:
+    return {sid: (s.start, s.period) for sid, s in sc.sensors.items()}
