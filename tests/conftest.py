@@ -5,6 +5,7 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
+import time
 import uuid
 from pathlib import Path
 
@@ -18,6 +19,16 @@ CROSSING = DATA / "crossing.toml"  # three aircraft crossing in clutter: the man
 @pytest.fixture
 def deployment() -> str:
     return f"t{uuid.uuid4().hex[:10]}"
+
+
+def wait_for(condition, what: str, timeout: float = 60.0, poll: float = 0.05):
+    """Until ``condition()`` is true (returned), polling every ``poll`` s; fails naming
+    ``what`` after ``timeout`` s (a loaded machine takes seconds to start a process)."""
+    deadline = time.monotonic() + timeout
+    while not (result := condition()):
+        assert time.monotonic() < deadline, f"not within {timeout:g} s: {what}"
+        time.sleep(poll)
+    return result
 
 
 def zfusion(*args: str, **kw) -> subprocess.Popen:

@@ -22,7 +22,7 @@ from schemas import KeySpace, encode
 from services.node import ZenohOptions
 
 from conftest import zfusion
-from _runs import in_process
+from _runs import FusedWatch, in_process
 from _recording import rerun_exe
 
 pytestmark = pytest.mark.slow
@@ -97,11 +97,13 @@ def _wait_children(pid: int, n: int, timeout: float = 120) -> list[psutil.Proces
 
 
 def test_processes_are_separate_and_ctrl_c_leaves_nothing(tmp_path, deployment):
+    watch = FusedWatch(deployment)
     launcher = zfusion("run", "--scenario", "patent-3d", "--speed", "1", "--rrd", str(tmp_path / "x.rrd"),
-                       "--deployment", deployment, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+                       "--deployment", deployment, "--connect", watch.endpoint,
+                       stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     try:
+        watch.wait_until(0.0, launcher, timeout=120)  # every process is up: the sources publish, the fuser fuses
         kids = _wait_children(launcher.pid, 5)
-        time.sleep(2.0)  # let the sources start publishing
         roles = {}
         for k in _tree(launcher.pid):
             cmd = k.cmdline()
@@ -123,6 +125,7 @@ def test_processes_are_separate_and_ctrl_c_leaves_nothing(tmp_path, deployment):
     finally:
         if launcher.poll() is None:
             launcher.kill()
+        watch.close()
 
 
 def test_garbage_on_the_wire_changes_nothing(tmp_path, deployment):

@@ -21,14 +21,14 @@ from scipy.stats import chi2
 import services.recording.recorder as recorder_mod
 import services.scoring as scoring
 from fusion.types import Measurement
-from schemas import KeySpace, encode, encode_estimate
+from schemas import KeySpace, decode, encode, encode_estimate
 from sensors_sim import load_scenario
 from services.recording import draw
 from services.node import ZenohOptions
 from services.recording.stream import open_recording
 
 from services.launcher import free_port
-from conftest import CROSSING, ROOT, zfusion
+from conftest import CROSSING, ROOT, wait_for, zfusion
 from _recording import (KEYS, Session, downlink_msg, est_msg, meas_msg, read_rrd, static_paths, status_msg, truth_msg,
                         uplink_msg, verify)
 
@@ -346,13 +346,10 @@ def test_record_process_over_zenoh_until_expected_processes_are_done(tmp_path, d
     proc = zfusion("record", "--rrd", str(path), "--expect", "radar2d", "--deployment", deployment, "--connect", ep,
                    stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
-        ready = []
-        sub = session.declare_subscriber(keys.status("recorder"), lambda s: ready.append(1))
-        deadline = time.monotonic() + 30
-        while not ready and time.monotonic() < deadline:
-            time.sleep(0.05)
-        assert ready, "the recorder never reported"
-        sub.undeclare()
+        statuses: list[dict] = []
+        sub = session.declare_subscriber(keys.status("recorder"),
+                                         lambda s: statuses.append(decode(s.payload.to_bytes()).body["counters"]))
+        wait_for(lambda: statuses, "the recorder reported")
         meas = session.declare_publisher(keys.meas("radar2d"), congestion_control=zenoh.CongestionControl.BLOCK,
                                          reliability=zenoh.Reliability.RELIABLE)
         fused = session.declare_publisher(keys.fused(), congestion_control=zenoh.CongestionControl.BLOCK,
@@ -362,7 +359,11 @@ def test_record_process_over_zenoh_until_expected_processes_are_done(tmp_path, d
             meas.put(meas_msg("radar2d", "range_az", [0.5, 1e4], [0.01, 20.0], float(k), k))
             fused.put(est_msg(float(k), np.zeros(9), np.eye(9), seq=k + 1))
         meas.put(b"garbage")
-        time.sleep(0.5)
+        # "done" only once the recorder has taken everything: the status goes out on another
+        # publisher, which may overtake the data
+        wait_for(lambda: statuses[-1].get("recorded", 0) >= 2 * N and statuses[-1].get("rejected", 0) >= 1,
+                 "the recorder took what was sent")
+        sub.undeclare()
         status.put(status_msg("radar2d", 1, float(N), state="done"))
         out, err = proc.communicate(timeout=30)
         assert proc.returncode == 0, err[-2000:]
