@@ -14,7 +14,9 @@ from scipy.stats import chi2
 
 from sensors_sim import load_scenario
 from services.cli import main
-from services.evaluation import Variant, default_methods, evaluate, merged_measurements, variants_for
+from services.evaluation import Variant, default_methods, evaluate, merged_measurements, run_method, variants_for
+from services.scoring import truth_function
+from services.summary import method_summary
 from conftest import ROOT
 
 ROOT = ROOT
@@ -173,8 +175,14 @@ def test_a_sensor_subset_sees_the_same_measurements():
     full = merged_measurements(sc, 1)
     only = merged_measurements(sc, 1, ["angle"])
     assert only == [m for m in full if m.sensor == "angle"]
-    a = evaluate(sc, [Variant("ANGLE", "ANGLE"), Variant("ANGLE/only", "ANGLE", sensors=("angle",))], 2, crb=False)
-    assert a["methods"]["ANGLE"]["rmse_pos"] == a["methods"]["ANGLE/only"]["rmse_pos"]
+    # SS fuses both sensors: restricted to the angle sensor it is SS run on the angle
+    # sensor's measurements of the same runs (no range: kilometres off), not SS
+    a = evaluate(sc, [Variant("SS", "SS"), Variant("SS/angle", "SS", sensors=("angle",))], 2, crb=False)
+    ref = method_summary([run_method(sc, "SS", run=r, measurements=merged_measurements(sc, r, ["angle"]))
+                          for r in range(2)], truth_function(sc))
+    got = a["methods"]["SS/angle"]
+    assert got["series"]["rmse_pos"] == ref["series"]["rmse_pos"] and got["anees"] == ref["anees"]
+    assert got["rmse_pos"] > 100 * a["methods"]["SS"]["rmse_pos"]
 
 
 def test_default_methods_by_sensor_kinds():
