@@ -38,6 +38,23 @@ def zfusion(*args: str, **kw) -> subprocess.Popen:
 
 
 @pytest.fixture(scope="session")
+def patent_3d_run(tmp_path_factory):
+    """One ``zfusion run --scenario patent-3d --speed max`` with a recording and a summary,
+    shared by the tests that only read what it wrote (each distinct run is a few seconds
+    of six processes): ``(summary, recording path, completed process, wall seconds)``."""
+    import json
+
+    tmp = tmp_path_factory.mktemp("patent-3d-run")
+    rrd, js = tmp / "out.rrd", tmp / "out.json"
+    t0 = time.monotonic()
+    p = subprocess.run([sys.executable, "-m", "services.cli", "run", "--scenario", "patent-3d", "--speed", "max",
+                        "--rrd", str(rrd), "--json", str(js), "--deployment", f"t{uuid.uuid4().hex[:10]}"],
+                       capture_output=True, text=True, timeout=600)
+    assert p.returncode == 0, p.stderr[-3000:]
+    return json.loads(js.read_text()), rrd, p, time.monotonic() - t0
+
+
+@pytest.fixture(scope="session")
 def crossing():
     """The loaded :data:`CROSSING` scenario."""
     from sensors_sim import load_scenario

@@ -129,11 +129,14 @@ def test_map_path_mirrors_world():
 
 @pytest.mark.slow
 @pytest.mark.parametrize("scenario", ["patent-3d", "df-multi"])
-def test_recordings_of_real_runs_hold_geographic_points_and_line_strings(tmp_path, scenario, deployment):
-    rrd = tmp_path / f"{scenario}.rrd"
-    p = zfusion("run", "--scenario", scenario, "--speed", "max", "--rrd", str(rrd), "--deployment", deployment,
-                stdout=subprocess.DEVNULL)
-    assert p.wait(timeout=600) == 0
+def test_recordings_of_real_runs_hold_geographic_points_and_line_strings(tmp_path, scenario, deployment, request):
+    if scenario == "patent-3d":
+        rrd = request.getfixturevalue("patent_3d_run")[1]
+    else:
+        rrd = tmp_path / f"{scenario}.rrd"
+        p = zfusion("run", "--scenario", scenario, "--speed", "max", "--rrd", str(rrd), "--deployment", deployment,
+                    stdout=subprocess.DEVNULL)
+        assert p.wait(timeout=600) == 0
     verify(rrd)
     rows = read_rrd(rrd)
     sc = load_scenario(scenario)
