@@ -153,9 +153,9 @@ def test_recorder_then_fuser_killed_centralised(tmp_path, deployment):
     from _recording import read_rrd, verify
 
     doc, err = _disturb(tmp_path, "patent-3d-60", deployment, 4.0,
-                        [(6.0, "record", "recorder"), (20.0, "fuser", "fuser")])
+                        [(6.0, "record", "recorder"), (15.0, "fuser", "fuser")])
     rec = _outage(doc, "recorder", 6.0)
-    fuser = _outage(doc, "fuser", 20.0)
+    fuser = _outage(doc, "fuser", 15.0)
     got = doc["methods"]["SS"]["series"]
     ref = in_process("patent-3d-60", "SS")["series"]
     # Up to the fuser's death the output is the undisturbed one, recorder kill or not;
