@@ -124,11 +124,12 @@ def test_no_restart_ends_the_run_after_the_sources(tmp_path, deployment):
     from services.launcher import END_GRACE
 
     killed: list[float] = []
+    duration = 16.0  # the sources go on for 6 s of scenario time after the kill
     doc, err = _disturb(tmp_path, "patent-3d", deployment, 3.0, [(10.0, "fuser", "fuser")], "--no-restart",
-                        killed_at=killed)
-    # from the kill: the sources' last 20 scenario s (about 7 s), the grace, the stop; timed from the kill, not
+                        "--duration-s", str(duration), killed_at=killed)
+    # from the kill: the sources' last 6 scenario s (2 s), the grace, the stop; timed from the kill, not
     # the start, which a loaded machine can stretch past 30 s
-    assert time.monotonic() - killed[0] < 20.0 / 3.0 + END_GRACE + 15.0
+    assert time.monotonic() - killed[0] < (duration - 10.0) / 3.0 + END_GRACE + 15.0
     (out,) = doc["outages"]["fuser"]
     assert out["exit_code"] == -signal.SIGKILL and out["t_up"] is None and 8.0 <= out["t_down"] <= 18.0, out
     assert doc["exit_codes"]["fuser"] == -signal.SIGKILL
