@@ -37,21 +37,33 @@ def zfusion(*args: str, **kw) -> subprocess.Popen:
     return subprocess.Popen([sys.executable, "-m", "services.cli", *args], env=env, **kw)
 
 
-@pytest.fixture(scope="session")
-def patent_3d_run(tmp_path_factory):
-    """One ``zfusion run --scenario patent-3d --speed max`` with a recording and a summary,
-    shared by the tests that only read what it wrote (each distinct run is a few seconds
-    of six processes): ``(summary, recording path, completed process, wall seconds)``."""
+def _shared_run(tmp_path_factory, scenario: str):
+    """``zfusion run --scenario SCENARIO --speed max`` with a recording and a summary:
+    ``(summary, recording path, completed process, wall seconds)``."""
     import json
 
-    tmp = tmp_path_factory.mktemp("patent-3d-run")
+    tmp = tmp_path_factory.mktemp(f"{scenario}-run")
     rrd, js = tmp / "out.rrd", tmp / "out.json"
     t0 = time.monotonic()
-    p = subprocess.run([sys.executable, "-m", "services.cli", "run", "--scenario", "patent-3d", "--speed", "max",
+    p = subprocess.run([sys.executable, "-m", "services.cli", "run", "--scenario", scenario, "--speed", "max",
                         "--rrd", str(rrd), "--json", str(js), "--deployment", f"t{uuid.uuid4().hex[:10]}"],
                        capture_output=True, text=True, timeout=600)
     assert p.returncode == 0, p.stderr[-3000:]
     return json.loads(js.read_text()), rrd, p, time.monotonic() - t0
+
+
+# Runs shared by the tests that only read what they wrote (each distinct run is seconds of
+# six or more processes starting up and working): the scenario's defaults, at --speed max.
+@pytest.fixture(scope="session")
+def patent_3d_run(tmp_path_factory):
+    """patent-3d: centralised SS (:func:`_shared_run`)."""
+    return _shared_run(tmp_path_factory, "patent-3d")
+
+
+@pytest.fixture(scope="session")
+def df_multi_run(tmp_path_factory):
+    """df-multi: centralised EKF around the emitter association (:func:`_shared_run`)."""
+    return _shared_run(tmp_path_factory, "df-multi")
 
 
 @pytest.fixture(scope="session")
