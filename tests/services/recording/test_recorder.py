@@ -574,39 +574,16 @@ def test_traffic_picture_scored_against_the_aircraft_alive_and_departed_forgotte
 
 
 @pytest.mark.slow
-def test_many_target_run_records_every_fused_track_by_id(tmp_path, deployment):
+def test_many_target_run_records_every_fused_track_by_id(crossing_run):
     """`zfusion run` on the crossing scenario: the recording has one entity per fused
     track id the fuser published, with one drawn row per published estimate."""
-    from _runs import run_cmd
-
-    from schemas import decode
-
-    ep = f"tcp/127.0.0.1:{free_port()}"
-    keys = KeySpace(deployment)
-    session = zenoh.open(ZenohOptions(listen=[ep]).to_config())
-    published: dict[str, int] = {}  # fused estimates per track id, as the fuser published them
-
-    def on_fused(sample) -> None:
-        msg = decode(sample.payload.to_bytes())
-        if msg.kind == "track":
-            published[msg.body["track"]] = published.get(msg.body["track"], 0) + 1
-
-    sub = session.declare_subscriber(keys.fused(), on_fused)
-    try:
-        p = subprocess.run(run_cmd(tmp_path, str(CROSSING), deployment, "--speed", "max", "--connect", ep),
-                           capture_output=True, text=True, timeout=300)
-    finally:
-        sub.undeclare()
-        session.close()
-    assert p.returncode == 0, p.stderr[-3000:]
-    path = tmp_path / "out.rrd"
+    doc, path, _, _, published = crossing_run
     verify(path)
     rows = read_rrd(path)
     drawn = {e.rsplit("/", 1)[1]: sum("Points3D:positions" in r for r in rs) for e, rs in rows.items()
              if e.startswith("/world/tracks/centre/") and e.count("/") == 4}
     assert len(published) >= 3 and drawn == published
     # the picture's GOSPA in the recording is the run summary's, at every frame it scored
-    doc = json.loads((tmp_path / "out.json").read_text())
     [(method, summary)] = doc["methods"].items()
     series = dict(zip(summary["series"]["t"], summary["series"]["gospa"]))
     scored = rows[f"/metrics/gospa/{method}"]
