@@ -55,8 +55,6 @@ def _shared_run(tmp_path_factory, scenario: str, *extra: str, name: str | None =
 
 # Runs shared by the tests that only read what they wrote (each distinct run is seconds of
 # six or more processes starting up and working): the scenario's defaults, at --speed max.
-# Their users are marked ``xdist_group("<fixture>")``, so that under ``--dist loadgroup``
-# (.ci/run) one worker runs them all and the run is made once.
 @pytest.fixture(scope="session")
 def patent_3d_run(tmp_path_factory):
     """patent-3d: centralised SS (:func:`_shared_run`)."""

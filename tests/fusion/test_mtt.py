@@ -225,7 +225,6 @@ def test_an_id_swap_is_two_breaks_and_lowers_purity():
 
 
 @pytest.mark.slow
-@pytest.mark.xdist_group("crossing_run")
 def test_many_targets_over_zenoh_equal_in_process(crossing, crossing_run):
     """`zfusion run` on a many-target scenario: the processes' fused tracks, scored as an
     air picture, are the in-process evaluation's, step by step (ids included: breaks and

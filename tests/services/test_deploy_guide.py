@@ -40,7 +40,6 @@ def test_plan_prints_the_guides_commands():
     assert [ln for ln in p.stdout.splitlines() if ln.startswith("zfusion ")] == guide_commands()
 
 
-@pytest.mark.xdist_group("patent_3d_run")
 def test_the_guide_walked_verbatim_gives_the_run_numbers(tmp_path, patent_3d_run):
     lines = guide_commands()
     assert [shlex.split(ln)[1] for ln in lines] == ["router", "fuser", "record", "sensor", "sensor", "sensor"]

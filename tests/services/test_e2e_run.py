@@ -36,7 +36,6 @@ def _run(tmp_path: Path, *extra: str, timeout: float = 90) -> tuple[dict, Path, 
     return json.loads(js.read_text()), rrd, p
 
 
-@pytest.mark.xdist_group("patent_3d_run")
 def test_run_patent_3d_max_speed(patent_3d_run):
     doc, rrd, p, seconds = patent_3d_run
     assert seconds < 90  # no wait on a dead peer (20 s at load 3.5; a loaded start takes 30)
@@ -68,7 +67,7 @@ def rrd_rows(path: Path) -> dict[str, int]:
     return rows
 
 
-@pytest.mark.parametrize("speed", [pytest.param("max", marks=pytest.mark.xdist_group("patent_3d_run")), "5"])
+@pytest.mark.parametrize("speed", ["max", "5"])
 def test_distributed_equals_in_process(tmp_path, deployment, speed, request):
     doc = (request.getfixturevalue("patent_3d_run") if speed == "max"
            else _run(tmp_path, "--speed", speed, "--deployment", deployment))[0]

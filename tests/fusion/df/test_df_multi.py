@@ -323,8 +323,7 @@ def test_the_cross_fed_filters_misses_are_their_estimates_not_the_association(mo
 
 # Through the processes -------------------------------------------------------------------
 @pytest.mark.slow
-@pytest.mark.parametrize("method, topology", [pytest.param("EKF", "centralised", marks=pytest.mark.xdist_group("df_multi_run")),
-                                              ("KF+TR", "distributed")])
+@pytest.mark.parametrize("method, topology", [("EKF", "centralised"), ("KF+TR", "distributed")])
 def test_df_multi_over_zenoh_equals_in_process(tmp_path, deployment, method, topology, request):
     """The fuser's association of raw bearings (EKF, the scenario's default: the shared
     run), and the distributed KF+TR: one tracker process per station tracks its bearings

@@ -574,7 +574,6 @@ def test_traffic_picture_scored_against_the_aircraft_alive_and_departed_forgotte
 
 
 @pytest.mark.slow
-@pytest.mark.xdist_group("crossing_run")
 def test_many_target_run_records_every_fused_track_by_id(crossing_run):
     """`zfusion run` on the crossing scenario: the recording has one entity per fused
     track id the fuser published, with one drawn row per published estimate."""

@@ -126,8 +126,7 @@ def test_map_path_mirrors_world():
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("scenario", [pytest.param("patent-3d", marks=pytest.mark.xdist_group("patent_3d_run")),
-                                      pytest.param("df-multi", marks=pytest.mark.xdist_group("df_multi_run"))])
+@pytest.mark.parametrize("scenario", ["patent-3d", "df-multi"])
 def test_recordings_of_real_runs_hold_geographic_points_and_line_strings(scenario, request):
     rrd = request.getfixturevalue({"patent-3d": "patent_3d_run", "df-multi": "df_multi_run"}[scenario])[1]
     verify(rrd)
