@@ -5,6 +5,9 @@ from __future__ import annotations
 
 import json
 import math
+import signal
+import subprocess
+import sys
 import threading
 import time
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
@@ -14,6 +17,22 @@ import zenoh
 from schemas import KeySpace, decode
 from services.launcher import free_port
 from services.node import ZenohOptions
+
+
+def gateway(*args: str, capture: "Capture", **kw) -> subprocess.Popen:
+    """``zfusion ingest ARGS`` on ``capture``'s deployment, dialling it; stderr piped."""
+    return subprocess.Popen([sys.executable, "-m", "services.cli", "ingest", *args, "--deployment",
+                             capture.keys.deployment, "--connect", capture.endpoint],
+                            stderr=subprocess.PIPE, text=True, **kw)
+
+
+def stop(p: subprocess.Popen) -> str:
+    """SIGTERM: the gateway exits 0 without a traceback; its stderr."""
+    p.send_signal(signal.SIGTERM)
+    _, err = p.communicate(timeout=15)
+    assert p.returncode == 0, err[-3000:]
+    assert "Traceback" not in err
+    return err
 
 
 class DocServer:

@@ -12,9 +12,8 @@ import urllib.request
 
 import pytest
 
-from _ingest_helpers import Capture, DocServer, kraken_csv, kraken_json, site_toml
+from _ingest_helpers import Capture, DocServer, gateway, kraken_csv, kraken_json, site_toml, stop
 from services.launcher import free_port
-from test_ingest_process import gateway, stop
 
 pytestmark = pytest.mark.slow
 

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import json
 import math
-import signal
 import socket
 import subprocess
 import sys
@@ -14,26 +13,12 @@ import urllib.request
 
 import pytest
 
-from _ingest_helpers import Capture, DocServer, kraken_csv, kraken_json, site_toml
+from _ingest_helpers import Capture, DocServer, gateway, kraken_csv, kraken_json, site_toml, stop
 from schemas import to_measurement
 from services.launcher import free_port
 from conftest import ROOT, wait_for
 
 pytestmark = pytest.mark.slow
-
-
-def gateway(*args: str, capture: Capture, **kw) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, "-m", "services.cli", "ingest", *args, "--deployment",
-                             capture.keys.deployment, "--connect", capture.endpoint],
-                            stderr=subprocess.PIPE, text=True, **kw)
-
-
-def stop(p: subprocess.Popen) -> str:
-    p.send_signal(signal.SIGTERM)
-    _, err = p.communicate(timeout=15)
-    assert p.returncode == 0, err[-3000:]
-    assert "Traceback" not in err
-    return err
 
 
 @pytest.fixture
