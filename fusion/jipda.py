@@ -40,7 +40,7 @@ from scipy.special import gammaln
 
 from . import kalman
 from .angles import TWO_PI
-from .association import gate_threshold
+from .tracking.hypotheses import gate_threshold
 
 EXACT_EVENTS = 10_000  # a cluster is summed exactly when ∏ᵢ (1 + gᵢ) ≤ this (gᵢ: track i's gated plots)
 LBP_TOL = 1e-12  # loopy belief propagation stops when no message moves by more than this

@@ -8,7 +8,7 @@ down on ``feedback/<node>``. Either way it validates and orders its input
 (:class:`~services.ordering.WatermarkMerger`) and publishes its estimates on ``fused``.
 
 It keeps no state on disk: restarted after kill -9, it joins mid-stream at the first scan
-its sources release, and in the distributed topologies the nodes re-run the start-up
+it has heard whole (after a watermark of every sensor: ``schedule``), and in the distributed topologies the nodes re-run the start-up
 handshake, which rebuilds the common prior and cross-covariances the fusion rules need
 (docs/reliability.md, "Faults", says why and what is counted). It finishes when every
 source is final or dead and at least one is final: sources all dead at once (a router
@@ -145,12 +145,18 @@ class FuserCore:
             (a centre that sends feedback cannot take it back).
         periods: live: each source's nominal period, how far ahead of its data its
             watermarks may look (:meth:`services.live.ClockGuard.check`).
+        schedule: a scenario run's sensors: each one's (first scan time, period). A
+            sensor first heard from its second scan on was joined mid-way (a restarted
+            fuser or tracker): what is held up to its first watermark heard, of any
+            sensor, may be part of a scan and is dropped (:meth:`WatermarkMerger.join`),
+            so the core starts from the first scan it has heard whole.
     """
 
     def __init__(self, method: Any, sources: list[str], keys: KeySpace, reject: RejectLog,
                  timeout: float, start_grace: float = 30.0, horizon: float = math.inf, now: float = 0.0,
                  intake: Any = None, max_held: int | None = None, live: LiveOptions | None = None,
-                 refilter: bool = True, periods: Mapping[str, float] | None = None):
+                 refilter: bool = True, periods: Mapping[str, float] | None = None,
+                 schedule: Mapping[str, tuple[float, float]] | None = None):
         self.keys = keys
         self.reject = reject
         self.intake = intake or MeasurementIntake()
@@ -165,6 +171,9 @@ class FuserCore:
                                       oosm_window=live.oosm_window if bounded else 0.0)
         self.clock = ClockGuard(live.max_skew) if live else None
         self.periods = dict(periods or {})
+        self.schedule = dict(schedule or {})
+        self._heard: set[str] = set()  # scheduled sources heard
+        self._midway: set[str] = set()  # ... first heard mid-stream, until their first watermark
         self.republished = 0  # estimates re-published after a re-filtering
         self.unpublished: Counter[str] = Counter()  # outputs the wire refused, by cause (:meth:`encoded`)
         self.events: list[str] = []
@@ -217,16 +226,33 @@ class FuserCore:
             rej = self.merger.add(msg.src, msg.t, msg.seq, item, now, self.events)
         if rej is not None:
             self.reject(rej.src, rej.cause, rej.detail)
+        elif msg.src in self.schedule:
+            self._scheduled(msg)
         return msg
+
+    def _scheduled(self, msg: Message) -> None:
+        """A scheduled sensor's message, taken: the first says whether this core joined its
+        stream mid-way (a measurement of its second scan or later, or the watermark after
+        it); then its first watermark is where this core has all of it."""
+        if msg.src not in self._heard:
+            self._heard.add(msg.src)
+            start, period = self.schedule[msg.src]
+            # A watermark looks ahead to just before the next scan (services/source.py).
+            if (msg.t - start) / period > (1.5 if msg.kind == "watermark" else 0.5):
+                self._midway.add(msg.src)
+        if msg.kind == "watermark" and msg.src in self._midway:
+            self._midway.discard(msg.src)
+            n = self.merger.join(msg.t)
+            self.events.append(f"joined {msg.src}'s stream mid-way (first watermark heard: {msg.t:g} s); "
+                               f"fusing from the first scan heard whole ({n} held measurements dropped)")
 
     def step(self, now: float) -> list[Estimate]:
         """Release what the watermarks allow and run the method on it."""
         if self.finished:
             return []
         self.merger.check_timeouts(now, self.events)
-        before = self.merger.released_until
         items, wm = self.merger.release(now)
-        if before == -math.inf and items:  # t > 0 for a fuser restarted mid-stream
+        if items and not self.processed:  # t > 0 for a fuser restarted mid-stream
             self.events.append(f"input starts at t = {items[0].t:g} s")
         out: list[Estimate] = []
         if self.refilter is not None:
@@ -286,6 +312,11 @@ def max_held_for(scenario, window: float | None = None) -> int:
     return hold_cap(rate, (scenario.duration if window is None else window) + 1.0)
 
 
+def _schedule(scenario) -> dict[str, tuple[float, float]]:
+    """Each sensor's (first scan time, period): :class:`FuserCore`'s ``schedule``."""
+    return {sid: (s.start, s.period) for sid, s in scenario.sensors.items()}
+
+
 def _delete_misses(scenario) -> int:
     """Frames without a report after which a track has left the picture: the trackers' rule."""
     association, _ = AssociationConfig.split(scenario.tracker)
@@ -321,7 +352,8 @@ def run(process_id: str, scenario_ref: str, method_name: str, overrides: dict, k
         core = FuserCore(method, sources, keys, node.reject, timeout, start_grace,
                          horizon=scenario.duration + HORIZON_SLACK_S if live is None else math.inf, now=time.monotonic(),
                          intake=intake, max_held=max_held_for(scenario, None if live is None else timeout),
-                         live=live, refilter=not feedback, periods=periods)
+                         live=live, refilter=not feedback, periods=periods,
+                         schedule=None if live is not None or distributed else _schedule(scenario))
         utc = time.time if live is not None else lambda: None
         recovery = Recovery(node.processes_by_session()) if live is not None else None
         if recovery is not None:  # live sensors' and trackers' publishers give back what a cut-off missed

@@ -37,6 +37,7 @@ HEARTBEAT_S = 0.5  # a recoverable publisher's heartbeat: how soon a subscriber 
 RECOVERED_LAG_S = 1.5  # a sample this much later than its source's usual lag was given back after a cut-off
 KEYS_MAX = 4096  # distinct keys a ListenerInbox shares one string for (then it starts again)
 SPILL_READ = 256  # samples a ListenerInbox reads back from its file at a time (held in memory meanwhile)
+INBOX_BYTES = 64 * 2**20  # payload an Inbox holds at most (class docstring)
 SPILL_HEADER = struct.Struct("<HI")  # a spilled sample: key length, payload length, then both
 
 
@@ -94,39 +95,68 @@ class ZenohOptions:
 
 
 class Inbox:
-    """The bounded hand-over from Zenoh's callbacks to a process's loop: ``(key, bytes)``.
+    """The bounded hand-over from Zenoh's callbacks to a process's loop: ``(key, bytes)``,
+    at most ``maxsize`` samples and ``max_bytes`` of payload (a sample larger than that
+    alone is let into an empty inbox, for the loop to refuse).
 
     When it is full the callback waits (until there is room, or the process stops)
     instead of dropping: Zenoh then stops reading that link, and publishers with
     blocking congestion control slow down, so data on the fusion path is never lost to
     a burst and memory stays bounded. ``waits`` counts the times a callback had to wait.
+    The byte bound matters for hostile input only: 65,536 real measurements are ~20 MB,
+    65,536 messages just under the schema's 1 MiB limit would be 64 GiB.
     (Zenoh's own ``handlers.FifoChannel`` blocks the same way, but it is one channel per
-    subscriber: a process's loop waits on all its subscriptions at once, in arrival
-    order, and must wake when the process is told to stop.)
+    subscriber and counts samples only: a process's loop waits on all its subscriptions
+    at once, in arrival order, and must wake when the process is told to stop.)
     """
 
-    def __init__(self, stop: threading.Event, maxsize: int = 65_536):
-        self._queue: queue.Queue[tuple[str, bytes]] = queue.Queue(maxsize)
+    def __init__(self, stop: threading.Event, maxsize: int = 65_536, max_bytes: int = INBOX_BYTES):
+        self._items: deque[tuple[str, bytes]] = deque()
+        self._bytes = 0
+        self._ready = threading.Condition()
         self._stop = stop
+        self.maxsize = maxsize
+        self.max_bytes = max_bytes
         self.waits = 0
 
     def __call__(self, sample: zenoh.Sample) -> None:
         item = (str(sample.key_expr), sample.payload.to_bytes())
-        while not self._stop.is_set():
-            try:
-                self._queue.put(item, timeout=0.1)
-                return
-            except queue.Full:
+        with self._ready:
+            while len(self._items) >= self.maxsize or (self._items and self._bytes + len(item[1]) > self.max_bytes):
+                if self._stop.is_set():
+                    return
                 self.waits += 1
+                self._ready.wait(0.1)
+            if self._stop.is_set():
+                return
+            self._items.append(item)
+            self._bytes += len(item[1])
+            self._ready.notify_all()
 
     def get(self, timeout: float) -> tuple[str, bytes]:
-        return self._queue.get(timeout=timeout)
+        deadline = time.monotonic() + timeout
+        with self._ready:
+            while not self._items:
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    raise queue.Empty
+                self._ready.wait(left)
+            return self._pop()
 
     def get_nowait(self) -> tuple[str, bytes]:
-        return self._queue.get_nowait()
+        with self._ready:
+            if not self._items:
+                raise queue.Empty
+            return self._pop()
+
+    def _pop(self) -> tuple[str, bytes]:
+        item = self._items.popleft()
+        self._bytes -= len(item[1])
+        self._ready.notify_all()
+        return item
 
     def qsize(self) -> int:
-        return self._queue.qsize()
+        return len(self._items)
 
 
 class ListenerInbox:

@@ -6,7 +6,8 @@ holds measurements until every *live* source's watermark has passed them, then r
 them in ``(t, sensor, seq)`` order — the total order the in-process evaluation uses, so
 a distributed run feeds the estimator the same sequence at any speed. A source silent
 for longer than its timeout is declared dead and no longer waited for; it rejoins when
-it speaks again.
+it speaks again. A consumer that joins the streams mid-way (a restarted fuser) starts from
+the first scan it has heard whole (:meth:`WatermarkMerger.join`).
 
 Input it cannot order (``unknown-source``, ``out-of-order``, ``duplicate``, ``late``,
 ``stale``; a time outside the session is the intake's, :mod:`services.intake`) is
@@ -104,6 +105,8 @@ class WatermarkMerger:
         self.released_until = -math.inf  # the merged watermark already passed downstream
         self.late = 0
         self.shed = 0
+        self.joined_at = -math.inf  # measurements up to this time may be partial (:meth:`join`)
+        self.partial = 0
         self.max_delay = max_delay
         self.oosm_window = oosm_window
         # (wall time, leading watermark) as the lead rose, for the bounded wait; at most one
@@ -140,6 +143,9 @@ class WatermarkMerger:
         self._heard(src, st, now, events)
         if t <= st.recovery_until:  # sent while it was cut off, given back on reconnection (the caller says until when)
             st.recovered += 1
+        if t <= self.joined_at:
+            self.partial += 1
+            return None
         if t <= self.released_until:
             if self.oosm_window <= 0:
                 self.late += 1
@@ -187,6 +193,22 @@ class WatermarkMerger:
         if math.isfinite(self.max_delay) and not st.final and (not self._lead or t > self._lead[-1][1]):
             self._lead.append((now, t))
         return None
+
+    def join(self, t: float) -> int:
+        """A source was first heard mid-stream, its first watermark heard at ``t``: a
+        consumer that subscribed then may have heard only part of what any source sent up
+        to ``t``. Held measurements stamped up to ``t``, and any that come later, are
+        dropped (counted in ``partial``): the stream released starts with a whole scan.
+        Returns how many held ones were dropped."""
+        self.joined_at = max(self.joined_at, t)
+        n = 0
+        for st in self.sources.values():
+            k = bisect_right(st.held, t, key=lambda h: h[0])
+            st.held_seqs.difference_update(seq for _, seq, _ in st.held[:k])
+            del st.held[:k]
+            n += k
+        self.partial += n
+        return n
 
     # -- liveness ---------------------------------------------------------------------------
 

@@ -83,7 +83,9 @@ def run(sensor: str, scenario_ref: str, method_name: str, overrides: dict, keys:
         core = FuserCore(feed, [sensor], keys, node.reject, math.inf, start_grace,
                          horizon=scenario.duration + HORIZON_SLACK_S if live is None else math.inf, now=time.monotonic(),
                          intake=MeasurementIntake(scenario.sensors), live=live, refilter=False,
-                         periods={sensor: scenario.sensor(sensor).period})
+                         periods={sensor: scenario.sensor(sensor).period},
+                         schedule=None if live is not None else {sensor: (scenario.sensor(sensor).start,
+                                                                          scenario.sensor(sensor).period)})
         utc = time.time if live is not None else lambda: None
         recovery = None
         if live is not None:  # live: its sensor's and the fuser's publishers give back what a cut-off missed

@@ -19,6 +19,22 @@ from services.launcher import free_port
 from services.node import ZenohOptions
 
 
+def gateway(*args: str, capture: "Capture", **kw) -> subprocess.Popen:
+    """``zfusion ingest ARGS`` on ``capture``'s deployment, dialling it; stderr piped."""
+    return subprocess.Popen([sys.executable, "-m", "services.cli", "ingest", *args, "--deployment",
+                             capture.keys.deployment, "--connect", capture.endpoint],
+                            stderr=subprocess.PIPE, text=True, **kw)
+
+
+def stop(p: subprocess.Popen) -> str:
+    """SIGTERM: the gateway exits 0 without a traceback; its stderr."""
+    p.send_signal(signal.SIGTERM)
+    _, err = p.communicate(timeout=15)
+    assert p.returncode == 0, err[-3000:]
+    assert "Traceback" not in err
+    return err
+
+
 class DocServer:
     """``http.server`` on loopback serving ``docs[path]``; ``fail`` > 0 answers that many
     requests with HTTP 500 (a station whose web server is restarting)."""

@@ -152,6 +152,18 @@ class LiveRun:
             assert time.monotonic() < deadline, f"no fused output at {t} s within {timeout} s"
             time.sleep(0.01)
 
+    def wait_status(self, condition, timeout: float = 60.0) -> dict:
+        """Until the fuser's latest status has counters satisfying ``condition``
+        (statuses come once a second); those counters."""
+        deadline = time.monotonic() + timeout
+        while True:
+            last = max(self.statuses, key=lambda s: s["seq"]) if self.statuses else None
+            if last is not None and condition(last["counters"]):
+                return last["counters"]
+            assert self.launcher.poll() is None, "the run ended early"
+            assert time.monotonic() < deadline, f"no such fuser status within {timeout} s (last: {last})"
+            time.sleep(0.02)
+
     def finish(self, timeout: float = 90.0) -> tuple[dict, dict]:
         """Wait for the run to end; its JSON summary and the fuser's last status."""
         _, err = self.launcher.communicate(timeout=timeout)

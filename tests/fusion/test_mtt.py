@@ -4,9 +4,7 @@ fusion.tracking), their reduction to the one-target method, and the track-qualit
 
 from __future__ import annotations
 
-import json
 import math
-import subprocess
 
 import numpy as np
 import pytest
@@ -23,8 +21,6 @@ from services.evaluation import merged_measurements, run_method, score_tracks_ru
 from services.scoring import score_tracks_of, track_steps
 from services.summary import tracks_summary
 
-from conftest import CROSSING
-from _runs import run_cmd
 
 
 # Reduction to the one-target method ---------------------------------------------------
@@ -229,16 +225,13 @@ def test_an_id_swap_is_two_breaks_and_lowers_purity():
 
 
 @pytest.mark.slow
-def test_many_targets_over_zenoh_equal_in_process(crossing, tmp_path, deployment):
+def test_many_targets_over_zenoh_equal_in_process(crossing, crossing_run):
     """`zfusion run` on a many-target scenario: the processes' fused tracks, scored as an
     air picture, are the in-process evaluation's, step by step (ids included: breaks and
     purity depend on them)."""
-    path = CROSSING
-    p = subprocess.run(run_cmd(tmp_path, str(path), deployment, "--speed", "max"), capture_output=True, text=True,
-                       timeout=300)
-    assert p.returncode == 0, p.stderr[-3000:]
+    doc, _, p, _, _ = crossing_run
     assert "gospa" in p.stdout  # the air-picture table is printed
-    got = json.loads((tmp_path / "out.json").read_text())["methods"]["SS"]
+    got = doc["methods"]["SS"]
     ref = tracks_summary([score_tracks_of(crossing, run_method(crossing, "SS"))])
     assert got["series"]["t"] == ref["series"]["t"]
     np.testing.assert_allclose(got["series"]["gospa"], ref["series"]["gospa"], rtol=0, atol=1e-9)

@@ -38,7 +38,8 @@ from sensors_sim.recorded import (
     traffic_sample,
 )
 from sensors_sim.spec import TargetSpec
-from sensors_sim.trajectories import ConstantVelocity, CoordinatedTurn, Trajectory
+from sensors_sim.segments import ConstantVelocity, CoordinatedTurn
+from sensors_sim.trajectories import Trajectory
 
 DATA = Path(__file__).resolve().parents[1] / "data" / "adsb"
 FRAME = LocalFrame(48.85, 2.35, 0.0, deg=True)

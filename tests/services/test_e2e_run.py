@@ -22,7 +22,7 @@ from schemas import KeySpace, encode
 from services.node import ZenohOptions
 
 from conftest import zfusion
-from _runs import in_process
+from _runs import FusedWatch, in_process
 from _recording import rerun_exe
 
 pytestmark = pytest.mark.slow
@@ -36,10 +36,9 @@ def _run(tmp_path: Path, *extra: str, timeout: float = 90) -> tuple[dict, Path, 
     return json.loads(js.read_text()), rrd, p
 
 
-def test_run_patent_3d_max_speed(tmp_path, deployment):
-    t0 = time.monotonic()
-    doc, rrd, p = _run(tmp_path, "--speed", "max", "--deployment", deployment)
-    assert time.monotonic() - t0 < 90  # no wait on a dead peer (20 s at load 3.5; a loaded start takes 30)
+def test_run_patent_3d_max_speed(patent_3d_run):
+    doc, rrd, p, seconds = patent_3d_run
+    assert seconds < 90  # no wait on a dead peer (20 s at load 3.5; a loaded start takes 30)
     ss = doc["methods"]["SS"]
     radar_alone = in_process("patent-3d", "RADAR2D")["rmse_pos"]
     assert ss["rmse_pos"] < 0.2 * radar_alone, (ss["rmse_pos"], radar_alone)
@@ -69,8 +68,9 @@ def rrd_rows(path: Path) -> dict[str, int]:
 
 
 @pytest.mark.parametrize("speed", ["max", "5"])
-def test_distributed_equals_in_process(tmp_path, deployment, speed):
-    doc, _, _ = _run(tmp_path, "--speed", speed, "--deployment", deployment)
+def test_distributed_equals_in_process(tmp_path, deployment, speed, request):
+    doc = (request.getfixturevalue("patent_3d_run") if speed == "max"
+           else _run(tmp_path, "--speed", speed, "--deployment", deployment))[0]
     ref = in_process("patent-3d", "SS")
     got = doc["methods"]["SS"]
     assert got["n_updates"] == ref["n_updates"]
@@ -97,11 +97,13 @@ def _wait_children(pid: int, n: int, timeout: float = 120) -> list[psutil.Proces
 
 
 def test_processes_are_separate_and_ctrl_c_leaves_nothing(tmp_path, deployment):
+    watch = FusedWatch(deployment)
     launcher = zfusion("run", "--scenario", "patent-3d", "--speed", "1", "--rrd", str(tmp_path / "x.rrd"),
-                       "--deployment", deployment, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+                       "--deployment", deployment, "--connect", watch.endpoint,
+                       stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     try:
+        watch.wait_until(0.0, launcher, timeout=120)  # every process is up: the sources publish, the fuser fuses
         kids = _wait_children(launcher.pid, 5)
-        time.sleep(2.0)  # let the sources start publishing
         roles = {}
         for k in _tree(launcher.pid):
             cmd = k.cmdline()
@@ -123,6 +125,7 @@ def test_processes_are_separate_and_ctrl_c_leaves_nothing(tmp_path, deployment):
     finally:
         if launcher.poll() is None:
             launcher.kill()
+        watch.close()
 
 
 def test_garbage_on_the_wire_changes_nothing(tmp_path, deployment):

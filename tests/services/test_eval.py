@@ -14,7 +14,9 @@ from scipy.stats import chi2
 
 from sensors_sim import load_scenario
 from services.cli import main
-from services.evaluation import Variant, default_methods, evaluate, merged_measurements, variants_for
+from services.evaluation import Variant, default_methods, evaluate, merged_measurements, run_method, variants_for
+from services.scoring import truth_function
+from services.summary import method_summary
 from conftest import ROOT
 
 ROOT = ROOT
@@ -173,8 +175,14 @@ def test_a_sensor_subset_sees_the_same_measurements():
     full = merged_measurements(sc, 1)
     only = merged_measurements(sc, 1, ["angle"])
     assert only == [m for m in full if m.sensor == "angle"]
-    a = evaluate(sc, [Variant("ANGLE", "ANGLE"), Variant("ANGLE/only", "ANGLE", sensors=("angle",))], 2, crb=False)
-    assert a["methods"]["ANGLE"]["rmse_pos"] == a["methods"]["ANGLE/only"]["rmse_pos"]
+    # SS fuses both sensors: restricted to the angle sensor it is SS run on the angle
+    # sensor's measurements of the same runs (no range: kilometres off), not SS
+    a = evaluate(sc, [Variant("SS", "SS"), Variant("SS/angle", "SS", sensors=("angle",))], 2, crb=False)
+    ref = method_summary([run_method(sc, "SS", run=r, measurements=merged_measurements(sc, r, ["angle"]))
+                          for r in range(2)], truth_function(sc))
+    got = a["methods"]["SS/angle"]
+    assert got["series"]["rmse_pos"] == ref["series"]["rmse_pos"] and got["anees"] == ref["anees"]
+    assert got["rmse_pos"] > 100 * a["methods"]["SS"]["rmse_pos"]
 
 
 def test_default_methods_by_sensor_kinds():
@@ -275,10 +283,17 @@ def test_tiny_sweep_report_tables_equal_their_json(tmp_path):
     assert check_sweep(md, json.loads((tmp_path / "jammed-df-sweep.json").read_text())) == 2 * 5
 
 
-def test_tiny_many_target_report_tables_equal_their_json(tmp_path):
+def test_tiny_many_target_report_tables_equal_their_json(tmp_path, monkeypatch):
+    import dataclasses
+
+    import sensors_sim
     from services import report
 
+    # the report's form, not its numbers: 15 of df-multi's 50 epochs (10 methods x 50 epochs were 15 CPU s)
+    full = sensors_sim.load_scenario
+    monkeypatch.setattr(sensors_sim, "load_scenario", lambda ref: dataclasses.replace(full(ref), duration=15.0))
     b = report.build_many("df-multi", runs=1)
+    assert b["evaluation"]["methods"] and all(m["steps"] == 15 for m in b["evaluation"]["methods"].values())
     md = report.write_many_report(b, tmp_path).read_text()
     assert check_many(md, json.loads((tmp_path / "df-multi.json").read_text())) == 10
     assert (tmp_path / "df-multi" / "gospa.png").is_file()

@@ -34,7 +34,7 @@ from services.node import RejectLog, ZenohOptions
 from services.scoring import truth_function
 
 from services.launcher import free_port
-from conftest import zfusion
+from conftest import wait_for, zfusion
 
 KEYS = KeySpace("xtest")
 WGS84 = pymap3d.Ellipsoid.from_name("wgs84")
@@ -302,7 +302,10 @@ def test_geojson_process_rides_through_a_fuser_restart_and_stops_cleanly(tmp_pat
                 t = 10.0 * incarnation + k
                 pub.put(_est(t, [15_000.0 + t, 15_000.0], seq=k))
             pub.put(b"garbage")
-            time.sleep(0.5)
+            # the exporter has taken it all before this 'fuser' goes (its status, once a second)
+            wait_for(lambda: status[-1]["counters"].get("updates") == 5 * (incarnation + 1)
+                     and status[-1]["counters"].get("rejected.malformed") == incarnation + 1,
+                     f"the exporter took incarnation {incarnation}'s messages")
             pub.undeclare()
             fuser.close()
         deadline = time.monotonic() + 10
@@ -379,9 +382,14 @@ def test_run_with_cot_over_udp_delivers_tracks_within_100_m_of_truth(tmp_path, d
         out, err = p.communicate(timeout=600)
         assert p.returncode == 0, err[-3000:]
     finally:
-        time.sleep(0.3)
         done.set()
         th.join()
+        rx.setblocking(False)  # the run is over: what it sent is in the socket's buffer
+        while True:
+            try:
+                datagrams.append(rx.recv(65536))
+            except BlockingIOError:
+                break
         rx.close()
     events = [ET.fromstring(d) for d in datagrams]  # each datagram is one whole XML event
     sc = load_scenario("patent-3d")

@@ -17,8 +17,12 @@ import pyarrow as pa
 import pytest
 
 from conftest import CROSSING
+from sensors_sim import load_scenario
 from _runs import FusedWatch, child, in_process, run_cmd
+from services.evaluation import merged_measurements, run_method
 from services.launcher import free_port
+from services.scoring import GOSPA_CUTOFF, score_tracks_of, truth_function
+from services.summary import method_summary, tracks_summary
 
 pytestmark = pytest.mark.slow
 
@@ -94,10 +98,6 @@ def test_fuser_killed_with_many_targets_in_the_feedback_topology(tmp_path, deplo
     back. When the nodes kept their tracks (and the centre dropped each as it was
     reported), no aircraft was held for 9 s and one not for 16 s: a mean GOSPA of 398 m
     over the window below, against 108 m undisturbed."""
-    from sensors_sim import load_scenario
-    from services.evaluation import run_method
-    from services.scoring import GOSPA_CUTOFF, score_tracks_of
-    from services.summary import tracks_summary
 
     path = CROSSING
     doc, err = _disturb(tmp_path, str(path), deployment, 3.0, [(25.0, "fuser", "fuser")], "--topology", "feedback")
@@ -124,11 +124,12 @@ def test_no_restart_ends_the_run_after_the_sources(tmp_path, deployment):
     from services.launcher import END_GRACE
 
     killed: list[float] = []
+    duration = 16.0  # the sources go on for 6 s of scenario time after the kill
     doc, err = _disturb(tmp_path, "patent-3d", deployment, 3.0, [(10.0, "fuser", "fuser")], "--no-restart",
-                        killed_at=killed)
-    # from the kill: the sources' last 20 scenario s (about 7 s), the grace, the stop; timed from the kill, not
+                        "--duration-s", str(duration), killed_at=killed)
+    # from the kill: the sources' last 6 scenario s (2 s), the grace, the stop; timed from the kill, not
     # the start, which a loaded machine can stretch past 30 s
-    assert time.monotonic() - killed[0] < 20.0 / 3.0 + END_GRACE + 15.0
+    assert time.monotonic() - killed[0] < (duration - 10.0) / 3.0 + END_GRACE + 15.0
     (out,) = doc["outages"]["fuser"]
     assert out["exit_code"] == -signal.SIGKILL and out["t_up"] is None and 8.0 <= out["t_down"] <= 18.0, out
     assert doc["exit_codes"]["fuser"] == -signal.SIGKILL
@@ -145,14 +146,17 @@ def test_no_restart_ends_the_run_after_the_sources(tmp_path, deployment):
 def test_recorder_then_fuser_killed_centralised(tmp_path, deployment):
     """Centralised (SS): kill -9 of the recorder, later of the fuser. The recorder's loss
     changes nothing fused and its restart records the rest of the run in a second,
-    verified file; the restarted fuser joins mid-stream and initialises from the
-    measurements it gets (it does not wait for t = 0 data)."""
+    verified file; the restarted fuser joins mid-stream (it does not wait for t = 0 data)
+    and starts from the first scan it has heard whole: from there its estimates are the
+    in-process evaluation's started at that scan. (It started from what it held: when that
+    was the radar's plot of a scan without the angle sensor's, a track with no measured
+    elevation, e.g. 31.6 m RMSE from t = 37 s against 17.7 m undisturbed.)"""
     from _recording import read_rrd, verify
 
     doc, err = _disturb(tmp_path, "patent-3d-60", deployment, 4.0,
-                        [(6.0, "record", "recorder"), (20.0, "fuser", "fuser")])
+                        [(6.0, "record", "recorder"), (15.0, "fuser", "fuser")])
     rec = _outage(doc, "recorder", 6.0)
-    fuser = _outage(doc, "fuser", 20.0)
+    fuser = _outage(doc, "fuser", 15.0)
     got = doc["methods"]["SS"]["series"]
     ref = in_process("patent-3d-60", "SS")["series"]
     # Up to the fuser's death the output is the undisturbed one, recorder kill or not;
@@ -164,7 +168,13 @@ def test_recorder_then_fuser_killed_centralised(tmp_path, deployment):
     np.testing.assert_allclose(got["rmse_pos"][:n], ref["rmse_pos"][:n], rtol=0, atol=1e-9)
     after = t[n:]
     assert fuser["t_down"] - 1 <= after[0] <= fuser["t_up"] + 3 and after == list(np.arange(after[0], 61.0))
-    assert "fuser: input starts at t = " in err
+    assert err.count("fuser: input starts at t = ") == 2 and f"fuser: input starts at t = {after[0]:g} s" in err
+    assert "fuser: joined radar2d's stream mid-way" in err and "fuser: joined angle's stream mid-way" in err
+    sc = load_scenario("patent-3d-60")
+    restarted = method_summary([run_method(sc, "SS", measurements=[m for m in merged_measurements(sc)
+                                                                    if m.t >= after[0]])], truth_function(sc))
+    assert restarted["series"]["t"] == after
+    np.testing.assert_allclose(got["rmse_pos"][n:], restarted["series"]["rmse_pos"], rtol=0, atol=1e-9)
     _recovered(got, ref, after[0] + 5)
     # The recording: the first file up to the kill, the rest of the run in a second one.
     first, second = map(type(tmp_path), doc["recordings"])

@@ -11,9 +11,9 @@ import pytest
 
 from fusion.methods import make_method, method_config
 from fusion.types import Estimate
-from schemas import encode_estimate, encode_measurement
+from schemas import encode, encode_estimate, encode_measurement
 from sensors_sim import load_scenario, sensor_events
-from services.evaluation import run_method
+from services.evaluation import merged_measurements, run_method
 from services.fuser import FuserCore, MeasurementIntake
 from services.node import RejectLog
 
@@ -158,3 +158,65 @@ def test_an_estimate_the_wire_refuses_is_counted_and_dropped():
     assert [core.encoded(encode_estimate, e, "fuser", 2) for e in (negative, negative, too_many)] == [None] * 3
     assert dict(core.unpublished) == {"value": 2, "range": 1}
     assert len(core.events) == 2 and "negative variance" in core.events[0] and "nis_dof" in core.events[1]
+
+
+@pytest.mark.parametrize("cut", range(4))
+def test_a_core_joining_mid_stream_starts_from_a_whole_scan(cut):
+    """A core that subscribes mid-way (a restarted fuser) hears the rest of a scan in
+    progress: here from each of the four messages of scan t = 10 s (radar plot, radar
+    watermark, angle plot, angle watermark). It fuses from the first scan it has heard
+    whole, after a watermark of every sensor: its estimates are those of the in-process
+    evaluation started at that scan (before, a joining core started from a radar plot
+    alone, a track without elevation: a different estimate on every later scan)."""
+    sc = load_scenario("patent-3d")
+    stream = wire_stream(sc)
+    starts = [i for i, (_, data) in enumerate(stream) if msgpack.unpackb(data)["t"] == 10.0]
+    reject = RejectLog("test")
+    core = FuserCore(make_method("SS", method_config(sc.tracker, "SS")), list(sc.sensors), KEYS, reject,
+                     timeout=1e9, intake=MeasurementIntake(sc.sensors), schedule=_schedule(sc))
+    out = []
+    for key, data in stream[starts[cut]:]:
+        core.offer(key, data, 0.0)
+        out.extend(core.step(0.0))
+    assert core.finished and reject.total == 0
+    assert any(e.startswith("joined ") for e in core.events)
+    t0 = out[0].t
+    assert 10.0 <= t0 <= 12.0
+    ref = run_method(sc, "SS", measurements=[m for m in merged_measurements(sc) if m.t >= t0])
+    assert len(out) == len(ref) == 31 - t0
+    for a, b in zip(out, ref):
+        assert a.t == b.t and np.array_equal(a.x, b.x) and np.array_equal(a.P, b.P)
+
+
+@pytest.mark.parametrize("case", ["refused", "first scan missed"])
+def test_a_core_that_heard_every_scan_does_not_join_mid_stream(case):
+    """Watermarks refused before a sensor's first (beyond the scenario's end), or a sensor
+    whose first scan had no plot (its first message is the watermark after it), are not
+    a join mid-way: the core fuses the whole stream, as the in-process evaluation does."""
+    sc = load_scenario("patent-3d")
+    reject = RejectLog("test")
+    core = FuserCore(make_method("SS", method_config(sc.tracker, "SS")), list(sc.sensors), KEYS, reject,
+                     timeout=1e9, horizon=sc.duration + 1.0, intake=MeasurementIntake(sc.sensors),
+                     schedule=_schedule(sc))
+    stream, measurements = wire_stream(sc), merged_measurements(sc)
+    if case == "refused":
+        core.offer(KEYS.meas("radar2d"), encode("watermark", "radar2d", 7, 1e9, final=False), 0.0)
+        core.offer(KEYS.meas("angle"), encode("watermark", "angle", 9, 40.0, final=False), 0.0)
+    else:
+        first = next(i for i, (key, data) in enumerate(stream) if key == KEYS.meas("angle"))
+        stream = stream[:first] + stream[first + 1:]
+        measurements = [m for m in measurements if (m.sensor, m.t) != ("angle", 0.0)]
+    out = []
+    for key, data in stream:
+        core.offer(key, data, 0.0)
+        out.extend(core.step(0.0))
+    assert dict(reject.by_cause) == ({"future": 2} if case == "refused" else {})
+    assert not [e for e in core.events if e.startswith("joined ")]
+    ref = run_method(sc, "SS", measurements=measurements)
+    assert core.finished and len(out) == len(ref) == 31
+    for a, b in zip(out, ref):
+        assert a.t == b.t and np.array_equal(a.x, b.x) and np.array_equal(a.P, b.P)
+
+
+def _schedule(sc) -> dict[str, tuple[float, float]]:
+    return {sid: (s.start, s.period) for sid, s in sc.sensors.items()}

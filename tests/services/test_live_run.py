@@ -20,6 +20,7 @@ from sensors_sim import load_scenario
 
 from conftest import DATA, ROOT, zfusion
 from _recording import rerun_exe
+from _runs import FusedWatch
 
 DATA = DATA
 
@@ -130,36 +131,25 @@ def test_live_run_of_an_endless_scenario_goes_on_past_its_duration_until_stopped
     in order and writes its summary, its fused updates one a second up to the stop."""
     import signal
 
-    from services.launcher import free_port
-
     text = (ROOT / "sensors_sim/scenarios/patent-3d-orbit.toml").read_text()
     assert "duration_s = 600.0\nendless = true" in text
     (tmp_path / "orbit.toml").write_text(text.replace("duration_s = 600.0", "duration_s = 4.0"))
-    hub = f"tcp/127.0.0.1:{free_port()}"
+    watch = FusedWatch(deployment)
     p = zfusion("run", "--scenario", str(tmp_path / "orbit.toml"), "--live", "--deployment", deployment,
-                "--listen", hub, "--json", str(tmp_path / "e.json"), "--rrd", str(tmp_path / "e.rrd"),
+                "--connect", watch.endpoint, "--json", str(tmp_path / "e.json"), "--rrd", str(tmp_path / "e.rrd"),
                 stdout=subprocess.DEVNULL, stderr=(tmp_path / "e.err").open("w"))
     try:
-        deadline = time.monotonic() + 120
-        latest = None
-        while time.monotonic() < deadline and p.poll() is None:  # until the picture is 10 s past the duration
-            time.sleep(2)
-            q = zfusion("picture", "--deployment", deployment, "--connect", hub, "--timeout", "5",
-                        stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
-            out, _ = q.communicate(timeout=60)
-            tracks = json.loads(out)["tracks"] if q.returncode == 0 and out.strip() else []
-            if tracks:
-                latest = latest or tracks[0]["t"]
-                if tracks[0]["t"] - latest >= 14.0:
-                    break
+        watch.wait_until(1e9, p, timeout=120)  # fusing (a UTC time)
+        watch.wait_until(watch.t + 8.0, p)  # twice the duration past the first fused update
         assert p.poll() is None, "the run ended by itself"
         p.send_signal(signal.SIGINT)
         p.wait(timeout=120)
     finally:
         if p.poll() is None:
             p.kill()
+        watch.close()
     err = (tmp_path / "e.err").read_text()
     assert p.returncode == 0, err[-3000:]
     doc = json.loads((tmp_path / "e.json").read_text())
     t = np.array(doc["methods"]["SS"]["series"]["t"]) - doc["epoch_utc"]
-    assert t[-1] >= 14.0 and np.all(np.diff(t) <= 1.0 + 1e-6), t
+    assert t[-1] >= 8.0 and np.all(np.diff(t) <= 1.0 + 1e-6), t

@@ -241,7 +241,8 @@ def test_run_shows_progress_on_a_terminal_only(tmp_path):
 
     master, slave = pty.openpty()
     p = subprocess.Popen([sys.executable, "-m", "services.cli", "run", "--scenario", "patent-3d", "--speed", "3",
-                          "--rrd", str(tmp_path / "r.rrd")], stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
+                          "--duration-s", "6", "--rrd", str(tmp_path / "r.rrd")], stdin=subprocess.DEVNULL,
+                         stdout=subprocess.DEVNULL,
                          stderr=slave)
     os.close(slave)
     seen = b""

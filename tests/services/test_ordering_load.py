@@ -151,3 +151,34 @@ def test_a_full_inbox_holds_zenoh_back_instead_of_growing_or_dropping():
     stop.set()  # a stopping process does not hang in a callback
     inbox(sample(5))
     assert inbox.qsize() == 2
+
+
+def test_an_inbox_holds_at_most_its_bytes():
+    """Messages just under the schema's 1 MiB limit: the inbox takes 64 MiB of them, then
+    the callback waits (a count bound alone held 65,536 of them, 64 GiB); one sample
+    larger than the bound still gets into an empty inbox (for the loop to refuse it)."""
+    import threading
+    from types import SimpleNamespace
+
+    from schemas.messages import MAX_BYTES
+    from services.node import INBOX_BYTES, Inbox
+
+    stop = threading.Event()
+    inbox = Inbox(stop)
+    big = bytes(MAX_BYTES - 1)  # one object, shared by every sample: the test itself holds 1 MiB
+    sample = SimpleNamespace(key_expr="k", payload=SimpleNamespace(to_bytes=lambda: big))
+    n = INBOX_BYTES // len(big)
+    for _ in range(n):
+        inbox(sample)
+    more = threading.Thread(target=inbox, args=(sample,))
+    more.start()
+    more.join(0.5)
+    assert more.is_alive() and inbox.qsize() == n and inbox.waits >= 1
+    inbox.get(0.1)
+    more.join(1.0)
+    assert not more.is_alive() and inbox.qsize() == n
+    huge = SimpleNamespace(key_expr="k", payload=SimpleNamespace(to_bytes=lambda: bytes(INBOX_BYTES + 1)))
+    alone = Inbox(stop)
+    alone(huge)
+    assert alone.qsize() == 1
+    stop.set()

@@ -36,6 +36,8 @@ class Feed:
         self.endpoint = f"tcp/127.0.0.1:{free_port()}"
         self.session = zenoh.open(ZenohOptions(listen=[self.endpoint]).to_config())
         self.fused: dict[str, bytes] = {}  # track -> its last fused message
+        self.n_fused = 0  # fused messages heard
+        self.sent = 0  # messages played
         self.t = -1.0
         self.ready: set[str] = set()
         self.counters: dict[str, tuple[float, dict]] = {}  # process -> (when heard, its last status counters)
@@ -51,6 +53,7 @@ class Feed:
         data = sample.payload.to_bytes()
         msg = decode(data)
         self.fused[msg.body["track"]] = data
+        self.n_fused += 1
         self.t = max(self.t, msg.t)
 
     def _on_status(self, sample) -> None:
@@ -80,8 +83,10 @@ class Feed:
             for e in evs:
                 if t0 <= e.t <= t1:
                     self.pubs[s].put(encode_measurement(e.measurement, s))
+                    self.sent += 1
             self.wm += 1
             self.pubs[s].put(encode("watermark", s, self.wm, t1, final=False))
+            self.sent += 1
         self.wait(lambda: self.t >= math.floor(t1), f"fused output up to {t1} (last {self.t})")
 
     def close(self) -> None:
@@ -109,7 +114,10 @@ def test_picture_is_the_last_fused_message_and_a_late_recorder_starts_from_it(tm
         assert empty.returncode == 0, empty.stderr
         assert json.loads(empty.stdout)["tracks"] == []  # nothing fused yet: an answer all the same
         feed.play(0.0, 10.0)
-        time.sleep(0.5)  # nothing more is coming: the last fused message is the last
+        # Nothing more is coming: the fuser has taken all that was played, and every estimate
+        # it published has been heard (its status counts them after the step that made them).
+        feed.wait(lambda: feed.counter("fuser", "received") == feed.sent
+                  and feed.counter("fuser", "published") == feed.n_fused, "the fuser took all that was played")
         got = subprocess.run([sys.executable, "-m", "services.cli", "picture", *fabric],
                              capture_output=True, text=True, timeout=30)
         assert got.returncode == 0, got.stderr

@@ -71,7 +71,7 @@ def process_args(endpoint: str, certs: Path, name: str, deployment: str) -> list
     return [*o.to_args(), "--deployment", deployment]
 
 
-def matched(pub: zenoh.Publisher, timeout: float = 5.0) -> bool:
+def matched(pub: zenoh.Publisher, timeout: float = 30.0) -> bool:
     """Whether the publisher's session learns of a subscriber to its key: only then does a
     Zenoh client actually send its samples to the router."""
     deadline = time.monotonic() + timeout

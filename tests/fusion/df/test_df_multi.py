@@ -324,18 +324,24 @@ def test_the_cross_fed_filters_misses_are_their_estimates_not_the_association(mo
 # Through the processes -------------------------------------------------------------------
 @pytest.mark.slow
 @pytest.mark.parametrize("method, topology", [("EKF", "centralised"), ("KF+TR", "distributed")])
-def test_df_multi_over_zenoh_equals_in_process(tmp_path, deployment, method, topology):
-    """The fuser's association of raw bearings (EKF), and the distributed KF+TR: one
-    tracker process per station tracks its bearings (a smoother per bearing track) and
-    sends the smoothed ones up; the fuser associates them into emitters."""
+def test_df_multi_over_zenoh_equals_in_process(tmp_path, deployment, method, topology, request):
+    """The fuser's association of raw bearings (EKF, the scenario's default: the shared
+    run), and the distributed KF+TR: one tracker process per station tracks its bearings
+    (a smoother per bearing track) and sends the smoothed ones up; the fuser associates
+    them into emitters."""
     from _runs import run_cmd
     from services.scoring import score_tracks_of
     from services.summary import tracks_summary
 
-    p = subprocess.run(run_cmd(tmp_path, "df-multi", deployment, "--speed", "max", "--topology", topology,
-                               "--method", method), capture_output=True, text=True, timeout=300)
-    assert p.returncode == 0, p.stderr[-3000:]
-    got = json.loads((tmp_path / "out.json").read_text())["methods"][method]
+    if (method, topology) == ("EKF", "centralised"):
+        doc = request.getfixturevalue("df_multi_run")[0]
+        assert (doc["topology"], list(doc["methods"])) == (topology, [method])
+    else:
+        p = subprocess.run(run_cmd(tmp_path, "df-multi", deployment, "--speed", "max", "--topology", topology,
+                                   "--method", method), capture_output=True, text=True, timeout=300)
+        assert p.returncode == 0, p.stderr[-3000:]
+        doc = json.loads((tmp_path / "out.json").read_text())
+    got = doc["methods"][method]
     sc = load_scenario("df-multi")
     ref = tracks_summary([score_tracks_of(sc, run_method(sc, method))])
     assert ref["all_found_runs"] == 1 and ref["tracks"] >= 6

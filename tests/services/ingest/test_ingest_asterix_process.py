@@ -5,14 +5,13 @@ and exit 2. Every wait is a poll with a deadline."""
 from __future__ import annotations
 
 import math
-import signal
 import socket
 import subprocess
 import sys
 import time
 
 import pytest
-from _ingest_helpers import Capture
+from _ingest_helpers import Capture, gateway, stop
 
 from schemas import asterix as ax
 from sensors_sim import load_site
@@ -60,17 +59,7 @@ def site(tmp_path):
 
 
 def ingest(*args: str, capture: Capture) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, "-m", "services.cli", "ingest", "asterix", "--id", "gw", *args,
-                             "--deployment", capture.keys.deployment, "--connect", capture.endpoint],
-                            stderr=subprocess.PIPE, text=True)
-
-
-def stop(p: subprocess.Popen) -> str:
-    p.send_signal(signal.SIGTERM)
-    _, err = p.communicate(timeout=15)
-    assert p.returncode == 0, err[-3000:]
-    assert "Traceback" not in err
-    return err
+    return gateway("asterix", "--id", "gw", *args, capture=capture)
 
 
 def tod(t: float) -> float:

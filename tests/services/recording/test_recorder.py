@@ -21,14 +21,14 @@ from scipy.stats import chi2
 import services.recording.recorder as recorder_mod
 import services.scoring as scoring
 from fusion.types import Measurement
-from schemas import KeySpace, encode, encode_estimate
+from schemas import KeySpace, decode, encode, encode_estimate
 from sensors_sim import load_scenario
 from services.recording import draw
 from services.node import ZenohOptions
 from services.recording.stream import open_recording
 
 from services.launcher import free_port
-from conftest import CROSSING, ROOT, zfusion
+from conftest import CROSSING, ROOT, wait_for, zfusion
 from _recording import (KEYS, Session, downlink_msg, est_msg, meas_msg, read_rrd, static_paths, status_msg, truth_msg,
                         uplink_msg, verify)
 
@@ -346,13 +346,10 @@ def test_record_process_over_zenoh_until_expected_processes_are_done(tmp_path, d
     proc = zfusion("record", "--rrd", str(path), "--expect", "radar2d", "--deployment", deployment, "--connect", ep,
                    stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
-        ready = []
-        sub = session.declare_subscriber(keys.status("recorder"), lambda s: ready.append(1))
-        deadline = time.monotonic() + 30
-        while not ready and time.monotonic() < deadline:
-            time.sleep(0.05)
-        assert ready, "the recorder never reported"
-        sub.undeclare()
+        statuses: list[dict] = []
+        sub = session.declare_subscriber(keys.status("recorder"),
+                                         lambda s: statuses.append(decode(s.payload.to_bytes()).body["counters"]))
+        wait_for(lambda: statuses, "the recorder reported")
         meas = session.declare_publisher(keys.meas("radar2d"), congestion_control=zenoh.CongestionControl.BLOCK,
                                          reliability=zenoh.Reliability.RELIABLE)
         fused = session.declare_publisher(keys.fused(), congestion_control=zenoh.CongestionControl.BLOCK,
@@ -362,7 +359,11 @@ def test_record_process_over_zenoh_until_expected_processes_are_done(tmp_path, d
             meas.put(meas_msg("radar2d", "range_az", [0.5, 1e4], [0.01, 20.0], float(k), k))
             fused.put(est_msg(float(k), np.zeros(9), np.eye(9), seq=k + 1))
         meas.put(b"garbage")
-        time.sleep(0.5)
+        # "done" only once the recorder has taken everything: the status goes out on another
+        # publisher, which may overtake the data
+        wait_for(lambda: statuses[-1].get("recorded", 0) >= 2 * N and statuses[-1].get("rejected", 0) >= 1,
+                 "the recorder took what was sent")
+        sub.undeclare()
         status.put(status_msg("radar2d", 1, float(N), state="done"))
         out, err = proc.communicate(timeout=30)
         assert proc.returncode == 0, err[-2000:]
@@ -573,39 +574,16 @@ def test_traffic_picture_scored_against_the_aircraft_alive_and_departed_forgotte
 
 
 @pytest.mark.slow
-def test_many_target_run_records_every_fused_track_by_id(tmp_path, deployment):
+def test_many_target_run_records_every_fused_track_by_id(crossing_run):
     """`zfusion run` on the crossing scenario: the recording has one entity per fused
     track id the fuser published, with one drawn row per published estimate."""
-    from _runs import run_cmd
-
-    from schemas import decode
-
-    ep = f"tcp/127.0.0.1:{free_port()}"
-    keys = KeySpace(deployment)
-    session = zenoh.open(ZenohOptions(listen=[ep]).to_config())
-    published: dict[str, int] = {}  # fused estimates per track id, as the fuser published them
-
-    def on_fused(sample) -> None:
-        msg = decode(sample.payload.to_bytes())
-        if msg.kind == "track":
-            published[msg.body["track"]] = published.get(msg.body["track"], 0) + 1
-
-    sub = session.declare_subscriber(keys.fused(), on_fused)
-    try:
-        p = subprocess.run(run_cmd(tmp_path, str(CROSSING), deployment, "--speed", "max", "--connect", ep),
-                           capture_output=True, text=True, timeout=300)
-    finally:
-        sub.undeclare()
-        session.close()
-    assert p.returncode == 0, p.stderr[-3000:]
-    path = tmp_path / "out.rrd"
+    doc, path, _, _, published = crossing_run
     verify(path)
     rows = read_rrd(path)
     drawn = {e.rsplit("/", 1)[1]: sum("Points3D:positions" in r for r in rs) for e, rs in rows.items()
              if e.startswith("/world/tracks/centre/") and e.count("/") == 4}
     assert len(published) >= 3 and drawn == published
     # the picture's GOSPA in the recording is the run summary's, at every frame it scored
-    doc = json.loads((tmp_path / "out.json").read_text())
     [(method, summary)] = doc["methods"].items()
     series = dict(zip(summary["series"]["t"], summary["series"]["gospa"]))
     scored = rows[f"/metrics/gospa/{method}"]

@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import subprocess
 
 import numpy as np
 import pymap3d
@@ -20,7 +19,6 @@ from services.recording.recorder import Recorder
 from services.recording.stream import open_recording
 from services.recording.map import map_path
 
-from conftest import zfusion
 from _recording import KEYS, est_msg, meas_msg, read_rrd, truth_msg, verify
 
 ORIGIN = (48.8566, 2.3522, 35.0)  # Paris: far from the equator, so lat and lon scale differently
@@ -129,11 +127,8 @@ def test_map_path_mirrors_world():
 
 @pytest.mark.slow
 @pytest.mark.parametrize("scenario", ["patent-3d", "df-multi"])
-def test_recordings_of_real_runs_hold_geographic_points_and_line_strings(tmp_path, scenario, deployment):
-    rrd = tmp_path / f"{scenario}.rrd"
-    p = zfusion("run", "--scenario", scenario, "--speed", "max", "--rrd", str(rrd), "--deployment", deployment,
-                stdout=subprocess.DEVNULL)
-    assert p.wait(timeout=600) == 0
+def test_recordings_of_real_runs_hold_geographic_points_and_line_strings(scenario, request):
+    rrd = request.getfixturevalue({"patent-3d": "patent_3d_run", "df-multi": "df_multi_run"}[scenario])[1]
     verify(rrd)
     rows = read_rrd(rrd)
     sc = load_scenario(scenario)
