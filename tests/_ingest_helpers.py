@@ -157,18 +157,3 @@ def site_toml(sensors: dict[str, dict], origin=(21.0285, 105.8542, 0.0), sigma_d
                   f"pos_m = {list(spec['pos_m'])}" if "pos_m" in spec else 'site = "messages"', ""]
     return "\n".join(lines)
 
-
-def gateway(*args: str, capture: Capture, **kw) -> subprocess.Popen:
-    """``zfusion ingest ARGS`` publishing to ``capture``'s session, stderr piped."""
-    return subprocess.Popen([sys.executable, "-m", "services.cli", "ingest", *args, "--deployment",
-                             capture.keys.deployment, "--connect", capture.endpoint],
-                            stderr=subprocess.PIPE, text=True, **kw)
-
-
-def stop(p: subprocess.Popen) -> str:
-    """SIGTERM a gateway; it must exit 0 without a traceback. Returns its stderr."""
-    p.send_signal(signal.SIGTERM)
-    _, err = p.communicate(timeout=15)
-    assert p.returncode == 0, err[-3000:]
-    assert "Traceback" not in err
-    return err
