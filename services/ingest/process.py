@@ -7,7 +7,8 @@ reader threads are closed before it. SIGINT/SIGTERM set the node's stop flag; ev
 loop waits on it, so the process exits within one poll or 0.2 s.
 
 Inputs: ``krakensdr --url`` polls ``/DOA_value.html`` or ``/doa.xml`` every ``--poll-s``
-(an HTTP error or timeout doubles the wait up to :data:`MAX_BACKOFF_S`, counted as
+(the ``--timeout-s`` bounds the whole answer, not each read: :func:`fetch`; an HTTP
+error or timeout doubles the wait up to :data:`MAX_BACKOFF_S`, counted as
 ``http_errors`` and said once per cause in the status events; never a crash; no
 heartbeat watermark while it lasts, so the reading fetched after it is not late);
 ``krakensdr --listen`` takes "Kraken Pro" JSON and "Full POST" form POSTs on any path;
@@ -18,6 +19,7 @@ lands in one bounded queue (:data:`QUEUE_SIZE` items; a POST that finds it full 
 
 from __future__ import annotations
 
+import http.client
 import logging
 import math
 import os
@@ -199,11 +201,11 @@ def _poll(node: Node, gateway: Gateway, station: KrakenStation, url: str, args) 
     while not node.stop.is_set():
         counts["polls"] += 1
         try:
-            with urllib.request.urlopen(urllib.request.Request(url, headers={"User-Agent": "zfusion-ingest"}),
-                                        timeout=args.timeout_s) as resp:
-                data = resp.read(MAX_BODY + 1)
-                ctype = resp.headers.get("Content-Type")
-        except (urllib.error.URLError, OSError, ValueError) as e:
+            got = fetch(url, args.timeout_s, node.stop)
+            if got is None:  # told to stop mid-request
+                break
+            data, ctype = got
+        except (urllib.error.URLError, http.client.HTTPException, OSError, ValueError) as e:
             counts["http_errors"] += 1
             cause = _http_cause(e)
             delay = backoff.failed()
@@ -223,6 +225,58 @@ def _poll(node: Node, gateway: Gateway, station: KrakenStation, url: str, args) 
         node.stop.wait(delay)
     outlet.status("stopped", force=True)
     return 0
+
+
+def fetch(url: str, timeout: float, stop: threading.Event) -> tuple[bytes, str | None] | None:
+    """GET ``url``: its body (at most ``MAX_BODY + 1`` bytes) and Content-Type, whole
+    within ``timeout`` seconds from the connect to the last byte; None if ``stop`` is set
+    first. A device that trickles its answer (headers or body, a byte a second) is a
+    ``timeout``, not a frozen gateway: a socket timeout bounds each read, not the whole.
+
+    The request runs on a worker thread while this one waits on the deadline and the stop
+    flag every 0.1 s; either closes the connection's socket, which ends the worker's
+    read at once (so SIGTERM ends a gateway within a second whatever it is reading).
+    Raises ``urllib.error.HTTPError`` on an HTTP error status, ``TimeoutError`` past the
+    deadline, ``OSError`` or ``ValueError`` (a bad URL) otherwise."""
+    parts = urllib.parse.urlsplit(url)
+    if parts.scheme not in ("http", "https") or not parts.hostname:
+        raise ValueError(f"not an http(s) URL: {url}")
+    cls = http.client.HTTPSConnection if parts.scheme == "https" else http.client.HTTPConnection
+    conn = cls(parts.hostname, parts.port, timeout=timeout)
+    path = urllib.parse.urlunsplit(("", "", parts.path or "/", parts.query, ""))
+    out: dict[str, object] = {}
+
+    def work() -> None:
+        try:
+            conn.request("GET", path, headers={"User-Agent": "zfusion-ingest"})
+            resp = conn.getresponse()
+            if resp.status >= 400:
+                raise urllib.error.HTTPError(url, resp.status, resp.reason, resp.headers, None)
+            out["body"] = (resp.read(MAX_BODY + 1), resp.headers.get("Content-Type"))
+        except Exception as e:  # handed to the caller, which counts it by cause
+            out["error"] = e
+
+    worker = threading.Thread(target=work, name="zfusion-fetch", daemon=True)
+    deadline = time.monotonic() + timeout
+    worker.start()
+    while worker.is_alive() and not stop.is_set() and time.monotonic() < deadline:
+        worker.join(0.1)
+    if worker.is_alive():  # past the deadline, or stopping: cut the connection under the worker
+        sock = conn.sock
+        if sock is not None:
+            try:
+                sock.shutdown(socket.SHUT_RDWR)
+            except OSError:
+                pass
+        conn.close()
+        worker.join(1.0)
+        if stop.is_set():
+            return None
+        raise TimeoutError(f"no whole answer within {timeout:g} s")
+    conn.close()
+    if "error" in out:
+        raise out["error"]  # type: ignore[misc]
+    return out["body"]  # type: ignore[return-value]
 
 
 def _http_cause(e: Exception) -> str:

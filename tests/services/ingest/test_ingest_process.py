@@ -8,6 +8,7 @@ import math
 import socket
 import subprocess
 import sys
+import threading
 import time
 import urllib.request
 
@@ -172,3 +173,77 @@ def test_the_documented_publisher_example_speaks_the_wire_format(deployment):
     assert [m.seq for m in meas] == [1, 2, 3]
     assert [round(math.degrees(m.z[0]), 9) for m in meas] == [30.0, 31.0, 32.0]
     assert all(abs(m.t - time.time()) < 60 for m in meas)
+
+
+class _Trickle:
+    """A web server that answers every GET a byte at a time, one every 0.3 s (forever):
+    the headers on odd connections, the body after whole headers on even ones."""
+
+    def __init__(self):
+        self.sock = socket.create_server(("127.0.0.1", 0))
+        self.url = f"http://127.0.0.1:{self.sock.getsockname()[1]}"
+        self.connections = 0
+        self.closing = threading.Event()
+        self.thread = threading.Thread(target=self._serve, daemon=True)
+
+    def _serve(self):
+        self.sock.settimeout(0.1)
+        while not self.closing.is_set():
+            try:
+                conn, _ = self.sock.accept()
+            except OSError:
+                continue
+            self.connections += 1
+            threading.Thread(target=self._trickle, args=(conn, self.connections % 2 == 1), daemon=True).start()
+
+    def _trickle(self, conn, headers: bool):
+        head = b"HTTP/1.1 200 OK\r\nContent-Type: text/html\r\nContent-Length: 100000\r\n\r\n"
+        try:
+            conn.recv(4096)
+            if not headers:
+                conn.sendall(head)
+            for b in (head if headers else b"1" * 100_000):
+                if self.closing.wait(0.3):
+                    break
+                conn.sendall(bytes([b]) if headers else b"1")
+        except OSError:
+            pass
+        finally:
+            conn.close()
+
+    def __enter__(self):
+        self.thread.start()
+        return self
+
+    def __exit__(self, *exc):
+        self.closing.set()
+        self.sock.close()
+
+
+def test_a_trickled_answer_is_a_timeout_and_sigterm_ends_the_poll_at_once(deployment, site):
+    """A station's web server that trickles its page (or its headers) a byte every 0.3 s:
+    each poll is abandoned at --timeout-s whole (counted as an HTTP error, cause timeout,
+    said once), the gateway keeps its status heartbeat meanwhile, and SIGTERM in the
+    middle of a request ends it at once. (Before: the timeout bounded each read, so a
+    trickle froze polls, heartbeats and status for as long as it lasted, and SIGTERM
+    waited for it.)"""
+    with _Trickle() as srv, Capture(deployment) as cap:
+        p = gateway("krakensdr", "--id", "df1", "--site", site, "--url", srv.url, "--poll-s", "0.2",
+                    "--timeout-s", "1", capture=cap)
+        try:
+            assert cap.wait(lambda: cap.status("df1").get("counters", {}).get("http_errors", 0) >= 3
+                            or p.poll() is not None) and p.poll() is None
+            assert srv.connections >= 3  # both kinds of trickle, each abandoned
+            n = len(cap.of("status", "df1"))
+            assert cap.wait(lambda: len(cap.of("status", "df1")) >= n + 2, timeout=10)  # status goes on
+            k = srv.connections
+            assert cap.wait(lambda: srv.connections > k)  # a request under way
+            t0 = time.monotonic()
+            err = stop(p)
+            took = time.monotonic() - t0
+        finally:
+            if p.poll() is None:
+                p.kill()
+    assert took < 3.0, took  # the trickle lasts 100,000 x 0.3 s; a whole stop is well under a second here
+    assert err.count("timeout") == 1, err  # said once, counted per poll
+    assert cap.status("df1")["counters"]["http_errors"] >= 3
