@@ -72,12 +72,14 @@ def undecodable(e: BaseException, fmt: str) -> Rejected:
 @dataclass(frozen=True, eq=False)
 class SensorSite:
     """What the site file says of one sensor: measurement ``kind``, stated ``std`` (SI,
-    in the kind's component order) and its ENU ``site``, or None: from the messages."""
+    in the kind's component order), its ENU ``site``, or None: from the messages, and its
+    nominal ``period`` (s), which sizes its publisher's recovery cache."""
 
     id: str
     kind: str
     std: np.ndarray
     site: np.ndarray | None = None
+    period: float = 1.0
 
 
 @dataclass(frozen=True, eq=False)
@@ -271,7 +273,7 @@ def sensor_sites(site, ids: list[str]) -> dict[str, SensorSite]:
         # A site file's mobile station (site = "messages") has none; a scenario's flight path is
         # taken as mobile too: the messages say where it is.
         pos = spec.site.points[0].copy() if spec.site is not None and spec.site.fixed else None
-        out[sid] = SensorSite(sid, spec.measurement_kind, np.asarray(spec.std, dtype=float), pos)
+        out[sid] = SensorSite(sid, spec.measurement_kind, np.asarray(spec.std, dtype=float), pos, spec.period)
     return out
 
 

@@ -41,6 +41,7 @@ from sensors_sim import load_site as load_site_file
 
 from ..errors import UserError
 from ..node import Node
+from ..source import RECOVERY_S
 from .asterix import AsterixFeed, AsterixIngest, CaptureError, pcap_datagrams, radars
 from .gateway import Gateway, Rejected, local_frame, sensor_sites
 from .jsonl import MAX_LINE, LineSplitter, reading
@@ -49,7 +50,9 @@ from .krakensdr import MAX_BODY, Bearing, KrakenOptions, KrakenStation, Skipped
 log = logging.getLogger("zfusion")
 
 QUEUE_SIZE = 1024
-TICK_S = 0.1  # heartbeat watermarks of a datagram gateway at most this often
+TICK_S = 0.1  # heartbeat watermarks at most this often
+MAX_CONNECTIONS = 64  # TCP connections a jsonl gateway reads at once
+IDLE_S = 300.0  # a TCP connection silent this long is closed
 MAX_BACKOFF_S = 30.0
 PATHS = {"csv": "/DOA_value.html", "auto": "/DOA_value.html", "xml": "/doa.xml"}
 
@@ -77,17 +80,31 @@ class Backoff:
 # ------------------------------------------------------------------ shared plumbing
 
 
+def gateway_cache(period: float) -> int:
+    """Samples in ``RECOVERY_S`` of a gateway's stream of one sensor, twice over: a
+    reading and its watermark per nominal ``period``, and a heartbeat watermark per
+    :data:`TICK_S` at most (:meth:`Outlet.tick`)."""
+    return math.ceil(2.0 * RECOVERY_S * (2.0 / period + 1.0 / TICK_S))
+
+
 class Outlet:
-    """Publishes what the gateway returns and reports status once a second."""
+    """Publishes what the gateway returns and reports status once a second.
+
+    Each sensor's stream goes out on the advanced publisher emulated sensors use
+    (:meth:`services.node.Node.recoverable_publisher`): a fuser cut off from the gateway
+    (a router restarting) gets back the last :func:`gateway_cache` samples, ``RECOVERY_S``
+    seconds of it, and counts them ``recovered``; what the cache no longer held, ``missed``."""
 
     def __init__(self, node: Node, gateway: Gateway, extra: Callable[[], dict] | None = None):
         self.node = node
         self.gateway = gateway
         self.extra = extra or dict
-        self.pubs = {gateway.keys.meas(s): node.publisher(gateway.keys.meas(s)) for s in gateway.sensors}
+        self.pubs = {gateway.keys.meas(s): node.recoverable_publisher(gateway.keys.meas(s), gateway_cache(site.period))
+                     for s, site in gateway.sensors.items()}
         self.skipped: dict[str, int] = {}
         self.t_last = 0.0
         self._last_status = 0.0
+        self._last_beat = -math.inf
         self._said: set[str] = set()
 
     def put(self, out: list[tuple[str, bytes]]) -> None:
@@ -111,11 +128,14 @@ class Outlet:
             self._said.add(cause)
             self.node.event(text)
 
-    def tick(self, now: float, heartbeat: bool = True) -> None:
-        """Heartbeat watermarks (not while the device is unreachable: what it measures
-        meanwhile may still be fetched), and the status once a second."""
-        if heartbeat:
-            self.put(self.gateway.tick(now))
+    def tick(self, now: float, heartbeat: bool = True, read_until: float = math.inf) -> None:
+        """Heartbeat watermarks, at most every :data:`TICK_S`, at ``min(now, read_until) −
+        lag``: never past what the input may still hold unread (``read_until``: when the
+        reader last found it drained), nor while the device is unreachable (what it
+        measures meanwhile may still be fetched); and the status once a second."""
+        if heartbeat and now - self._last_beat >= TICK_S:
+            self._last_beat = now
+            self.put(self.gateway.tick(min(now, read_until)))
         self.status()
 
     def status(self, state: str = "running", force: bool = False) -> None:
@@ -125,8 +145,6 @@ class Outlet:
             self.node.counters.update({f"skipped.{c}": n for c, n in self.skipped.items()})
             self.node.counters.update(self.extra())
             self.node.publish_status(state, self.t_last)
-
-
 def _site_sensors(args, ids: list[str]):
     """The site's frame and these sensors (before any session is opened)."""
     for flag in ("max_skew", "max_age", "watermark_lag", "poll_s", "timeout_s"):
@@ -289,10 +307,12 @@ def _http_cause(e: Exception) -> str:
 
 
 def _host_port(text: str, flag: str) -> tuple[str, int]:
+    """``HOST:PORT``; ``:PORT`` is loopback (127.0.0.1): a gateway is reachable from other
+    machines only when told so, e.g. ``0.0.0.0:PORT`` for every interface."""
     host, sep, port = text.rpartition(":")
     if not sep or not port.isdigit() or not 0 <= int(port) < 65536:
-        raise UserError(f"{flag} {text!r}: expected HOST:PORT, e.g. 127.0.0.1:8042")
-    return host.strip("[]") or "0.0.0.0", int(port)
+        raise UserError(f"{flag} {text!r}: expected HOST:PORT, e.g. 127.0.0.1:8042 (0.0.0.0:8042: every interface)")
+    return host.strip("[]") or "127.0.0.1", int(port)
 
 
 class _PostHandler(BaseHTTPRequestHandler):
@@ -387,13 +407,45 @@ def _input(text: str) -> tuple[str, tuple[str, int] | None]:
     return u.scheme, (u.hostname, u.port)
 
 
+def udp_drops(sock: socket.socket) -> int:
+    """Datagrams the kernel dropped for ``sock`` (its receive buffer full), from the
+    ``drops`` column of ``/proc/net/udp`` (or ``udp6``) on the socket's inode: Linux's
+    per-socket count, exact and readable at any time (``SO_RXQ_OVFL`` delivers it only
+    with a later datagram, so a burst's last drops would go unseen). 0 where there is no
+    such file."""
+    inode = str(os.fstat(sock.fileno()).st_ino)
+    name = "/proc/net/udp6" if sock.family == socket.AF_INET6 else "/proc/net/udp"
+    try:
+        with open(name) as f:
+            for line in f:
+                cols = line.split()
+                if len(cols) > 12 and cols[9] == inode:
+                    return int(cols[12])
+    except (OSError, ValueError):
+        pass
+    return 0
+
+
 class _Reader:
     """A thread that reads one input and puts its lines (or refusals) into ``inbox``;
-    ``None`` at the end of stdin. Closed by :meth:`close` (sockets) or the stop flag."""
+    ``None`` at the end of stdin. Closed by :meth:`close` (sockets) or the stop flag.
+
+    It waits while ``inbox`` is full (back-pressure: a TCP sender is slowed, a UDP burst
+    beyond the socket's buffer is dropped by the kernel, and counted: ``udp_dropped``,
+    the socket's own drop counter, read from ``/proc/net/udp`` (:func:`udp_drops`) when
+    the input goes quiet and at most once a second meanwhile). :meth:`read_until` says up to when the input is known to hold
+    nothing unread: the last time every open input was found drained (a read that timed
+    out); the heartbeats never promise past it. TCP: at most :data:`MAX_CONNECTIONS`
+    at once (more are closed at once, ``refused_connections``), each closed after
+    :data:`IDLE_S` without a byte (``idle_closed``)."""
 
     def __init__(self, kind: str, where: tuple[str, int] | None, inbox: queue.Queue, stop: threading.Event):
         self.kind, self.inbox, self.stop = kind, inbox, stop
         self.sock: socket.socket | None = None
+        self.counts = {"udp_dropped": 0} if kind == "udp" else {"connections": 0, "refused_connections": 0,
+                                                                "idle_closed": 0} if kind == "tcp" else {}
+        self._drained: dict[object, float] = {}  # input -> when it was last found drained
+        self._lock = threading.Lock()
         if kind in ("udp", "tcp"):
             family = socket.AF_INET6 if ":" in where[0] else socket.AF_INET
             self.sock = socket.socket(family, socket.SOCK_DGRAM if kind == "udp" else socket.SOCK_STREAM)
@@ -411,6 +463,17 @@ class _Reader:
 
     def start(self) -> None:
         self.thread.start()
+
+    def read_until(self) -> float:
+        """UTC time up to which every open input is known drained (``inf``: stdin, whose
+        pending bytes cannot be told; the heartbeats then follow the inbox alone)."""
+        with self._lock:
+            return min(self._drained.values(), default=math.inf if self.kind == "stdin" else time.time())
+
+    def _mark(self, which: object, drained: bool) -> None:
+        """``which`` (an input) found drained now, or just opened (not drained yet)."""
+        with self._lock:
+            self._drained[which] = time.time() if drained else -math.inf
 
     def _emit(self, items) -> None:
         for it in items:
@@ -433,16 +496,24 @@ class _Reader:
             self._emit(split.feed(data))
 
     def _udp(self) -> None:
+        self._mark("udp", False)
+        counted = time.monotonic()
         while not self.stop.is_set():
             try:
                 data = self.sock.recv(MAX_LINE)
             except (TimeoutError, socket.timeout):
+                self.counts["udp_dropped"] = udp_drops(self.sock)
+                self._mark("udp", True)
                 continue
             except OSError:
                 return
+            if time.monotonic() - counted >= 1.0:
+                counted = time.monotonic()
+                self.counts["udp_dropped"] = udp_drops(self.sock)
             self._emit(LineSplitter().feed(data + b"\n"))  # a datagram holds whole lines
 
     def _tcp(self) -> None:
+        open_: set[socket.socket] = set()
         while not self.stop.is_set():
             try:
                 conn, _ = self.sock.accept()
@@ -450,34 +521,60 @@ class _Reader:
                 continue
             except OSError:
                 return
+            with self._lock:
+                full = len(self._drained) >= MAX_CONNECTIONS
+            if full:
+                self.counts["refused_connections"] += 1
+                conn.close()
+                continue
+            self.counts["connections"] += 1
+            self._mark(conn, False)
             threading.Thread(target=self._tcp_conn, args=(conn,), daemon=True).start()
 
     def _tcp_conn(self, conn: socket.socket) -> None:
         split = LineSplitter()
         conn.settimeout(0.2)
-        with conn:
-            while not self.stop.is_set():
-                try:
-                    data = conn.recv(MAX_LINE)
-                except (TimeoutError, socket.timeout):
-                    continue
-                except OSError:
-                    return
-                if not data:
-                    self._emit(split.feed(b"\n"))
-                    return
-                self._emit(split.feed(data))
+        idle = time.monotonic()
+        try:
+            with conn:
+                while not self.stop.is_set():
+                    try:
+                        data = conn.recv(MAX_LINE)
+                    except (TimeoutError, socket.timeout):
+                        self._mark(conn, True)
+                        if time.monotonic() - idle > IDLE_S:
+                            self.counts["idle_closed"] += 1
+                            return
+                        continue
+                    except OSError:
+                        return
+                    if not data:
+                        self._emit(split.feed(b"\n"))
+                        return
+                    idle = time.monotonic()
+                    self._emit(split.feed(data))
+        finally:
+            with self._lock:
+                self._drained.pop(conn, None)
 
     def close(self) -> None:
         if self.sock is not None:
             self.sock.close()
 
 
+def _beat(outlet: Outlet, reader: _Reader, inbox: queue.Queue) -> None:
+    """Heartbeats only with everything read processed: the reader's drained time taken
+    first (it emits before it marks), then the inbox found empty. A burst the gateway is
+    behind on is then never ``late``: its readings arrive before any promise past them."""
+    until = reader.read_until()
+    outlet.tick(time.time(), heartbeat=inbox.empty(), read_until=until)
+
+
 def _jsonl(node: Node, gateway: Gateway, source: tuple[str, tuple[str, int] | None], args) -> int:
     inbox: queue.Queue = queue.Queue(QUEUE_SIZE)
     reader = _Reader(source[0], source[1], inbox, node.stop)
     counts = {"lines": 0}
-    outlet = Outlet(node, gateway, lambda: counts)
+    outlet = Outlet(node, gateway, lambda: {**counts, **reader.counts})
     node.announce()
     outlet.status("ready", force=True)
     reader.start()
@@ -487,7 +584,7 @@ def _jsonl(node: Node, gateway: Gateway, source: tuple[str, tuple[str, int] | No
             try:
                 item = inbox.get(timeout=0.2)
             except queue.Empty:
-                outlet.tick(time.time())
+                _beat(outlet, reader, inbox)
                 continue
             if item is None:  # end of stdin: promise what was sent, and finish
                 outlet.put(gateway.flush())
@@ -497,7 +594,7 @@ def _jsonl(node: Node, gateway: Gateway, source: tuple[str, tuple[str, int] | No
                 counts["lines"] += 1
                 item = reading(item, args.id)
             outlet.offer(item, time.time())
-            outlet.tick(time.time())
+            _beat(outlet, reader, inbox)
         outlet.status(state, force=True)
     finally:
         reader.close()

@@ -12,6 +12,7 @@ import threading
 import time
 import urllib.request
 
+import psutil
 import pytest
 
 from _ingest_helpers import Capture, DocServer, gateway, kraken_csv, kraken_json, site_toml, stop
@@ -247,3 +248,62 @@ def test_a_trickled_answer_is_a_timeout_and_sigterm_ends_the_poll_at_once(deploy
     assert took < 3.0, took  # the trickle lasts 100,000 x 0.3 s; a whole stop is well under a second here
     assert err.count("timeout") == 1, err  # said once, counted per poll
     assert cap.status("df1")["counters"]["http_errors"] >= 3
+
+
+@pytest.mark.parametrize("scheme", ["tcp", "udp"])
+def test_a_burst_is_published_or_counted_never_late(deployment, tmp_path, scheme):
+    """5,000 valid lines as fast as the sender can: over TCP the gateway slows the
+    sender (its queue full, the reader waits) and publishes every line, none refused as
+    ``late``: its heartbeats never promise past what it has not read (before: 83 % of a
+    10,000 lines/s burst were ``late``, behind the gateway's own heartbeat). Over UDP
+    the kernel drops what the socket's buffer cannot hold: every line is published,
+    refused or counted in ``udp_dropped`` (before: 16.6 % vanished uncounted)."""
+    site = tmp_path / "site.toml"
+    site.write_text(site_toml({"df1": {"pos_m": [0.0, 0.0, 0.0]}}))
+    n = 5000
+    port = free_port()
+    with Capture(deployment) as cap:
+        # A heartbeat lag of 0.2 s: any burst that takes longer than that to read would
+        # meet the heartbeats if they ran ahead of the reading (the default 2 s needs ~10,000 lines).
+        p = gateway("jsonl", "--id", "df1", "--site", str(site), "--input", f"{scheme}://127.0.0.1:{port}",
+                    "--watermark-lag", "0.2", capture=cap)
+        try:
+            assert cap.wait(lambda: cap.of("status", "df1") or p.poll() is not None, timeout=60) and p.poll() is None
+            t0 = time.time()
+            lines = [json.dumps({"t": t0 + 1e-4 * k, "kind": "bearing", "az_deg": 1.0}).encode() + b"\n"
+                     for k in range(n)]
+            if scheme == "tcp":
+                with socket.create_connection(("127.0.0.1", port), timeout=60) as s:
+                    s.sendall(b"".join(lines))
+            else:
+                with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+                    for line in lines:
+                        s.sendto(line, ("127.0.0.1", port))
+
+            def accounted():
+                c = cap.status("df1").get("counters", {})
+                return c.get("published", 0) + c.get("rejected", 0) + c.get("udp_dropped", 0) == n
+
+            assert cap.wait(accounted, timeout=120), cap.status("df1")
+            counters = cap.status("df1")["counters"]
+        finally:
+            stop(p)
+    assert counters.get("rejected.late", 0) == 0, counters
+    if scheme == "tcp":
+        assert counters["published"] == n, counters
+    assert len(cap.of("bearing", "df1")) == counters["published"]
+
+
+def test_listen_on_a_bare_port_is_loopback(deployment, site):
+    """``--listen :PORT`` binds 127.0.0.1, not every interface (a station's POSTs reach
+    the gateway from elsewhere only when told: ``0.0.0.0:PORT``)."""
+    port = free_port()
+    with Capture(deployment) as cap:
+        p = gateway("krakensdr", "--id", "df1", "--site", site, "--listen", f":{port}", capture=cap)
+        try:
+            assert cap.wait(lambda: cap.of("status", "df1") or p.poll() is not None) and p.poll() is None
+            bound = [c.laddr for c in psutil.Process(p.pid).net_connections(kind="tcp")
+                     if c.status == psutil.CONN_LISTEN and c.laddr.port == port]
+        finally:
+            stop(p)
+    assert [a.ip for a in bound] == ["127.0.0.1"], bound
