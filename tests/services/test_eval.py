@@ -288,10 +288,11 @@ def test_tiny_many_target_report_tables_equal_their_json(tmp_path, monkeypatch):
 
     import sensors_sim
     from services import report
+    from services.report import many
 
     # the report's form, not its numbers: 15 of df-multi's 50 epochs (10 methods x 50 epochs were 15 CPU s)
     full = sensors_sim.load_scenario
-    monkeypatch.setattr(sensors_sim, "load_scenario", lambda ref: dataclasses.replace(full(ref), duration=15.0))
+    monkeypatch.setattr(many, "load_scenario", lambda ref: dataclasses.replace(full(ref), duration=15.0))
     b = report.build_many("df-multi", runs=1)
     assert b["evaluation"]["methods"] and all(m["steps"] == 15 for m in b["evaluation"]["methods"].values())
     md = report.write_many_report(b, tmp_path).read_text()
