@@ -27,6 +27,7 @@ import numpy as np
 
 from .filters import Filter, NewFilter
 from .grouping import TimeGrouper
+from .measurement.kinds import model_of
 from .patent import GroupedMethod, Piece, TrackerConfig
 from .tracking.config import AssociationConfig
 from .tracking.hypotheses import PlotHypothesiser
@@ -65,9 +66,20 @@ class ScanUpdater:
         return Estimate(t, f.x, f.P, self.name, "centre", None, nis, dof)
 
     def update(self, track: Track, taken: list[Taken], frame: Frame) -> bool:
+        """An assignment's plots: the method's scan update of them, in stream order.
+        Weights (JIPDA): each scan's weighted update (``Filter.update_weighted``, the PDA
+        update of :mod:`fusion.pda`), in the order the scans were associated — a
+        weighted association pairs no plots across sensors, so a method's pieces (LCDD's
+        and HNDD's pair of a ray and a sphere) do not apply: every method updates
+        sensor by sensor."""
         plots = sorted((m for tk in taken for m in tk.plots), key=lambda m: m.order_key)
         f = track.filter
-        if plots:
+        if any(tk.weighted for tk in taken):
+            f.predict(frame.t)
+            for tk in taken:
+                f.update_weighted(model_of(tk.plots[0], self.n_x), np.array([m.z for m in tk.plots]), tk.beta, tk.miss)
+            track.last = Estimate(f.t, f.x, f.P, self.name, "centre")
+        elif plots:
             track.last = self.scan(f, plots)
         else:
             f.predict(frame.t)
@@ -108,7 +120,7 @@ class MultiTargetMethod(GroupedMethod):
         self._grouper = TimeGrouper(config.pair_tol)
         self.tracker = MultiTargetTracker(
             PlotHypothesiser(self.n_x, association.gate_prob),
-            association.associator(confirmed_first=True),
+            association.associator(weighted=True, confirmed_first=True),
             Initiator(self.n_x, config.priors(), association.gate_prob),
             ScanUpdater(name, pieces, self.n_x, config.new_filter(motion, centralised=True)),
             association.table(),
@@ -136,4 +148,4 @@ class MultiTargetMethod(GroupedMethod):
         return self.tracker.tracks
 
     def _group(self, frame: list[Measurement]) -> list[Estimate]:
-        return [dataclasses.replace(tr.last, track=tr.id) for tr in self.tracker.frame(frame)]
+        return [dataclasses.replace(tr.last, track=tr.id, existence=tr.existence) for tr in self.tracker.frame(frame)]

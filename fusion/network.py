@@ -44,8 +44,9 @@ import numpy as np
 from .tracking.config import AssociationConfig
 from .tracking.hypotheses import Hypotheses, PlotHypothesiser, gate_threshold, track_distance2
 from .tracking.initiators import Initiator
+from .tracking.jipda import ExistenceLogic
 from .tracking.manager import Frame, MultiTargetTracker, Taken
-from .tracking.table import Track, TrackIds, TrackTable, scores_hit
+from .tracking.table import DELETED, Track, TrackIds, TrackTable, scores_hit
 from .init3d import initial_state
 from .grouping import TimeGrouper
 from .guards import epoch_nis, gap_too_long, positive_definite
@@ -473,9 +474,12 @@ class MultiTrackNode(FramedNode):
         self.motion = config.motion_model()
         self._new_filter = config.new_filter(self.motion)
         self._hypothesiser = PlotHypothesiser(self.motion.n_x, association.gate_prob, sequential=False)
-        self._associator = association.associator()
+        # JIPDA (weights, existence) where the node updates its own tracks; DDHNV's nodes
+        # send one plot per track for the centre's update, which weights do not give.
+        self._associator = association.associator(weighted=not scheme.predicts)
         self.tracks: dict[str, LocalTracker] = {}  # local id -> tracker, in creation order
         self.misses: dict[str, int] = {}
+        self.existence: dict[str, ExistenceLogic] = {}  # local id -> its existence (JIPDA)
         # The centre names the local tracks it starts (the init's ``track``); a track the
         # node starts alone is ``A<n>``, a name the centre never gives, so it is never
         # taken for one of the centre's.
@@ -489,6 +493,7 @@ class MultiTrackNode(FramedNode):
         super().centre_restarted()
         self.tracks.clear()
         self.misses.clear()
+        self.existence.clear()
         return True
 
     def receive(self, d: Downlink) -> None:
@@ -496,6 +501,7 @@ class MultiTrackNode(FramedNode):
         if d.drop:
             self.tracks.pop(e.track, None)
             self.misses.pop(e.track, None)
+            self.existence.pop(e.track, None)
         elif d.init:  # a new local track on one of the centre's tracks, named by the centre
             self._start(e.track, e.x, e.P, e.t)
         elif self.scheme.feeds_back and e.track in self.tracks:
@@ -511,36 +517,61 @@ class MultiTrackNode(FramedNode):
     def _process(self, frame: list[Measurement], alone: bool) -> list[Uplink]:
         t = frame[0].t
         ids = list(self.tracks)
-        hyp = self._hypothesiser.hypotheses([self.tracks[i].predicted(t) for i in ids], frame, [True] * len(ids))
+        for lid in ids:
+            if lid in self.existence:
+                self.existence[lid].survive(t)
+        existence = np.array([self.existence[i].existence for i in ids]) if self.existence else None
+        hyp = self._hypothesiser.hypotheses([self.tracks[i].predicted(t) for i in ids], frame, [True] * len(ids),
+                                            existence)
         out: list[Uplink] = []
-        taken = {}
-        for r, c in self._associator.associate(hyp).pairs:
-            lid, m = ids[r], frame[c]
-            taken[c] = lid
-            tr = self.tracks[lid]
+        association = self._associator.associate(hyp)
+        if association.existence is not None:
+            for r, e in enumerate(association.existence):
+                self.existence[ids[r]].existence = float(e)
+        hit = set()
+        for r, cols, beta, miss in association.per_row():
+            lid, tr = ids[r], self.tracks[ids[r]]
+            hit.add(lid)
+            if association.existence is not None:  # JIPDA: the weighted update with the frame's plots
+                e = tr.update_weighted(hyp.model, np.array([frame[c].z for c in cols]), beta, miss, t)
+                out.append(self._uplink(t, dataclasses.replace(e, existence=self.existence[lid].existence)))
+                continue
+            m = frame[cols[0]]
             out.append(self._uplink(m.t, tr.predict(m.t), m) if self.scheme.predicts else self._uplink(m.t, tr.update(m)))
-        hit = set(taken.values())
+        taken = association.used
         for lid in ids:
             self.misses[lid] = 0 if lid in hit else self.misses[lid] + 1
             tr = self.tracks[lid]
-            if self.misses[lid] >= self.association.delete_misses or \
-                    math.sqrt(float(np.trace(tr.P[:3, :3]))) > self._max_pos_std:
+            if lid in self.existence:
+                gone = self.existence[lid].record(lid in hit, tr.P[:3, :3]) == DELETED
+            else:
+                gone = self.misses[lid] >= self.association.delete_misses or \
+                    math.sqrt(float(np.trace(tr.P[:3, :3]))) > self._max_pos_std
+            if gone:
                 del self.tracks[lid], self.misses[lid]
+                self.existence.pop(lid, None)
                 # Tell the centre, which would otherwise keep it as its fused track's member.
                 out.append(self._uplink(t, Estimate(t, tr.x, tr.P, self.method, self.node, lid), drop=True))
         for c, m in enumerate(frame):
             if c in taken:
                 continue
             if alone:  # no centre: a local track from this plot alone
-                self._start(self._alone_ids.next(), *initial_state([m], self.motion.n_x, self.config.priors()), m.t)
+                self._start(self._alone_ids.next(), *initial_state([m], self.motion.n_x, self.config.priors()), m.t,
+                            confirmed=False)
             else:
                 out.append(self._uplink(m.t, measurement=m))
         return out
 
-    def _start(self, lid: str, x: np.ndarray, P: np.ndarray, t: float) -> None:
+    def _start(self, lid: str, x: np.ndarray, P: np.ndarray, t: float, confirmed: bool = True) -> None:
+        """A local track; with JIPDA its existence starts at ``existence_confirm`` on the
+        centre's (confirmed) track, at ``existence_birth`` on a plot alone."""
         self.tracks[lid] = LocalTracker(self.node, self.motion, self.method, lid, self._new_filter)
         self.tracks[lid].initialise(x, P, t)
         self.misses[lid] = 0
+        if self.association.weighted:
+            rule = self.association.existence_rule()
+            self.existence[lid] = ExistenceLogic(rule, self._max_pos_std, existence=rule.existence_confirm
+                                                 if confirmed else rule.existence_birth, t=t)
 
 
 class _Fused(Track):
@@ -792,7 +823,7 @@ def track_split(name: str, scheme: Scheme) -> Split:
         association, rest = AssociationConfig.split(config)
         if association is None:
             return TrackCentre(name, TrackerConfig.from_dict(rest), scheme)
-        return MultiTrackCentre(name, TrackerConfig.from_dict(rest), scheme, association)
+        return MultiTrackCentre(name, TrackerConfig.from_dict(rest), scheme, association.track_to_track())
 
     return Split(name, node, centre)
 

@@ -456,6 +456,18 @@ class LocalTracker:
         res = self.filter.update(model, z)
         return self._report(prior_x, prior_P, self.filter.KH, res.nis, model.n_z)
 
+    def update_weighted(self, model, Z: np.ndarray, beta, beta0: float, t: float) -> Estimate:
+        """Predict to ``t`` and make the weighted (PDA) update with this sensor's plots
+        ``Z`` of one scan, ``beta`` each and ``beta0`` for none (JIPDA's local tracks;
+        :mod:`fusion.pda`). The report's NIS is the combined innovation's, ``ν̄ᵀS⁻¹ν̄``
+        (below a χ² variable: ν̄ shrinks with β₀)."""
+        self._require()
+        self.filter.predict(t)
+        prior_x, prior_P = self.filter.x, self.filter.P
+        res = self.filter.update_weighted(model, Z, beta, beta0)
+        nis = float(res.nu @ np.linalg.solve(res.S, res.nu))
+        return self._report(prior_x, prior_P, self.filter.KH, nis, model.n_z)
+
 
 # Factories ---------------------------------------------------------------------------
 def centralised(name: str, pieces, kinds, config: dict | None) -> CentralisedMethod:

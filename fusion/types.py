@@ -81,6 +81,8 @@ class Estimate:
         track: track id.
         nis: normalised innovation squared of the update that produced it, if any.
         nis_dof: degrees of freedom of that NIS.
+        existence: the probability that the track's target exists, from a tracker that
+            holds one (JIPDA), else None.
     """
 
     t: float
@@ -92,3 +94,4 @@ class Estimate:
     nis: float | None = None
     nis_dof: int | None = None
     extra: dict = field(default_factory=dict)
+    existence: float | None = None

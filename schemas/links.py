@@ -38,6 +38,8 @@ def _estimate_map(e: Estimate, extras: tuple[str, ...], inside: bool) -> dict[st
         d["nis"] = float(e.nis)
     if e.nis_dof is not None:
         d["nis_dof"] = int(e.nis_dof)
+    if e.existence is not None:
+        d["existence"] = float(e.existence)
     for k in extras if inside else ():
         v = e.extra.get(k)
         if v is not None:
@@ -46,7 +48,8 @@ def _estimate_map(e: Estimate, extras: tuple[str, ...], inside: bool) -> dict[st
 
 
 def _estimate(b: dict, t: float, extra: dict) -> Estimate:
-    return Estimate(t, b["x"], b["P"], b["method"], b["node"], b["track"], b["nis"], b["nis_dof"], extra)
+    return Estimate(t, b["x"], b["P"], b["method"], b["node"], b["track"], b["nis"], b["nis_dof"], extra,
+                    b["existence"])
 
 
 def encode_uplink(u: Uplink, src: str, seq: int) -> bytes:

@@ -214,7 +214,9 @@ def _check_watermark(d: dict) -> dict:
 
 def _estimate_fields(d: dict) -> dict:
     """The fields every estimate has: ``track``, ``node``, ``method``, ``x``, a
-    symmetric ``P`` with non-negative variances, optional ``nis`` and ``nis_dof``."""
+    symmetric ``P`` with non-negative variances, optional ``nis``, ``nis_dof`` and
+    ``existence`` (the probability that the track's target exists, in [0, 1], from a
+    tracker that holds one: JIPDA's)."""
     x = _array(d, "x", (None,))
     P = _array(d, "P", (x.size, x.size))
     if not np.allclose(P, P.T, rtol=1e-9, atol=1e-9 * max(1.0, float(np.max(np.abs(P))))):
@@ -229,13 +231,14 @@ def _estimate_fields(d: dict) -> dict:
         "P": P,
         "nis": _num(d, "nis", lo=0.0, optional=True),
         "nis_dof": None,
+        "existence": _num(d, "existence", lo=0.0, hi=1.0, optional=True),
     }
     if d.get("nis_dof") is not None:
         body["nis_dof"] = _int(d, "nis_dof", lo=1, hi=MAX_DIM)
     return body
 
 
-_ESTIMATE_FIELDS = {"track", "node", "method", "x", "P", "nis", "nis_dof"}
+_ESTIMATE_FIELDS = {"track", "node", "method", "x", "P", "nis", "nis_dof", "existence"}
 
 
 def _check_track(d: dict) -> dict:
@@ -456,7 +459,7 @@ _MEASUREMENT_FIELDS = {k: ENVELOPE | _measurement_fields(k) for k in _KINDS}
 _FAST_COMPONENTS = {k: tuple((c.name, c.std_field, (c.lo, c.hi, c.lo_open, c.hi_open)) for c in kind.components)
                     for k, kind in _KINDS.items()}
 _WATERMARK_FIELDS = frozenset(ENVELOPE | {"final"})
-_TRACK_FIELDS = frozenset(ENVELOPE | {"track", "node", "method", "x", "P", "nis", "nis_dof", "extra"})
+_TRACK_FIELDS = frozenset(ENVELOPE | {"track", "node", "method", "x", "P", "nis", "nis_dof", "existence", "extra"})
 _SEQ_MAX = 2**63 - 1
 
 
@@ -510,12 +513,13 @@ def _estimate_body_fast(d: dict) -> dict | None:
     if not d.keys() <= _TRACK_FIELDS:
         return None
     x, P, track, node, method = d.get("x"), d.get("P"), d.get("track"), d.get("node"), d.get("method")
-    nis, nis_dof, extra = d.get("nis"), d.get("nis_dof"), d.get("extra", {})
+    nis, nis_dof, extra, existence = d.get("nis"), d.get("nis_dof"), d.get("extra", {}), d.get("existence")
     if not (type(x) is list and 0 < len(x) <= MAX_DIM and all(type(v) is float for v in x)
             and type(P) is list and len(P) == len(x) and all(type(row) is list and len(row) == len(x) for row in P)
             and type(track) is str and track in _VALID_IDS and type(node) is str and node in _VALID_IDS
             and type(method) is str and (nis is None or _plain_float(nis, 0.0, math.inf, False, False))
             and (nis_dof is None or (type(nis_dof) is int and 1 <= nis_dof <= MAX_DIM))
+            and (existence is None or _plain_float(existence, 0.0, 1.0, False, False))
             and type(extra) is dict and not extra):
         return None
     try:  # P's entries may still be anything: numpy decides what is a float matrix
@@ -527,7 +531,7 @@ def _estimate_body_fast(d: dict) -> dict | None:
             and (Pa == Pa.T).all() and (Pa.diagonal() >= 0.0).all()):
         return None
     return {"track": track, "node": node, "method": method, "x": xa, "P": Pa, "nis": nis, "nis_dof": nis_dof,
-            "extra": {}}
+            "existence": existence, "extra": {}}
 
 
 def validate(d: Any) -> Message:
@@ -628,8 +632,11 @@ def _estimate_payload(e: Estimate) -> dict[str, Any]:
         if v is None:
             continue
         extra[k] = [float(v)] if isinstance(v, (bool, int, float, np.integer, np.floating)) else v
-    return dict(track=e.track, node=e.node, method=e.method, x=e.x, P=e.P, nis=e.nis, nis_dof=e.nis_dof,
-                extra=extra)
+    payload = dict(track=e.track, node=e.node, method=e.method, x=e.x, P=e.P, nis=e.nis, nis_dof=e.nis_dof,
+                   extra=extra)
+    if e.existence is not None:  # optional: left out where the tracker holds none
+        payload["existence"] = e.existence
+    return payload
 
 
 def _encode_estimate_fast(e: Estimate, src: str, seq: int) -> bytes | None:
@@ -646,20 +653,23 @@ def _encode_estimate_fast(e: Estimate, src: str, seq: int) -> bytes | None:
             or P.dtype != np.float64 or x.ndim != 1 or not 0 < x.size <= MAX_DIM or P.shape != (x.size, x.size):
         return None
     seq, t = int(seq), float(e.t)  # converted in the strict path's order, which raises the same on junk
-    nis, nis_dof = _plain(e.nis), _plain(e.nis_dof)
+    nis, nis_dof, existence = _plain(e.nis), _plain(e.nis_dof), _plain(e.existence)
     # A sum is finite only if every term is (an overflowing sum just takes the strict path).
     if not (math.isfinite(t) and 0 <= seq <= _SEQ_MAX and math.isfinite(x.sum()) and math.isfinite(P.sum())
             and (P == P.T).all() and (P.diagonal() >= 0.0).all()
             and (nis is None or _plain_float(nis, 0.0, math.inf, False, False))
             and (nis_dof is None or (type(nis_dof) is int and 1 <= nis_dof <= MAX_DIM))
+            and (existence is None or _plain_float(existence, 0.0, 1.0, False, False))
             and type(e.method) is str and all(type(i) is str and i in _VALID_IDS for i in (src, e.track, e.node))):
         return None
-    return msgpack.packb({"v": SCHEMA_VERSION, "kind": "track", "src": src, "seq": seq, "t": t, "track": e.track,
-                          "node": e.node, "method": e.method, "x": x.tolist(), "P": P.tolist(), "nis": nis,
-                          "nis_dof": nis_dof, "extra": {}}, use_bin_type=True)
+    d = {"v": SCHEMA_VERSION, "kind": "track", "src": src, "seq": seq, "t": t, "track": e.track, "node": e.node,
+         "method": e.method, "x": x.tolist(), "P": P.tolist(), "nis": nis, "nis_dof": nis_dof, "extra": {}}
+    if existence is not None:
+        d["existence"] = existence
+    return msgpack.packb(d, use_bin_type=True)
 
 
 def to_estimate(msg: Message) -> Estimate:
     b = msg.body
     return Estimate(t=msg.t, x=b["x"], P=b["P"], method=b["method"], node=b["node"], track=b["track"],
-                    nis=b["nis"], nis_dof=b["nis_dof"], extra=dict(b["extra"]))
+                    nis=b["nis"], nis_dof=b["nis_dof"], extra=dict(b["extra"]), existence=b["existence"])

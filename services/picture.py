@@ -163,7 +163,7 @@ def query(session: zenoh.Session, keys: KeySpace, timeout: float = 2.0) -> dict 
                 e = to_estimate(msg)
                 doc["tracks"].append({"id": e.track, "t": e.t, "x": e.x.tolist(), "P": e.P.tolist(),
                                       "method": e.method, "node": e.node, "nis": e.nis, "nis_dof": e.nis_dof,
-                                      "seq": msg.seq})
+                                      "existence": e.existence, "seq": msg.seq})
         complete = [d for d in answers.values() if d["t"] is not None]
         if complete:
             return complete[0]

@@ -6,6 +6,8 @@ association probabilities ``βⱼ`` over the plots in its gate and ``β₀`` tha
 of them, for a PDA update): both say, per track, ``(columns, β, β₀)``, and which plots
 are *used* (no new track starts from them).
 
+(JIPDA, the weighted one with track existence: :class:`fusion.tracking.jipda.JIPDA`.)
+
 *Global nearest neighbour* (:class:`GNN`, :func:`gnn`): the least-cost assignment with
 one "miss" column of cost ``G`` per track, ``linear_sum_assignment`` on ``[D | diag(G)]``,
 pairs outside the gate forbidden. Confirmed tracks are assigned first, then tentative
@@ -34,6 +36,8 @@ class Assignment:
 
     pairs: tuple[tuple[int, int], ...] = ()
 
+    existence = None  # an assignment updates no existence (see Weights.existence)
+
     @property
     def used(self) -> frozenset[int]:
         return frozenset(c for _, c in self.pairs)
@@ -53,11 +57,15 @@ class Weights:
         miss: ``(rows,)`` ``β₀``: the probability that it made none of them (missed or
             absent); ``beta[r].sum() + miss[r] = 1``.
         used: the plots no new track may start from.
+        existence: ``(rows,)`` each row's probability that its target exists after the
+            scan, from an associator that updates it (JIPDA), else None; the tracker
+            hands it to the rows' track logic.
     """
 
     beta: np.ndarray
     miss: np.ndarray
     used: frozenset[int] = frozenset()
+    existence: np.ndarray | None = None
 
     def per_row(self) -> Iterator[RowTaken]:
         """Rows with a plot of positive weight."""
@@ -126,6 +134,3 @@ def gnn(d2: np.ndarray, gate) -> list[tuple[int, int]]:
     rows, cols = linear_sum_assignment(cost)
     return [(int(r), int(c)) for r, c in zip(rows, cols) if c < m and allowed[r, c]]
 
-
-#: ``association`` names of ``[tracker]`` and their associators
-ASSOCIATORS = {"gnn": GNN}

@@ -21,6 +21,7 @@ freedom (``T`` is singular when the two share a prior).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from functools import lru_cache
 from typing import Any, Iterable, Sequence
@@ -52,17 +53,25 @@ def mahalanobis2(model, x: np.ndarray, P: np.ndarray, Z: np.ndarray) -> np.ndarr
     ``model`` is the sensor's :class:`~fusion.measurement.models.MeasurementModel`. Returns ``(n,)``;
     ``inf`` for every plot when the geometry is undefined (track over the site).
     """
+    return distances(model, x, P, Z)[0]
+
+
+def distances(model, x: np.ndarray, P: np.ndarray, Z: np.ndarray) -> tuple[np.ndarray, float]:
+    """``(d², log c)``: :func:`mahalanobis2`, and the log of the normalising constant
+    ``c = det(2πS)^(−½)`` of the innovation density, so that a plot's likelihood is
+    ``N(ν; 0, S) = c · exp(−d²/2)`` (``log c = −inf`` where the geometry is undefined)."""
     Z = np.atleast_2d(np.asarray(Z, dtype=float))
     try:
         z_pred = model.h(x)
         H = model.jacobian(x)
     except ValueError:
-        return np.full(len(Z), np.inf)
+        return np.full(len(Z), np.inf), -math.inf
     nu = Z - z_pred
     nu[:, model.angles] = wrap_pi(nu[:, model.angles])
     S = H @ P @ H.T + model.R
     c = cho_factor(0.5 * (S + S.T), lower=True, check_finite=False)
-    return np.einsum("ij,ji->i", nu, cho_solve(c, nu.T, check_finite=False))
+    log_c = -float(np.sum(np.log(np.abs(np.diag(c[0]))))) - 0.5 * model.n_z * math.log(2.0 * math.pi)
+    return np.einsum("ij,ji->i", nu, cho_solve(c, nu.T, check_finite=False)), log_c
 
 
 def gating_update(model, x: np.ndarray, P: np.ndarray, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -114,6 +123,11 @@ class Hypotheses:
             and a row that takes no plot costs ``G``.
         confirmed: ``(rows,)`` which rows are confirmed tracks.
         model: the scan's measurement model (None where the plots are not measurements).
+        log_norm: ``(rows,)`` each row's ``log det(2πS)^(−½)``, so that a pair's
+            likelihood is ``exp(log_norm − d²/2)`` (None where the costs are no χ² of
+            plots: a probabilistic associator needs it).
+        existence: ``(rows,)`` each row's probability that its target exists, at the
+            scan (None: the tracks hold none; an associator takes them as certain).
     """
 
     plots: Sequence
@@ -122,6 +136,8 @@ class Hypotheses:
     gate: np.ndarray
     confirmed: np.ndarray
     model: Any = None
+    log_norm: np.ndarray | None = None
+    existence: np.ndarray | None = None
 
     @property
     def gated(self) -> np.ndarray:
@@ -156,20 +172,26 @@ class PlotHypothesiser:
         return by_sensor(frame.plots)
 
     def hypothesise(self, states: Sequence[tuple[np.ndarray, np.ndarray]], tracks: Sequence, scan: Sequence) -> Hypotheses:
-        """The scan's hypotheses against the tracks at their gating ``states``."""
-        return self.hypotheses(states, scan, [tr.confirmed for tr in tracks])
+        """The scan's hypotheses against the tracks at their gating ``states``, with the
+        tracks' existence where their logic holds one (:attr:`Track.existence
+        <fusion.tracking.table.Track.existence>`)."""
+        existence = [tr.existence for tr in tracks]
+        return self.hypotheses(states, scan, [tr.confirmed for tr in tracks],
+                               None if None in existence else np.array(existence, dtype=float))
 
     def hypotheses(self, states: Sequence[tuple[np.ndarray, np.ndarray]], scan: Sequence,
-                   confirmed: Sequence[bool]) -> Hypotheses:
-        """The scan's hypotheses against tracks at ``states`` (``confirmed``: which are)."""
+                   confirmed: Sequence[bool], existence: np.ndarray | None = None) -> Hypotheses:
+        """The scan's hypotheses against tracks at ``states`` (``confirmed``: which are;
+        ``existence``: their existence probabilities, if any)."""
         model = model_of(scan[0], self.n_x)
         gate = gate_threshold(model.n_z, self.gate_prob)
         Z = np.array([m.z for m in scan])
         d2 = np.full((len(states), len(scan)), np.inf)
+        log_norm = np.full(len(states), -np.inf)
         for r, cols in self.candidates(model, gate, states, Z):
-            d2[r, cols] = mahalanobis2(model, *states[r], Z[cols])
+            d2[r, cols], log_norm[r] = distances(model, *states[r], Z[cols])
         return Hypotheses(scan, range(len(states)), d2, np.full(len(states), gate), np.array(confirmed, dtype=bool),
-                          model)
+                          model, log_norm, existence)
 
     def candidates(self, model, gate: float, states: Sequence[tuple[np.ndarray, np.ndarray]],
                    Z: np.ndarray) -> Iterable[tuple[int, Any]]:

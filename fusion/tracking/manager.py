@@ -10,7 +10,8 @@ one) at a time:
 2. **initiate**: the initiator groups the plots no track took into new tracks (and
    may hand a group to a tentative track instead);
 3. **update** each track with what it took, or coast it; record the frame's hit or
-   miss in its logic;
+   miss in its logic (with JIPDA the logic's existence: it survives to the frame before
+   step 1, and takes each scan's ``r⁺`` from the associator);
 4. **review** the table (duplicates; a configuration's own checks);
 5. **start** the new tracks; **close** the frame: ids at confirmation, the deleted
    gone, the priority order restored (:class:`~fusion.tracking.table.TrackTable`).
@@ -61,6 +62,11 @@ class Taken:
     d2: tuple[float, ...]
     beta: tuple[float, ...] = (1.0,)
     miss: float = 0.0
+
+    @property
+    def weighted(self) -> bool:
+        """Whether this is a weighted association's (anything but one plot for sure)."""
+        return self.miss != 0.0 or self.beta != (1.0,)
 
 
 class Hypothesiser(Protocol):
@@ -140,11 +146,15 @@ class MultiTargetTracker:
         for group in births:
             track = self.updater.start(group, frame)
             if track is not None:
-                self.table.add(track)
+                self.table.add(track).logic.survive(frame.t)
         return self.table.close_frame()
 
     def associate(self, tracks: list[Track], frame: Frame) -> tuple[list[list[Taken]], list]:
-        """Scan by scan: what each track took, and the plots left for initiation."""
+        """Scan by scan: what each track took, and the plots left for initiation. A
+        track logic with existence survives to the frame first, and takes the existence
+        each scan's association leaves (JIPDA's ``Weights.existence``)."""
+        for track in tracks:
+            track.logic.survive(frame.t)
         states = self.hypothesiser.predict(tracks, frame)
         taken: list[list[Taken]] = [[] for _ in tracks]
         left: list = []
@@ -152,6 +162,9 @@ class MultiTargetTracker:
         for k, scan in enumerate(scans):
             hyp = self.hypothesiser.hypothesise(states, tracks, scan)
             association = self.associator.associate(hyp)
+            if association.existence is not None:
+                for r, e in enumerate(association.existence):
+                    tracks[hyp.rows[r]].logic.existence = float(e)
             for r, cols, beta, miss in association.per_row():
                 taken[hyp.rows[r]].append(Taken(tuple(scan[c] for c in cols), tuple(hyp.d2[r, list(cols)]), beta, miss))
             used = association.used

@@ -5,7 +5,8 @@ the order the tracker serves the tracks in.
 tentative; it is confirmed once it has ``M`` hits (birth included) within its first
 ``N`` frames, deleted if it can no longer get there, and a confirmed track is deleted
 after ``K`` consecutive missed frames; any track is deleted once its position σ
-(``√trace P_pos``) exceeds ``max_pos_std``.
+(``√trace P_pos``) exceeds ``max_pos_std``. (With JIPDA the life follows the track's
+existence probability instead: :class:`fusion.tracking.jipda.ExistenceLogic`.)
 
 *Ids* (:class:`TrackIds`): ``T1, T2, …`` (``E1, …`` for emitters) issued at
 confirmation, in the table's order, never reused.
@@ -71,8 +72,14 @@ class TrackLogic:
     frames: int = 1
     misses: int = 0
 
+    #: M-of-N holds no existence probability (:class:`fusion.tracking.jipda.ExistenceLogic` does)
+    existence = None
+
     def __post_init__(self):
         self._settle()
+
+    def survive(self, t: float) -> None:
+        """The start of a frame at ``t``: nothing of M-of-N changes between frames."""
 
     def record(self, hit: bool, P_pos: np.ndarray | None = None) -> str:
         """One more frame, with the track's position covariance ``P_pos`` after it (for
@@ -138,7 +145,8 @@ class Track:
         filter: what estimates the track — a filter, a track fuser, a DF method: the
             table does not look inside.
         last: its estimate of the latest frame (updated, or predicted when missed).
-        logic: its :class:`TrackLogic` (or any object with ``status`` and ``record``;
+        logic: its :class:`TrackLogic` (or any object with ``status``, ``existence``,
+            ``survive`` and ``record``: :class:`fusion.tracking.jipda.ExistenceLogic`;
             given by :meth:`TrackTable.add` if None).
         birth: its place in the order of births (set by :meth:`TrackTable.add`).
         id: its published id, issued at confirmation (None before).
@@ -158,6 +166,11 @@ class Track:
     @property
     def deleted(self) -> bool:
         return self.logic.status == DELETED
+
+    @property
+    def existence(self) -> float | None:
+        """The probability that the track's target exists, if its logic holds one (JIPDA)."""
+        return self.logic.existence
 
 
 class TrackTable:

@@ -7,7 +7,7 @@ One CoT 2.0 event per fused update and per sensor (pure: :func:`track_event`,
     <event version="2.0" uid=… type=… time=… start=… stale=… how=…>
       <point lat=… lon=… hae=… ce=… le=…/>
       <detail><contact callsign=…/><track course=… speed=…/><remarks>…</remarks>
-              <zfusion kind=… method=… node=… t=… position_std=…/></detail>
+              <zfusion kind=… method=… node=… t=… position_std=… [existence=…]/></detail>
     </event>
 
 Types are MIL-STD-2525's tree: ``a-u-A`` a 3D track (air, unknown affiliation),
@@ -89,8 +89,10 @@ def track_event(e: Estimate, frame: LocalFrame, uid: str, types: Types, now: flo
                       speed=f"{math.hypot(v[0], v[1]):.1f}")
     what = "emitter fix" if fix else "track"
     ET.SubElement(detail, "remarks").text = f"zfusion {e.method} {what} {e.track}, 1-sigma {ce:.0f} m"
-    ET.SubElement(detail, "zfusion", kind="fix" if fix else "track", method=e.method, node=e.node, t=repr(float(e.t)),
-                  position_std=f"{geo.position_std(e.x, e.P):.1f}")
+    z = ET.SubElement(detail, "zfusion", kind="fix" if fix else "track", method=e.method, node=e.node,
+                      t=repr(float(e.t)), position_std=f"{geo.position_std(e.x, e.P):.1f}")
+    if e.existence is not None:  # the probability that the target exists (a JIPDA track's)
+        z.set("existence", f"{e.existence:.4f}")
     return ET.tostring(ev, encoding="utf-8", xml_declaration=False)
 
 

@@ -7,7 +7,8 @@ session's ENU frame with pymap3d (:mod:`services.geo`):
   ``kind`` (``track``: a 3D track; ``fix``: an emitter fix on the map plane), ``method``,
   ``time`` (ISO 8601 UTC in a live session, scenario seconds otherwise) and
   ``position_std_m`` (√ trace of the position covariance); a 3D track also
-  ``velocity_enu_mps``;
+  ``velocity_enu_mps``, and ``existence`` (the probability that its target exists)
+  where its tracker holds one (JIPDA);
 * one ``Polygon`` per emitter fix: its 95 % confidence ellipse (``kind`` ``ellipse``,
   ``id`` the fix's), a closed ring, counter-clockwise (RFC 7946 §3.1.6);
 * one ``Point`` per sensor (``kind`` ``sensor``, ``sensor_kind``: ``df``, ``radar2d``, ...).
@@ -52,6 +53,8 @@ def estimate_features(e: Estimate, frame: LocalFrame, live: bool) -> list[dict]:
     v = geo.velocity(e.x)
     if v is not None:
         props["velocity_enu_mps"] = [round(float(c), 3) for c in v]
+    if e.existence is not None:
+        props["existence"] = round(float(e.existence), 4)
     pos = geo.enu3(e.x)
     out = [{"type": "Feature", "geometry": {"type": "Point", "coordinates": _position(geo.lat_lon_alt(frame, pos))},
             "properties": props}]

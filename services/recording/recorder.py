@@ -430,6 +430,8 @@ class Recorder:
             return
         label = f"{e.method} {e.track}" if fused else f"{e.node} {e.track}"
         pos = self._draw_estimate(track, e, color, label)
+        if e.existence is not None:  # a JIPDA track's probability that its target exists
+            self._log(_p("metrics", "existence", e.node, e.track), e.t, part(rr.Scalars, scalars=[e.existence]))
         if pos is not None and (fused or self._ref_pos is None):
             self._ref_pos = pos
         self._plot(self.score.estimate(e, fused))

@@ -13,6 +13,7 @@ from typing import Callable
 from tqdm import tqdm
 
 from ..evaluation import default_jobs
+from .dense import DENSE, build_dense, write_dense_report
 from .maneuver import MANEUVER, build_maneuver, write_maneuver_report
 from .many import MANY, build_many, write_many_report
 from .moving import build_moving, write_moving_report
@@ -21,7 +22,8 @@ from .sweep import build_sweep, write_sweep_report
 from .thesis import build_thesis, write_thesis_report
 
 DEFAULT_RUNS = {"patent-3d": 100, "patent-3d-60": 100, "thesis-cep": 100, "jammed-df-sweep": 40,
-                "air-picture": 50, "df-multi": 50, "df-moving": 50, "patent-3d-maneuver": 50}
+                "air-picture": 50, "df-multi": 50, "df-moving": 50, "patent-3d-maneuver": 50,
+                DENSE: 50}
 REPORT_NAMES = tuple(DEFAULT_RUNS)
 
 
@@ -30,12 +32,17 @@ def bundle_kind(name: str) -> str:
 
 
 RENDER = {"patent": write_patent_report, "thesis-cep": write_thesis_report, "jammed-df-sweep": write_sweep_report,
-          "many": write_many_report, "df-moving": write_moving_report, MANEUVER: write_maneuver_report}
+          "many": write_many_report, "df-moving": write_moving_report, MANEUVER: write_maneuver_report,
+          DENSE: write_dense_report}
 
 
 def make_report(name: str, out_dir: Path, runs: int | None = None, jobs: int = 1,
-                progress: Callable[[int, int], None] | None = None) -> Path:
+                progress: Callable[[int, int], None] | None = None, duration_s: float | None = None) -> Path:
     runs = runs or DEFAULT_RUNS[name]
+    if duration_s is not None and name != DENSE:
+        raise ValueError(f"--duration-s shortens only the {DENSE} report")
+    if name == DENSE:
+        return write_dense_report(build_dense(runs, jobs, progress, duration_s), out_dir)
     if name in ("patent-3d", "patent-3d-60"):
         return write_patent_report(build_patent(name, runs, jobs, progress), out_dir)
     if name == "thesis-cep":
@@ -60,6 +67,8 @@ def main(argv: list[str] | None = None) -> int:
                     ", ".join(f"{k} {v}" for k, v in DEFAULT_RUNS.items()) + ")")
     ap.add_argument("--jobs", type=int, default=min(2, default_jobs()),
                     help="worker processes (default: 2, or 1 on a single core); results do not depend on it")
+    ap.add_argument("--duration-s", type=float,
+                    help=f"{DENSE} only: shorten every run to this many seconds (a first look; the report says so)")
     ap.add_argument("--render-only", action="store_true",
                     help="rewrite the Markdown and plots from the existing NAME.json in --out (no evaluation)")
     args = ap.parse_args(argv)
@@ -74,6 +83,6 @@ def main(argv: list[str] | None = None) -> int:
         with tqdm(total=args.runs, desc=f"  {name}: run", file=sys.stderr, disable=not sys.stderr.isatty(),
                   ascii=" #", bar_format="{desc} {n}/{total} [{bar:30}] {remaining} left") as bar:
             path = make_report(name, Path(args.out), args.runs, args.jobs,
-                               lambda done, total: bar.update(done - bar.n))
+                               lambda done, total: bar.update(done - bar.n), args.duration_s)
         print(f"{name}: {path}")
     return 0

@@ -1,4 +1,4 @@
-"""JIPDA of one scan (fusion.jipda) against independent references: Stone Soup's ``JPDA``
+"""JIPDA of one scan (fusion.tracking.jipda) against independent references: Stone Soup's ``JPDA``
 with ``PDAHypothesiser`` and ``PDAUpdater`` on the same plots (a linear position model
 and the nonlinear spherical ones), brute-force enumeration of the joint events, the
 IPDA's closed-form existence recursion on one track, the Gaussian-mixture form of the
@@ -30,7 +30,7 @@ from stonesoup.updater.kalman import ExtendedKalmanUpdater
 from stonesoup.updater.probability import PDAUpdater
 
 from fusion import kalman
-from fusion.jipda import (EXACT_EVENTS, ClutterWindow, ExistenceRule, clusters, clutter_density, exact_marginals, existence_update,
+from fusion.tracking.jipda import (EXACT_EVENTS, ClutterWindow, ExistenceRule, clusters, clutter_density, exact_marginals, existence_update,
                           hypothesise, ipda_existence, lbp_marginals, marginals, n_events_bound, pda_update,
                           scan_update)
 from fusion.measurement.models import SphericalModel
@@ -332,7 +332,7 @@ def test_existence_without_plots_and_prediction():
     assert rule.predict(0.8, 2.0) == pytest.approx(0.8 * 0.95**2)
     assert rule.predict(0.8, 0.0) == 0.8
     with pytest.raises(ValueError):
-        ExistenceRule(confirm=0.05, delete=0.1)
+        ExistenceRule(existence_confirm=0.05, existence_delete=0.1)
     # existence given "unassigned": the miss weight among the state hypotheses
     r_post, c0 = existence_update(np.array([0.5]), np.array([0.2]), 0.9, 0.99)
     a = (1 - pdg) * 0.5 / (1 - pdg * 0.5)

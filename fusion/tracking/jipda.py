@@ -1,5 +1,5 @@
-r"""JIPDA: joint integrated probabilistic data association of one sensor scan (Mušicki and
-Evans), with the existence probability of each track.
+r"""JIPDA: joint integrated probabilistic data association (Mušicki and Evans), the
+associator of dense clutter, and the existence logic of its tracks.
 
 Tracks ``i`` predicted to ``(xᵢ, Pᵢ)`` with existence ``rᵢ``; plots ``zⱼ`` of one sensor
 (model ``h``, Jacobian ``Hᵢ`` at ``xᵢ``, noise ``R``); ``νᵢⱼ = zⱼ − h(xᵢ)`` (angles
@@ -9,28 +9,25 @@ track (the rest are clutter). With ``Nᵢⱼ = N(νᵢⱼ; 0, Sᵢ)``::
 
     P(ε) ∝ ∏_{i missed} (1 − P_D P_G rᵢ) · ∏_{i ← j} P_D rᵢ Nᵢⱼ / ρ
 
-(``1 − P_D P_G rᵢ``: the track does not exist, or exists and was not detected in the
-gate). Marginals ``βᵢⱼ = Σ_{ε ∋ (i←j)} P(ε)``, ``βᵢ₀ = 1 − Σⱼ βᵢⱼ``; with every ``rᵢ = 1`` this
-is JPDA. Tracks that share no gated plot are independent: the sum runs per *cluster*
-(connected tracks and plots), exactly where the cluster is small (:data:`EXACT_EVENTS`),
-by loopy belief propagation where it is not (:func:`lbp_marginals`). Then per track::
+Marginals ``βᵢⱼ = Σ_{ε ∋ (i←j)} P(ε)``, ``βᵢ₀ = 1 − Σⱼ βᵢⱼ``; with every ``rᵢ = 1`` this
+is JPDA. The sum runs per *cluster* (tracks joined by shared plots), exactly where it is
+small (:data:`EXACT_EVENTS`), by loopy belief propagation where not. Then per track::
 
     rᵢ⁺ = 1 − βᵢ₀ + βᵢ₀ aᵢ,    aᵢ = (1 − P_D P_G) rᵢ / (1 − P_D P_G rᵢ)
     c₀ = βᵢ₀ aᵢ / rᵢ⁺,  cⱼ = βᵢⱼ / rᵢ⁺            (association weights given existence)
-    ν̄ = Σ cⱼ νⱼ,  x⁺ = x + K ν̄,  P⁺ = c₀ P + (1 − c₀) Pᶜ + K (Σ cⱼ νⱼνⱼᵀ − ν̄ν̄ᵀ) Kᵀ
 
-with ``K``, ``Pᶜ`` the EKF gain and updated covariance at the prediction (Joseph form).
-Between scans ``r⁻ = p_S^Δt r`` (Markov chain one). One track alone gives the IPDA's
-closed form ``r⁺ = (1 − δ) r / (1 − δ r)``, ``δ = P_D P_G − P_D Σⱼ Nⱼ/ρ``. ρ is estimated
-from the sensor's recent plots (:class:`ClutterWindow`). The maths, choices and
-measurements: docs/algorithms.md, "JIPDA: association with track existence".
+and the PDA update with ``(cⱼ, c₀)`` (:mod:`fusion.pda`). Between frames ``r⁻ = p_S^Δt r``.
+:class:`JIPDA` is the tracker's associator (its :class:`~fusion.tracking.associators.Weights`
+carry ``r⁺``), ρ estimated per sensor from its last scans (:class:`ClutterWindow`);
+:class:`ExistenceLogic` confirms and deletes by existence; :func:`scan_update` is one
+scan on its own. docs/algorithms.md, "JIPDA: association with track existence".
 """
 
 from __future__ import annotations
 
 import math
 from collections import deque
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Sequence
 
 import numpy as np
@@ -38,47 +35,95 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.special import gammaln
 
-from . import kalman
-from .angles import TWO_PI
-from .tracking.hypotheses import gate_threshold
+from .. import kalman
+from ..angles import TWO_PI
+from .associators import Weights
+from .hypotheses import Hypotheses, gate_threshold
+from .table import CONFIRMED, DELETED, TENTATIVE
 
 EXACT_EVENTS = 10_000  # a cluster is summed exactly when ∏ᵢ (1 + gᵢ) ≤ this (gᵢ: track i's gated plots)
 LBP_TOL = 1e-12  # loopy belief propagation stops when no message moves by more than this
 LBP_MAX_ITER = 1000
 FULL_CIRCLE_TEST = 0.01  # an angle row's plots span the full circle unless their widest gap is this unlikely
+CLUTTER_SCANS = 10  # a sensor's clutter density is estimated from its last this many scans
+USED = 0.5  # a plot some track made with at least this probability starts no new track
 
 
 # Existence -------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class ExistenceRule:
     """The existence side of JIPDA: survival, the existence of a new track, and the
-    thresholds that confirm and delete a track.
+    thresholds that confirm and delete a track (the ``[tracker]`` keys of the same names).
 
     Args:
         p_survive: probability that a target exists one second later (Markov chain one:
             ``r⁻ = p_survive^Δt · r``).
-        birth: existence probability of a track at its first plots.
-        confirm: a track is confirmed once its existence reaches this.
-        delete: a track is deleted once its existence falls below this.
+        existence_birth: existence probability of a track after its first frame.
+        existence_confirm: a tentative track is confirmed once its existence reaches this.
+        existence_delete: a track is deleted once its existence falls below this.
     """
 
     p_survive: float = 0.98
-    birth: float = 0.1
-    confirm: float = 0.9
-    delete: float = 0.01
+    existence_birth: float = 0.1
+    existence_confirm: float = 0.9
+    existence_delete: float = 0.01
 
     def __post_init__(self):
         if not 0.0 < self.p_survive <= 1.0:
             raise ValueError(f"p_survive must lie in (0, 1], got {self.p_survive}")
-        if not 0.0 <= self.delete < self.birth < self.confirm <= 1.0:
-            raise ValueError(f"existence thresholds need 0 <= delete < birth < confirm <= 1, got "
-                             f"delete={self.delete}, birth={self.birth}, confirm={self.confirm}")
+        if not 0.0 <= self.existence_delete < self.existence_birth < self.existence_confirm <= 1.0:
+            raise ValueError(f"existence thresholds need 0 <= existence_delete < existence_birth < existence_confirm "
+                             f"<= 1, got existence_delete={self.existence_delete}, existence_birth="
+                             f"{self.existence_birth}, existence_confirm={self.existence_confirm}")
 
     def predict(self, r, dt: float):
         """Existence after ``dt`` seconds without a scan: ``p_survive^dt · r``."""
         if dt < 0.0:
             raise ValueError(f"cannot predict existence backwards (dt = {dt})")
         return r * self.p_survive ** dt
+
+
+@dataclass
+class ExistenceLogic:
+    """One track's life by its existence probability (the track table's logic under
+    JIPDA): born tentative at ``existence_birth``, confirmed once ``existence`` reaches
+    ``existence_confirm``, deleted once it falls below ``existence_delete`` or once the
+    position σ (√trace P_pos) exceeds ``max_pos_std``. The tracker moves ``existence``:
+    :meth:`survive` at each frame, the associator's ``r⁺`` after each scan.
+
+    Attributes:
+        status: ``tentative``, ``confirmed`` or ``deleted``.
+        existence: the probability that the track's target exists, at ``t``.
+        t: the time of ``existence`` (None before the track's first frame).
+    """
+
+    rule: ExistenceRule
+    max_pos_std: float = math.inf
+    status: str = TENTATIVE
+    existence: float = field(default=None)
+    t: float | None = None
+
+    def __post_init__(self):
+        if self.existence is None:
+            self.existence = self.rule.existence_birth
+
+    def survive(self, t: float) -> None:
+        """The start of a frame at ``t``: ``existence ← p_S^(t − t_prev) · existence``."""
+        if self.t is not None:
+            self.existence = float(self.rule.predict(self.existence, t - self.t))
+        self.t = float(t)
+
+    def record(self, hit: bool, P_pos: np.ndarray | None = None) -> str:
+        """The end of a frame: the status the existence now gives (``hit`` plays no part);
+        returns it."""
+        if self.status == DELETED:
+            raise ValueError("a deleted track records no more frames")
+        if self.existence < self.rule.existence_delete or (
+                P_pos is not None and math.sqrt(float(np.trace(P_pos))) > self.max_pos_std):
+            self.status = DELETED
+        elif self.status == TENTATIVE and self.existence >= self.rule.existence_confirm:
+            self.status = CONFIRMED
+        return self.status
 
 
 def existence_update(r, beta0, p_detect: float, gate_prob: float):
@@ -142,10 +187,16 @@ def hypothesise(model, x: np.ndarray, P: np.ndarray, Z: np.ndarray, gate_prob: f
     gate = gate_threshold(model.n_z, gate_prob)
     inside = np.flatnonzero(d2 <= gate)
     n = model.n_z
-    half_log_det = -float(np.sum(np.log(np.diag(L_inv))))  # ½ log det S
-    volume = math.exp(0.5 * n * math.log(math.pi) - gammaln(0.5 * n + 1.0) + 0.5 * n * math.log(gate) + half_log_det)
-    log_lik = -0.5 * (d2[inside] + n * math.log(TWO_PI)) - half_log_det
-    return TrackHypotheses(inside, nu[inside], log_lik, H, volume)
+    log_norm = float(np.sum(np.log(np.diag(L_inv)))) - 0.5 * n * math.log(TWO_PI)  # log det(2πS)^(−½)
+    return TrackHypotheses(inside, nu[inside], log_norm - 0.5 * d2[inside], H, float(gate_volume(n, gate, log_norm)))
+
+
+def gate_volume(n_z: int, gate, log_norm):
+    """Volume of the gate ``{ν: νᵀS⁻¹ν ≤ G}`` in measurement space from ``G`` and
+    ``log_norm = log det(2πS)^(−½)``: ``π^(n/2) / Γ(n/2 + 1) · G^(n/2) · √det S``."""
+    n = n_z
+    log_root_det = -np.asarray(log_norm, dtype=float) - 0.5 * n * math.log(TWO_PI)  # ½ log det S
+    return np.exp(0.5 * n * math.log(math.pi) - gammaln(0.5 * n + 1.0) + 0.5 * n * np.log(gate) + log_root_det)
 
 
 # Clutter density -----------------------------------------------------------------------
@@ -159,8 +210,8 @@ def clutter_density(Z: np.ndarray, angles: np.ndarray, expected_targets: float, 
     length of a uniform interval from its sample range; an angle row spans the full circle
     unless its plots leave a gap that m plots all round leave with probability below
     :data:`FULL_CIRCLE_TEST` (``P(gap > g) ≈ m (1 − g/2π)^(m−1)``), else the shortest arc
-    holding them; ``V̂`` at least ``min_volume`` (the largest gate: a scan of one plot
-    spans no box). docs/algorithms.md, "JIPDA: association with track existence".
+    holding them; ``V̂`` is ``min_volume`` (the largest gate) where the plots span no box
+    (one plot). docs/algorithms.md, "JIPDA: association with track existence".
     """
     Z = np.atleast_2d(np.asarray(Z, dtype=float))
     m = len(Z)
@@ -178,7 +229,8 @@ def clutter_density(Z: np.ndarray, angles: np.ndarray, expected_targets: float, 
             else:
                 side = float(np.ptp(col)) * (m + 1) / (m - 1)
             volume *= side
-    volume = max(volume, float(min_volume))
+    if not volume > 0.0:
+        volume = float(min_volume)
     if not volume > 0.0:
         raise ValueError("clutter density: the plots span no volume and no gate volume was given")
     return max(m - float(expected_targets), 1.0) / (int(scans) * volume)
@@ -310,6 +362,34 @@ def marginals(w0: np.ndarray, W: np.ndarray, exact_events: float = EXACT_EVENTS)
     return lbp_marginals(w0, W), False
 
 
+def joint_association(gated: Sequence[np.ndarray], ratios: Sequence[np.ndarray], r: np.ndarray, n_plots: int,
+                      p_detect: float, gate_prob: float,
+                      exact_events: float = EXACT_EVENTS) -> tuple[np.ndarray, list[bool]]:
+    """``(β, exact)``: the joint association probabilities of one scan (module docstring)
+    and, per cluster, whether they were summed exactly.
+
+    ``gated[i]``: the plots in track i's gate (indices among ``n_plots``); ``ratios[i]``:
+    their ``Nᵢⱼ/ρ``; ``r``: the tracks' existence. ``β (n, n_plots + 1)``: column 0
+    "missed or does not exist", column ``1 + j`` plot j; rows sum to 1."""
+    r = np.asarray(r, dtype=float)
+    n = len(gated)
+    w0 = 1.0 - p_detect * gate_prob * r
+    beta = np.zeros((n, n_plots + 1))
+    beta[:, 0] = 1.0
+    exact = []
+    for tracks, plots in clusters(gated, n_plots):
+        col = np.full(n_plots, -1)
+        col[plots] = np.arange(len(plots))
+        Wc = np.zeros((len(tracks), len(plots)))
+        for a, i in enumerate(tracks):
+            Wc[a, col[gated[i]]] = np.asarray(ratios[i]) * (p_detect * r[i])  # P_D rᵢ Nᵢⱼ / ρ
+        bc, is_exact = marginals(w0[tracks], Wc, exact_events)
+        beta[tracks, 0] = bc[:, 0]
+        beta[np.ix_(tracks, plots + 1)] = bc[:, 1:]
+        exact.append(is_exact)
+    return beta, exact
+
+
 # The PDA update ------------------------------------------------------------------------
 def pda_update(x: np.ndarray, P: np.ndarray, H: np.ndarray, R: np.ndarray, nu: np.ndarray, c0: float,
                c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -376,20 +456,8 @@ def scan_update(model, states: Sequence[tuple[np.ndarray, np.ndarray]], r: Seque
                                   max((h.gate_volume for h in hyps), default=0.0)) if m else 1.0
     if not density > 0.0:
         raise ValueError(f"clutter density must be > 0, got {density}")
-    w0 = 1.0 - p_detect * gate_prob * r
-    beta = np.zeros((n, m + 1))
-    beta[:, 0] = 1.0
-    exact = []
-    for tracks, plots in clusters([h.plots for h in hyps], m):
-        col = {int(j): k for k, j in enumerate(plots)}
-        Wc = np.zeros((len(tracks), len(plots)))
-        for a, i in enumerate(tracks):
-            h = hyps[i]
-            Wc[a, [col[int(j)] for j in h.plots]] = np.exp(h.log_lik) * (p_detect * r[i] / density)  # P_D rᵢ Nᵢⱼ / ρ
-        bc, is_exact = marginals(w0[tracks], Wc, exact_events)
-        beta[tracks, 0] = bc[:, 0]
-        beta[np.ix_(tracks, plots + 1)] = bc[:, 1:]
-        exact.append(is_exact)
+    ratios = [np.exp(h.log_lik) / density for h in hyps]  # Nᵢⱼ / ρ
+    beta, exact = joint_association([h.plots for h in hyps], ratios, r, m, p_detect, gate_prob, exact_events)
     r_post, c0 = existence_update(r, beta[:, 0], p_detect, gate_prob)
     xs, Ps = [], []
     for i, (x, P) in enumerate(states):
@@ -402,3 +470,55 @@ def scan_update(model, states: Sequence[tuple[np.ndarray, np.ndarray]], r: Seque
         xs.append(x_new)
         Ps.append(P_new)
     return ScanUpdate(xs, Ps, r_post, beta, float(density), exact)
+
+
+# The associator ------------------------------------------------------------------------
+class JIPDA:
+    """JIPDA as the many-target tracker's associator (module docstring): one scan's
+    :class:`~fusion.tracking.hypotheses.Hypotheses` (``d²``, ``log_norm``, the rows'
+    ``existence``; a row without existence is certain: JPDA) in, :class:`Weights` out —
+    ``beta``/``miss`` the weights given existence ``(cⱼ, c₀)`` that the PDA update
+    takes, ``existence`` the rows' ``r⁺``, ``used`` the plots some track made with
+    probability at least :data:`USED` (the others may start tracks).
+
+    The clutter density of each sensor is estimated from its last ``clutter_scans``
+    scans (:class:`ClutterWindow`), the expected target plots ``Σ P_D P_G rᵢ`` taken off;
+    so the associator keeps a window per sensor and must see every scan once.
+
+    Args:
+        p_detect: the sensors' detection probability ``P_D``.
+        gate_prob: the gate's ``P_G`` (the hypotheses' gates must be ``χ²⁻¹(P_G; n_z)``).
+        clutter_scans: the scans of a sensor its clutter density is estimated from.
+        exact_events: the cluster size up to which probabilities are summed exactly.
+    """
+
+    def __init__(self, p_detect: float, gate_prob: float, clutter_scans: int = CLUTTER_SCANS,
+                 exact_events: float = EXACT_EVENTS):
+        if not 0.0 < p_detect <= 1.0:
+            raise ValueError(f"p_detect must lie in (0, 1], got {p_detect}")
+        self.p_detect, self.gate_prob = float(p_detect), float(gate_prob)
+        self.clutter_scans, self.exact_events = int(clutter_scans), exact_events
+        self._clutter: dict[str, ClutterWindow] = {}
+        self.density: dict[str, float] = {}  # the latest clutter density of each sensor
+
+    def associate(self, hyp: Hypotheses) -> Weights:
+        if hyp.log_norm is None or hyp.model is None:
+            raise ValueError("JIPDA needs the plots' likelihoods: hypotheses of measurements with log_norm")
+        n, m = hyp.d2.shape
+        r = np.ones(n) if hyp.existence is None else np.asarray(hyp.existence, dtype=float)
+        pdg = self.p_detect * self.gate_prob
+        gated = [np.flatnonzero(g) for g in hyp.gated]
+        volumes = gate_volume(hyp.model.n_z, hyp.gate, hyp.log_norm)
+        sensor = hyp.plots[0].sensor
+        window = self._clutter.setdefault(sensor, ClutterWindow(self.clutter_scans))
+        rho = window.update(np.array([p.z for p in hyp.plots]), hyp.model.angles, pdg * float(r.sum()),
+                            float(np.max(volumes[np.isfinite(volumes)], initial=0.0)))
+        self.density[sensor] = rho
+        ratios = [np.exp(hyp.log_norm[i] - 0.5 * hyp.d2[i, g]) / rho for i, g in enumerate(gated)]
+        beta, _ = joint_association(gated, ratios, r, m, self.p_detect, self.gate_prob, self.exact_events)
+        r_post, c0 = existence_update(r, beta[:, 0], self.p_detect, self.gate_prob)
+        alive = r_post > 0.0
+        c = np.zeros((n, m))
+        c[alive] = beta[alive, 1:] / r_post[alive, None]
+        used = frozenset(int(j) for j in np.flatnonzero(beta[:, 1:].sum(axis=0) >= USED))
+        return Weights(c, np.where(alive, c0, 1.0), used, r_post)

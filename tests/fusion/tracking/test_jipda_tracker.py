@@ -1,0 +1,133 @@
+"""JIPDA as the many-target tracker's associator (fusion.tracking.jipda.JIPDA) and its
+existence logic: the associator's weights and existence equal the one-scan JIPDA that
+tests/fusion/tracking/test_jipda.py checks against Stone Soup; the existence logic
+confirms and deletes by its thresholds; ``association = "jipda"`` in ``[tracker]`` runs
+the centralised methods and HNV's local trackers, and the existence reaches the
+estimates."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from fusion.ekf import TrackEKF
+from fusion.methods import make_method, spec
+from fusion.motion import make_motion
+from fusion.tracking.hypotheses import PlotHypothesiser
+from fusion.tracking.jipda import JIPDA, ExistenceLogic, ExistenceRule, scan_update
+from fusion.tracking.table import CONFIRMED, DELETED, TENTATIVE
+from fusion.types import Measurement
+from services.evaluation import run_method, score_tracks_run
+
+DEG = math.pi / 180.0
+SITE = np.array([1000.0, -2000.0, 50.0])
+STD = np.array([1.0 * DEG, 0.7 * DEG, 25.0])
+
+
+def _scene(seed: int):
+    """Three tracks 300 m apart (so that they share plots) with their plots and clutter
+    around them, as measurements of one 3D radar: states (CV, n_x = 6), existence, plots."""
+    rng = np.random.default_rng(seed)
+    centre = np.array([1500.0, 28000.0, 6000.0])
+    states, r, plots = [], np.array([0.95, 0.4, 0.7]), []
+    for i in range(3):
+        p = centre + rng.normal(0.0, 300.0, 3)
+        x = np.concatenate([p, rng.normal(0.0, 100.0, 3)])
+        P = np.diag([200.0**2] * 3 + [30.0**2] * 3)
+        states.append((x, P))
+        plots.append(p + rng.normal(0.0, 100.0, 3))
+    plots += [centre + rng.uniform(-1500.0, 1500.0, 3) for _ in range(8)]
+    ms = []
+    for k, p in enumerate(plots):
+        e, n, u = p - SITE
+        z = np.array([math.atan2(e, n) % (2 * math.pi), math.atan2(u, math.hypot(e, n)), math.hypot(e, n, u)])
+        ms.append(Measurement(0.0, "radar", "az_el_range", z + rng.normal(size=3) * STD * 0.5, STD, SITE, k))
+    return states, r, ms
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_associator_equals_the_one_scan_jipda(seed):
+    """The tracker's path (PlotHypothesiser → JIPDA → each filter's update_weighted)
+    gives the β, existence and updated states of ``scan_update`` on the same scan with
+    the density estimated from it (one scan in the clutter window), to 1e-9."""
+    states, r, ms = _scene(seed)
+    p_detect, gate_prob = 0.75, 0.999
+    hyp = PlotHypothesiser(6, gate_prob).hypotheses(states, ms, [True, False, True], r)
+    w = JIPDA(p_detect, gate_prob).associate(hyp)
+    ref = scan_update(hyp.model, states, r, np.array([m.z for m in ms]), p_detect, gate_prob)
+    assert ref.beta[:, 1:].sum(axis=0).max() > 0.0 and (ref.beta[:, 1:] > 1e-6).sum(axis=0).max() >= 2  # shared plots
+    np.testing.assert_allclose(w.existence, ref.r, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(w.beta * ref.r[:, None], ref.beta[:, 1:], rtol=0, atol=1e-12)  # c = β/r⁺
+    np.testing.assert_allclose(w.beta.sum(axis=1) + w.miss, 1.0, atol=1e-12)
+    motion = make_motion("cv", 0.1)
+    for i, (x, P) in enumerate(states):
+        f = TrackEKF(motion, x, P, 0.0)
+        f.update_weighted(hyp.model, np.array([m.z for m in ms]), w.beta[i], w.miss[i])
+        np.testing.assert_allclose(f.x, ref.x[i], rtol=0, atol=1e-9 * np.abs(ref.x[i]).max())
+        np.testing.assert_allclose(f.P, ref.P[i], rtol=1e-9, atol=1e-9 * np.abs(ref.P[i]).max())
+    assert w.used == frozenset(int(j) for j in np.flatnonzero(ref.beta[:, 1:].sum(axis=0) >= 0.5))
+
+
+def test_existence_logic_confirms_and_deletes_by_its_thresholds():
+    rule = ExistenceRule(p_survive=0.9, existence_birth=0.2, existence_confirm=0.8, existence_delete=0.05)
+    logic = ExistenceLogic(rule)
+    assert (logic.status, logic.existence) == (TENTATIVE, 0.2)
+    logic.survive(1.0)
+    assert logic.existence == 0.2  # the first frame sets the time only
+    logic.survive(3.0)
+    assert logic.existence == pytest.approx(0.2 * 0.9**2)
+    logic.existence = 0.79
+    assert logic.record(True) == TENTATIVE
+    logic.existence = 0.8
+    assert logic.record(False) == CONFIRMED  # the existence decides, not the hit
+    logic.existence = 0.3
+    assert logic.record(False) == CONFIRMED
+    logic.existence = 0.049
+    assert logic.record(True) == DELETED
+    with pytest.raises(ValueError):
+        logic.record(True)
+    far = ExistenceLogic(rule, max_pos_std=100.0, existence=0.99)
+    assert far.record(True, np.eye(3) * 100.0**2 / 3 * 1.01) == DELETED
+
+
+def test_jipda_keys_are_checked():
+    with pytest.raises(ValueError, match="existence_delete < existence_birth"):
+        make_method("SS", {"association": "jipda", "existence_birth": 0.95})
+    with pytest.raises(ValueError, match="'p_detect' must lie in"):
+        make_method("SS", {"association": "jipda", "p_detect": 0.0})
+    with pytest.raises(ValueError, match="p_survive"):
+        make_method("SS", {"association": "jipda", "p_survive": 1.5})
+    cfg = {"association": "jipda"}
+    with pytest.raises(ValueError, match="cannot use"):
+        spec("DDHNV").split.node("radar", cfg)  # its nodes send plots for the centre's update
+    with pytest.raises(ValueError, match="cannot use"):
+        make_method("EKF", cfg)  # the bearings-only trackers take an assignment
+    assert spec("HNV").split.node("radar", cfg).existence == {}
+
+
+@pytest.mark.parametrize("method", ["SS", "HNV"])
+def test_three_crossing_aircraft_in_clutter_with_jipda(crossing, method):
+    """The crossing scenario (A, B, C cross in 30 s; 5 + 3 false alarms a scan, P_D 0.9)
+    with ``association = "jipda"``, runs 0–2: no false track, each target held ≥ 85 % of
+    the steps; with SS all three held at the end. (HNV lost A in its last steps in runs 0
+    and 2, which its GNN does not; measured, not understood.) Every estimate carries the
+    existence of its track, confirmed (≥ 0.9) in the centralised method; HNV's local
+    tracks carry theirs, its centre's M-of-N tracks none."""
+    for run in range(3):
+        s = score_tracks_run(crossing, method, run, c=1000.0, overrides={"association": "jipda"})
+        assert s.false_tracks == 0 and s.held >= 0.85, s.summary()
+        last = s.assignments[-1]
+        if method == "SS":
+            assert set(last) == {"A", "B", "C"} and len(set(last.values())) == 3, s.summary()
+    out = run_method(crossing, method, {"association": "jipda"}, 0)
+    local = [e for e in out if e.node != "centre"]
+    assert out and all(e.existence is not None and 0.0 < e.existence <= 1.0 for e in (local or out))
+    if method == "SS":
+        first = {}
+        for e in out:
+            first.setdefault(e.track, e.existence)
+        assert min(first.values()) >= 0.9  # a track is published from its confirmation on
+    else:
+        assert local and all(e.existence is None for e in out if e.node == "centre")  # the centre's: M-of-N
