@@ -19,10 +19,10 @@ Down (centre → node): :class:`Init` (start local track ``track`` from the esti
 centre's update with this node's measurement; an IMM centre its per-model states),
 :class:`DropTrack` (delete local track ``track``).
 
-A *node* covers a set of sensors, and its id is its own: a sensor's local tracker is
-:func:`sensor_node` (``trk-<sensor>``), a centre is a node of a higher centre under its
-fuser id. What the fusion rules read of a report: :mod:`fusion.track_fusion`; each type on
-the wire: :mod:`schemas.links`; the protocol: docs/network.md.
+A message names its *node*, not a sensor: a measurement it carries names its own sensor,
+and nothing here ties the two (today each node runs beside one sensor and is named after
+it). What the fusion rules read of a report: :mod:`fusion.track_fusion`; each type on the
+wire: :mod:`schemas.links`; the protocol: docs/network.md.
 """
 
 from __future__ import annotations
@@ -32,14 +32,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from .types import Estimate, Measurement
-
-NODE_PREFIX = "trk-"
-
-
-def sensor_node(sensor: str) -> str:
-    """The id of the node beside one sensor (its local tracker's process id)."""
-    return NODE_PREFIX + sensor
-
 
 @dataclass(frozen=True, eq=False)
 class Gaussian:
