@@ -36,6 +36,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -552,6 +553,7 @@ class MultiTrackCentre(GroupedCentre):
         self._mapped: dict[tuple[str, str], _Fused] = {}  # (node, local id) -> fused track
         self._local_ids: dict[str, TrackIds] = {}  # node -> the names of the local tracks it is sent
         self._kinds: dict[str, str] = {}  # node -> its sensor's measurement kind
+        self._node_of: dict[str, str] = {}  # sensor -> the node that sent its requests
         self._t = -math.inf  # this frame's time
         self._predicted: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # birth -> prediction, this frame
 
@@ -571,6 +573,7 @@ class MultiTrackCentre(GroupedCentre):
                 self._forget(u.node, u.track)
             elif isinstance(u, (InitRequest, PredictionReport)):
                 self._kinds[u.node] = u.measurement.kind
+                self._node_of[u.measurement.sensor] = u.node
         return [dataclasses.replace(f.last, track=f.id) for f in self.tracker.frame(frame)]
 
     # -- hypothesiser ----------------------------------------------------------------------
@@ -663,7 +666,7 @@ class MultiTrackCentre(GroupedCentre):
         fuser = TrackFuser(self.config.fusion_rule, self.motion, self.config.ci_criterion, self.name, "")
         fuser.initialise(x, P, frame.t)
         f = _Fused(fuser, Estimate(frame.t, x, P, self.name, "centre"))
-        for node in sorted({m.sensor for m in (*first, *more)}):
+        for node in sorted({self._node_of[m.sensor] for m in (*first, *more)}):
             self._join(node, f)
         return f
 
@@ -735,7 +738,7 @@ class Split:
     topology is the method's registry record's (:mod:`fusion.methods`)."""
 
     name: str
-    node: object  # (sensor, config) -> LocalNode
+    node: object  # (node id, config) -> LocalNode
     centre: object  # (config) -> Centre
 
 
@@ -763,16 +766,18 @@ class NetworkMethod:
     """A split method run in one process: the nodes and the centre wired back to back,
     with exactly the message semantics of the distributed run.
 
-    Implements the streaming method interface; emits every local report (``node`` =
-    sensor) as it goes up, and the centre's estimates (``node = "centre"``).
+    Implements the streaming method interface; emits every local report as it goes up,
+    and the centre's estimates (``node = "centre"``). A sensor's measurements go to the
+    node ``node_of(sensor)`` (default: a node per sensor, named after it).
     """
 
-    def __init__(self, split: Split, config: dict | None):
+    def __init__(self, split: Split, config: dict | None, node_of: Callable[[str], str] | None = None):
         self.name = split.name
         self._split = split
         self._config = dict(config or {})
+        self._node_of = node_of or (lambda sensor: sensor)
         self.centre = self._split.centre(self._config)
-        self.nodes: dict[str, LocalNode] = {}
+        self.nodes: dict[str, LocalNode] = {}  # node id -> node
         self._out: list[Estimate] = []
 
     @property
@@ -780,9 +785,10 @@ class NetworkMethod:
         return dict(self._config)
 
     def _node(self, sensor: str) -> LocalNode:
-        node = self.nodes.get(sensor)
+        name = self._node_of(sensor)
+        node = self.nodes.get(name)
         if node is None:
-            node = self.nodes[sensor] = self._split.node(sensor, self._config)
+            node = self.nodes[name] = self._split.node(name, self._config)
         return node
 
     def _pump(self) -> bool:

@@ -17,6 +17,7 @@ from fusion.patent import TrackerConfig
 from fusion.topology import SCHEMES
 from schemas import decode
 from schemas.links import downlink, encode_downlink, encode_uplink, uplink
+from services.evaluation import merged_measurements
 from sim3d import ANGLE, RADAR2D, simulate
 
 
@@ -186,3 +187,26 @@ def test_link_messages_refuse_what_the_wire_cannot_say():
     with pytest.raises(ValueError, match="no NIS"):
         encode_uplink(PredictionReport(1.0, "angle", 1, dataclasses.replace(plain, nis=1.0, nis_dof=2),
                                        dataclasses.replace(m, t=1.0)), "trk-angle", 1)
+
+
+@pytest.mark.parametrize("name", ["PHHNV", "DDHNV"])
+def test_a_node_is_named_apart_from_its_sensor(crossing, name):
+    """Many targets, with every sensor's node named ``trk-<sensor>`` instead of after
+    the sensor: the centre sends its inits, feedback and drops to the node that sent the
+    requests (not to a measurement's sensor), and every estimate is the same bit for bit,
+    but for the local reports' ``node``."""
+    ms = [m for m in merged_measurements(crossing, 0) if m.t <= 25.0]
+    same = NetworkMethod(split(name), dict(crossing.tracker))
+    apart = NetworkMethod(split(name), dict(crossing.tracker), node_of=lambda sensor: "trk-" + sensor)
+    runs = []
+    for method in (same, apart):
+        out = []
+        for m in ms:
+            out += method.process(m)
+        runs.append(out + method.finish())
+    assert sorted(apart.nodes) == ["trk-" + s for s in sorted(same.nodes)]
+    a, b = runs
+    assert len(a) == len(b) and sum(e.node == "centre" for e in a) > 20
+    for e, g in zip(a, b):
+        assert g.node == (e.node if e.node == "centre" else "trk-" + e.node)
+        _same(dataclasses.replace(g, node=e.node), e)
