@@ -20,8 +20,10 @@ from scipy.stats import chi2
 
 import services.recording.recorder as recorder_mod
 import services.scoring as scoring
+from fusion.links import Drop, DropTrack
 from fusion.types import Measurement
 from schemas import KeySpace, decode, encode, encode_estimate
+from schemas.links import encode_downlink, encode_uplink
 from sensors_sim import load_scenario
 from services.recording import draw
 from services.node import ZenohOptions
@@ -485,6 +487,30 @@ def test_many_target_tracks_have_entities_by_id_and_are_cleared_once_gone(tmp_pa
         want = expected_clear[(node, track)]
         assert clears == ([want] if want is not None else []), (node, track, clears, want)
         assert all(r["t"] <= clears[0] for r in drawn) if clears else True
+
+
+@pytest.mark.parametrize("by", ["node", "centre"])
+def test_a_dropped_local_track_is_cleared_at_the_drop(tmp_path, by):
+    """A local track the node says it deleted (``drop`` on ``local/<node>``) or the centre
+    tells it to delete (``drop_track`` on ``feedback/<node>``) is cleared at the drop's
+    time, not drawn as a report or as feedback; the node's other track stays."""
+    x, P = [6000.0, 8000.0, 2000.0, 100.0, 0.0, 0.0], np.eye(6)
+    s = Session(tmp_path)
+    for k, t in enumerate((1.0, 2.0)):
+        for j, track in enumerate(("L1", "L2")):
+            s.put(KEYS.local("trk-radar2d"), uplink_msg(t, x, P, "HNV", "radar2d", track, nis=0.5, dof=2,
+                                                        seq=2 * k + j + 1))
+    if by == "node":
+        s.put(KEYS.local("trk-radar2d"), encode_uplink(Drop(3.0, "radar2d", 5, "L1"), "trk-radar2d", 5))
+    else:
+        s.put(KEYS.feedback("trk-radar2d"), encode_downlink(DropTrack("radar2d", 3.0, "L1"), "fuser", 1))
+    assert s.reject.total == 0
+    rows = s.close()
+    for track, clears in (("L1", [3.0]), ("L2", [])):
+        rs = rows[_track_entity("radar2d", track)]
+        assert [r["t"] for r in rs if "Points3D:positions" in r] == [1.0, 2.0]
+        assert [r["t"] for r in rs if r.get("Clear:is_recursive") is not None] == clears, track
+    assert not any(p.startswith("/world/feedback/") for p in rows)
 
 
 @pytest.mark.parametrize("truth_first", [True, False])
