@@ -42,6 +42,7 @@ import numpy as np
 from scipy.linalg import expm
 
 from . import kalman
+from .links import ModelTerms
 from .pda import WeightedUpdate, check_weights
 from .motion import ConstantAcceleration, ConstantTurn, CoordinatedTurn, KinematicModel, PaddedConstantVelocity
 from .ekf import motion_predict
@@ -173,11 +174,22 @@ class TrackIMM:
         self.mu = np.array(models.mu0 if mu is None else mu, dtype=float)
         self.x, self.P, self.t = x, np.asarray(P, dtype=float), float(t)
         self._prior_P = self._post_P = None
-        self.last_update: dict | None = None  # the per-model terms of the last update (:meth:`update`)
+        self.last_update: dict | None = None  # the per-model terms of an update at this time (:meth:`update`)
 
     def model_states(self) -> tuple[np.ndarray, np.ndarray]:
         """Every model's ``(xⱼ, Pⱼ)`` at the filter's time, stacked ``(m, n)``, ``(m, n, n)``."""
         return np.array([f.x for f in self.filters]), np.array([f.P for f in self.filters])
+
+    def model_terms(self) -> ModelTerms:
+        """What a local report of this filter carries for per-model fusion
+        (:class:`fusion.links.ModelTerms`): every model's estimate and, after an
+        :meth:`update` at this time, the prediction it started from and its
+        log-likelihood ``log Λⱼ``; after a prediction or a restart, the estimate and 0."""
+        xs, Ps = self.model_states()
+        last = self.last_update
+        if last is None:
+            return ModelTerms(xs, Ps, xs, Ps, np.zeros(len(xs)))
+        return ModelTerms(xs, Ps, last["prior_xs"], last["prior_Ps"], last["loglik"])
 
     def set_model_states(self, xs, Ps, mu, t: float) -> None:
         """Restart from per-model states and mode probabilities at ``t`` (a centre's
@@ -193,6 +205,7 @@ class TrackIMM:
         self.mu = mu
         self.x, self.P = kalman.gaussian_mixture(mu, xs, Ps)
         self.t = float(t)
+        self.last_update = None
 
     def set_state(self, x: np.ndarray, P: np.ndarray, t: float) -> None:
         """Restart every model from ``(x, P)`` at ``t`` (a fed-back prior), keeping ``mu``."""
@@ -201,6 +214,7 @@ class TrackIMM:
         for f in self.filters:
             f.x, f.P, f.t = x, P, float(t)
         self.x, self.P, self.t = x, P, float(t)
+        self.last_update = None
 
     def _mixed_predictions(self, t: float):
         return mixed_predictions(self.models, self.mu, np.array([f.x for f in self.filters]),
@@ -226,6 +240,7 @@ class TrackIMM:
         self.mu = cbar
         self.x, self.P = kalman.gaussian_mixture(cbar, xs, Ps)
         self.t = float(t)
+        self.last_update = None
 
     def update(self, model, z: np.ndarray) -> kalman.UpdateResult:
         """Update every model with ``z`` of ``model`` at the filter's time; returns the

@@ -6,10 +6,9 @@ and outputs over Zenoh) and inside :class:`NetworkMethod`, the in-process compos
 the Monte Carlo evaluation uses — so a distributed run and the in-process evaluation
 compute the very same thing.
 
-Messages: an :class:`Uplink` (node → centre) carries a local estimate, a raw
-measurement (an initialisation request, or DDHNV's measurement for the centre's
-update), or both; a :class:`Downlink` (centre → node) an estimate the node takes as its
-next prior (``init``, or PHHNV/DDHNV feedback).
+Messages: one frozen class each (:mod:`fusion.links`). Up: an initialisation request,
+a local report (an update; DDHNV's prediction with its measurement), a DF station's
+smoothed bearing, a deletion notice; down: an init, feedback, a deletion order.
 
 =========  ===========  ==============================  ================================
 method     topology     local node                      centre
@@ -37,6 +36,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -50,53 +50,13 @@ from .tracking.table import DELETED, Track, TrackIds, TrackTable, scores_hit
 from .init3d import initial_state
 from .grouping import TimeGrouper
 from .guards import epoch_nis, gap_too_long, positive_definite
+from .links import (Downlink, Drop, DropTrack, Feedback, Gaussian, Init, InitRequest, LocalReport, ModelStates,
+                    ModelTerms, PredictionReport, Report, Uplink)
 from .patent import KINDS_3D, LocalTracker, TrackerConfig
 from .topology import Scheme
 from .track_fusion import TrackFuser
 from .types import Estimate, Measurement
 
-
-
-@dataclass(frozen=True)
-class Uplink:
-    """One item a local node sends to the centre (module docstring)."""
-
-    t: float
-    node: str
-    seq: int
-    estimate: Estimate | None = None
-    measurement: Measurement | None = None
-    drop: bool = False  # many targets: the node deleted its local track ``estimate.track``
-
-    @property
-    def sensor(self) -> str:  # the scan grouper's notion of "source"
-        return self.node
-
-    @property
-    def order_key(self) -> tuple:
-        return (self.t, self.node, self.seq)
-
-    @property
-    def init_request(self) -> bool:
-        return self.estimate is None and self.measurement is not None
-
-    @property
-    def report(self) -> bool:
-        """A local track's estimate (not a request, not a deletion notice)."""
-        return self.estimate is not None and not self.drop
-
-
-@dataclass(frozen=True)
-class Downlink:
-    """A prior sent down to one node; ``estimate.extra`` may carry the centre's own
-    update with that node's measurement (``sensor_x``, ``sensor_P``; DDHNV). With many
-    targets, ``init`` starts the local track ``estimate.track`` (named by the centre),
-    and ``drop`` tells the node to delete its local track ``estimate.track``."""
-
-    node: str
-    estimate: Estimate
-    init: bool
-    drop: bool = False
 
 
 def _before(t: float) -> float:
@@ -127,7 +87,7 @@ class LocalNode:
         self.pending.append(m)
 
     def receive(self, d: Downlink) -> None:
-        raise ValueError(f"{self.node}: this node takes no downlink")
+        raise ValueError(f"{self.node}: this node takes no {type(d).__name__}")
 
     def set_horizon(self, w: float) -> None:
         self.horizon = max(self.horizon, float(w))
@@ -165,9 +125,10 @@ class LocalNode:
         self.horizon = -math.inf
         return False
 
-    def _uplink(self, t: float, estimate=None, measurement=None, drop: bool = False) -> Uplink:
+    def _next_seq(self) -> int:
+        """The number of the node's next message up."""
         self._seq += 1
-        return Uplink(float(t), self.node, self._seq, estimate, measurement, drop)
+        return self._seq
 
     def _blocked(self, m: Measurement) -> str | None:
         return None
@@ -202,21 +163,23 @@ class TrackNode(LocalNode):
         self._requested = False
 
     def receive(self, d: Downlink) -> None:
+        if isinstance(d, DropTrack) or (isinstance(d, Feedback) and not self.scheme.feeds_back):
+            return
         e = d.estimate
-        if d.drop:  # the centre dropped the track (fusion.guards), unless this node has already
+        if isinstance(d, DropTrack):  # the centre dropped the track (fusion.guards), unless this node has already
             if self.tracker.initialised:
                 self._start_afresh()
             return
-        if not d.init and not self.tracker.initialised:
-            return  # feedback for the track this node dropped (fusion.guards); it waits for an init
-        if d.init or self.scheme.feeds_back:
-            if self.tracker.initialised and e.t < self.tracker.t:
-                return  # older than where this node already is (it ran alone meanwhile)
-            if d.init:
-                self.tracker.initialise(e.x, e.P, e.t)
-            else:
-                self.tracker.accept_prior(e.x, e.P, e.t, e.extra)
-            self._requested = False
+        if isinstance(d, Feedback) and not (self.scheme.feeds_back and self.tracker.initialised):
+            return  # no feedback scheme, or feedback for the track this node dropped (fusion.guards): it waits for an init
+        e = d.estimate
+        if self.tracker.initialised and e.t < self.tracker.t:
+            return  # older than where this node already is (it ran alone meanwhile)
+        if isinstance(d, Init):
+            self.tracker.initialise(e.x, e.P, e.t)
+        else:
+            self.tracker.accept_prior(e.x, e.P, e.t, d.models)
+        self._requested = False
 
     def _blocked(self, m):
         if not self.tracker.initialised:
@@ -236,14 +199,14 @@ class TrackNode(LocalNode):
                 self.tracker.initialise(x, P, m.t)
                 return []
             self._requested = True
-            return [self._uplink(m.t, measurement=m)]
+            return [InitRequest(m.t, self.node, self._next_seq(), m)]
         if self.scheme.predicts:
-            return [self._uplink(m.t, self.tracker.predict(m.t), m)]
-        e = self.tracker.update(m)
-        if not all(map(positive_definite, _covariances(e))):
+            return [self.tracker.predict(m, self._next_seq())]
+        r = self.tracker.update(m, self._next_seq())
+        if not all(map(positive_definite, _covariances(r.estimate, r.models))):
             self._start_afresh()
             return self._process(m, alone)
-        return [self._uplink(m.t, e)]
+        return [r]
 
 
 # Centres -----------------------------------------------------------------------------
@@ -259,8 +222,8 @@ class Centre:
         out, self._down = self._down, []
         return out
 
-    def _send(self, node: str, e: Estimate, init: bool, drop: bool = False) -> None:
-        self._down.append(Downlink(node, e, init, drop))
+    def _send(self, d: Downlink) -> None:
+        self._down.append(d)
 
     @property
     def horizon(self) -> float:
@@ -322,9 +285,9 @@ class TrackCentre(GroupedCentre):
         t = scan[0].t
         if self.fuser.initialised and gap_too_long(t - self.fuser.t, self.config.max_gap_s):
             self._start_afresh(t)
-        requests = [u for u in scan if u.init_request]
+        requests = [u for u in scan if isinstance(u, InitRequest)]
         # A report of a node that is no member was sent before it heard that the track was dropped.
-        reports = [u for u in scan if not u.init_request and u.node in self.nodes]
+        reports = [u for u in scan if not isinstance(u, InitRequest) and u.node in self.nodes]
         out = self._fuse(t, reports) if reports else []
         if not requests:
             return out
@@ -341,11 +304,10 @@ class TrackCentre(GroupedCentre):
 
     def _start_afresh(self, t: float) -> None:
         """Drop the fused track (:mod:`fusion.guards`): a new fuser with no member nodes;
-        each node is told to drop its track (a ``drop`` downlink, which carries no state)
-        and asks for an initial state with its next measurement."""
-        n = self.motion.n_x
+        each node is told to drop its track (:class:`~fusion.links.DropTrack`) and asks
+        for an initial state with its next measurement."""
         for node in sorted(self.nodes):
-            self._send(node, Estimate(t, np.zeros(n), np.eye(n), self.name, "centre", self.track), False, drop=True)
+            self._send(DropTrack(node, t, self.track))
         self.fuser = TrackFuser(self.config.fusion_rule, self.motion, self.config.ci_criterion, self.name, self.track)
         self.nodes = set()
         self.restarts += 1
@@ -353,77 +315,76 @@ class TrackCentre(GroupedCentre):
     def _join(self, node: str, e: Estimate) -> None:
         self.nodes.add(node)
         self.fuser.add_node(node)
-        self._send(node, e, init=True)
+        self._send(Init(node, e))
 
-    def _fuse(self, t: float, reports: list[Uplink]) -> list[Estimate]:
+    def _fuse(self, t: float, reports: list[Report]) -> list[Estimate]:
         """The scan's fused estimate; a scan the rules cannot fuse (a covariance that is
         not positive definite), or whose fused covariance is not, drops the track."""
         try:
             centre, per_node = fuse_reports(self.fuser, self.scheme, t, reports, self.track, self._new_filter)
         except ValueError:  # (np.linalg.LinAlgError is one)
             centre = None
-        if centre is None or not all(map(positive_definite, _covariances(centre, self.fuser.model_extra()))):
+        if centre is None or not all(map(positive_definite, _covariances(centre, self.fuser.model_states()))):
             self._start_afresh(t)
             return []
         if self.scheme.feeds_back:
             for node in sorted(self.nodes):
-                self._send(node, _feedback(centre, per_node.get(node), self.track, self.fuser.model_extra()), False)
+                self._send(_feedback(node, centre, per_node.get(node), self.track, self.fuser.model_states()))
         return [centre]
 
 
-def _covariances(e: Estimate, models: dict | None = None) -> list[np.ndarray]:
-    """The covariances an estimate (and an IMM's per-model terms) carries: its ``P`` and
-    each model's ``imm_Ps`` block on the coordinates the model has (a model of fewer
+def _covariances(e: Estimate, models: ModelTerms | ModelStates | None = None) -> list[np.ndarray]:
+    """The covariances an estimate (and a filter's per-model terms) carries: its ``P`` and
+    each model's block of ``models.Ps`` on the coordinates the model has (a model of fewer
     states, CV among CA ones, has none on the others)."""
     out = [e.P]
-    for extra in (e.extra, models or {}):
-        if "imm_Ps" in extra:
-            Ps = np.asarray(extra["imm_Ps"], dtype=float)
-            n = Ps.shape[1]
-            for P in (Ps[k:k + n] for k in range(0, Ps.shape[0], n)):
-                has = np.diagonal(P) != 0.0
-                out.append(P[np.ix_(has, has)])
+    for P in () if models is None else np.asarray(models.Ps, dtype=float):
+        has = np.diagonal(P) != 0.0
+        out.append(P[np.ix_(has, has)])
     return out
 
 
-def fuse_reports(fuser: TrackFuser, scheme: Scheme, t: float, reports: list[Uplink], track: str, new_filter):
+def fuse_reports(fuser: TrackFuser, scheme: Scheme, t: float, reports: list[Report], track: str, new_filter):
     """One fusion at the centre of the local reports of one track (all at ``t``):
     ``(centre estimate, DDHNV's updates per node)``. A scheme whose nodes predict: stage 1 fuses the
     local predictions, the centre updates that with each node's measurement (a filter
     from ``new_filter``, started from stage 1: for an IMM centre fusing per model, from
     its per-model estimates and mode probabilities), stage 2 fuses those updates (module
     docstring)."""
-    local = [_at(u.estimate, t) for u in reports]
-    per_node: dict[str, Estimate] = {}
+    local = [_at(u, t) for u in reports]
+    per_node: dict[str, LocalReport] = {}
     if scheme.predicts:
         stage1 = fuser.fuse(t, local)
         updates = []
         for u in reports:  # the centre's updates of the fused prediction
-            c = LocalTracker(u.measurement.sensor, fuser.motion, fuser.method, track, new_filter)
-            c.accept_prior(stage1.x, stage1.P, t, fuser.model_extra())
-            per_node[u.node] = c.update(u.measurement, t)
+            c = LocalTracker(u.node, fuser.motion, fuser.method, track, new_filter)
+            c.accept_prior(stage1.x, stage1.P, t, fuser.model_states())
+            per_node[u.node] = c.update(u.measurement, u.seq, t)
             updates.append(per_node[u.node])
         fused = fuser.fuse(t, updates)
-        nis_from = updates
+        nis_from = [u.estimate for u in updates]
     else:
         fused = fuser.fuse(t, local)
-        nis_from = [e for e in local if e.nis is not None]
+        nis_from = [u.estimate for u in local if u.estimate.nis is not None]
     nis, dof = epoch_nis((e.nis, e.nis_dof) for e in nis_from)
     extra = {"omega": fused.extra["omega"]} if "omega" in fused.extra else {}  # CI weights
     return Estimate(t, fused.x, fused.P, fuser.method, "centre", track, nis, dof, extra), per_node
 
 
-def _feedback(centre: Estimate, update: Estimate | None, track: str, models: dict | None = None) -> Estimate:
-    """The fused estimate sent down as a node's next prior (with the centre's update of
-    that node's measurement, DDHNV; with an IMM centre's per-model estimates, ``models``)."""
-    extra = {"sensor_x": update.x, "sensor_P": update.P} if update else {}
-    extra.update(models or {})
-    return Estimate(centre.t, centre.x, centre.P, centre.method, "centre", track, extra=extra)
+def _feedback(node: str, centre: Estimate, update: LocalReport | None, track: str,
+              models: ModelStates | None) -> Feedback:
+    """The fused estimate sent down as the next prior of ``node``'s local track ``track``
+    (with the centre's update of that node's measurement, DDHNV; with an IMM centre's
+    per-model states, ``models``)."""
+    return Feedback(node, Estimate(centre.t, centre.x, centre.P, centre.method, "centre", track),
+                    None if update is None else Gaussian(update.estimate.x, update.estimate.P), models)
 
 
-def _at(e: Estimate, t: float) -> Estimate:
-    """A local estimate re-stamped to the scan time (offsets within pair_tol neglected)."""
-    return e if e.t == t else Estimate(t, e.x, e.P, e.method, e.node, e.track, e.nis, e.nis_dof, e.extra)
+def _at(u: Report, t: float) -> Report:
+    """A local report re-stamped to the scan time (offsets within pair_tol neglected)."""
+    if u.t == t:
+        return u
+    return dataclasses.replace(u, t=t, estimate=dataclasses.replace(u.estimate, t=t))
 
 
 # Many targets --------------------------------------------------------------------------
@@ -497,17 +458,18 @@ class MultiTrackNode(FramedNode):
         return True
 
     def receive(self, d: Downlink) -> None:
+        if isinstance(d, DropTrack):
+            self.tracks.pop(d.track, None)
+            self.misses.pop(d.track, None)
+            self.existence.pop(d.track, None)
+            return
         e = d.estimate
-        if d.drop:
-            self.tracks.pop(e.track, None)
-            self.misses.pop(e.track, None)
-            self.existence.pop(e.track, None)
-        elif d.init:  # a new local track on one of the centre's tracks, named by the centre
+        if isinstance(d, Init):  # a new local track on one of the centre's tracks, named by the centre
             self._start(e.track, e.x, e.P, e.t)
         elif self.scheme.feeds_back and e.track in self.tracks:
             tr = self.tracks[e.track]
             if e.t >= tr.t:  # not older than where the track already is
-                tr.accept_prior(e.x, e.P, e.t, e.extra)
+                tr.accept_prior(e.x, e.P, e.t, d.models)
 
     def _blocked(self, frame):
         # Every scheme waits for the centre's answers to the earlier frames (inits, drops,
@@ -533,11 +495,11 @@ class MultiTrackNode(FramedNode):
             lid, tr = ids[r], self.tracks[ids[r]]
             hit.add(lid)
             if association.existence is not None:  # JIPDA: the weighted update with the frame's plots
-                e = tr.update_weighted(hyp.model, np.array([frame[c].z for c in cols]), beta, miss, t)
-                out.append(self._uplink(t, dataclasses.replace(e, existence=self.existence[lid].existence)))
+                out.append(tr.update_weighted(hyp.model, np.array([frame[c].z for c in cols]), beta, miss, t,
+                                              self._next_seq(), self.existence[lid].existence))
                 continue
             m = frame[cols[0]]
-            out.append(self._uplink(m.t, tr.predict(m.t), m) if self.scheme.predicts else self._uplink(m.t, tr.update(m)))
+            out.append(tr.predict(m, self._next_seq()) if self.scheme.predicts else tr.update(m, self._next_seq()))
         taken = association.used
         for lid in ids:
             self.misses[lid] = 0 if lid in hit else self.misses[lid] + 1
@@ -551,7 +513,7 @@ class MultiTrackNode(FramedNode):
                 del self.tracks[lid], self.misses[lid]
                 self.existence.pop(lid, None)
                 # Tell the centre, which would otherwise keep it as its fused track's member.
-                out.append(self._uplink(t, Estimate(t, tr.x, tr.P, self.method, self.node, lid), drop=True))
+                out.append(Drop(t, self.node, self._next_seq(), lid))
         for c, m in enumerate(frame):
             if c in taken:
                 continue
@@ -559,7 +521,7 @@ class MultiTrackNode(FramedNode):
                 self._start(self._alone_ids.next(), *initial_state([m], self.motion.n_x, self.config.priors()), m.t,
                             confirmed=False)
             else:
-                out.append(self._uplink(m.t, measurement=m))
+                out.append(InitRequest(m.t, self.node, self._next_seq(), m))
         return out
 
     def _start(self, lid: str, x: np.ndarray, P: np.ndarray, t: float, confirmed: bool = True) -> None:
@@ -622,6 +584,7 @@ class MultiTrackCentre(GroupedCentre):
         self._mapped: dict[tuple[str, str], _Fused] = {}  # (node, local id) -> fused track
         self._local_ids: dict[str, TrackIds] = {}  # node -> the names of the local tracks it is sent
         self._kinds: dict[str, str] = {}  # node -> its sensor's measurement kind
+        self._node_of: dict[str, str] = {}  # sensor -> the node that sent its requests
         self._t = -math.inf  # this frame's time
         self._predicted: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # birth -> prediction, this frame
 
@@ -637,10 +600,11 @@ class MultiTrackCentre(GroupedCentre):
     # -- one frame -------------------------------------------------------------------------
     def _group(self, frame: list[Uplink]) -> list[Estimate]:
         for u in frame:
-            if u.drop:  # the node deleted a local track: it is no member any more
-                self._forget(u.node, u.estimate.track)
-            if u.measurement is not None:
+            if isinstance(u, Drop):  # the node deleted a local track: it is no member any more
+                self._forget(u.node, u.track)
+            elif isinstance(u, (InitRequest, PredictionReport)):
                 self._kinds[u.node] = u.measurement.kind
+                self._node_of[u.measurement.sensor] = u.node
         return [dataclasses.replace(f.last, track=f.id) for f in self.tracker.frame(frame)]
 
     # -- hypothesiser ----------------------------------------------------------------------
@@ -654,8 +618,8 @@ class MultiTrackCentre(GroupedCentre):
     @staticmethod
     def scans(frame: Frame) -> list[list[Uplink]]:
         """Each node's local-track reports, then each node's initialisation requests."""
-        return [*_by_node(u for u in frame.plots if u.report).values(),
-                *_by_node(u for u in frame.plots if u.init_request).values()]
+        return [*_by_node(u for u in frame.plots if isinstance(u, (LocalReport, PredictionReport))).values(),
+                *_by_node(u for u in frame.plots if isinstance(u, InitRequest)).values()]
 
     def hypothesise(self, states, tracks: list[_Fused], scan: list[Uplink]) -> Hypotheses:
         """Requests: their plots against the fused tracks (χ²). Reports: each local
@@ -663,19 +627,20 @@ class MultiTrackCentre(GroupedCentre):
         track the centre knows was started by its init, so it is mapped from birth; it
         keeps its fused track while the pair stays in the track-to-track χ² gate (of
         the rank of their difference's covariance)."""
-        if scan[0].init_request:
+        if isinstance(scan[0], InitRequest):
             return self._plots.hypothesise(states, tracks, [u.measurement for u in scan])
         t = self._t
         row = {f.birth: r for r, f in enumerate(tracks)}
         d2 = np.full((len(tracks), len(scan)), np.inf)
         gate = np.ones(len(tracks))  # rank 0 (identical tracks): d² = 0, inside a gate of 1
         for c, u in enumerate(scan):
-            f = self._mapped.get((u.node, u.estimate.track))
+            f = self._mapped.get((u.node, u.track))
             if f is None or f.birth not in row:
                 continue
             r = row[f.birth]
-            e = _at(u.estimate, t)
-            d2[r, c], rank = track_distance2(e.x, e.P, *states[r], f.fuser.cross_covariance(t, e), _COMPARED)
+            e = _at(u, t)
+            d2[r, c], rank = track_distance2(e.estimate.x, e.estimate.P, *states[r], f.fuser.cross_covariance(t, e),
+                                             _COMPARED)
             if rank:
                 gate[r] = gate_threshold(rank, self.association.gate_prob)
         return Hypotheses(scan, range(len(tracks)), d2, gate, np.array([f.confirmed for f in tracks], dtype=bool))
@@ -689,12 +654,12 @@ class MultiTrackCentre(GroupedCentre):
         took: a local id the centre does not know (its fused track was deleted, or the
         node started it alone) is dropped; a mapped local track that left its gate is
         dropped and its node is sent the fused track again."""
-        if not isinstance(hyp.plots[0], Uplink):  # the requests' plots
+        if isinstance(hyp.plots[0], Measurement):  # the requests' plots
             return [hyp.plots[c] for c in columns]
         for c in columns:
             u = hyp.plots[c]
-            f = self._mapped.get((u.node, u.estimate.track))
-            self._drop(u.node, u.estimate.track, u.estimate)
+            f = self._mapped.get((u.node, u.track))
+            self._drop(u.node, u.track, u.t)
             if f is not None:
                 f.joins.add(u.node)
         return []
@@ -707,14 +672,14 @@ class MultiTrackCentre(GroupedCentre):
         requests)."""
         t = frame.t
         ups = [u for tk in taken for u in tk.plots]
-        reports = [u for u in ups if u.report]
-        requests = [u for u in ups if u.init_request]
+        reports = [u for u in ups if isinstance(u, (LocalReport, PredictionReport))]
+        requests = [u for u in ups if isinstance(u, InitRequest)]
         f.joins |= {u.node for u in requests}
         if reports:
             f.last, per_node = fuse_reports(f.fuser, self.scheme, t, reports, f.key, self._new_filter)
             if self.scheme.feeds_back:
                 for node, lid in sorted(f.members.items()):
-                    self._send(node, _feedback(f.last, per_node.get(node), lid, f.fuser.model_extra()), False)
+                    self._send(_feedback(node, f.last, per_node.get(node), lid, f.fuser.model_states()))
         else:
             x, P = self._predicted[f.birth]
             f.last = Estimate(t, x, P, self.name, "centre", f.key)
@@ -732,7 +697,7 @@ class MultiTrackCentre(GroupedCentre):
         fuser = TrackFuser(self.config.fusion_rule, self.motion, self.config.ci_criterion, self.name, "")
         fuser.initialise(x, P, frame.t)
         f = _Fused(fuser, Estimate(frame.t, x, P, self.name, "centre"))
-        for node in sorted({m.sensor for m in (*first, *more)}):
+        for node in sorted({self._node_of[m.sensor] for m in (*first, *more)}):
             self._join(node, f)
         return f
 
@@ -744,7 +709,7 @@ class MultiTrackCentre(GroupedCentre):
         for f in tracks:
             if f.deleted:
                 for node, lid in sorted(f.members.items()):
-                    self._drop(node, lid, f.last)
+                    self._drop(node, lid, f.last.t)
                 continue
             for node in sorted(f.joins):
                 self._join(node, f)
@@ -763,12 +728,12 @@ class MultiTrackCentre(GroupedCentre):
         restarted node), so it is ``f``'s member from now on; it replaces the node's
         local track on ``f`` before, if any (one per node per fused track)."""
         if node in f.members:
-            self._drop(node, f.members[node], f.last)
+            self._drop(node, f.members[node], f.last.t)
         lid = self._local_ids.setdefault(node, TrackIds("L")).next()
         f.members[node] = lid
         self._mapped[(node, lid)] = f
         f.fuser.add_node(node)
-        self._send(node, Estimate(f.fuser.t, f.fuser.x, f.fuser.P, self.name, "centre", lid), True)
+        self._send(Init(node, Estimate(f.fuser.t, f.fuser.x, f.fuser.P, self.name, "centre", lid)))
 
     def _forget(self, node: str, lid: str) -> None:
         """The node's local track ``lid`` is no member of its fused track any more."""
@@ -776,19 +741,18 @@ class MultiTrackCentre(GroupedCentre):
         if f is not None and f.members.get(node) == lid:
             del f.members[node]
 
-    def _drop(self, node: str, lid: str, e: Estimate) -> None:
-        """Forget the node's local track ``lid`` and tell the node to delete it (the
-        downlink carries ``e``, whose state does not matter)."""
+    def _drop(self, node: str, lid: str, t: float) -> None:
+        """Forget the node's local track ``lid`` and tell the node to delete it (as of ``t``)."""
         self._forget(node, lid)
-        self._send(node, Estimate(e.t, e.x, e.P, self.name, "centre", lid), False, drop=True)
+        self._send(DropTrack(node, t, lid))
 
 
 _COMPARED = (0, 1, 2, 3, 4, 5)  # position, velocity: what track-to-track association compares
 
 
-def _hit(u: Uplink) -> bool:
+def _hit(u: Report) -> bool:
     """A report that used a measurement (an update, or DDHNV's prediction + measurement)."""
-    return u.measurement is not None or u.estimate.nis is not None
+    return isinstance(u, PredictionReport) or u.estimate.nis is not None
 
 
 def _by_node(ups) -> dict[str, list[Uplink]]:
@@ -805,7 +769,7 @@ class Split:
     topology is the method's registry record's (:mod:`fusion.methods`)."""
 
     name: str
-    node: object  # (sensor, config) -> LocalNode
+    node: object  # (node id, config) -> LocalNode
     centre: object  # (config) -> Centre
 
 
@@ -833,16 +797,18 @@ class NetworkMethod:
     """A split method run in one process: the nodes and the centre wired back to back,
     with exactly the message semantics of the distributed run.
 
-    Implements the streaming method interface; emits every local report (``node`` =
-    sensor) as it goes up, and the centre's estimates (``node = "centre"``).
+    Implements the streaming method interface; emits every local report as it goes up,
+    and the centre's estimates (``node = "centre"``). A sensor's measurements go to the
+    node ``node_of(sensor)`` (default: a node per sensor, named after it).
     """
 
-    def __init__(self, split: Split, config: dict | None):
+    def __init__(self, split: Split, config: dict | None, node_of: Callable[[str], str] | None = None):
         self.name = split.name
         self._split = split
         self._config = dict(config or {})
+        self._node_of = node_of or (lambda sensor: sensor)
         self.centre = self._split.centre(self._config)
-        self.nodes: dict[str, LocalNode] = {}
+        self.nodes: dict[str, LocalNode] = {}  # node id -> node
         self._out: list[Estimate] = []
 
     @property
@@ -850,9 +816,10 @@ class NetworkMethod:
         return dict(self._config)
 
     def _node(self, sensor: str) -> LocalNode:
-        node = self.nodes.get(sensor)
+        name = self._node_of(sensor)
+        node = self.nodes.get(name)
         if node is None:
-            node = self.nodes[sensor] = self._split.node(sensor, self._config)
+            node = self.nodes[name] = self._split.node(name, self._config)
         return node
 
     def _pump(self) -> bool:
@@ -868,7 +835,7 @@ class NetworkMethod:
                 node.set_horizon(self.centre.horizon)
                 for u in node.step():
                     sent = True
-                    if u.report:
+                    if isinstance(u, (LocalReport, PredictionReport)):
                         self._out.append(u.estimate)
                     self._out += self.centre.process(u)
             if not downs and not sent:
@@ -898,7 +865,7 @@ class NetworkMethod:
         out = self._settle(math.inf)
         for node in self.nodes.values():  # nothing can answer a node that still waits now
             for u in node.step(alone=True):
-                if u.report:
+                if isinstance(u, (LocalReport, PredictionReport)):
                     out.append(u.estimate)
                 out += self.centre.process(u)
         return out + self.centre.finish()

@@ -26,6 +26,7 @@ another) and emits one estimate per scan. The methods, scans, outputs and the
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from typing import Callable, Protocol, Sequence
 
@@ -38,7 +39,8 @@ from .motion import make_motion, NOISE_FORMS
 from .filters import FILTERS, Filter, NewFilter, filter_factory
 from .grouping import TimeGrouper
 from .guards import MAX_GAP_S, epoch_nis, gap_too_long, positive_definite
-from .imm import IMM_MODELS, TrackIMM, model_set
+from .imm import IMM_MODELS, model_set
+from .links import Gaussian, LocalReport, ModelStates, ModelTerms, PredictionReport
 from .measurement.kinds import KINDS, RAY, SPHERE, kinds_of, model_of
 from .measurement.models import MeasurementModel, SphericalModel, stack
 from .track_fusion import CI_CRITERIA, FUSION_RULES
@@ -350,26 +352,24 @@ class CentralisedMethod(ScanMethod):
 
 # Distributed methods: local trackers + centre fuser ------------------------------------
 class LocalTracker:
-    """The per-sensor track filter of HNV/PHHNV/DDHNV, as a local-tracker process runs it.
+    """The local track filter of HNV/PHHNV/DDHNV, as a node runs it (one per local track).
 
     * :meth:`initialise` / :meth:`accept_prior`: (re)start from an estimate sent by the
       centre (the shared initial state, or the fused estimate fed back);
-    * :meth:`update`: predict to ``t`` and update with this sensor's measurement;
-    * :meth:`predict`: predict to ``t`` without a measurement.
+    * :meth:`update`: predict to ``t`` and update with a measurement, as a
+      :class:`~fusion.links.LocalReport` (the prior, ``K·H``, the time of the centre
+      estimate it restarted from since its previous report, and the filter's per-model
+      terms if it has models: ``model_terms()``, :mod:`fusion.track_fusion`);
+    * :meth:`predict`: predict to a measurement's time, as a
+      :class:`~fusion.links.PredictionReport` carrying that measurement.
 
-    Both return the local report (an :class:`Estimate`, ``node`` = sensor id) with the
-    ``extra`` fields every fusion rule needs (:mod:`fusion.track_fusion`): ``prior_x``,
-    ``prior_P`` (the prediction the update started from), ``KH`` (``K·H``, zero for a
-    prediction), ``feedback_t`` (time of the centre estimate it was restarted from since
-    its previous report, else ``None``) and ``prediction`` (bool); an IMM's report also
-    carries its per-model terms (``imm_*``, :mod:`fusion.track_fusion`) for per-model
-    fusion. ``new_filter`` builds the filter (:data:`fusion.filters.NewFilter`; default
-    the EKF).
+    ``node`` is the id of the node that runs it (the reports' ``node``); ``new_filter``
+    builds the filter (:data:`fusion.filters.NewFilter`; default the EKF).
     """
 
-    def __init__(self, sensor: str, motion, method: str = "HNV", track: str = "T1",
+    def __init__(self, node: str, motion, method: str = "HNV", track: str = "T1",
                  new_filter: NewFilter | None = None):
-        self.sensor = sensor
+        self.node = node
         self.motion = motion
         self.method = method
         self.track = track
@@ -400,73 +400,69 @@ class LocalTracker:
         self.filter = self.new_filter(x, P, t)
         self._feedback_t = float(t)
 
-    def accept_prior(self, x: np.ndarray, P: np.ndarray, t: float, models: dict | None = None) -> None:
+    def accept_prior(self, x: np.ndarray, P: np.ndarray, t: float, models: ModelStates | None = None) -> None:
         """Feedback: the centre's estimate becomes the next prior (the filter restarts
         from it, keeping what it holds beyond ``(x, P)``, e.g. an IMM's mode probabilities).
-        ``models``: an IMM centre's per-model estimates (``imm_xs``, ``imm_Ps``, ``imm_mu``;
-        :meth:`fusion.track_fusion.TrackFuser.model_extra`), which an IMM restarts from instead."""
+        ``models``: a per-model centre's states (:meth:`fusion.track_fusion.TrackFuser.model_states`),
+        which a filter with models restarts from instead (its ``set_model_states``)."""
         if self.filter is None:
             self.initialise(x, P, t)
-        if models and "imm_xs" in models and isinstance(self.filter, TrackIMM):
-            xs = np.asarray(models["imm_xs"], dtype=float)
-            m, n = xs.shape
-            self.filter.set_model_states(xs, np.asarray(models["imm_Ps"], dtype=float).reshape(m, n, n),
-                                         models["imm_mu"], t)
+        if models is not None:
+            restart = getattr(self.filter, "set_model_states", None)
+            if restart is None:
+                raise ValueError(f"local tracker of {self.node!r}: per-model states for a filter without models")
+            restart(models.xs, models.Ps, models.mu, t)
         else:
             self.filter.set_state(x, P, t)
         self._feedback_t = float(t)
 
-    def _report(self, prior_x, prior_P, KH, nis=None, dof=None) -> Estimate:
-        extra = {
-            "prior_x": prior_x,
-            "prior_P": prior_P,
-            "KH": KH,
-            "feedback_t": self._feedback_t,
-            "prediction": nis is None,
-        }
-        self._feedback_t = None
+    def _estimate(self, nis=None, dof=None) -> Estimate:
         f = self.filter
-        if isinstance(f, TrackIMM):
-            xs, Ps = f.model_states()
-            last = f.last_update if nis is not None else None
-            m, n = xs.shape
-            extra.update({"imm_xs": xs, "imm_Ps": Ps.reshape(m * n, n),
-                          "imm_prior_xs": last["prior_xs"] if last else xs,
-                          "imm_prior_Ps": (last["prior_Ps"] if last else Ps).reshape(m * n, n),
-                          "imm_loglik": last["loglik"] if last else np.zeros(m)})
-        return Estimate(f.t, f.x, f.P, self.method, self.sensor, self.track, nis, dof, extra)
+        return Estimate(f.t, f.x, f.P, self.method, self.node, self.track, nis, dof)
+
+    def _since_feedback(self) -> tuple[float | None, ModelTerms | None]:
+        """The report's ``feedback_t`` (then forgotten: a report says it once) and the
+        filter's per-model terms, if it has models."""
+        fb, self._feedback_t = self._feedback_t, None
+        terms = getattr(self.filter, "model_terms", None)
+        return fb, terms() if terms is not None else None
 
     def _require(self):
         if self.filter is None:
-            raise ValueError(f"local tracker {self.sensor!r} has no prior yet (initialise it from the centre)")
+            raise ValueError(f"local tracker of {self.node!r} has no prior yet (initialise it from the centre)")
 
-    def predict(self, t: float) -> Estimate:
+    def predict(self, m: Measurement, seq: int) -> PredictionReport:
+        """Predict to ``m``'s time: the report of the prediction, with ``m`` (the node's
+        ``seq``-th message)."""
         self._require()
-        self.filter.predict(t)
-        return self._report(self.filter.x, self.filter.P, np.zeros((self.filter.x.size,) * 2))
+        self.filter.predict(m.t)
+        return PredictionReport(m.t, self.node, seq, self._estimate(), m, *self._since_feedback())
 
-    def update(self, m: Measurement, t: float | None = None) -> Estimate:
-        """Update with this sensor's measurement at time ``t`` (default ``m.t``; the scan time in-process)."""
+    def update(self, m: Measurement, seq: int, t: float | None = None) -> LocalReport:
+        """Update with ``m`` at time ``t`` (default ``m.t``; the scan time at a centre that
+        runs the update itself): the report (the node's ``seq``-th message)."""
         self._require()
-        if m.sensor != self.sensor:
-            raise ValueError(f"local tracker {self.sensor!r} got a measurement of sensor {m.sensor!r}")
         self.filter.predict(m.t if t is None else t)
-        prior_x, prior_P = self.filter.x, self.filter.P
+        prior = Gaussian(self.filter.x, self.filter.P)
         model, z = _model(m, self.filter.x.size)
         res = self.filter.update(model, z)
-        return self._report(prior_x, prior_P, self.filter.KH, res.nis, model.n_z)
+        return LocalReport(self.filter.t, self.node, seq, self._estimate(res.nis, model.n_z), prior, self.filter.KH,
+                           *self._since_feedback())
 
-    def update_weighted(self, model, Z: np.ndarray, beta, beta0: float, t: float) -> Estimate:
+    def update_weighted(self, model, Z: np.ndarray, beta, beta0: float, t: float, seq: int,
+                        existence: float | None = None) -> LocalReport:
         """Predict to ``t`` and make the weighted (PDA) update with this sensor's plots
         ``Z`` of one scan, ``beta`` each and ``beta0`` for none (JIPDA's local tracks;
-        :mod:`fusion.pda`). The report's NIS is the combined innovation's, ``ν̄ᵀS⁻¹ν̄``
-        (below a χ² variable: ν̄ shrinks with β₀)."""
+        :mod:`fusion.pda`): the report (the node's ``seq``-th message), carrying the
+        track's ``existence``. Its NIS is the combined innovation's, ``ν̄ᵀS⁻¹ν̄`` (below a
+        χ² variable: ν̄ shrinks with β₀)."""
         self._require()
         self.filter.predict(t)
-        prior_x, prior_P = self.filter.x, self.filter.P
+        prior = Gaussian(self.filter.x, self.filter.P)
         res = self.filter.update_weighted(model, Z, beta, beta0)
         nis = float(res.nu @ np.linalg.solve(res.S, res.nu))
-        return self._report(prior_x, prior_P, self.filter.KH, nis, model.n_z)
+        estimate = dataclasses.replace(self._estimate(nis, model.n_z), existence=existence)
+        return LocalReport(self.filter.t, self.node, seq, estimate, prior, self.filter.KH, *self._since_feedback())
 
 
 # Factories ---------------------------------------------------------------------------

@@ -15,11 +15,12 @@ Every rule fuses N ≥ 1 estimates ``(x_i, P_i)`` of one state at one time:
   centre rebuilding the centralised model likelihood from the locals' ones.
 
 :class:`TrackFuser` keeps the centre's state between scans (its prediction, the
-cross-covariances, the IMM's per-model estimates). What each rule needs a local track to
-carry in ``extra`` (``prior_x``/``prior_P``; ``KH``/``feedback_t``; the ``imm_*`` terms),
-the N-track and per-model formulas, how ω is found and the numerics (equilibrated
-inverses, information vectors about a reference point): docs/algorithms.md,
-"Track-to-track fusion rules".
+cross-covariances, the IMM's per-model estimates) and fuses local reports
+(:class:`fusion.links.LocalReport`, :class:`~fusion.links.PredictionReport`): ``info``
+reads their ``prior``, ``bar-shalom-campo`` their ``KH`` and ``feedback_t``, per-model
+``info`` their ``models``. The N-track and per-model formulas, how ω is found and the
+numerics (equilibrated inverses, information vectors about a reference point):
+docs/algorithms.md, "Track-to-track fusion rules".
 """
 
 from __future__ import annotations
@@ -32,6 +33,7 @@ from scipy.optimize import brentq, minimize
 
 from .imm import ModelSet, mixed_predictions
 from .kalman import gaussian_loglikelihood, gaussian_mixture, symmetrise
+from .links import ModelStates, Report
 from .topology import FUSION_RULES
 from .types import Estimate
 
@@ -253,11 +255,6 @@ def fuse_info_model(xs, Ps, prior_xs, prior_Ps, logliks, x_c, P_c) -> tuple[np.n
     return x_f, P_f, ll + log_n(x_c, P_c) - log_n(x_f, P_f)
 
 
-def _model_rows(extra: dict, key: str, m: int, n: int, square: bool) -> np.ndarray:
-    a = np.asarray(extra[key], dtype=float)
-    return a.reshape(m, n, n) if square else a.reshape(m, n)
-
-
 # The centre-side fuser --------------------------------------------------------------
 class TrackFuser:
     """Centre-side fusion of local tracks with the bookkeeping each rule needs.
@@ -266,8 +263,8 @@ class TrackFuser:
     predicted with ``motion``) and, for ``bar-shalom-campo``, the cross-covariances
     between every pair of local nodes and between the fused track and each node, so
     that tracks re-started from the fused estimate (feedback, two-stage) are handled
-    exactly. Local tracks are :class:`Estimate` objects carrying the ``extra`` fields
-    listed in the module docstring; they must all be at the fusion time.
+    exactly. Local tracks are reports (:data:`fusion.links.Report`), all at the fusion
+    time.
 
     Every known node is assumed to report at every fusion time (a node with no
     measurement reports its prediction); a node that does not is propagated as a pure
@@ -275,7 +272,7 @@ class TrackFuser:
 
     With ``info`` and an IMM's :class:`~fusion.imm.ModelSet` as ``motion`` the fuser is
     an IMM centre: it keeps per-model estimates and mode probabilities, predicts them
-    with the IMM cycle and fuses per model (module docstring); :meth:`model_extra` is
+    with the IMM cycle and fuses per model (module docstring); :meth:`model_states` is
     what a fed-back node restarts from.
     """
 
@@ -342,24 +339,22 @@ class TrackFuser:
         F = self.motion.F(dt)
         return F @ self.x, symmetrise(F @ self.P @ F.T + self.motion.Q(dt))
 
-    def model_extra(self) -> dict:
-        """The IMM centre's per-model estimates and mode probabilities at its time, as
-        ``extra`` fields (``imm_xs``, ``imm_Ps`` stacked as ``m·n`` rows, ``imm_mu``); empty
+    def model_states(self) -> ModelStates | None:
+        """The IMM centre's per-model estimates and mode probabilities at its time; None
         when the fuser does not fuse per model."""
         if not self.per_model:
-            return {}
-        m, n = self.model_xs.shape
-        return {"imm_xs": self.model_xs, "imm_Ps": self.model_Ps.reshape(m * n, n), "imm_mu": self.mu}
+            return None
+        return ModelStates(self.model_xs, self.model_Ps, self.mu)
 
-    def cross_covariance(self, t: float, e: Estimate) -> np.ndarray | None:
+    def cross_covariance(self, t: float, r: Report) -> np.ndarray | None:
         """``Cov(e_c, e_i)`` of the centre prior at ``t`` (:meth:`predicted`) and the local
-        track ``e`` (at ``t``, with ``KH`` and ``feedback_t``), where it is known: ``P_c Aᵀ``
-        for a track restarted from this fuser's latest estimate (they share the
-        prediction), ``(F P_fi Fᵀ + Q) Aᵀ`` with the ``bar-shalom-campo`` bookkeeping;
-        ``A = I − K H`` of the local update. None otherwise (another rule, unknown node)."""
-        fb = e.extra.get("feedback_t")
+        report ``r`` (at ``t``), where it is known: ``P_c Aᵀ`` for a track restarted from
+        this fuser's latest estimate (they share the prediction), ``(F P_fi Fᵀ + Q) Aᵀ``
+        with the ``bar-shalom-campo`` bookkeeping; ``A = I − K H`` of the local update.
+        None otherwise (another rule, unknown node)."""
+        fb = r.feedback_t
         restarted = fb is not None and abs(float(fb) - self.t) <= 1e-9
-        if "KH" not in e.extra or not (restarted or (self.rule == "bar-shalom-campo" and e.node in self._cross_fused)):
+        if not (restarted or (self.rule == "bar-shalom-campo" and r.node in self._cross_fused)):
             return None
         x_c, P_c = self.predicted(t)
         if restarted:
@@ -367,23 +362,23 @@ class TrackFuser:
         else:
             dt = float(t) - self.t
             F = self.motion.F(dt)
-            C = F @ self._cross_fused[e.node] @ F.T + self.motion.Q(dt)
-        return C @ (np.eye(x_c.size) - np.asarray(e.extra["KH"], float)).T
+            C = F @ self._cross_fused[r.node] @ F.T + self.motion.Q(dt)
+        return C @ (np.eye(x_c.size) - np.asarray(r.KH, float)).T
 
-    def fuse(self, t: float, tracks: Sequence[Estimate]) -> Estimate:
-        """Fuse the local tracks (all at time ``t``) into the centre's estimate at ``t``."""
-        if not tracks:
+    def fuse(self, t: float, reports: Sequence[Report]) -> Estimate:
+        """Fuse the local reports (all at time ``t``) into the centre's estimate at ``t``."""
+        if not reports:
             raise ValueError("nothing to fuse")
         t = float(t)
-        nodes = [e.node for e in tracks]
+        nodes = [r.node for r in reports]
         if len(set(nodes)) != len(nodes):
             raise ValueError(f"two tracks from one node in one fusion: {nodes}")
-        for e in tracks:
-            if abs(e.t - t) > 1e-9:
-                raise ValueError(f"track from node {e.node!r} is at t={e.t}, fusion time is {t}")
+        for r in reports:
+            if abs(r.estimate.t - t) > 1e-9:
+                raise ValueError(f"track from node {r.node!r} is at t={r.estimate.t}, fusion time is {t}")
         x_c, P_c = self.predicted(t)
-        xs = [np.asarray(e.x, float) for e in tracks]
-        Ps = [np.asarray(e.P, float) for e in tracks]
+        xs = [np.asarray(r.estimate.x, float) for r in reports]
+        Ps = [np.asarray(r.estimate.P, float) for r in reports]
         extra: dict = {"rule": self.rule, "nodes": nodes}
         if self.rule == "naive":
             xf, Pf = fuse_naive(xs, Ps)
@@ -391,37 +386,30 @@ class TrackFuser:
             xf, Pf, w = fuse_ci(xs, Ps, self.ci_criterion)
             extra["omega"] = w
         elif self.per_model:
-            xf, Pf = self._fuse_info_models(t, tracks)
+            xf, Pf = self._fuse_info_models(t, reports)
         elif self.rule == "info":
-            try:
-                pxs = [e.extra["prior_x"] for e in tracks]
-                pPs = [e.extra["prior_P"] for e in tracks]
-            except KeyError:
-                raise ValueError("info fusion needs prior_x and prior_P in every local track's extra") from None
-            xf, Pf = fuse_info(xs, Ps, pxs, pPs, x_c, P_c)
+            priors = [r.prior for r in reports]
+            xf, Pf = fuse_info(xs, Ps, [p.x for p in priors], [p.P for p in priors], x_c, P_c)
         else:
-            xf, Pf = self._fuse_bsc(t, tracks, xs, Ps, P_c)
+            xf, Pf = self._fuse_bsc(t, reports, xs, Ps, P_c)
         self.x, self.P, self.t = xf, Pf, t
         return Estimate(t=t, x=xf, P=Pf, method=self.method, node="centre", track=self.track, extra=extra)
 
-    def _fuse_info_models(self, t, tracks):
+    def _fuse_info_models(self, t, reports):
         dt = t - self.t
         if dt == 0.0:  # a second fusion at one time (DDHNV's second stage): no switching
             cxs, cPs, cbar = self.model_xs, self.model_Ps, self.mu
         else:
             cxs, cPs, cbar = mixed_predictions(self.motion, self.mu, self.model_xs, self.model_Ps, dt)
         m, n = cxs.shape
-        try:
-            rep = [(_model_rows(e.extra, "imm_xs", m, n, False), _model_rows(e.extra, "imm_Ps", m, n, True),
-                    _model_rows(e.extra, "imm_prior_xs", m, n, False), _model_rows(e.extra, "imm_prior_Ps", m, n, True),
-                    np.asarray(e.extra["imm_loglik"], float).reshape(m)) for e in tracks]
-        except (KeyError, ValueError):
-            raise ValueError("info fusion with motion = imm needs every local track's per-model report "
-                             f"(imm_xs, imm_Ps, imm_prior_xs, imm_prior_Ps, imm_loglik for {m} models)") from None
+        rep = [r.models for r in reports]
+        if any(terms is None or terms.xs.shape != (m, n) for terms in rep):
+            raise ValueError(f"info fusion with motion = imm needs every local report's per-model terms ({m} models "
+                             f"of {n} states)")
         xs, Ps, ll = [], [], np.empty(m)
         for j in range(m):
-            x, P, ll[j] = fuse_info_model([r[0][j] for r in rep], [r[1][j] for r in rep], [r[2][j] for r in rep],
-                                          [r[3][j] for r in rep], [r[4][j] for r in rep], cxs[j], cPs[j])
+            x, P, ll[j] = fuse_info_model([r.xs[j] for r in rep], [r.Ps[j] for r in rep], [r.prior_xs[j] for r in rep],
+                                          [r.prior_Ps[j] for r in rep], [r.loglik[j] for r in rep], cxs[j], cPs[j])
             xs.append(x)
             Ps.append(P)
         with np.errstate(divide="ignore"):
@@ -430,25 +418,20 @@ class TrackFuser:
         self.model_xs, self.model_Ps, self.mu = np.array(xs), np.array(Ps), w / w.sum()
         return gaussian_mixture(self.mu, self.model_xs, self.model_Ps)
 
-    def _fuse_bsc(self, t, tracks, xs, Ps, P_c):
+    def _fuse_bsc(self, t, reports, xs, Ps, P_c):
         dt = t - self.t
         F, Q = self.motion.F(dt), self.motion.Q(dt)
         n = xs[0].size
         A, fb = {}, {}
-        for e in tracks:
-            try:
-                KH = np.asarray(e.extra["KH"], float)
-                feedback_t = e.extra["feedback_t"]
-            except KeyError:
-                raise ValueError("bar-shalom-campo fusion needs KH and feedback_t in every local track's extra") from None
-            A[e.node] = np.eye(n) - KH
-            fb[e.node] = feedback_t is not None and abs(float(feedback_t) - self.t) <= 1e-9
-            if not fb[e.node] and e.node not in self._P_nodes:
+        for r in reports:
+            A[r.node] = np.eye(n) - np.asarray(r.KH, float)
+            fb[r.node] = r.feedback_t is not None and abs(float(r.feedback_t) - self.t) <= 1e-9
+            if not fb[r.node] and r.node not in self._P_nodes:
                 raise ValueError(
-                    f"bar-shalom-campo: no cross-covariance for node {e.node!r}; a local track must start "
+                    f"bar-shalom-campo: no cross-covariance for node {r.node!r}; a local track must start "
                     "from the centre's fused estimate (initialisation or feedback)"
                 )
-        reported = {e.node: P for e, P in zip(tracks, Ps)}
+        reported = {r.node: P for r, P in zip(reports, Ps)}
         nodes = sorted(set(self._P_nodes) | set(reported))
         for a in nodes:
             A.setdefault(a, np.eye(n))
@@ -475,7 +458,7 @@ class TrackFuser:
                 return P_nodes[a]
             return cross[(a, b)] if a < b else cross[(b, a)].T
 
-        rep = [e.node for e in tracks]
+        rep = [r.node for r in reports]
         xf, Pf, W = fuse_bar_shalom_campo(xs, Ps, [[Pab(a, b) for b in rep] for a in rep])
         self._P_nodes = P_nodes
         self._cross = cross

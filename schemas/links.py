@@ -1,107 +1,149 @@
-"""Uplinks (``local/<node>``) and downlinks (``feedback/<node>``) of the distributed
-topologies on the wire: :class:`fusion.network.Uplink` as one ``uplink`` message and
-:class:`fusion.network.Downlink` as one ``downlink`` message (their fields and checks:
-:mod:`schemas.messages`, docs/design.md "Wire format"). The fuser's feedback *horizon*
-is a ``watermark`` message on the node's ``feedback/`` key.
+"""The links of the distributed topologies on the wire: every message type of
+:mod:`fusion.links` is one message kind, a node's on ``local/<node>`` (:data:`UP`), the
+centre's on ``feedback/<node>`` (:data:`DOWN`); the fuser's feedback *horizon* is a
+``watermark`` on the node's ``feedback/`` key. The fields and checks of each kind:
+:mod:`schemas.messages`, docs/design.md "Links of the distributed topologies".
 
-In memory a local report keeps what the fusion rules read in ``Estimate.extra``
-(``prior_x``, ``prior_P``, ``KH``, ``feedback_t`` — a time or ``None`` — and
-``prediction``); on the wire they are typed fields of the uplink's ``estimate``
-(``feedback_t`` left out when ``None``), and a downlink's DDHNV update
-(``extra["sensor_x"]``, ``extra["sensor_P"]``) is two fields of the downlink. The
-uplink's ``t`` and ``seq`` are its estimate's time and its measurement's.
+A type is its kind, so the meaning travels in the envelope (``kind``) and nothing is
+carried twice: an up message's time and counter are the envelope's ``t`` and ``seq``
+(its estimate's time is ``t``), a down message's node is its key's. Arrays keep their
+shapes (per-model covariances m×n×n), optional fields are absent, never null: every
+message round-trips bit for bit.
 """
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, Callable
 
-from fusion.network import Downlink, Uplink
-from fusion.types import Estimate
+from fusion.links import (Downlink, Drop, DropTrack, Feedback, Gaussian, Init, InitRequest, LocalReport,
+                          MeasurementReport, ModelStates, ModelTerms, PredictionReport, Uplink)
+from fusion.types import Estimate, Measurement
 
 from .messages import Message, encode, measurement_fields, measurement_of
 
-_REPORT = ("prior_x", "prior_P", "KH", "prediction", "feedback_t")
-_IMM_REPORT = ("imm_xs", "imm_Ps", "imm_prior_xs", "imm_prior_Ps", "imm_loglik")
-_DDHNV = ("sensor_x", "sensor_P")
-_IMM_PRIOR = ("imm_xs", "imm_Ps", "imm_mu")
+
+def _measurement(m: Measurement, t: float) -> dict[str, Any]:
+    if m.t != t:
+        raise ValueError(f"a link message at t = {t!r} carries a measurement at t = {m.t!r}")
+    return {"kind": m.kind, **measurement_fields(m)}
 
 
-def _estimate_map(e: Estimate, extras: tuple[str, ...], inside: bool) -> dict[str, Any]:
-    """The estimate's map; its ``extra`` may hold ``extras`` only, which go into the map
-    if ``inside`` (an uplink's), else beside it (a downlink's)."""
-    unknown = set(e.extra) - set(extras)
-    if unknown:
-        raise ValueError(f"a link estimate carries no {', '.join(sorted(unknown))} (takes {', '.join(extras)})")
-    d = {"track": e.track, "node": e.node, "method": e.method, "x": e.x, "P": e.P}
-    if e.nis is not None:
-        d["nis"] = float(e.nis)
-    if e.nis_dof is not None:
-        d["nis_dof"] = int(e.nis_dof)
-    if e.existence is not None:
-        d["existence"] = float(e.existence)
-    for k in extras if inside else ():
-        v = e.extra.get(k)
-        if v is not None:
-            d[k] = bool(v) if k == "prediction" else float(v) if k == "feedback_t" else v
-    return d
+def _state(e: Estimate, track: str) -> dict[str, Any]:
+    """A link's track, method and state (``e.extra`` travels on no link)."""
+    if e.extra:
+        raise ValueError(f"a link estimate carries no {', '.join(sorted(e.extra))}")
+    return {"track": track, "method": e.method, "x": e.x, "P": e.P}
 
 
-def _estimate(b: dict, t: float, extra: dict) -> Estimate:
-    return Estimate(t, b["x"], b["P"], b["method"], b["node"], b["track"], b["nis"], b["nis_dof"], extra,
-                    b["existence"])
+def _optional(**fields: Any) -> dict[str, Any]:
+    return {k: v for k, v in fields.items() if v is not None}
+
+
+def _terms(m: ModelTerms | None) -> dict | None:
+    return None if m is None else {"xs": m.xs, "Ps": m.Ps, "prior_xs": m.prior_xs, "prior_Ps": m.prior_Ps,
+                                   "loglik": m.loglik}
+
+
+# Up: type -> (kind, payload) and kind -> type ------------------------------------------
+def _local_report(u: LocalReport) -> dict[str, Any]:
+    e = u.estimate
+    return {"node": u.node, **_state(e, e.track), "prior_x": u.prior.x, "prior_P": u.prior.P, "KH": u.KH,
+            **_optional(nis=None if e.nis is None else float(e.nis), nis_dof=None if e.nis_dof is None else int(e.nis_dof),
+                        existence=None if e.existence is None else float(e.existence), feedback_t=None if u.feedback_t is None else float(u.feedback_t), models=_terms(u.models))}
+
+
+def _prediction_report(u: PredictionReport) -> dict[str, Any]:
+    e = u.estimate
+    if e.nis is not None or e.nis_dof is not None:
+        raise ValueError("a prediction report's estimate has no NIS")
+    return {"node": u.node, **_state(e, e.track), "measurement": _measurement(u.measurement, u.t),
+            **_optional(feedback_t=None if u.feedback_t is None else float(u.feedback_t), models=_terms(u.models))}
+
+
+_UP: dict[type, tuple[str, Callable[[Any], dict[str, Any]]]] = {
+    InitRequest: ("init_request", lambda u: {"node": u.node, "measurement": _measurement(u.measurement, u.t)}),
+    LocalReport: ("local_report", _local_report),
+    PredictionReport: ("prediction_report", _prediction_report),
+    MeasurementReport: ("measurement_report", lambda u: {"node": u.node, "measurement": _measurement(u.measurement, u.t)}),
+    Drop: ("drop", lambda u: {"node": u.node, "track": u.track}),
+}
 
 
 def encode_uplink(u: Uplink, src: str, seq: int) -> bytes:
-    """One uplink as one message (``t`` = ``u.t``, ``seq`` as given)."""
-    payload: dict[str, Any] = {}
-    if u.estimate is not None:
-        if u.estimate.t != u.t:
-            raise ValueError(f"uplink at t = {u.t!r} carries an estimate at t = {u.estimate.t!r}")
-        payload["estimate"] = _estimate_map(u.estimate, _REPORT + _IMM_REPORT, inside=True)
-    if u.measurement is not None:
-        m = u.measurement
-        if m.t != u.t:
-            raise ValueError(f"uplink at t = {u.t!r} carries a measurement at t = {m.t!r}")
-        payload["measurement"] = {"kind": m.kind, **measurement_fields(m)}
-    if u.drop:
-        payload["drop"] = True
-    return encode("uplink", src, seq, u.t, **payload)
+    """A node's message as its kind (``t`` = ``u.t``; ``seq``: the sender's counter)."""
+    kind, payload = _UP[type(u)]
+    return encode(kind, src, seq, u.t, **payload(u))
+
+
+def _estimate(b: dict, t: float, node: str) -> Estimate:
+    return Estimate(t, b["x"], b["P"], b["method"], node, b["track"], b.get("nis"), b.get("nis_dof"),
+                    existence=b.get("existence"))
+
+
+def _measurement_of(b: dict, msg: Message) -> Measurement:
+    return measurement_of(b["kind"], b, msg.t, msg.seq)
+
+
+def _terms_of(b: dict | None) -> ModelTerms | None:
+    return None if b is None else ModelTerms(b["xs"], b["Ps"], b["prior_xs"], b["prior_Ps"], b["loglik"])
+
+
+_FROM_UP: dict[str, Callable[[Message], Uplink]] = {
+    "init_request": lambda m: InitRequest(m.t, m.body["node"], m.seq, _measurement_of(m.body["measurement"], m)),
+    "local_report": lambda m: LocalReport(
+        m.t, m.body["node"], m.seq, _estimate(m.body, m.t, m.body["node"]), Gaussian(m.body["prior_x"], m.body["prior_P"]),
+        m.body["KH"], m.body["feedback_t"], _terms_of(m.body["models"])),
+    "prediction_report": lambda m: PredictionReport(
+        m.t, m.body["node"], m.seq, _estimate(m.body, m.t, m.body["node"]), _measurement_of(m.body["measurement"], m),
+        m.body["feedback_t"], _terms_of(m.body["models"])),
+    "measurement_report": lambda m: MeasurementReport(m.t, m.body["node"], m.seq,
+                                                      _measurement_of(m.body["measurement"], m)),
+    "drop": lambda m: Drop(m.t, m.body["node"], m.seq, m.body["track"]),
+}
 
 
 def uplink(msg: Message) -> Uplink:
-    """The :class:`~fusion.network.Uplink` of an ``uplink`` message; its node is the
-    estimate's ``node`` or the measurement's ``sensor`` (checked to agree)."""
-    b = msg.body
-    e = m = None
-    if b["estimate"] is not None:
-        eb = b["estimate"]
-        extra = {} if "prior_x" not in eb else {
-            "prior_x": eb["prior_x"], "prior_P": eb["prior_P"], "KH": eb["KH"],
-            "feedback_t": eb["feedback_t"], "prediction": eb["prediction"]}
-        extra.update({k: eb[k] for k in _IMM_REPORT if k in eb})
-        e = _estimate(eb, msg.t, extra)
-    if b["measurement"] is not None:
-        m = measurement_of(b["measurement"]["kind"], b["measurement"], msg.t, msg.seq)
-    node = e.node if e is not None else m.sensor
-    return Uplink(msg.t, node, msg.seq, e, m, b["drop"])
+    """The :mod:`fusion.links` message of a node's message (its ``seq`` the envelope's)."""
+    return _FROM_UP[msg.kind](msg)
+
+
+# Down ----------------------------------------------------------------------------------
+def _feedback(d: Feedback) -> dict[str, Any]:
+    models = None if d.models is None else {"xs": d.models.xs, "Ps": d.models.Ps, "mu": d.models.mu}
+    update = None if d.update is None else {"x": d.update.x, "P": d.update.P}
+    return {**_state(d.estimate, d.track), **_optional(update=update, models=models)}
+
+
+_DOWN: dict[type, tuple[str, Callable[[Any], dict[str, Any]]]] = {
+    Init: ("init", lambda d: _state(d.estimate, d.track)),
+    Feedback: ("feedback", _feedback),
+    DropTrack: ("drop_track", lambda d: {"track": d.track}),
+}
 
 
 def encode_downlink(d: Downlink, src: str, seq: int) -> bytes:
-    e = d.estimate
-    payload: dict[str, Any] = {"estimate": _estimate_map(e, _DDHNV + _IMM_PRIOR, inside=False), "init": bool(d.init)}
-    if d.drop:
-        payload["drop"] = True
-    payload.update({k: e.extra[k] for k in _DDHNV + _IMM_PRIOR if e.extra.get(k) is not None})
-    return encode("downlink", src, seq, e.t, **payload)
+    """The centre's message to ``d.node`` (who is the key's, not a field) as its kind."""
+    kind, payload = _DOWN[type(d)]
+    return encode(kind, src, seq, d.t if isinstance(d, DropTrack) else d.estimate.t, **payload(d))
+
+
+def _centre_estimate(m: Message) -> Estimate:
+    return _estimate(m.body, m.t, "centre")
+
+
+_FROM_DOWN: dict[str, Callable[[str, Message], Downlink]] = {
+    "init": lambda node, m: Init(node, _centre_estimate(m)),
+    "feedback": lambda node, m: Feedback(
+        node, _centre_estimate(m), None if m.body["update"] is None else Gaussian(m.body["update"]["x"], m.body["update"]["P"]),
+        None if m.body["models"] is None else ModelStates(m.body["models"]["xs"], m.body["models"]["Ps"],
+                                                          m.body["models"]["mu"])),
+    "drop_track": lambda node, m: DropTrack(node, m.t, m.body["track"]),
+}
 
 
 def downlink(node: str, msg: Message) -> Downlink:
-    """The :class:`~fusion.network.Downlink` to ``node`` (the key's) of a ``downlink`` message."""
-    b = msg.body
-    extra = {} if b["sensor_x"] is None else {"sensor_x": b["sensor_x"], "sensor_P": b["sensor_P"]}
-    extra.update(b["models"])
-    return Downlink(node, _estimate(b["estimate"], msg.t, extra), b["init"], b["drop"])
+    """The :mod:`fusion.links` message to ``node`` (the key's) of a centre's message."""
+    return _FROM_DOWN[msg.kind](node, msg)
 
 
 def horizon_message(src: str, seq: int, t: float) -> bytes:

@@ -33,7 +33,11 @@ MAX_BYTES = 1 << 20  # 1 MiB: far above any real message, stops memory abuse
 MAX_DIM = 64  # largest state / array dimension accepted
 
 MEASUREMENT_KINDS = tuple(_KINDS)
-KINDS = MEASUREMENT_KINDS + ("watermark", "track", "uplink", "downlink", "jam_state", "truth", "status")
+# The links of the distributed topologies, one kind per message type of fusion.links:
+# node -> centre on local/<node>, centre -> node on feedback/<node> (schemas/links.py)
+UP_KINDS = ("init_request", "local_report", "prediction_report", "measurement_report", "drop")
+DOWN_KINDS = ("init", "feedback", "drop_track")
+KINDS = MEASUREMENT_KINDS + ("watermark", "track", *UP_KINDS, *DOWN_KINDS, "jam_state", "truth", "status")
 
 
 class SchemaError(ValueError):
@@ -256,8 +260,8 @@ def _check_track(d: dict) -> dict:
     return body
 
 
-# Links of the distributed topologies (schemas/links.py has the mapping to fusion.network)
-_REPORT_FIELDS = ("prior_x", "prior_P", "KH", "prediction")  # a local tracker's report: all or none
+# Links of the distributed topologies (UP_KINDS, DOWN_KINDS): each kind a fixed set of
+# fields; an optional one is absent, never null.
 
 
 def _no_null(d: dict) -> None:
@@ -267,10 +271,12 @@ def _no_null(d: dict) -> None:
             raise SchemaError("type", str(k), "null: an optional field is left out")
 
 
-def _nested(d: dict, f: str, check: Callable[[dict], dict]) -> dict | None:
-    """An optional sub-map checked by ``check``; its errors name ``f.<field>``."""
+def _nested(d: dict, f: str, check: Callable[[dict], dict], *, optional: bool = False) -> dict | None:
+    """A sub-map checked by ``check``; its errors name ``f.<field>``."""
     if f not in d:
-        return None
+        if optional:
+            return None
+        raise SchemaError("missing", f, "required")
     sub = d[f]
     if not isinstance(sub, dict):
         raise SchemaError("type", f, f"expected a map, got {type(sub).__name__}")
@@ -280,103 +286,128 @@ def _nested(d: dict, f: str, check: Callable[[dict], dict]) -> dict | None:
         raise SchemaError(e.cause, f"{f}.{e.field}" if e.field else f, e.detail) from None
 
 
-# An IMM's per-model terms (m models of the n states; covariances stacked as m·n rows)
-_IMM_REPORT = ("imm_xs", "imm_Ps", "imm_prior_xs", "imm_prior_Ps", "imm_loglik")  # a local IMM's report
-_IMM_PRIOR = ("imm_xs", "imm_Ps", "imm_mu")  # an IMM centre's per-model estimates, fed back
+def _state(d: dict) -> dict:
+    """A link's state: ``x``, and ``P`` symmetric with non-negative variances."""
+    x = _array(d, "x", (None,))
+    P = _array(d, "P", (x.size, x.size))
+    if not np.allclose(P, P.T, rtol=1e-9, atol=1e-9 * max(1.0, float(np.max(np.abs(P))))):
+        raise SchemaError("value", "P", "covariance is not symmetric")
+    if np.any(np.diag(P) < 0):
+        raise SchemaError("value", "P", "covariance has a negative variance")
+    return {"x": x, "P": P}
 
 
-def _imm_fields(d: dict, names: tuple[str, ...], n: int) -> dict:
-    """The per-model fields ``names`` (all or none; ``imm_xs`` gives m): ``*_xs`` m×n,
-    ``*_Ps`` m·n×n, ``imm_loglik`` m, ``imm_mu`` m probabilities."""
-    have = [f for f in names if f in d]
-    if not have:
-        return {}
-    if len(have) < len(names):
-        raise SchemaError("missing", next(f for f in names if f not in d), f"an IMM's terms are all of {', '.join(names)}")
-    m = _array(d, "imm_xs", (None, n)).shape[0]
-    out = {}
-    for f in names:
-        shape = (m, n) if f.endswith("_xs") else (m * n, n) if f.endswith("_Ps") else (m,)
-        out[f] = _array(d, f, shape, rows=MAX_DIM * MAX_DIM)
-    if "imm_mu" in out and (np.any(out["imm_mu"] < 0.0) or np.any(out["imm_mu"] > 1.0)):
-        raise SchemaError("range", "imm_mu", "mode probabilities must be in [0, 1]")
-    return out
+def _track_state(d: dict) -> dict:
+    """A local track's ``track`` (id), ``method`` and state."""
+    return {"track": _str(d, "track", ident=True), "method": _str(d, "method"), **_state(d)}
 
 
-def _check_local_estimate(d: dict) -> dict:
-    """A node's estimate in an uplink: the estimate fields, and a local report's
-    ``prior_x``, ``prior_P``, ``KH`` (shapes of ``x``, ``P``, ``P``), ``prediction``
-    (bool) and optional ``feedback_t`` — all of them or none (a deletion notice) — and a
-    local IMM's per-model terms (:data:`_IMM_REPORT`)."""
-    _no_null(d)
-    body = _estimate_fields(d)
-    have = [f for f in _REPORT_FIELDS if f in d]
-    if have and len(have) < len(_REPORT_FIELDS):
-        missing = next(f for f in _REPORT_FIELDS if f not in d)
-        raise SchemaError("missing", missing, f"a local report has all of {', '.join(_REPORT_FIELDS)}")
-    if have:
-        n = body["x"].size
-        body["prior_x"] = _array(d, "prior_x", (n,))
-        body["prior_P"] = _array(d, "prior_P", (n, n))
-        body["KH"] = _array(d, "KH", (n, n))
-        body["prediction"] = _bool(d, "prediction")
-        body["feedback_t"] = _num(d, "feedback_t", optional=True)
-    elif "feedback_t" in d:
-        raise SchemaError("unknown-field", "feedback_t", "only a local report (with prior_x) has it")
-    body.update(_imm_fields(d, _IMM_REPORT, body["x"].size))
-    _no_extra(d, _ESTIMATE_FIELDS | set(_REPORT_FIELDS) | {"feedback_t"} | set(_IMM_REPORT))
-    return body
+def _model_terms(n: int) -> Callable[[dict], dict]:
+    """A report's per-model terms (m models of the n states): ``xs`` m×n, ``Ps`` m×n×n,
+    ``prior_xs`` m×n, ``prior_Ps`` m×n×n, ``loglik`` m."""
+
+    def check(d: dict) -> dict:
+        m = _array(d, "xs", (None, n)).shape[0]
+        out = {"xs": _array(d, "xs", (m, n)), "Ps": _array(d, "Ps", (m, n, n)), "prior_xs": _array(d, "prior_xs", (m, n)),
+               "prior_Ps": _array(d, "prior_Ps", (m, n, n)), "loglik": _array(d, "loglik", (m,))}
+        _no_extra(d, set(out))
+        return out
+
+    return check
 
 
-def _check_uplink(d: dict) -> dict:
-    """Node -> centre: an ``estimate``, a ``measurement`` (a map with its ``kind``), or
-    both; ``drop`` (a deletion notice) has an estimate. The node is their ``node`` /
-    ``sensor``, which agree."""
-    _no_null(d)
-    est = _nested(d, "estimate", _check_local_estimate)
-    meas = _nested(d, "measurement", _check_uplinked_measurement)
-    if est is None and meas is None:
-        raise SchemaError("missing", "estimate", "an uplink has an estimate, a measurement or both")
-    drop = _bool(d, "drop", default=False)
-    if drop and est is None:
-        raise SchemaError("missing", "estimate", "a deletion notice names its track by an estimate")
-    if est is not None and meas is not None and est["node"] != meas["sensor"]:
-        raise SchemaError("value", "measurement.sensor", f"{meas['sensor']!r} is not the estimate's node "
-                                                         f"{est['node']!r}")
-    _no_extra(d, ENVELOPE | {"estimate", "measurement", "drop"})
-    return {"estimate": est, "measurement": meas, "drop": drop}
+def _model_states(n: int) -> Callable[[dict], dict]:
+    """A per-model centre's states: ``xs`` m×n, ``Ps`` m×n×n, ``mu`` m probabilities."""
+
+    def check(d: dict) -> dict:
+        m = _array(d, "xs", (None, n)).shape[0]
+        out = {"xs": _array(d, "xs", (m, n)), "Ps": _array(d, "Ps", (m, n, n)), "mu": _array(d, "mu", (m,))}
+        if np.any(out["mu"] < 0.0) or np.any(out["mu"] > 1.0):
+            raise SchemaError("range", "mu", "mode probabilities must be in [0, 1]")
+        _no_extra(d, set(out))
+        return out
+
+    return check
 
 
-def _check_uplinked_measurement(d: dict) -> dict:
+def _gaussian(n: int) -> Callable[[dict], dict]:
+    def check(d: dict) -> dict:
+        out = {"x": _array(d, "x", (n,)), "P": _array(d, "P", (n, n))}
+        _no_extra(d, set(out))
+        return out
+
+    return check
+
+
+def _uplinked_measurement(d: dict) -> dict:
     kind = _str(d, "kind", choices=MEASUREMENT_KINDS)
     return {"kind": kind, **_check_measurement(kind, d, envelope={"kind"})}
 
 
-def _check_centre_estimate(d: dict) -> dict:
-    _no_null(d)
-    body = _estimate_fields(d)
-    _no_extra(d, _ESTIMATE_FIELDS)
+def _link(check: Callable[[dict], dict], fields: set[str]) -> Callable[[dict], dict]:
+    """A link kind's checker: no nulls, ``check``'s fields, nothing else."""
+
+    def checker(d: dict) -> dict:
+        _no_null(d)
+        body = check(d)
+        _no_extra(d, ENVELOPE | fields)
+        return body
+
+    return checker
+
+
+def _init_request(d: dict) -> dict:
+    return {"node": _str(d, "node", ident=True), "measurement": _nested(d, "measurement", _uplinked_measurement)}
+
+
+def _local_report(d: dict) -> dict:
+    body = {"node": _str(d, "node", ident=True), **_track_state(d), "nis": _num(d, "nis", lo=0.0, optional=True),
+            "nis_dof": None, "existence": _num(d, "existence", lo=0.0, hi=1.0, optional=True)}
+    if "nis_dof" in d:
+        body["nis_dof"] = _int(d, "nis_dof", lo=1, hi=MAX_DIM)
+    n = body["x"].size
+    body.update(prior_x=_array(d, "prior_x", (n,)), prior_P=_array(d, "prior_P", (n, n)), KH=_array(d, "KH", (n, n)),
+                feedback_t=_num(d, "feedback_t", optional=True),
+                models=_nested(d, "models", _model_terms(n), optional=True))
     return body
 
 
-def _check_downlink(d: dict) -> dict:
-    """Centre -> node: an ``estimate`` the node takes as a prior, ``init`` (start a track
-    from it) and ``drop`` (delete the node's track ``estimate.track``), booleans; DDHNV's
-    ``sensor_x``/``sensor_P`` (the centre's update with this node's measurement), both
-    or neither; an IMM centre's per-model estimates (``imm_xs``, ``imm_Ps``, ``imm_mu``)."""
-    _no_null(d)
-    est = _nested(d, "estimate", _check_centre_estimate)
-    if est is None:
-        raise SchemaError("missing", "estimate", "required")
-    body = {"estimate": est, "init": _bool(d, "init"), "drop": _bool(d, "drop", default=False),
-            "sensor_x": None, "sensor_P": None}
-    n = est["x"].size
-    if "sensor_x" in d or "sensor_P" in d:
-        body["sensor_x"] = _array(d, "sensor_x", (n,))
-        body["sensor_P"] = _array(d, "sensor_P", (n, n))
-    body["models"] = _imm_fields(d, _IMM_PRIOR, n)
-    _no_extra(d, ENVELOPE | {"estimate", "init", "drop", "sensor_x", "sensor_P"} | set(_IMM_PRIOR))
+def _prediction_report(d: dict) -> dict:
+    body = {"node": _str(d, "node", ident=True), **_track_state(d),
+            "measurement": _nested(d, "measurement", _uplinked_measurement),
+            "feedback_t": _num(d, "feedback_t", optional=True)}
+    body["models"] = _nested(d, "models", _model_terms(body["x"].size), optional=True)
     return body
+
+
+def _measurement_report(d: dict) -> dict:
+    return {"node": _str(d, "node", ident=True), "measurement": _nested(d, "measurement", _uplinked_measurement)}
+
+
+def _drop(d: dict) -> dict:
+    return {"node": _str(d, "node", ident=True), "track": _str(d, "track", ident=True)}
+
+
+def _feedback(d: dict) -> dict:
+    body = _track_state(d)
+    n = body["x"].size
+    body.update(update=_nested(d, "update", _gaussian(n), optional=True),
+                models=_nested(d, "models", _model_states(n), optional=True))
+    return body
+
+
+_STATE = {"track", "method", "x", "P"}
+_LINK_CHECKERS: dict[str, Callable[[dict], dict]] = {
+    "init_request": _link(_init_request, {"node", "measurement"}),
+    "local_report": _link(_local_report, {"node", *_STATE, "nis", "nis_dof", "existence", "prior_x", "prior_P", "KH",
+                                          "feedback_t", "models"}),
+    "prediction_report": _link(_prediction_report, {"node", *_STATE, "measurement", "feedback_t", "models"}),
+    "measurement_report": _link(_measurement_report, {"node", "measurement"}),
+    "drop": _link(_drop, {"node", "track"}),
+    "init": _link(_track_state, _STATE),
+    "feedback": _link(_feedback, {*_STATE, "update", "models"}),
+    "drop_track": _link(lambda d: {"track": _str(d, "track", ident=True)}, {"track"}),
+}
 
 
 def _check_truth(d: dict) -> dict:
@@ -445,8 +476,7 @@ _CHECKERS: dict[str, Callable[[dict], dict]] = {
     **{k: (lambda d, k=k: _check_measurement(k, d)) for k in MEASUREMENT_KINDS},
     "watermark": _check_watermark,
     "track": _check_track,
-    "uplink": _check_uplink,
-    "downlink": _check_downlink,
+    **_LINK_CHECKERS,
     "truth": _check_truth,
     "jam_state": _check_jam_state,
     "status": _check_status,

@@ -32,6 +32,7 @@ from collections import Counter
 from pathlib import Path
 from typing import Any, Callable, Mapping
 
+from fusion.links import InitRequest
 from fusion.measurement.kinds import KINDS
 from fusion.methods import METHODS, make_method, method_config, split, track_fusion_rule
 from fusion.mtt import AssociationConfig
@@ -113,7 +114,7 @@ class JoinGate:
         self.reject = reject
 
     def process(self, u) -> list[Estimate]:
-        if u.init_request or u.node in self.centre.nodes:
+        if isinstance(u, InitRequest) or u.node in self.centre.nodes:
             return self.centre.process(u)
         self.reject(tracker_id(u.node), "not-joined", f"report at t = {u.t:g} s from {u.node}, which has "
                     f"no initial state from this fuser yet")

@@ -32,6 +32,7 @@ from dataclasses import dataclass
 from typing import Iterable, Mapping
 
 from schemas import MEASUREMENT_KINDS, KeySpace, Message, SchemaError, decode
+from schemas.messages import DOWN_KINDS, UP_KINDS
 
 HORIZON_SLACK_S = 1.0  # data beyond a scenario's end + this is "future"
 SEQ_WINDOW = 4096  # recent sequence numbers remembered per stream (duplicate detection)
@@ -57,8 +58,8 @@ class Route:
 
 ROUTES: dict[str, Route] = {r.family: r for r in (
     Route("meas", frozenset(MEASUREMENT_KINDS) | {"watermark"}, "src"),
-    Route("local", frozenset({"uplink", "watermark"}), "src"),
-    Route("feedback", frozenset({"downlink", "watermark"}), "receiver"),
+    Route("local", frozenset(UP_KINDS) | {"watermark"}, "src"),
+    Route("feedback", frozenset(DOWN_KINDS) | {"watermark"}, "receiver"),
     Route("fused", frozenset({"track"}), None),
     Route("truth", frozenset({"truth"}), "target"),
     Route("jam", frozenset({"jam_state"}), "src"),

@@ -12,8 +12,8 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 
+from fusion.links import Feedback, Gaussian, Init, LocalReport, PredictionReport
 from fusion.types import Estimate, Measurement
-from fusion.network import Downlink, Uplink
 from schemas import KeySpace, encode, encode_estimate, encode_measurement, tracker_id
 from schemas.links import encode_downlink, encode_uplink
 from services.node import RejectLog
@@ -96,21 +96,25 @@ def est_msg(t: float, x, P, method="SS", node="centre", track="T1", nis=None, do
                            src, seq)
 
 
+def report_of(e: Estimate, seq: int, measurement: Measurement | None = None) -> LocalReport | PredictionReport:
+    """A local tracker's report of its track's estimate ``e`` (its prior ``e`` itself), or
+    with ``measurement`` its prediction and that measurement (two-stage)."""
+    if measurement is not None:
+        return PredictionReport(e.t, e.node, seq, e, measurement)
+    return LocalReport(e.t, e.node, seq, e, Gaussian(e.x, e.P), np.zeros_like(e.P))
+
+
 def uplink_msg(t: float, x, P, method="HNV", node="radar2d", track="T1", nis=None, dof=None, seq=1,
-               prediction: bool | None = None, measurement: Measurement | None = None) -> bytes:
-    """A local tracker's uplink on ``local/trk-<node>``: its estimate (a local report, a
-    prediction if ``prediction``, when that is given) and/or ``measurement``."""
-    x, P = np.asarray(x, float), np.asarray(P, float)
-    extra = {} if prediction is None else {"prior_x": x, "prior_P": P, "KH": np.zeros_like(P), "feedback_t": None,
-                                           "prediction": prediction}
-    e = None if x.size == 0 else Estimate(t, x, P, method, node, track, nis, dof, extra)
-    return encode_uplink(Uplink(t, node, seq, e, measurement), tracker_id(node), seq)
+               measurement: Measurement | None = None) -> bytes:
+    """A local tracker's report on ``local/trk-<node>`` (:func:`report_of`)."""
+    e = Estimate(t, np.asarray(x, float), np.asarray(P, float), method, node, track, nis, dof)
+    return encode_uplink(report_of(e, seq, measurement), tracker_id(node), seq)
 
 
 def downlink_msg(t: float, x, P, method="HNV", node="radar2d", track="T1", seq=1, init=False) -> bytes:
-    """The fuser's downlink to ``node``'s tracker on ``feedback/trk-<node>``."""
+    """The fuser's init or feedback to ``node``'s tracker on ``feedback/trk-<node>``."""
     e = Estimate(t, np.asarray(x, float), np.asarray(P, float), method, "centre", track)
-    return encode_downlink(Downlink(node, e, init), "fuser", seq)
+    return encode_downlink(Init(node, e) if init else Feedback(node, e), "fuser", seq)
 
 
 def status_msg(src: str, seq: int, t: float, state="running", role="sensor", counters=None, events=None) -> bytes:

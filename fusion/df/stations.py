@@ -24,7 +24,8 @@ import numpy as np
 
 from ..angles import wrap_pi
 from ..measurement.kinds import kinds_of
-from ..network import Centre, FramedNode, LocalNode, Split, Uplink
+from ..links import MeasurementReport
+from ..network import Centre, FramedNode, LocalNode, Split
 from ..tracking.config import AssociationConfig
 from ..tracking.hypotheses import Hypotheses, gate_threshold
 from ..types import Estimate, Measurement
@@ -45,7 +46,7 @@ class StationNode(LocalNode):
         self.smoother = make_station_smoother(c, cross_fed)
 
     def _process(self, m, alone):
-        return [self._uplink(m.t, measurement=self.smoother.update(m))]
+        return [MeasurementReport(m.t, self.node, self._next_seq(), self.smoother.update(m))]
 
 
 class MultiStationNode(FramedNode):
@@ -75,7 +76,7 @@ class MultiStationNode(FramedNode):
         return Hypotheses(frame, range(n), (r * r / (var[:, None] + sigmas[None, :] ** 2)).reshape(n, len(frame)),
                           np.full(n, gate_threshold(1, self.association.gate_prob)), np.ones(n, dtype=bool))
 
-    def _process(self, frame: list[Measurement], alone: bool) -> list[Uplink]:
+    def _process(self, frame: list[Measurement], alone: bool) -> list[MeasurementReport]:
         taken: dict[int, int] = {}  # bearing -> track
         if self.tracks:
             taken = {c: k for k, c in self._associator.associate(self.hypotheses(frame)).pairs}
@@ -87,7 +88,7 @@ class MultiStationNode(FramedNode):
                 taken[c] = len(self.tracks)
                 self.tracks.append(make_station_smoother(self.config, self.cross_fed))
                 self.misses.append(0)
-            out.append(self._uplink(m.t, measurement=self.tracks[taken[c]].update(m)))
+            out.append(MeasurementReport(m.t, self.node, self._next_seq(), self.tracks[taken[c]].update(m)))
         keep = [k for k in range(len(self.tracks)) if k >= old or self.misses[k] < self.association.delete_misses]
         self.tracks = [self.tracks[k] for k in keep]
         self.misses = [self.misses[k] for k in keep]
@@ -110,7 +111,7 @@ class StationCentre(Centre):
 
         self.method = make() if association is None else MultiEmitterMethod(name, make, association)
 
-    def process(self, u: Uplink) -> list[Estimate]:
+    def process(self, u: MeasurementReport) -> list[Estimate]:
         return self.method.process(u.measurement)
 
     def advance(self, t: float) -> list[Estimate]:

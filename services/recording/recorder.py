@@ -46,6 +46,7 @@ from functools import lru_cache
 import numpy as np
 import rerun as rr
 
+from fusion.links import Drop, DropTrack, Init, InitRequest, LocalReport, MeasurementReport, PredictionReport
 from fusion.mtt import AssociationConfig
 from fusion.measurement.kinds import KINDS, SPHERE
 from fusion.types import Estimate, Measurement
@@ -297,10 +298,13 @@ class Recorder:
         """A local tracker's uplink: its estimate (a prediction in two-stage) and/or the
         measurement it sent up."""
         u = uplink(msg)
-        if u.estimate is not None:
-            self._estimate(family, ident, u.estimate, bool(u.estimate.extra.get("prediction")))
-        if u.measurement is not None:
+        if isinstance(u, (LocalReport, PredictionReport)):
+            self._estimate(family, ident, u.estimate, isinstance(u, PredictionReport))
+        if isinstance(u, (InitRequest, PredictionReport, MeasurementReport)):
             self._uplinked(u.measurement)
+        if isinstance(u, Drop):  # the node deleted its local track: so does the picture
+            self._advance(u.t)
+            self._forget_local(ident or "", u.track, u.t)
 
     def _uplinked(self, m: Measurement) -> None:
         """A measurement a local tracker sent up (raw in two-stage, a smoothed bearing in
@@ -438,18 +442,23 @@ class Recorder:
 
     def _on_feedback(self, family: str, ident: str | None, msg: Message) -> None:
         d = downlink(ident or "", msg)
+        if isinstance(d, DropTrack):  # the node deletes its local track: so does the picture
+            self._advance(d.t)
+            self._forget_local(ident or "", d.track, d.t)
+            return
         e = d.estimate
         self._advance(e.t)
-        if d.drop:  # the node deletes its local track e.track: so does the picture
-            node = self._node_of.get(ident or "")
-            reports = self._reports.get(("local", ident or ""))
-            track = _p("world", "tracks", node, e.track) if node is not None else None
-            if reports is not None and track is not None and reports.forget(track):
-                self._clear(track, e.t)
-            return
         path = _p("world", "feedback", ident or e.node, e.track)
         self._reported((family, ident or ""), path, e.t)
-        self._draw_estimate(path, e, draw.FEEDBACK_COLOR, f"{e.track} to {ident}" + (" (init)" if d.init else ""))
+        self._draw_estimate(path, e, draw.FEEDBACK_COLOR, f"{e.track} to {ident}" + (" (init)" if isinstance(d, Init) else ""))
+
+    def _forget_local(self, ident: str, track: str, t: float) -> None:
+        """The local track ``track`` of the node on ``local/<ident>`` is gone: clear it."""
+        node = self._node_of.get(ident)
+        reports = self._reports.get(("local", ident))
+        path = _p("world", "tracks", node, track) if node is not None else None
+        if reports is not None and path is not None and reports.forget(path):
+            self._clear(path, t)
 
     def _reported(self, stream: tuple[str, str], track: str, t: float) -> None:
         """A report of a track's entity on its stream: clears the tracks the stream has stopped reporting."""

@@ -17,6 +17,7 @@ import pytest
 
 from sim3d import run_method  # noqa: E402
 
+from fusion.links import Drop  # noqa: E402
 from fusion.tracking.table import CONFIRMED, DELETED, ManagementRule, TrackLogic  # noqa: E402
 from fusion.methods import make_method, method_config  # noqa: E402
 from fusion.motion import make_motion  # noqa: E402
@@ -91,24 +92,26 @@ def test_hnv_local_tracks_are_dropped_past_local_max_pos_std():
     stream = _stream()
 
     def drops(table):
+        """The position σ of every local track a node deleted, as it deleted it."""
         method = make_method("HNV", table)
-        ups = []
+        sigmas = []
         for node_id in ("angle", "radar"):
             node = method._node(node_id)
             step = node.step
 
-            def spy(alone=False, step=step):
+            def spy(alone=False, step=step, node=node):
+                tracks = dict(node.tracks)  # the trackers, as the step leaves them
                 out = step(alone)
-                ups.extend(u for u in out if u.drop)
+                sigmas.extend(math.sqrt(np.trace(tracks[u.track].P[:3, :3])) for u in out if isinstance(u, Drop))
                 return out
 
             node.step = spy
         run_method(method, stream)
-        return ups
+        return sigmas
 
     table = {**TABLE, "local_max_pos_std": 1000.0}
     dropped = drops(table)
-    assert dropped and all(math.sqrt(np.trace(u.estimate.P[:3, :3])) > 1000.0 for u in dropped)
+    assert dropped and all(sigma > 1000.0 for sigma in dropped)
     assert not drops(dict(TABLE))
 
 

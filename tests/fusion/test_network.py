@@ -9,12 +9,15 @@ import dataclasses
 import numpy as np
 import pytest
 
+from fusion.links import (Drop, DropTrack, Feedback, Init, InitRequest, LocalReport, MeasurementReport, PredictionReport)
 from fusion.methods import split
-from fusion.network import Downlink, NetworkMethod, TrackCentre, TrackNode, Uplink
+from fusion.network import NetworkMethod, TrackCentre, TrackNode
+from fusion.types import Estimate, Measurement
 from fusion.patent import TrackerConfig
 from fusion.topology import SCHEMES
 from schemas import decode
 from schemas.links import downlink, encode_downlink, encode_uplink, uplink
+from services.evaluation import merged_measurements
 from sim3d import ANGLE, RADAR2D, simulate
 
 
@@ -36,7 +39,7 @@ def test_initialisation_handshake_and_feedback_order(stream):
     for s, m in (("angle", a[0]), ("radar2d", r[0])):
         nodes[s].offer(m)
         ups += nodes[s].step()
-    assert all(u.init_request for u in ups)  # no prior yet: the first measurement goes up
+    assert all(isinstance(u, InitRequest) for u in ups)  # no prior yet: the first measurement goes up
     for u in sorted(ups, key=lambda u: u.order_key):
         assert centre.process(u) == []
     nodes["angle"].offer(a[1])
@@ -45,13 +48,14 @@ def test_initialisation_handshake_and_feedback_order(stream):
     assert nodes["angle"].upstream_watermark(np.inf) < a[1].t
     (init,) = centre.advance(nodes["angle"].upstream_watermark(np.inf))
     downs = centre.take_downlinks()
-    assert sorted(d.node for d in downs) == ["angle", "radar2d"] and all(d.init for d in downs)
+    assert sorted(d.node for d in downs) == ["angle", "radar2d"] and all(isinstance(d, Init) for d in downs)
     for d in downs:
         nodes[d.node].receive(d)
     # Initialised, and the centre's horizon covers every scan before t1: the update may go.
     nodes["angle"].set_horizon(centre.horizon)
     (u,) = nodes["angle"].step()
-    assert u.estimate.extra["feedback_t"] == init.t and u.estimate.nis is not None
+    assert isinstance(u, LocalReport) and u.feedback_t == init.t and u.estimate.nis is not None
+    assert u.estimate.extra == {}  # the link terms are the report's, not the estimate's
     # Next measurement: must wait for the fusion of the scan at t1 (horizon still before it).
     nodes["angle"].offer(a[2])
     assert nodes["angle"].waiting_for == "feedback"
@@ -79,7 +83,7 @@ def test_lost_downlink_runs_alone(stream):
     a = _of(stream, "angle")
     node.offer(a[0])
     (req,) = node.step()
-    assert req.init_request
+    assert isinstance(req, InitRequest)
     for m in a[1:4]:
         node.offer(m)
     assert node.step() == [] and node.waiting_for == "init"
@@ -88,18 +92,23 @@ def test_lost_downlink_runs_alone(stream):
     assert not node.pending
 
 
-def _same_estimate(g, e):
-    """Bit for bit: times, ids, arrays (values and dtype) and every extra."""
-    assert (g.t, g.method, g.node, g.track, g.nis, g.nis_dof) == (e.t, e.method, e.node, e.track, e.nis, e.nis_dof)
-    assert set(g.extra) == set(e.extra)
-    for k in ("x", "P"):
-        a, b = getattr(g, k), getattr(e, k)
-        assert a.dtype == b.dtype == np.float64 and a.tobytes() == b.tobytes(), k
-    for k, v in e.extra.items():
-        if isinstance(v, np.ndarray):
-            assert g.extra[k].dtype == np.float64 and g.extra[k].tobytes() == v.tobytes(), k
-        else:
-            assert type(g.extra[k]) is type(v) and g.extra[k] == v, k
+def _same(g, e, what="message"):
+    """Bit for bit: the same type, and field by field the same times, ids, arrays
+    (values and dtype), estimates and measurements."""
+    assert type(g) is type(e), what
+    if isinstance(e, np.ndarray):
+        assert g.dtype == e.dtype == np.float64 and g.shape == e.shape and g.tobytes() == e.tobytes(), what
+    elif isinstance(e, Measurement):
+        assert g == e, what
+    elif dataclasses.is_dataclass(e):
+        for f in dataclasses.fields(e):
+            _same(getattr(g, f.name), getattr(e, f.name), f"{what}.{f.name}")
+    elif isinstance(e, dict):
+        assert set(g) == set(e), what
+        for k in e:
+            _same(g[k], e[k], f"{what}[{k}]")
+    else:
+        assert g == e, what
 
 
 _IMM = {"motion": "imm", "fusion_rule": "info"}  # local IMMs' per-model terms up, the centre's down
@@ -110,8 +119,8 @@ _IMM = {"motion": "imm", "fusion_rule": "info"}  # local IMMs' per-model terms u
                                          ("DDHNV", {"fusion_rule": "bar-shalom-campo"}),
                                          ("PHHNV", _IMM), ("DDHNV", _IMM), ("KF+TR", {})])
 def test_uplinks_and_downlinks_survive_the_wire(stream, name, config):
-    """Every uplink and downlink of a run, through the wire and back, is the same bit
-    for bit (a measurement's ``seq`` becomes the message's)."""
+    """Every message up and down of a run, through the wire and back, is the same bit
+    for bit (its ``seq`` becomes the message's, and a measurement's with it)."""
     method = NetworkMethod(split(name), config)
     sent, down = [], []
     if name != "KF+TR":
@@ -133,60 +142,71 @@ def test_uplinks_and_downlinks_survive_the_wire(stream, name, config):
     for m in stream if name != "KF+TR" else bearings:
         method.process(m)
     method.finish()
-    assert any(u.estimate is not None for u in sent) or name == "KF+TR"
-    assert any(u.init_request for u in sent)
+    kinds = {type(u) for u in sent}
+    assert kinds == ({MeasurementReport} if name == "KF+TR" else
+                     {InitRequest, PredictionReport} if name == "DDHNV" else {InitRequest, LocalReport})
     for k, u in enumerate(sent):
         back = uplink(decode(encode_uplink(u, "trk-" + u.node, k)))
-        assert (back.t, back.node, back.seq, back.drop) == (u.t, u.node, k, u.drop)
-        assert (back.estimate is None) == (u.estimate is None) and (back.measurement is None) == (u.measurement is None)
-        if u.estimate is not None:
-            _same_estimate(back.estimate, u.estimate)
-        if u.measurement is not None:
-            assert back.measurement == dataclasses.replace(u.measurement, seq=k)
+        want = dataclasses.replace(u, seq=k)
+        if hasattr(u, "measurement"):  # the measurement's seq is the message's too
+            want = dataclasses.replace(want, measurement=dataclasses.replace(u.measurement, seq=k))
+        _same(back, want)
+    reports = [u for u in sent if isinstance(u, (LocalReport, PredictionReport))]
+    assert all((u.models is not None) == (config is _IMM) for u in reports)
+    assert any(u.feedback_t is not None for u in reports) or name == "KF+TR"
+    assert any(u.feedback_t is None for u in reports) == (name == "HNV")  # fed back: every report follows a restart
     assert bool(down) == (name != "KF+TR")
-    assert any(not d.init for d in down) == (name in ("PHHNV", "DDHNV"))  # feedback
-    if name == "DDHNV":
-        assert any("sensor_x" in d.estimate.extra for d in down)
-    if config is _IMM:
-        assert all("imm_loglik" in u.estimate.extra for u in sent if u.report)
-        assert any("imm_mu" in d.estimate.extra for d in down)
-    for k, d in enumerate([*down, Downlink("angle", _fused(method), True)] if down else []):
-        back = downlink(d.node, decode(encode_downlink(d, "fuser", k)))
-        assert (back.node, back.init, back.drop) == (d.node, d.init, d.drop)
-        _same_estimate(back.estimate, d.estimate)
+    feedback = [d for d in down if isinstance(d, Feedback)]
+    assert bool(feedback) == (name in ("PHHNV", "DDHNV")) and all(isinstance(d, (Init, Feedback)) for d in down)
+    assert all((d.update is not None) == (name == "DDHNV") for d in feedback)
+    assert all((d.models is not None) == (config is _IMM) for d in feedback)
+    for k, d in enumerate(down):
+        _same(downlink(d.node, decode(encode_downlink(d, "fuser", k))), d)
 
 
-def test_a_deletion_notice_survives_the_wire():
-    """Many targets: a node's ``drop`` of its local track (an estimate without a local
-    report's fields) and the centre's ``drop`` downlink."""
-    from fusion.types import Estimate
-
-    e = Estimate(4.0, np.arange(6.0), np.eye(6) * 3.0, "PHHNV", "radar2d", "L3")
-    back = uplink(decode(encode_uplink(Uplink(4.0, "radar2d", 2, e, drop=True), "trk-radar2d", 2)))
-    assert back.drop and not back.report and back.estimate.extra == {}
-    _same_estimate(back.estimate, e)
-    d = Downlink("radar2d", dataclasses.replace(e, node="centre"), False, drop=True)
-    back = downlink("radar2d", decode(encode_downlink(d, "fuser", 5)))
-    assert back.drop and not back.init
-    _same_estimate(back.estimate, d.estimate)
+def test_a_deletion_notice_and_order_survive_the_wire():
+    """Many targets: a node's ``drop`` of its local track and the centre's ``drop_track``."""
+    u = Drop(4.0, "radar2d", 2, "L3")
+    _same(uplink(decode(encode_uplink(u, "trk-radar2d", 2))), u)
+    d = DropTrack("radar2d", 5.0, "L3")
+    _same(downlink("radar2d", decode(encode_downlink(d, "fuser", 5))), d)
 
 
 def test_link_messages_refuse_what_the_wire_cannot_say():
-    """An extra a link does not carry, or an estimate stamped off its uplink's time, is
-    an error at the sender, not a silent loss."""
-    from fusion.types import Estimate
-
+    """An extra a link does not carry, a measurement or estimate stamped off its
+    message's time, or a prediction with a NIS is an error at the sender, not a silent loss."""
     e = Estimate(1.0, np.zeros(2), np.eye(2), "HNV", "angle", "T1", extra={"omega": np.ones(2)})
     with pytest.raises(ValueError, match="omega"):
-        encode_uplink(Uplink(1.0, "angle", 1, e), "trk-angle", 1)
-    with pytest.raises(ValueError, match="omega"):
-        encode_downlink(Downlink("angle", dataclasses.replace(e, node="centre"), False), "fuser", 1)
-    with pytest.raises(ValueError, match="t = 2"):
-        encode_uplink(Uplink(2.0, "angle", 1, dataclasses.replace(e, extra={})), "trk-angle", 1)
+        encode_downlink(Init("angle", dataclasses.replace(e, node="centre")), "fuser", 1)
+    plain = dataclasses.replace(e, extra={})
+    m = Measurement(1.5, "angle", "azel", np.array([1.0, 0.1]), np.array([1e-3, 1e-3]), np.zeros(3))
+    with pytest.raises(ValueError, match="measurement at t = 1.5"):
+        encode_uplink(InitRequest(1.0, "angle", 1, m), "trk-angle", 1)
+    with pytest.raises(ValueError, match="estimate of node 'angle' at t = 1.0"):
+        PredictionReport(2.0, "angle", 1, plain, m)
+    with pytest.raises(ValueError, match="no NIS"):
+        encode_uplink(PredictionReport(1.0, "angle", 1, dataclasses.replace(plain, nis=1.0, nis_dof=2),
+                                       dataclasses.replace(m, t=1.0)), "trk-angle", 1)
 
 
-def _fused(method):
-    from fusion.types import Estimate
-
-    f = method.centre.fuser
-    return Estimate(f.t, f.x, f.P, method.name, "centre", "T1")
+@pytest.mark.parametrize("name", ["PHHNV", "DDHNV"])
+def test_a_node_is_named_apart_from_its_sensor(crossing, name):
+    """Many targets, with every sensor's node named ``trk-<sensor>`` instead of after
+    the sensor: the centre sends its inits, feedback and drops to the node that sent the
+    requests (not to a measurement's sensor), and every estimate is the same bit for bit,
+    but for the local reports' ``node``."""
+    ms = [m for m in merged_measurements(crossing, 0) if m.t <= 25.0]
+    same = NetworkMethod(split(name), dict(crossing.tracker))
+    apart = NetworkMethod(split(name), dict(crossing.tracker), node_of=lambda sensor: "trk-" + sensor)
+    runs = []
+    for method in (same, apart):
+        out = []
+        for m in ms:
+            out += method.process(m)
+        runs.append(out + method.finish())
+    assert sorted(apart.nodes) == ["trk-" + s for s in sorted(same.nodes)]
+    a, b = runs
+    assert len(a) == len(b) and sum(e.node == "centre" for e in a) > 20
+    for e, g in zip(a, b):
+        assert g.node == (e.node if e.node == "centre" else "trk-" + e.node)
+        _same(dataclasses.replace(g, node=e.node), e)

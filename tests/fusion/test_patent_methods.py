@@ -13,6 +13,7 @@ from scipy.stats import chi2
 
 from sim3d import ANGLE, RADAR2D, RADAR3D, SensorSpec, centre_track, nees, run_method, simulate  # noqa: E402
 
+from fusion.links import LocalReport  # noqa: E402
 from fusion.methods import method_config  # noqa: E402
 from fusion.methods import METHODS, make_method as make  # noqa: E402
 from fusion.patent import LocalTracker, TrackerConfig, pieces_hndd, pieces_lcdd  # noqa: E402
@@ -211,21 +212,26 @@ def test_lcdd_with_separated_sites_and_hndd_refuses():
 
 
 def test_local_reports_carry_what_the_fusion_rules_need(short_runs):
-    out = run_method(make("HNV", {"fusion_rule": "bar-shalom-campo"}), short_runs.measurements[0])
+    method = make("HNV", {"fusion_rule": "bar-shalom-campo"})
+    sent = []
+    process = method.centre.process
+    method.centre.process = lambda u: sent.append(u) or process(u)
+    out = run_method(method, short_runs.measurements[0])
+    reports = [u for u in sent if isinstance(u, LocalReport)]
     local = [e for e in out if e.node != "centre"]
-    assert {e.node for e in local} == {"angle", "radar2d"}
-    first = {e.node: e for e in reversed(local)}
-    for e in local:
-        assert {"prior_x", "prior_P", "KH", "feedback_t", "prediction"} <= set(e.extra)
-        assert e.nis_dof == 2 and e.nis >= 0
+    assert [u.estimate for u in reports] == local and {u.node for u in reports} == {"angle", "radar2d"}
+    first = {u.node: u for u in reversed(reports)}
+    for u in reports:
+        e = u.estimate
+        assert e.nis_dof == 2 and e.nis >= 0 and u.models is None and e.extra == {}
         # x = x̄ + K ν: the report's K·H moves the prior's information exactly as the Joseph update did.
-        A = np.eye(9) - e.extra["KH"]
-        assert np.all(np.linalg.eigvalsh(A @ e.extra["prior_P"] @ A.T - e.P) <= 1e-6 * np.abs(e.P).max())
-    assert all(e.extra["feedback_t"] == 0.0 for e in first.values())  # started from the centre's initial state
-    assert all(e.extra["feedback_t"] is None for e in local if e.t > 1.0)  # HNV: no feedback
+        A = np.eye(9) - u.KH
+        assert np.all(np.linalg.eigvalsh(A @ u.prior.P @ A.T - e.P) <= 1e-6 * np.abs(e.P).max())
+    assert all(u.feedback_t == 0.0 for u in first.values())  # started from the centre's initial state
+    assert all(u.feedback_t is None for u in reports if u.t > 1.0)  # HNV: no feedback
     lt = LocalTracker("angle", make("SS", {}).motion)
     with pytest.raises(ValueError, match="no prior"):
-        lt.predict(1.0)
+        lt.predict(short_runs.measurements[0][0], 1)
 
 
 # Fusion rules ------------------------------------------------------------------------------

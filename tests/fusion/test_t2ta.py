@@ -14,7 +14,8 @@ from fusion.tracking.hypotheses import track_distance2
 from fusion.motion import make_motion
 from fusion.mtt_metrics import score_tracks
 from fusion.methods import make_method
-from fusion.network import Downlink, MultiTrackCentre
+from fusion.links import DropTrack, Init
+from fusion.network import MultiTrackCentre
 from fusion.patent import LocalTracker
 from fusion.track_fusion import TrackFuser
 from fusion.types import Estimate, Measurement
@@ -56,9 +57,10 @@ def test_a_track_updated_from_the_fused_prediction_is_at_its_nis():
     local.initialise(x0, P0, 0.0)
     z = np.array([np.arctan2(5100.0, 7950.0) + 0.01, np.arctan2(2000.0, np.hypot(5100.0, 7950.0)) - 0.005])
     m = Measurement(1.0, "angle", "azel", z, np.array([1e-3, 1e-3]), np.zeros(3), 0)
-    e = local.update(m)
+    report = local.update(m, 1)
+    e = report.estimate
     x_c, P_c = fuser.predicted(1.0)
-    cross = fuser.cross_covariance(1.0, e)
+    cross = fuser.cross_covariance(1.0, report)
     d2, rank = track_distance2(e.x, e.P, x_c, P_c, cross)
     assert rank == 2
     assert e.nis > 0.1 and d2 == pytest.approx(e.nis, rel=1e-6)
@@ -66,7 +68,7 @@ def test_a_track_updated_from_the_fused_prediction_is_at_its_nis():
     # A track that did not start from this fuser has no known cross-covariance (info rule).
     other = LocalTracker("radar", motion)
     other.initialise(x0, P0, -1.0)
-    assert fuser.cross_covariance(1.0, other.predict(1.0)) is None
+    assert fuser.cross_covariance(1.0, other.predict(m, 1)) is None
 
 
 # A local track the centre drops ---------------------------------------------------------------
@@ -98,14 +100,14 @@ def test_a_dropped_local_track_is_replaced_and_the_fused_id_survives(crossing):
     assert [a.get(truth) for a in s.assignments[i:]] == [fid] * (len(s.t) - i)  # held, by fid, to the end
 
 
-def test_the_drop_downlink_travels():
+def test_the_init_and_drop_downlinks_travel():
     from schemas.links import downlink, encode_downlink
     from schemas.messages import decode
 
     e = Estimate(3.0, np.zeros(9), np.eye(9), "HNV", "centre", "L7")
-    for d in (Downlink("radar", e, False, drop=True), Downlink("radar", e, True)):
+    for d in (DropTrack("radar", 3.0, "L7"), Init("radar", e)):
         back = downlink("radar", decode(encode_downlink(d, "fuser", 1)))
-        assert (back.init, back.drop, back.estimate.track) == (d.init, d.drop, "L7")
+        assert type(back) is type(d) and back.track == "L7"
 
 
 # Memberships: the centre's records follow the nodes' local tracks ------------------------------
@@ -187,19 +189,19 @@ def test_a_node_that_deletes_a_local_track_is_forgotten_and_invited_again(crossi
 
     network, out = _run(crossing, "HNV", hook)
     key, fid, old, t0 = seen["lost"]
-    assert not any(drop and e.track == old for _, e, _, drop in seen["down"])  # learnt, not dropped
+    assert not any(isinstance(d, DropTrack) and d.track == old for d in seen["down"])  # learnt, not dropped
     assert old not in _members(network.centre, "radar") and old not in network.nodes["radar"].tracks
-    assert any(init for node, e, init, _ in seen["down"] if node == "radar")  # invited again ...
+    assert any(isinstance(d, Init) for d in seen["down"] if d.node == "radar")  # invited again ...
     f = next(f for f in network.centre.tracks if f.key == key)
     assert f.id == fid and f.members["radar"] not in (None, old)  # ... onto the same fused track
     assert _held_to_the_end(crossing, out, fid, t0)
 
 
 def _record(send, log: list):
-    """``Centre._send`` that also logs ``(node, estimate, init, drop)``."""
-    def recording(node, e, init, drop=False):
-        log.append((node, e, init, drop))
-        send(node, e, init, drop)
+    """``Centre._send`` that also logs what it sends."""
+    def recording(d):
+        log.append(d)
+        send(d)
     return recording
 
 

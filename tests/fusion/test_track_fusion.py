@@ -18,6 +18,7 @@ from fusion.track_fusion import (
     fuse_info,
     fuse_naive,
 )
+from fusion.links import Gaussian, LocalReport
 from fusion.types import Estimate
 
 
@@ -207,8 +208,8 @@ def _two_linear_trackers(feedback: bool, steps=8, samples=20_000, seed=9):
             res = kalman.update(np.zeros(9), Pp, np.zeros(3), H, Rs[i])
             est[i] = xp + (z - xp @ H.T) @ res.K.T
             Ps[i] = res.P
-            extra = {"KH": res.K @ H, "feedback_t": fb_t[i], "prior_x": np.zeros(9), "prior_P": Pp}
-            reports.append(Estimate(float(k), np.zeros(9), res.P, "HNV", f"n{i}", extra=extra))
+            reports.append(LocalReport(float(k), f"n{i}", k, Estimate(float(k), np.zeros(9), res.P, "HNV", f"n{i}"),
+                                       Gaussian(np.zeros(9), Pp), res.K @ H, fb_t[i]))
             fb_t[i] = None
         fused = fuser.fuse(float(k), reports)
         if feedback and k < steps:
@@ -241,15 +242,23 @@ def test_bsc_cross_covariance_recursion_matches_monte_carlo(feedback):
     assert np.abs((np.cov(ef.T) - fused.P) / np.outer(sdf, sdf)).max() < 5 / np.sqrt(len(ef))
 
 
-def test_fuser_info_rule_needs_priors_and_bsc_needs_gains():
+def test_fuser_refuses_reports_it_cannot_fuse():
+    """A report at another time than the fusion's, two of one node, and (bar-shalom-campo)
+    one from a node whose track did not start from the fuser's estimate."""
     m = ConstantAcceleration(1.0)
-    e = Estimate(1.0, np.zeros(9), np.eye(9), "HNV", "a")
-    for rule, key in [("info", "prior_x"), ("bar-shalom-campo", "KH")]:
-        f = TrackFuser(rule, m)
-        f.initialise(np.zeros(9), np.eye(9), 0.0)
-        with pytest.raises(ValueError, match=key):
-            f.fuse(1.0, [e])
+
+    def report(node, t=1.0, feedback_t=None):
+        return LocalReport(t, node, 1, Estimate(t, np.zeros(9), np.eye(9), "HNV", node), Gaussian(np.zeros(9), np.eye(9)),
+                           np.zeros((9, 9)), feedback_t)
+
     f = TrackFuser("naive", m)
     f.initialise(np.zeros(9), np.eye(9), 0.0)
     with pytest.raises(ValueError, match="t=1.0"):
-        f.fuse(2.0, [e])
+        f.fuse(2.0, [report("a")])
+    with pytest.raises(ValueError, match="two tracks from one node"):
+        f.fuse(1.0, [report("a"), report("a")])
+    f = TrackFuser("bar-shalom-campo", m)
+    f.initialise(np.zeros(9), np.eye(9), 0.0)
+    with pytest.raises(ValueError, match="no cross-covariance for node 'a'"):
+        f.fuse(1.0, [report("a")])
+    f.fuse(1.0, [report("a", feedback_t=0.0)])  # restarted from the fuser's estimate at 0: known

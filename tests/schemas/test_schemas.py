@@ -9,7 +9,7 @@ import pytest
 from fusion.types import Estimate, Measurement
 from schemas import KeySpace, SchemaError, decode, encode, encode_estimate, encode_measurement, to_estimate, \
     to_measurement
-from _wire import ALL_KINDS, CASES, SITE, good, pack, with_field
+from _wire import ALL_KINDS, CASES, OPTIONAL, SITE, good, pack, with_field
 
 @pytest.mark.parametrize("kind", ALL_KINDS)
 def test_good_messages_validate(kind):
@@ -29,8 +29,7 @@ def test_bad_field_gives_named_error(kind, field, value, cause):
 @pytest.mark.parametrize("kind", ALL_KINDS)
 def test_missing_required_field(kind):
     d = good(kind)
-    required = [k for k in d if k not in ("final", "nis", "nis_dof", "affects", "counters", "events", "sensor_x",
-                                          "sensor_P", "imm_xs", "imm_Ps", "imm_mu")]
+    required = [k for k in d if k not in OPTIONAL]
     for f in required:
         dd = dict(d)
         del dd[f]

@@ -16,7 +16,7 @@ import pytest
 import zenoh
 
 from fusion.motion import make_motion
-from fusion.network import Uplink
+from fusion.links import LocalReport
 from fusion.patent import LocalTracker
 from fusion.measurement.models import SphericalModel
 from fusion.types import Estimate
@@ -68,10 +68,10 @@ def test_existence_of_a_local_track_crosses_the_link():
     tr = LocalTracker("radar", make_motion("cv", 0.1), "HNV", "L1")
     tr.initialise(np.array([0.0, 20000.0, 5000.0, 0.0, 100.0, 0.0]), np.diag([1e4] * 3 + [100.0] * 3), 0.0)
     Z = np.array([model.h(np.array([0.0, 20100.0, 5000.0, 0, 0, 0])), model.h(np.array([50.0, 20000.0, 5030.0, 0, 0, 0]))])
-    e = tr.update_weighted(model, Z, [0.5, 0.3], 0.2, 1.0)
-    e = Estimate(e.t, e.x, e.P, e.method, e.node, e.track, e.nis, e.nis_dof, e.extra, existence=0.83)
-    got = uplink(decode(encode_uplink(Uplink(1.0, "radar", 1, e), "trk-radar", 1))).estimate
-    assert got.existence == 0.83 and got.nis == pytest.approx(e.nis) and got.extra["prediction"] is False
+    report = tr.update_weighted(model, Z, [0.5, 0.3], 0.2, 1.0, seq=1, existence=0.83)
+    got = uplink(decode(encode_uplink(report, "trk-radar", 1)))
+    assert isinstance(got, LocalReport) and got.estimate.existence == 0.83
+    assert got.estimate.nis == pytest.approx(report.estimate.nis) and np.array_equal(got.KH, report.KH)
 
 
 def test_geojson_and_cot_carry_existence():

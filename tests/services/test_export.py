@@ -22,7 +22,7 @@ import pymap3d
 import pytest
 import zenoh
 
-from fusion.network import Downlink
+from fusion.links import Init
 from fusion.types import Estimate
 from schemas import KeySpace, encode_estimate
 from schemas.links import encode_downlink
@@ -92,8 +92,8 @@ def test_picture_drops_bad_input_counts_it_and_is_unchanged():
         "out-of-order": (KEYS.fused(), _est(0.5, [1.0, 2.0], seq=4)),
         "future": (KEYS.fused(), _est(1e6, [1.0, 2.0], seq=5)),
         "past": (KEYS.fused(), _est(-5.0, [1.0, 2.0], seq=6)),
-        "kind": (KEYS.fused(), encode_downlink(Downlink("df1", Estimate(2.0, np.ones(2), np.eye(2), "EKF", "centre",
-                                                                         "E1"), False), "fuser", 7)),
+        "kind": (KEYS.fused(), encode_downlink(Init("df1", Estimate(2.0, np.ones(2), np.eye(2), "EKF", "centre", "E1")),
+                                               "fuser", 7)),
     }
     for cause, (key, data) in bad.items():
         assert pic.offer(key, data) is None, cause

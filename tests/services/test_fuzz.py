@@ -212,7 +212,7 @@ def oversized() -> tuple[Hostile, ...]:
 misplacement = st.sampled_from([(case, k, w) for case in ["kind", "src", "sensor", "stranger", "future", "past"]
                                  for k in ["radar2d", "angle"] for w in (False, True)
                                  if w is False or case in ("src", "stranger", "future")])
-foreign_kind = st.sampled_from(["track", "uplink", "downlink", "truth", "jam_state", "status"])
+foreign_kind = st.sampled_from(["track", "init_request", "local_report", "feedback", "truth", "jam_state", "status"])
 past_t = st.floats(-1e308, -1e-9)
 
 

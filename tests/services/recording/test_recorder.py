@@ -20,8 +20,10 @@ from scipy.stats import chi2
 
 import services.recording.recorder as recorder_mod
 import services.scoring as scoring
+from fusion.links import Drop, DropTrack
 from fusion.types import Measurement
 from schemas import KeySpace, decode, encode, encode_estimate
+from schemas.links import encode_downlink, encode_uplink
 from sensors_sim import load_scenario
 from services.recording import draw
 from services.node import ZenohOptions
@@ -166,19 +168,18 @@ def test_local_tracks_feedback_predictions_and_uplinked_measurements(tmp_path):
         x = np.array([6000.0 + 100 * t + 10, 8000.0, 2000.0, 100.0, 0, 0])
         m = meas_msg("radar2d", "range_az", [0.64, 10200.0], [0.017, 20.0], t, k)
         s.put(KEYS.meas("radar2d"), m)
-        up = Measurement(t, "radar2d", "range_az", np.array([0.64, 10200.0]), np.array([0.017, 20.0]), np.zeros(3),
-                         2 * k + 1)  # the tracker sends it up with its update
-        s.put(KEYS.local("trk-radar2d"), uplink_msg(t, x, P6, "HNV", "radar2d", nis=0.5, dof=2, seq=2 * k + 1,
-                                                 prediction=False, measurement=up))
+        s.put(KEYS.local("trk-radar2d"), uplink_msg(t, x, P6, "HNV", "radar2d", nis=0.5, dof=2, seq=2 * k + 1))
         s.put(KEYS.local("trk-radar2d"), encode("watermark", "trk-radar2d", 2 * k + 2, t))
-        s.put(KEYS.local("trk-angle"), uplink_msg(t, x, P6, "HNV", "angle", seq=k + 1, prediction=True))
+        up = Measurement(t, "angle", "azel", np.array([0.64, 0.2]), np.array([0.001, 0.001]), np.zeros(3),
+                         k + 1)  # the tracker sends it up with its prediction (two-stage)
+        s.put(KEYS.local("trk-angle"), uplink_msg(t, x, P6, "HNV", "angle", seq=k + 1, measurement=up))
         s.put(KEYS.feedback("trk-radar2d"), downlink_msg(t, x, P6, "HNV", "radar2d", seq=2 * k + 1))
         s.put(KEYS.feedback("trk-radar2d"), encode("watermark", "fuser", 2 * k + 2, t))  # feedback horizon
         s.put(KEYS.fused(), est_msg(t, x, P6, "HNV", "centre", seq=k + 1))
     assert s.reject.total == 0 and s.r.uplinked == N
     rows = s.close()
     assert len(rows["/world/meas/radar2d"]) == N  # the sensor's reports, once
-    assert len(rows["/world/tracks/radar2d/uplink"]) == N  # what its tracker sent up, as the node's
+    assert len(rows["/world/tracks/angle/uplink"]) == N  # what its tracker sent up, as the node's
     assert len(rows["/world/tracks/radar2d/T1"]) == N
     assert len(rows["/world/tracks/angle/T1/prediction"]) == N and "/world/tracks/angle/T1" not in rows
     assert len(rows["/world/feedback/trk-radar2d/T1"]) == N
@@ -439,10 +440,11 @@ def test_many_target_tracks_have_entities_by_id_and_are_cleared_once_gone(tmp_pa
     labelled with its id; a track its stream stops reporting is cleared once the
     stream has reported ``delete_misses`` frames without it, and not before."""
     from fusion.mtt import AssociationConfig
-    from fusion.network import Uplink
     from schemas.keys import tracker_id
     from schemas.links import encode_uplink
     from services.evaluation import run_method
+
+    from _recording import report_of
 
     sc = load_scenario(CROSSING)
     K = AssociationConfig.split(sc.tracker)[0].delete_misses
@@ -458,7 +460,7 @@ def test_many_target_tracks_have_entities_by_id_and_are_cleared_once_gone(tmp_pa
         if fused:
             s.put(KEYS.fused(), encode_estimate(e, src, seq))
         else:
-            data = encode_uplink(Uplink(e.t, e.node, seq, e), src, seq)
+            data = encode_uplink(report_of(e, seq), src, seq)
             s.put(KEYS.local(src), data)
         if not frames.setdefault(src, []) or frames[src][-1] < e.t:
             frames[src].append(e.t)
@@ -485,6 +487,30 @@ def test_many_target_tracks_have_entities_by_id_and_are_cleared_once_gone(tmp_pa
         want = expected_clear[(node, track)]
         assert clears == ([want] if want is not None else []), (node, track, clears, want)
         assert all(r["t"] <= clears[0] for r in drawn) if clears else True
+
+
+@pytest.mark.parametrize("by", ["node", "centre"])
+def test_a_dropped_local_track_is_cleared_at_the_drop(tmp_path, by):
+    """A local track the node says it deleted (``drop`` on ``local/<node>``) or the centre
+    tells it to delete (``drop_track`` on ``feedback/<node>``) is cleared at the drop's
+    time, not drawn as a report or as feedback; the node's other track stays."""
+    x, P = [6000.0, 8000.0, 2000.0, 100.0, 0.0, 0.0], np.eye(6)
+    s = Session(tmp_path)
+    for k, t in enumerate((1.0, 2.0)):
+        for j, track in enumerate(("L1", "L2")):
+            s.put(KEYS.local("trk-radar2d"), uplink_msg(t, x, P, "HNV", "radar2d", track, nis=0.5, dof=2,
+                                                        seq=2 * k + j + 1))
+    if by == "node":
+        s.put(KEYS.local("trk-radar2d"), encode_uplink(Drop(3.0, "radar2d", 5, "L1"), "trk-radar2d", 5))
+    else:
+        s.put(KEYS.feedback("trk-radar2d"), encode_downlink(DropTrack("radar2d", 3.0, "L1"), "fuser", 1))
+    assert s.reject.total == 0
+    rows = s.close()
+    for track, clears in (("L1", [3.0]), ("L2", [])):
+        rs = rows[_track_entity("radar2d", track)]
+        assert [r["t"] for r in rs if "Points3D:positions" in r] == [1.0, 2.0]
+        assert [r["t"] for r in rs if r.get("Clear:is_recursive") is not None] == clears, track
+    assert not any(p.startswith("/world/feedback/") for p in rows)
 
 
 @pytest.mark.parametrize("truth_first", [True, False])
