@@ -17,9 +17,7 @@ from .commands import (export, fuser, ingest, picture, plan, record, router, run
                        view)
 from .commands.options import Parser
 from .errors import INTERRUPTED, UserError, one_line
-from .lazy import lazy
-
-node = lazy("services.node")
+from .logs import setup_logging
 
 # In the order of `zfusion --help`: a user's commands, then the processes of a deployment.
 COMMANDS = (run, eval_command, scenarios, plan, view, router, sensor, fuser, tracker, picture, record, ingest,
@@ -37,7 +35,7 @@ def build_parser() -> Parser:
 def main(argv: list[str] | None = None) -> int:
     """Run one command; a user's error is one line on stderr (services/errors.py)."""
     args = build_parser().parse_args(argv)
-    node.setup_logging(getattr(args, "verbose", False))
+    setup_logging(getattr(args, "verbose", False))
     try:
         config = getattr(args, "zenoh_config", None)
         if config and not Path(config).is_file():

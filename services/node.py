@@ -13,7 +13,6 @@ import logging
 import queue
 import signal
 import struct
-import sys
 import tempfile
 import threading
 import time
@@ -28,6 +27,7 @@ import zenoh.ext as zx
 from schemas import KeySpace, encode
 
 from .commands.options import split_override
+from .logs import setup_logging  # noqa: F401  (where the benchmarks' rig takes it from)
 from .resources import own_usage
 
 log = logging.getLogger("zfusion")
@@ -530,7 +530,3 @@ class Node:
         self._status_pub.put(encode("status", self.id, self._status_seq, t, state=state, role=self.role,
                                     counters=counters, events=events, sources=sources or {}))
 
-
-def setup_logging(verbose: bool = False) -> None:
-    logging.basicConfig(level=logging.DEBUG if verbose else logging.INFO, stream=sys.stderr,
-                        format="%(asctime)s %(levelname)s %(message)s", datefmt="%H:%M:%S")

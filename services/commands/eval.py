@@ -44,7 +44,7 @@ def run(args) -> int:
     if args.jobs < 1:
         raise UserError("--jobs must be >= 1")
     if args.json:  # the outputs checked before the Monte Carlo, not after it
-        options.writable_dir(Path(args.json).parent, "--json")
+        options.writable_file(args.json, "--json")
     if args.report:
         options.writable_dir(Path(args.report), "--report")
         try:
