@@ -344,7 +344,7 @@ def run(process_id: str, scenario_ref: str, method_name: str, overrides: dict, k
         sources = list(scenario.sensors)
     periods = {src: scenario.sensor(intake.nodes[src] if isinstance(intake, UplinkIntake) else src).period
                for src in sources}
-    with Node(process_id, "fuser", keys, zopts) as node:
+    with Node(process_id, "fuser", keys, zopts, live=live is not None) as node:
         inbox = Inbox(node.stop)
         if isinstance(method, TrackCentre):
             method = JoinGate(method, node.reject)

@@ -340,7 +340,7 @@ def run(args) -> int:
         fusion_rule=args.fusion_rule, duration=args.duration_s, live=live_opts,
         spawn=getattr(args, "spawn", False), rotate_s=getattr(args, "rotate_s", None), outputs=outputs)
 
-    node = Node(LAUNCHER_ID, "launcher", KeySpace(args.deployment), fabric.mine)
+    node = Node(LAUNCHER_ID, "launcher", KeySpace(args.deployment), fabric.mine, live=live)
     try:
         node.__enter__()
     except zenoh.ZError as e:  # e.g. --listen on a port in use

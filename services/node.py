@@ -356,13 +356,15 @@ class RejectLog:
 
 
 class Node:
-    """A zfusion process on the fabric."""
+    """A zfusion process on the fabric. ``live``: a process of a live session (or a
+    gateway), whose time base is UTC (:meth:`publish_status`)."""
 
-    def __init__(self, process_id: str, role: str, keys: KeySpace, zopts: ZenohOptions):
+    def __init__(self, process_id: str, role: str, keys: KeySpace, zopts: ZenohOptions, live: bool = False):
         self.id = process_id
         self.role = role
         self.keys = keys
         self.zopts = zopts
+        self.live = live
         self.stop = threading.Event()
         self.counters: dict[str, float] = {}
         self.events: list[str] = []
@@ -520,6 +522,12 @@ class Node:
 
     def publish_status(self, state: str, t: float = 0.0, extra: dict[str, float] | None = None,
                        sources: dict | None = None) -> None:
+        """The process's state and counters on ``status/<id>``, stamped with ``t``, the
+        scenario time it has reached (0: none yet); a live process's with this host's UTC
+        clock, when it is said (``t`` is 0 there too before any data: 1970 on a live
+        recording's timeline)."""
+        if self.live:
+            t = time.time()
         counters = {**self.counters, **{f"rejected.{c}": n for c, n in self.reject.by_cause.items()}}
         counters["rejected"] = self.reject.total
         counters.update(own_usage())  # cpu_s, max_rss_mb: for the run summary's processes

@@ -200,7 +200,7 @@ def run_krakensdr(args, keys: KeySpace, zopts) -> int:
     url = poll_url(args.url, args.format) if args.url else None
     listen = _host_port(args.listen, "--listen") if args.listen else None
     frame, sensors = _site_sensors(args, options.channel_ids(args.id))
-    with Node(args.id, "ingest", keys, zopts) as node:
+    with Node(args.id, "ingest", keys, zopts, live=True) as node:
         gateway = _gateway(node, args, frame, sensors)
         station = KrakenStation(args.id, options)
         if url:
@@ -393,7 +393,7 @@ def _listen(node: Node, gateway: Gateway, station: KrakenStation, where: tuple[s
 def run_jsonl(args, keys: KeySpace, zopts) -> int:
     source = _input(args.input)
     frame, sensors = _site_sensors(args, [args.id])
-    with Node(args.id, "ingest", keys, zopts) as node:
+    with Node(args.id, "ingest", keys, zopts, live=True) as node:
         gateway = _gateway(node, args, frame, sensors)
         return _jsonl(node, gateway, source, args)
 
@@ -624,7 +624,7 @@ def run_asterix(args, keys: KeySpace, zopts) -> int:
             raise UserError(f"--pcap {args.pcap}: {getattr(e, 'strerror', None) or e}") from None
     else:
         sock = _udp_socket(args.udp)
-    with Node(args.id, "ingest", keys, zopts) as node:
+    with Node(args.id, "ingest", keys, zopts, live=True) as node:
         ingest = AsterixIngest(feed, _gateway(node, args, frame, sensors), node.reject, src=args.id)
         outlet = Outlet(node, ingest.gateway, ingest.counters)
         node.announce()
