@@ -555,7 +555,8 @@ class RecordingSink:
         self.rotation = Rotation(rrd_path, rotate_s) if rotate_s else None
         self.opener = functools.partial(open_recording, app=app, spawn=spawn, df=df,
                                         many=hasattr(sc, "targets") and many_targets(sc), geo=sc is not None,
-                                        live=live is not None)
+                                        live=live is not None,
+                                        map_zoom=recorder_map.zoom_of(sc, DEFAULT_RAY_M) if sc is not None else None)
         self.rec, _ = self.opener(str(self.rotation.first()) if self.rotation else rrd_path)
         guard = ClockGuard(live.max_skew) if live is not None else None
         self.recorder = Recorder(self.rec, node.keys, node.reject, sc, clock_guard=guard)
