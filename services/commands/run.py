@@ -10,7 +10,7 @@ from ..errors import UserError
 from ..export.outputs import OUTPUTS
 from ..lazy import lazy
 from ..rotation import rotated_path
-from . import options
+from . import names, options
 
 launcher = lazy("services.launcher")
 
@@ -56,6 +56,8 @@ def run(args) -> int:
         raise UserError("--live runs in real time: remove --speed")
     if not args.live and args.for_s is not None:
         raise UserError("--for is for live runs: add --live, or use --duration-s")
+    names.check_scenario(args.scenario)
+    names.check_method(args.method)
     check_outputs(args)
     return launcher.run(args)
 
