@@ -44,6 +44,7 @@ from schemas.links import encode_downlink, horizon_message, uplink
 from .intake import HORIZON_SLACK_S, Intake
 from .lazy import lazy
 from .live import ClockGuard, LiveOptions
+from .logs import utc_text
 from .node import Inbox, Node, Recovery, RejectLog
 from .ordering import DEFAULT_MAX_HELD, WatermarkMerger, hold_cap
 from .picture import Picture
@@ -253,7 +254,8 @@ class FuserCore:
         self.merger.check_timeouts(now, self.events)
         items, wm = self.merger.release(now)
         if items and not self.processed:  # t > 0 for a fuser restarted mid-stream
-            self.events.append(f"input starts at t = {items[0].t:g} s")
+            self.events.append(f"input starts at {utc_text(items[0].t)}" if self.live is not None
+                               else f"input starts at t = {items[0].t:g} s")
         out: list[Estimate] = []
         if self.refilter is not None:
             late = self.merger.take_oosm()  # all at or before the previous release: re-filter first

@@ -39,7 +39,7 @@ from fusion.methods import TRACK_FUSION_METHODS, track_fusion_rule
 from schemas import KeySpace, to_estimate
 
 from .commands import options
-from .errors import FAILURE, UserError
+from .errors import FAILURE, UserError, zenoh_reason
 from .export.outputs import OUTPUTS
 from .intake import Intake
 from .node import Inbox, Node, ZenohOptions
@@ -89,11 +89,6 @@ def _ephemeral_low() -> int:
         return int(Path("/proc/sys/net/ipv4/ip_local_port_range").read_text().split()[0])
     except (OSError, ValueError, IndexError):
         return 32768
-
-
-def zenoh_reason(e: Exception) -> str:
-    """A Zenoh error on one line, without its source locations."""
-    return str(e).split(" at /")[0].replace("\n", " ")[:300]
 
 
 def unreachable(endpoints: Iterable[str], timeout: float = 2.0) -> list[str]:

@@ -17,6 +17,9 @@ log = logging.getLogger("zfusion")
 def setup_logging(verbose: bool = False) -> None:
     logging.basicConfig(level=logging.DEBUG if verbose else logging.INFO, stream=sys.stderr,
                         format="%(asctime)s %(levelname)s %(message)s", datefmt="%H:%M:%S")
+    # A library's chatter is not ours: matplotlib's "building the font cache" on the first
+    # eval --report, its font lookups with -v.
+    logging.getLogger("matplotlib").setLevel(logging.ERROR)
 
 
 def chatty() -> bool:

@@ -20,7 +20,8 @@ pytestmark = pytest.mark.slow
 
 @pytest.fixture(scope="module")
 def live(tmp_path_factory):
-    """patent-3d live for 12 s: (the wall time just before it started, the recording, the summary)."""
+    """patent-3d live for 12 s: (the wall time just before it started, the recording, the
+    summary, its stderr)."""
     tmp = tmp_path_factory.mktemp("live")
     t0 = time.time()
     p = zfusion("run", "--scenario", "patent-3d", "--live", "--for", "12", "--rrd", str(tmp / "live.rrd"),
@@ -29,11 +30,11 @@ def live(tmp_path_factory):
     out, err = p.communicate(timeout=240)
     assert p.returncode == 0, err[-3000:]
     verify(tmp / "live.rrd")
-    return t0, tmp / "live.rrd", json.loads((tmp / "live.json").read_text())
+    return t0, tmp / "live.rrd", json.loads((tmp / "live.json").read_text()), err
 
 
 def test_no_row_of_a_live_recording_is_before_the_session(live):
-    t0, rrd, doc = live
+    t0, rrd, doc, _ = live
     rows = row_times(rrd, "utc")
     assert rows, "no row on the utc timeline"
     early = {path: times[0] for path, times in rows.items() if times[0] < t0}
@@ -88,7 +89,7 @@ def test_the_map_panel_opens_on_the_sites_track_and_truth(live):
     share one site, a single point, so it kept zoom 16 (1 km across) at the middle of a
     track 10 km out, and drew nothing. The blueprint now gives the zoom of the session's
     area: what the recording holds at its end lies inside a map panel of 440 x 640 points."""
-    _, rrd, _ = live
+    _, rrd, _, _ = live
     zoom = _map_zoom(rrd)
     assert zoom is not None and 8.0 < zoom < 16.0, zoom
     shown = _latest_map_points(rrd)
@@ -98,3 +99,11 @@ def test_the_map_panel_opens_on_the_sites_track_and_truth(live):
     half = np.abs(xy - centre).max(axis=0)
     assert half[0] <= 220 and half[1] <= 320, half  # within the panel
     assert max(half) > 40, half  # and not a dot in its middle: the zoom fits the area
+
+
+def test_the_live_log_says_utc_times_as_iso(live):
+    """The fuser's first input time was printed as an epoch number, 1.79632e+09 s."""
+    t0, _, _, err = live
+    line = next(ln for ln in err.splitlines() if "fuser: input starts at " in ln)
+    day = time.strftime("%Y-%m-%dT", time.gmtime(t0))
+    assert f"fuser: input starts at {day}" in line and line.endswith("Z") and "e+09" not in err, line
