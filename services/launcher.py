@@ -404,6 +404,7 @@ def report(args, launch: Launch, scenario, topology: str, method: str, rrd: str,
     doc["recordings"] = launch.sup.recordings or [rrd]
     if getattr(args, "rotate_s", None):  # each recorder's files, in order
         doc["recordings"] = [str(f) for r in doc["recordings"] for f in rotated_files(r)]
+        doc["recording"] = doc["recordings"][0] if doc["recordings"] else rrd  # the first file: rrd is only a stem
     doc["exit_codes"] = codes
     doc["outages"] = launch.sup.outages
     usage = dict(launch.usage)
