@@ -30,7 +30,7 @@ from .mtt import MultiTargetMethod
 from .df.stations import station_split
 from .network import NetworkMethod, Split, track_split
 from .patent import KINDS_3D, TrackerConfig, centralised, pieces_hndd, pieces_lcdd, pieces_stacked
-from .topology import TOPOLOGIES, scheme_of
+from .topology import METHOD_TOPOLOGIES, TOPOLOGIES, scheme_of
 from .tracking.config import AssociationConfig
 
 FAMILIES = ("df", "3d")
@@ -123,6 +123,8 @@ METHODS: dict[str, MethodSpec] = {s.name: s for s in (
 )}
 if set(DF_METHODS) != {n for n, s in METHODS.items() if s.family == "df"}:
     raise RuntimeError("fusion.df.methods.DF_METHODS and the registry disagree")
+if list(METHOD_TOPOLOGIES.items()) != [(n, s.topology) for n, s in METHODS.items()]:
+    raise RuntimeError("fusion.topology.METHOD_TOPOLOGIES and the registry disagree")
 TRACK_FUSION_METHODS = tuple(s.name for s in METHODS.values() if s.fuses_tracks)
 SPLIT_METHODS = tuple(s.name for s in METHODS.values() if s.split is not None)
 

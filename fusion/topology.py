@@ -23,6 +23,14 @@ TOPOLOGIES = ("centralised", "distributed", "feedback", "two-stage")
 # The track-to-track fusion rules of a split topology's centre (fusion.track_fusion), named
 # here so that the command line offers them without loading the estimation methods.
 FUSION_RULES = ("naive", "bar-shalom-campo", "ci", "info")
+# Every method's name and topology, in the registry's order (fusion.methods.METHODS, which
+# checks it agrees), so the command line checks a method's name without loading them.
+METHOD_TOPOLOGIES = {
+    **dict.fromkeys(("EKF", "MEKF1", "MEKF2", "MEKF3", "MEKF4", "MEKF5", "IMM", "TORRIERI"), "centralised"),
+    "KF+TR": "distributed", "MKF+TR": "distributed",
+    **dict.fromkeys(("RADAR2D", "ANGLE", "RADAR3D", "LCDD", "HNDD", "SS"), "centralised"),
+    "HNV": "distributed", "PHHNV": "feedback", "DDHNV": "two-stage",
+}
 
 
 @dataclass(frozen=True)

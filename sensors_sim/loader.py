@@ -87,14 +87,14 @@ def load_site(name_or_path: str | os.PathLike) -> SiteSpec:
     """Load a site file, or a scenario (built-in name or path) as the site it contains:
     a file with any of the scenario-only keys (seed, duration_s, targets, ...) is
     loaded, and validated, as a whole scenario."""
-    root, name, display = _parse(name_or_path)
+    root, name, display = _parse(name_or_path, "site file")
     if any(root.has(k) for k in _SCENARIO_KEYS):
         return _scenario(root, name, display)
     return _site_file(root, name, display)
 
 
-def _parse(name_or_path) -> tuple[Reader, str, str]:
-    text, name, display = _read(name_or_path)
+def _parse(name_or_path, what: str = "scenario file") -> tuple[Reader, str, str]:
+    text, name, display = _read(name_or_path, what)
     source = TomlSource(text, display)
     try:
         data = tomllib.loads(text)
@@ -104,8 +104,8 @@ def _parse(name_or_path) -> tuple[Reader, str, str]:
     return Reader(data, (), source), name, display
 
 
-def _read(name_or_path) -> tuple[str, str, str]:
-    """(text, scenario name, name used in messages)."""
+def _read(name_or_path, what: str = "scenario file") -> tuple[str, str, str]:
+    """(text, scenario name, name used in messages); ``what`` the file is, in them."""
     s = os.fspath(name_or_path)
     looks_like_path = s.endswith(".toml") or os.sep in s or (os.altsep and os.altsep in s) or os.path.exists(s)
     if looks_like_path:
@@ -113,7 +113,7 @@ def _read(name_or_path) -> tuple[str, str, str]:
         try:
             return p.read_text(encoding="utf-8"), p.stem, s
         except OSError as e:
-            raise ScenarioError(f"{s}: cannot read scenario file: {e.strerror}") from None
+            raise ScenarioError(f"{s}: cannot read {what}: {e.strerror}") from None
     entry = _builtin_dir().joinpath(f"{s}.toml")
     if not entry.is_file():
         names = ", ".join(n for n, _ in list_scenarios())

@@ -9,6 +9,8 @@ at once; a command's modules load when it runs.
 
 from __future__ import annotations
 
+import argparse
+import difflib
 import sys
 from pathlib import Path
 
@@ -17,9 +19,7 @@ from .commands import (export, fuser, ingest, picture, plan, record, router, run
                        view)
 from .commands.options import Parser
 from .errors import INTERRUPTED, UserError, one_line
-from .lazy import lazy
-
-node = lazy("services.node")
+from .logs import setup_logging
 
 # In the order of `zfusion --help`: a user's commands, then the processes of a deployment.
 COMMANDS = (run, eval_command, scenarios, plan, view, router, sensor, fuser, tracker, picture, record, ingest,
@@ -34,10 +34,45 @@ def build_parser() -> Parser:
     return ap
 
 
+def command_parser(ap: argparse.ArgumentParser, argv: list[str]) -> argparse.ArgumentParser:
+    """The parser of the command ``argv`` names (``run``; ``ingest jsonl``), else ``ap``."""
+    p = ap
+    for token in argv:
+        if token.startswith("-"):
+            continue
+        subs = [a for a in p._actions if isinstance(a, argparse._SubParsersAction)]
+        if not subs or token not in subs[0].choices:
+            break
+        p = subs[0].choices[token]
+    return p
+
+
+def check_options(p: argparse.ArgumentParser, argv: list[str]) -> None:
+    """An option the command does not take is refused by the command, with the option it
+    may mean (argparse says only that a required one is missing, or leaves the unknown
+    one to the top-level parser, which names no command)."""
+    known = [o for o in p._option_string_actions if o.startswith("--")]
+    for token in argv:
+        if token == "--":
+            return
+        name = token.split("=", 1)[0]
+        if not name.startswith("--") or name in known or any(o.startswith(name) for o in known):
+            continue  # argparse takes an unambiguous prefix of an option (and says if it is ambiguous)
+        close = difflib.get_close_matches(name, known, n=1)
+        p.error(f"unrecognized argument {name}" + (f"; did you mean {close[0]}?" if close else ""))
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run one command; a user's error is one line on stderr (services/errors.py)."""
-    args = build_parser().parse_args(argv)
-    node.setup_logging(getattr(args, "verbose", False))
+    argv = sys.argv[1:] if argv is None else list(argv)
+    ap = build_parser()
+    command = command_parser(ap, argv)
+    if command is not ap:
+        check_options(command, argv)
+    args, extra = ap.parse_known_args(argv)
+    if extra:
+        command.error(f"unrecognized arguments: {' '.join(extra)}")
+    setup_logging(getattr(args, "verbose", False))
     try:
         config = getattr(args, "zenoh_config", None)
         if config and not Path(config).is_file():

@@ -25,6 +25,7 @@ FAILURE = 1
 INTERRUPTED = 130
 
 _RUST_AT = re.compile(r"\s+at /\S+\.rs:\d+\.?")
+_RUST_MSG = re.compile(r'msg: "((?:[^"\\]|\\.)*)"')
 
 
 class UserError(Exception):
@@ -35,9 +36,20 @@ class UserError(Exception):
         self.code = code
 
 
+def zenoh_reason(exc: BaseException) -> str:
+    """A Zenoh error's text on one line: the message of a Rust debug structure
+    (``Json5Err(Message { msg: "..." })``), without source locations."""
+    text = str(exc)
+    m = _RUST_MSG.search(text)
+    if m:
+        text = m.group(1).replace('\\"', '"')
+    text = re.sub(r"Single\((\S+?)\)", r"\1", _RUST_AT.sub("", text))
+    return " ".join(text.split()).rstrip(".!")
+
+
 def zenoh_text(exc: BaseException) -> tuple[str, int]:
     """A Zenoh error without its Rust source location, with what to check."""
-    text = re.sub(r"Single\((\S+?)\)", r"\1", _RUST_AT.sub("", str(exc))).strip().rstrip(".!")
+    text = zenoh_reason(exc)
     if "Unable to connect" in text or "Timeout" in text:
         return (f"Zenoh: {text}: nothing answers there; start the router (zfusion router --listen EP) "
                 f"or fix --connect"), FAILURE

@@ -45,6 +45,7 @@ from schemas.links import encode_downlink, horizon_message, uplink
 from .intake import HORIZON_SLACK_S, Intake
 from .lazy import lazy
 from .live import ClockGuard, LiveOptions
+from .logs import utc_text
 from .node import Inbox, Node, Recovery, RejectLog
 from .ordering import DEFAULT_MAX_HELD, WatermarkMerger, hold_cap
 from .picture import Picture
@@ -254,7 +255,8 @@ class FuserCore:
         self.merger.check_timeouts(now, self.events)
         items, wm = self.merger.release(now)
         if items and not self.processed:  # t > 0 for a fuser restarted mid-stream
-            self.events.append(f"input starts at t = {items[0].t:g} s")
+            self.events.append(f"input starts at {utc_text(items[0].t)}" if self.live is not None
+                               else f"input starts at t = {items[0].t:g} s")
         out: list[Estimate] = []
         if self.refilter is not None:
             late = self.merger.take_oosm()  # all at or before the previous release: re-filter first
@@ -345,7 +347,7 @@ def run(process_id: str, scenario_ref: str, method_name: str, overrides: dict, k
         sources = list(scenario.sensors)
     periods = {src: scenario.sensor(intake.nodes[src] if isinstance(intake, UplinkIntake) else src).period
                for src in sources}
-    with Node(process_id, "fuser", keys, zopts) as node:
+    with Node(process_id, "fuser", keys, zopts, live=live is not None) as node:
         inbox = Inbox(node.stop)
         if isinstance(method, TrackCentre):
             method = JoinGate(method, node.reject)

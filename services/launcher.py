@@ -39,7 +39,7 @@ from fusion.methods import TRACK_FUSION_METHODS, track_fusion_rule
 from schemas import KeySpace, to_estimate
 
 from .commands import options
-from .errors import FAILURE, UserError
+from .errors import FAILURE, UserError, zenoh_reason
 from .export.outputs import OUTPUTS
 from .intake import Intake
 from .node import Inbox, Node, ZenohOptions
@@ -89,11 +89,6 @@ def _ephemeral_low() -> int:
         return int(Path("/proc/sys/net/ipv4/ip_local_port_range").read_text().split()[0])
     except (OSError, ValueError, IndexError):
         return 32768
-
-
-def zenoh_reason(e: Exception) -> str:
-    """A Zenoh error on one line, without its source locations."""
-    return str(e).split(" at /")[0].replace("\n", " ")[:300]
 
 
 def unreachable(endpoints: Iterable[str], timeout: float = 2.0) -> list[str]:
@@ -340,7 +335,7 @@ def run(args) -> int:
         fusion_rule=args.fusion_rule, duration=args.duration_s, live=live_opts,
         spawn=getattr(args, "spawn", False), rotate_s=getattr(args, "rotate_s", None), outputs=outputs)
 
-    node = Node(LAUNCHER_ID, "launcher", KeySpace(args.deployment), fabric.mine)
+    node = Node(LAUNCHER_ID, "launcher", KeySpace(args.deployment), fabric.mine, live=live)
     try:
         node.__enter__()
     except zenoh.ZError as e:  # e.g. --listen on a port in use
@@ -409,6 +404,7 @@ def report(args, launch: Launch, scenario, topology: str, method: str, rrd: str,
     doc["recordings"] = launch.sup.recordings or [rrd]
     if getattr(args, "rotate_s", None):  # each recorder's files, in order
         doc["recordings"] = [str(f) for r in doc["recordings"] for f in rotated_files(r)]
+        doc["recording"] = doc["recordings"][0] if doc["recordings"] else rrd  # the first file: rrd is only a stem
     doc["exit_codes"] = codes
     doc["outages"] = launch.sup.outages
     usage = dict(launch.usage)

@@ -74,7 +74,7 @@ def run_listener(process_id: str, role: str, keys: KeySpace, zopts: ZenohOptions
     inbox = ListenerInbox(backlog, in_memory)
     utc = time.time if live else (lambda: None)
     try:
-        with Node(process_id, role, keys, zopts) as node:
+        with Node(process_id, role, keys, zopts, live=live) as node:
             sink = make_sink(node)
             try:
                 recovery = Recovery(node.processes_by_session()) if live else None

@@ -13,7 +13,6 @@ import logging
 import queue
 import signal
 import struct
-import sys
 import tempfile
 import threading
 import time
@@ -28,6 +27,7 @@ import zenoh.ext as zx
 from schemas import KeySpace, encode
 
 from .commands.options import split_override
+from .logs import chatty, setup_logging  # noqa: F401  (setup_logging: where the benchmarks' rig takes it from)
 from .resources import own_usage
 
 log = logging.getLogger("zfusion")
@@ -39,6 +39,8 @@ KEYS_MAX = 4096  # distinct keys a ListenerInbox shares one string for (then it 
 SPILL_READ = 256  # samples a ListenerInbox reads back from its file at a time (held in memory meanwhile)
 INBOX_BYTES = 64 * 2**20  # payload an Inbox holds at most (class docstring)
 SPILL_HEADER = struct.Struct("<HI")  # a spilled sample: key length, payload length, then both
+LINK_WARN_S = 5.0  # a process whose endpoints none answers says so after this long
+STATUS_LINE_S = 60.0  # a chatty process's one-line status (logs.chatty), at most this often
 
 
 @dataclass
@@ -303,6 +305,30 @@ class Recovery:
         return out
 
 
+def _endpoints(config: zenoh.Config) -> list[str]:
+    """The endpoints a session dials (its configuration's ``connect/endpoints``)."""
+    try:
+        endpoints = json.loads(config.get_json("connect/endpoints"))
+    except (zenoh.ZError, ValueError, TypeError):
+        return []
+    if isinstance(endpoints, dict):  # per mode: {"router": [...], "peer": [...], "client": [...]}
+        endpoints = [e for es in endpoints.values() for e in es]
+    return [str(e) for e in endpoints]
+
+
+STATUS_SHOWN = ("received", "processed", "published", "recorded", "late", "rejected", "dropped")
+
+
+def status_line(state: str, counters: dict[str, float]) -> str:
+    """``running: received 1200, published 1187, rejected 13 (late 9, stale 4)``."""
+    shown = [f"{name} {counters[name]:g}" for name in STATUS_SHOWN if counters.get(name)]
+    causes = {k.split(".", 1)[1]: n for k, n in counters.items() if k.startswith("rejected.") and n}
+    if causes and counters.get("rejected"):
+        i = next(i for i, text in enumerate(shown) if text.startswith("rejected "))
+        shown[i] += " (" + ", ".join(f"{c} {n:g}" for c, n in sorted(causes.items())) + ")"
+    return f"{state}: " + (", ".join(shown) if shown else "nothing yet")
+
+
 class RejectLog:
     """Counts rejected messages by (source, cause); logs the first of each pair, then
     at most one summary line per ``interval`` seconds, so garbage cannot flood logs.
@@ -336,6 +362,7 @@ class RejectLog:
         if self.by_pair[(src, cause)] == 1:
             log.warning("%s: dropped message from %s: %s", self.process, src, detail)
             return
+        log.debug("%s: dropped message from %s: %s", self.process, src, detail)
         self._since_summary += 1
         now = self._clock()
         if now - self._last_summary >= self._interval:
@@ -356,13 +383,15 @@ class RejectLog:
 
 
 class Node:
-    """A zfusion process on the fabric."""
+    """A zfusion process on the fabric. ``live``: a process of a live session (or a
+    gateway), whose time base is UTC (:meth:`publish_status`)."""
 
-    def __init__(self, process_id: str, role: str, keys: KeySpace, zopts: ZenohOptions):
+    def __init__(self, process_id: str, role: str, keys: KeySpace, zopts: ZenohOptions, live: bool = False):
         self.id = process_id
         self.role = role
         self.keys = keys
         self.zopts = zopts
+        self.live = live
         self.stop = threading.Event()
         self.counters: dict[str, float] = {}
         self.events: list[str] = []
@@ -370,14 +399,43 @@ class Node:
         self._status_seq = 0
         self._declared: list[Any] = []
         self.session: zenoh.Session | None = None
+        self._status_line_at = time.monotonic()
 
     # -- lifetime ---------------------------------------------------------------------
 
     def __enter__(self) -> "Node":
         self.install_signal_handlers()
-        self.session = zenoh.open(self.zopts.to_config())
+        config = self.zopts.to_config()
+        self.session = zenoh.open(config)
         self._status_pub = self.publisher(self.keys.status(self.id), reliable=False)
+        endpoints = _endpoints(config)
+        if endpoints:
+            threading.Thread(target=self._watch_link, args=(self.session, endpoints), daemon=True,
+                             name=f"link-{self.id}").start()
         return self
+
+    def _watch_link(self, session: zenoh.Session, endpoints: list[str]) -> None:
+        """One line once the session reaches a peer or router (on a terminal or with
+        ``-v``), a warning if none has answered after ``LINK_WARN_S``; Zenoh keeps
+        dialling meanwhile, so the process goes on and says when it connects."""
+        where = ", ".join(endpoints)
+        deadline = time.monotonic() + LINK_WARN_S
+        warned = False
+        while not self.stop.wait(0.1):
+            try:
+                if self.session is not session:
+                    return
+                linked = any(True for _ in session.info.routers_zid()) or any(True for _ in session.info.peers_zid())
+            except Exception:  # closed meanwhile: nothing left to watch
+                return
+            if linked:
+                if warned or chatty():
+                    log.log(logging.WARNING if warned else logging.INFO, "%s: connected to %s", self.id, where)
+                return
+            if not warned and time.monotonic() >= deadline:
+                log.warning("%s: cannot reach %s: nothing answered in %.0f s (is a zfusion session or a Zenoh "
+                            "router listening there?); still trying", self.id, where, LINK_WARN_S)
+                warned = True
 
     def __exit__(self, *exc: object) -> None:
         self.close()
@@ -520,6 +578,12 @@ class Node:
 
     def publish_status(self, state: str, t: float = 0.0, extra: dict[str, float] | None = None,
                        sources: dict | None = None) -> None:
+        """The process's state and counters on ``status/<id>``, stamped with ``t``, the
+        scenario time it has reached (0: none yet); a live process's with this host's UTC
+        clock, when it is said (``t`` is 0 there too before any data: 1970 on a live
+        recording's timeline)."""
+        if self.live:
+            t = time.time()
         counters = {**self.counters, **{f"rejected.{c}": n for c, n in self.reject.by_cause.items()}}
         counters["rejected"] = self.reject.total
         counters.update(own_usage())  # cpu_s, max_rss_mb: for the run summary's processes
@@ -527,10 +591,9 @@ class Node:
             counters.update(extra)
         events, self.events = self.events, []
         self._status_seq += 1
+        if chatty() and time.monotonic() - self._status_line_at >= STATUS_LINE_S:
+            self._status_line_at = time.monotonic()
+            log.info("%s: %s", self.id, status_line(state, counters))
         self._status_pub.put(encode("status", self.id, self._status_seq, t, state=state, role=self.role,
                                     counters=counters, events=events, sources=sources or {}))
 
-
-def setup_logging(verbose: bool = False) -> None:
-    logging.basicConfig(level=logging.DEBUG if verbose else logging.INFO, stream=sys.stderr,
-                        format="%(asctime)s %(levelname)s %(message)s", datefmt="%H:%M:%S")

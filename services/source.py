@@ -91,7 +91,7 @@ def run(process_id: str, scenario_ref: str, keys: KeySpace, zopts, speed: float,
     else:
         raise UserError(f"{process_id!r} is not a source of scenario {scenario.name} "
                          f"(sources: {', '.join(scenario.process_ids())})")
-    with Node(process_id, role, keys, zopts) as node:
+    with Node(process_id, role, keys, zopts, live=live) as node:
         node.announce()
         node.publish_status("starting")
         try:

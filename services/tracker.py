@@ -76,7 +76,7 @@ def run(sensor: str, scenario_ref: str, method_name: str, overrides: dict, keys:
     local = split(method_name).node(sensor, config)
     feed = _Feed(local)
     fuser_token: queue.SimpleQueue[str] = queue.SimpleQueue()  # incarnations of the fuser that appeared
-    with Node(me, "tracker", keys, zopts) as node:
+    with Node(me, "tracker", keys, zopts, live=live is not None) as node:
         inbox = Inbox(node.stop)
         # Its one sensor is never declared dead here: the tracker waits for it to come back
         # (the fuser, meanwhile, declares this tracker dead and carries on without it).

@@ -48,6 +48,22 @@ def read_rrd(path: Path) -> dict[str, list[dict]]:
     return out
 
 
+def row_times(path: Path, timeline: str = "utc") -> dict[str, list[float]]:
+    """Per entity path, the times (s; POSIX seconds on a timestamp timeline) of its
+    temporal rows on ``timeline``, sorted."""
+    from rerun.chunk import RrdReader
+
+    out: dict[str, list[float]] = {}
+    for chunk in RrdReader(path).stream():
+        if chunk.is_static or timeline not in chunk.timeline_names:
+            continue
+        ns = chunk.to_record_batch().column(timeline).cast(pa.int64()).to_pylist()
+        out.setdefault(chunk.entity_path, []).extend(t / 1e9 for t in ns)
+    for times in out.values():
+        times.sort()
+    return out
+
+
 def static_paths(path: Path) -> set[str]:
     from rerun.chunk import RrdReader
 

@@ -10,7 +10,7 @@ from pathlib import Path
 
 from ..errors import UserError
 from ..lazy import lazy
-from . import options
+from . import names, options
 
 evaluation = lazy("services.evaluation")
 methods_registry = lazy("fusion.methods")
@@ -43,8 +43,10 @@ def run(args) -> int:
         raise UserError("--runs must be >= 1")
     if args.jobs < 1:
         raise UserError("--jobs must be >= 1")
+    names.check_scenario(args.scenario)
+    names.check_methods(args.methods)
     if args.json:  # the outputs checked before the Monte Carlo, not after it
-        options.writable_dir(Path(args.json).parent, "--json")
+        options.writable_file(args.json, "--json")
     if args.report:
         options.writable_dir(Path(args.report), "--report")
         try:

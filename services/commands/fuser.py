@@ -31,6 +31,8 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
+    if args.json:  # written when the run is done: checked before it starts
+        options.writable_file(args.json, "--json")
     method = args.method or values.defaults(args).get("method")
     return fuser.run(args.id, args.site or args.scenario, method, options.overrides(args), values.keys(args),
                      values.zopts(args), args.source_timeout, args.start_grace, seed=args.seed,

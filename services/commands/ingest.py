@@ -52,7 +52,9 @@ def register(sub) -> None:
     _common(a, "this gateway's process id (its radars: the site file's sensors with sac_sic)")
 
     j = gw.add_parser("jsonl", help="one JSON measurement per line (docs/ingest.md)")
-    j.add_argument("--input", default="-", help="-, udp://HOST:PORT or tcp://HOST:PORT (default: stdin)")
+    j.add_argument("--input", default="-", help="-, a file, udp://HOST:PORT or tcp://HOST:PORT (default: stdin); a "
+                                                "file (or stdin from one) replays on its own clock: no heartbeats, "
+                                                "ages measured from its newest reading")
     _common(j)
 
 

@@ -188,6 +188,23 @@ def overrides(args) -> dict:
     return out
 
 
+def writable_file(path: str | Path, option: str) -> None:
+    """``path`` may be written: its directory made if needed and the file opened for
+    appending once (removed again if that made it), or a :class:`UserError` saying why
+    not. Run before anything starts, so a long run never ends on an output it cannot write."""
+    p = Path(path)
+    try:
+        p.parent.mkdir(parents=True, exist_ok=True)
+        existed = p.exists()
+        with open(p, "ab"):
+            pass
+        if not existed:
+            p.unlink()
+    except OSError as e:
+        raise UserError(f"{option} {path}: cannot write there ({e.strerror or e}); choose a path you may "
+                        f"write to") from None
+
+
 def writable_dir(path: Path, option: str) -> None:
     """``path`` made if needed and written to once, or a :class:`UserError` saying why not."""
     try:

@@ -3,9 +3,8 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 from ..lazy import lazy
+from ..rotation import rotated_path
 from . import options
 
 recorder = lazy("services.recording.recorder")
@@ -30,7 +29,7 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    Path(args.rrd).parent.mkdir(parents=True, exist_ok=True)
+    options.writable_file(rotated_path(args.rrd, 0) if args.rotate_s else args.rrd, "--rrd")
     return recorder.run(args.id, values.keys(args), values.zopts(args), args.rrd, args.expect, spawn=args.spawn,
                         scenario=args.site or args.scenario, seed=args.seed, rotate_s=args.rotate_s,
                         live=values.live(args), duration=args.duration_s)

@@ -4,11 +4,13 @@
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
 from ..errors import UserError
 from ..export.outputs import OUTPUTS
 from ..lazy import lazy
-from . import options
+from ..rotation import rotated_path
+from . import names, options
 
 launcher = lazy("services.launcher")
 
@@ -54,4 +56,21 @@ def run(args) -> int:
         raise UserError("--live runs in real time: remove --speed")
     if not args.live and args.for_s is not None:
         raise UserError("--for is for live runs: add --live, or use --duration-s")
+    names.check_scenario(args.scenario)
+    names.check_method(args.method)
+    check_outputs(args)
     return launcher.run(args)
+
+
+def check_outputs(args) -> None:
+    """Every file the run writes, checked before any process starts (a live session's
+    summary too, which is written only when it ends)."""
+    if args.rrd:
+        options.writable_file(rotated_path(args.rrd, 0) if args.rotate_s else args.rrd, "--rrd")
+    else:
+        options.writable_dir(Path("runs"), "--rrd")  # the default, runs/<scenario>-<topology>-<time>.rrd
+    if args.json:
+        options.writable_file(args.json, "--json")
+    for output in OUTPUTS:
+        if getattr(args, output.name, None) is not None:
+            output.prepare(getattr(args, output.name))

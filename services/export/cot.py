@@ -64,13 +64,18 @@ class Types:
         return self.sensor or SENSOR_TYPES.get(kind, TYPE_SENSOR)
 
 
+def _num(x: float, decimals: int) -> str:
+    """``x`` with ``decimals`` decimals, never ``-0.0`` (a value that rounds to zero is 0)."""
+    return f"{round(float(x), decimals) + 0.0:.{decimals}f}"
+
+
 def _event(uid: str, type_: str, how: str, now: float, start: float, stale_s: float, lla: np.ndarray,
            ce: float, le: float | None) -> tuple[ET.Element, ET.Element]:
     ev = ET.Element("event", version="2.0", uid=uid, type=type_, time=utc_iso(now), start=utc_iso(start),
                     stale=utc_iso(start + stale_s), how=how)
     lat, lon, hae = (float(v) for v in lla)
-    ET.SubElement(ev, "point", lat=f"{lat:.7f}", lon=f"{lon:.7f}", hae=f"{hae:.1f}", ce=f"{ce:.1f}",
-                  le=f"{UNKNOWN if le is None else le:.1f}")
+    ET.SubElement(ev, "point", lat=_num(lat, 7), lon=_num(lon, 7), hae=_num(hae, 1), ce=_num(ce, 1),
+                  le=_num(UNKNOWN if le is None else le, 1))
     return ev, ET.SubElement(ev, "detail")
 
 
@@ -85,14 +90,14 @@ def track_event(e: Estimate, frame: LocalFrame, uid: str, types: Types, now: flo
     ET.SubElement(detail, "contact", callsign=e.track)
     v = geo.velocity(e.x)
     if v is not None:  # course: degrees clockwise from true north; speed: m/s over ground
-        ET.SubElement(detail, "track", course=f"{math.degrees(math.atan2(v[0], v[1])) % 360.0:.1f}",
-                      speed=f"{math.hypot(v[0], v[1]):.1f}")
+        ET.SubElement(detail, "track", course=_num(round(math.degrees(math.atan2(v[0], v[1])), 1) % 360.0, 1),
+                      speed=_num(math.hypot(v[0], v[1]), 1))
     what = "emitter fix" if fix else "track"
     ET.SubElement(detail, "remarks").text = f"zfusion {e.method} {what} {e.track}, 1-sigma {ce:.0f} m"
     z = ET.SubElement(detail, "zfusion", kind="fix" if fix else "track", method=e.method, node=e.node,
-                      t=repr(float(e.t)), position_std=f"{geo.position_std(e.x, e.P):.1f}")
+                      t=repr(float(e.t)), position_std=_num(geo.position_std(e.x, e.P), 1))
     if e.existence is not None:  # the probability that the target exists (a JIPDA track's)
-        z.set("existence", f"{e.existence:.4f}")
+        z.set("existence", _num(e.existence, 4))
     return ET.tostring(ev, encoding="utf-8", xml_declaration=False)
 
 

@@ -36,9 +36,14 @@ DEGREES = 7  # decimals of a degree kept: about 1 cm
 METRES = 2
 
 
+def _round(x: float, decimals: int) -> float:
+    """``x`` rounded, never ``-0.0`` (a value that rounds to zero is 0)."""
+    return round(float(x), decimals) + 0.0
+
+
 def _position(g: np.ndarray) -> list[float]:
     lat, lon, alt = (float(v) for v in g)
-    return [round(lon, DEGREES), round(lat, DEGREES), round(alt, METRES)]
+    return [_round(lon, DEGREES), _round(lat, DEGREES), _round(alt, METRES)]
 
 
 def is_fix(e: Estimate) -> bool:
@@ -49,18 +54,18 @@ def is_fix(e: Estimate) -> bool:
 def estimate_features(e: Estimate, frame: LocalFrame, live: bool) -> list[dict]:
     """The Point of a track or fix, and a fix's 95 % ellipse."""
     common = {"id": e.track, "method": e.method, "time": session_time(e.t, live)}
-    props = {**common, "kind": "fix" if is_fix(e) else "track", "position_std_m": round(geo.position_std(e.x, e.P), 3)}
+    props = {**common, "kind": "fix" if is_fix(e) else "track", "position_std_m": _round(geo.position_std(e.x, e.P), 3)}
     v = geo.velocity(e.x)
     if v is not None:
-        props["velocity_enu_mps"] = [round(float(c), 3) for c in v]
+        props["velocity_enu_mps"] = [_round(c, 3) for c in v]
     if e.existence is not None:
-        props["existence"] = round(float(e.existence), 4)
+        props["existence"] = _round(e.existence, 4)
     pos = geo.enu3(e.x)
     out = [{"type": "Feature", "geometry": {"type": "Point", "coordinates": _position(geo.lat_lon_alt(frame, pos))},
             "properties": props}]
     if is_fix(e):
         ring = geo.ring(frame, pos, geo.horizontal_cov(e.P))
-        coords = [[round(float(lon), DEGREES), round(float(lat), DEGREES)] for lat, lon, _ in ring]
+        coords = [[_round(lon, DEGREES), _round(lat, DEGREES)] for lat, lon, _ in ring]
         coords[-1] = coords[0]  # closed exactly, after rounding too
         out.append({"type": "Feature", "geometry": {"type": "Polygon", "coordinates": [coords]},
                     "properties": {**common, "kind": "ellipse", "confidence": geo.CONFIDENCE}})

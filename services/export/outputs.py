@@ -16,6 +16,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
 
+from ..commands.options import writable_file
 from ..errors import UserError
 from ..lazy import lazy
 from .cot_types import STALE_S, TYPE_EMITTER, TYPE_TRACK
@@ -67,15 +68,15 @@ class Output:
 
 
 def _geojson_prepare(value: str) -> str:
-    path = Path(value).resolve()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    return str(path)
+    writable_file(value, "--geojson")
+    return str(Path(value).resolve())
 
 
 def _geojson_check(args) -> None:
     path = Path(args.file)
     if not path.parent.is_dir():
         raise UserError(f"--file {args.file}: no such directory {path.parent}, create it first")
+    writable_file(path, "--file")
 
 
 def _geojson_sink(args, site, live: bool):

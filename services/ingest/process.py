@@ -25,6 +25,7 @@ import math
 import os
 import queue
 import socket
+import stat
 import sys
 import threading
 import time
@@ -40,10 +41,11 @@ from sensors_sim import ScenarioError
 from sensors_sim import load_site as load_site_file
 
 from ..errors import UserError
+from ..logs import chatty, utc_text
 from ..node import Node
 from ..source import RECOVERY_S
 from .asterix import AsterixFeed, AsterixIngest, CaptureError, pcap_datagrams, radars
-from .gateway import Gateway, Rejected, local_frame, sensor_sites
+from .gateway import Gateway, Reading, Rejected, local_frame, sensor_sites
 from .jsonl import MAX_LINE, LineSplitter, reading
 from .krakensdr import MAX_BODY, Bearing, KrakenOptions, KrakenStation, Skipped
 
@@ -120,8 +122,11 @@ class Outlet:
         elif isinstance(item, Skipped):
             self.skipped[item.cause] = self.skipped.get(item.cause, 0) + 1
         else:
-            self.put(self.gateway.offer(item, now))
+            out = self.gateway.offer(item, now)
+            self.put(out)
             self.t_last = max(self.t_last, item.t)
+            if out and log.isEnabledFor(logging.DEBUG):  # -v: each reading published
+                log.debug("%s: published %s of %s", self.node.id, item.kind, utc_text(item.t))
 
     def say_once(self, cause: str, text: str) -> None:
         if cause not in self._said:
@@ -200,7 +205,7 @@ def run_krakensdr(args, keys: KeySpace, zopts) -> int:
     url = poll_url(args.url, args.format) if args.url else None
     listen = _host_port(args.listen, "--listen") if args.listen else None
     frame, sensors = _site_sensors(args, options.channel_ids(args.id))
-    with Node(args.id, "ingest", keys, zopts) as node:
+    with Node(args.id, "ingest", keys, zopts, live=True) as node:
         gateway = _gateway(node, args, frame, sensors)
         station = KrakenStation(args.id, options)
         if url:
@@ -392,19 +397,44 @@ def _listen(node: Node, gateway: Gateway, station: KrakenStation, where: tuple[s
 
 def run_jsonl(args, keys: KeySpace, zopts) -> int:
     source = _input(args.input)
+    if replays(source):  # the watermark follows the file, not the wall clock: no heartbeats
+        args.watermark_lag = 0.0
     frame, sensors = _site_sensors(args, [args.id])
-    with Node(args.id, "ingest", keys, zopts) as node:
+    with Node(args.id, "ingest", keys, zopts, live=True) as node:
         gateway = _gateway(node, args, frame, sensors)
         return _jsonl(node, gateway, source, args)
 
 
-def _input(text: str) -> tuple[str, tuple[str, int] | None]:
+def _input(text: str) -> tuple[str, tuple[str, int] | str | None]:
+    """``("stdin", None)``, ``("file", path)`` or ``("udp"|"tcp", (host, port))``."""
     if text == "-":
         return "stdin", None
     u = urllib.parse.urlsplit(text)
-    if u.scheme not in ("udp", "tcp") or not u.hostname or u.port is None:
-        raise UserError(f"--input {text!r}: expected -, udp://HOST:PORT or tcp://HOST:PORT")
-    return u.scheme, (u.hostname, u.port)
+    if u.scheme in ("udp", "tcp"):
+        if not u.hostname or u.port is None:
+            raise UserError(f"--input {text!r}: expected udp://HOST:PORT or tcp://HOST:PORT")
+        return u.scheme, (u.hostname, u.port)
+    try:
+        with open(text, "rb"):
+            return "file", text
+    except OSError as e:
+        raise UserError(f"--input {text!r}: cannot read it ({e.strerror or e}); expected -, a file of JSON "
+                        f"lines, udp://HOST:PORT or tcp://HOST:PORT") from None
+
+
+def replays(source: tuple[str, object]) -> bool:
+    """Whether the input is a file of past readings (``--input FILE``, or stdin redirected
+    from a file): replayed on the file's clock. Its watermarks follow the file (no
+    heartbeats: a reading is late only if the file goes back in time) and a reading's age
+    is measured from the newest reading read so far, not from now. A pipe is live."""
+    if source[0] == "file":
+        return True
+    if source[0] == "stdin":
+        try:
+            return stat.S_ISREG(os.fstat(sys.stdin.fileno()).st_mode)
+        except (OSError, ValueError):
+            return False
+    return False
 
 
 def udp_drops(sock: socket.socket) -> int:
@@ -441,6 +471,7 @@ class _Reader:
 
     def __init__(self, kind: str, where: tuple[str, int] | None, inbox: queue.Queue, stop: threading.Event):
         self.kind, self.inbox, self.stop = kind, inbox, stop
+        self.path = where if kind == "file" else None
         self.sock: socket.socket | None = None
         self.counts = {"udp_dropped": 0} if kind == "udp" else {"connections": 0, "refused_connections": 0,
                                                                 "idle_closed": 0} if kind == "tcp" else {}
@@ -465,10 +496,10 @@ class _Reader:
         self.thread.start()
 
     def read_until(self) -> float:
-        """UTC time up to which every open input is known drained (``inf``: stdin, whose
+        """UTC time up to which every open input is known drained (``inf``: stdin or a file, whose
         pending bytes cannot be told; the heartbeats then follow the inbox alone)."""
         with self._lock:
-            return min(self._drained.values(), default=math.inf if self.kind == "stdin" else time.time())
+            return min(self._drained.values(), default=math.inf if self.kind in ("stdin", "file") else time.time())
 
     def _mark(self, which: object, drained: bool) -> None:
         """``which`` (an input) found drained now, or just opened (not drained yet)."""
@@ -485,8 +516,17 @@ class _Reader:
                     continue
 
     def _stdin(self) -> None:
+        self._read(sys.stdin.fileno())
+
+    def _file(self) -> None:
+        fd = os.open(self.path, os.O_RDONLY)
+        try:
+            self._read(fd)
+        finally:
+            os.close(fd)
+
+    def _read(self, fd: int) -> None:
         split = LineSplitter()
-        fd = sys.stdin.fileno()
         while not self.stop.is_set():
             data = os.read(fd, MAX_LINE)
             if not data:
@@ -578,6 +618,13 @@ def _jsonl(node: Node, gateway: Gateway, source: tuple[str, tuple[str, int] | No
     node.announce()
     outlet.status("ready", force=True)
     reader.start()
+    where = {"stdin": "stdin", "file": str(source[1])}.get(source[0]) or f"{source[0]}://{source[1][0]}:{source[1][1]}"
+    replay = replays(source)
+    if chatty():
+        log.info("%s: reading JSON lines from %s%s, publishing on %s", node.id, where,
+                 " (a replay on the file's clock)" if replay else "", gateway.keys.meas(args.id))
+    file_now = -math.inf  # a replay's clock: the newest reading so far
+    hinted = False
     state = "stopped"
     try:
         while not node.stop.is_set():
@@ -593,12 +640,29 @@ def _jsonl(node: Node, gateway: Gateway, source: tuple[str, tuple[str, int] | No
             if isinstance(item, bytes):
                 counts["lines"] += 1
                 item = reading(item, args.id)
-            outlet.offer(item, time.time())
+            if replay and isinstance(item, Reading) and math.isfinite(item.t):
+                file_now = max(file_now, item.t)
+            outlet.offer(item, file_now if replay else time.time())
+            if not (replay or hinted) and source[0] == "stdin" and node.reject.by_cause.keys() & {"late", "stale"}:
+                hinted = True
+                log.warning("%s: readings from stdin are checked against this clock; a file of past readings "
+                            "replays on its own clock with --input FILE (or < FILE)", node.id)
             _beat(outlet, reader, inbox)
         outlet.status(state, force=True)
     finally:
         reader.close()
+    if source[0] in ("stdin", "file"):
+        log.info("%s: %s", node.id, summary(state, where, counts["lines"], gateway.counters, node.reject.by_cause))
     return 0
+
+
+def summary(state: str, where: str, lines: int, counters: dict, refused: dict[str, int]) -> str:
+    """The line a gateway reading a file or stdin ends with: ``end of stdin: 10 lines,
+    published 8, refused 2 (late 2), repeats 0``."""
+    causes = ", ".join(f"{c} {n}" for c, n in sorted(refused.items()) if n)
+    return (f"{'end of' if state == 'done' else 'stopped reading'} {where}: {lines} lines, published "
+            f"{counters['published']}, refused {sum(refused.values())}{f' ({causes})' if causes else ''}, "
+            f"repeats {counters['repeats']}")
 
 
 # ------------------------------------------------------------------ asterix
@@ -624,7 +688,7 @@ def run_asterix(args, keys: KeySpace, zopts) -> int:
             raise UserError(f"--pcap {args.pcap}: {getattr(e, 'strerror', None) or e}") from None
     else:
         sock = _udp_socket(args.udp)
-    with Node(args.id, "ingest", keys, zopts) as node:
+    with Node(args.id, "ingest", keys, zopts, live=True) as node:
         ingest = AsterixIngest(feed, _gateway(node, args, frame, sensors), node.reject, src=args.id)
         outlet = Outlet(node, ingest.gateway, ingest.counters)
         node.announce()

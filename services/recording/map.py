@@ -14,6 +14,12 @@ and in the same colours::
                                    (emitter fixes and 3D tracks alike); the ground track
                                    in map/tracks/<node>/<track>/path
 
+The map panel opens zoomed on the session's area (:func:`area`: its sites, jammers and
+targets' starting points, or the scale of its sensors around a single site): left to
+itself, Rerun's map view fits the data of its first frame and keeps that zoom, and with
+a single site in it (patent-3d's radar and angle sensor share one) it kept street level
+(zoom 16) at the middle of a track 10 km away: an empty panel (:func:`fit_zoom`).
+
 A truth or track is drawn on the map only with the rows that add a point to its 3D path
 (at most every ``TRAIL_STEP_S`` of scenario time; docs/notes.md, "Recorder paths"), so the map's
 cost does not grow with the update rate: a 3D track fused at 1,000 updates/s is drawn
@@ -27,6 +33,7 @@ archetype and its component lists), so they are sent as columns with the rest.
 from __future__ import annotations
 
 import functools
+import math
 from typing import Callable
 
 import numpy as np
@@ -35,6 +42,7 @@ import rerun.blueprint as rrb
 
 from fusion.geodetic import LocalFrame
 from fusion.types import Estimate
+from sensors_sim.trajectories import truth_trajectories
 
 from .. import geo
 from .draw import Trail
@@ -43,13 +51,71 @@ MAP_ROOT = "map"
 POINT_UI = -5.0  # radii in UI points (negative: rerun's convention)
 SITE_UI = -7.0
 LINE_UI = -1.0
+PANEL_PT = (480.0, 720.0)  # the map panel of a 1600 x 900 window (3 of 10 columns), UI points
+TILE_PX = 256.0  # OpenStreetMap's tile: zoom z shows the world 256·2^z points wide
+MARGIN = 1.2  # the area fills at most 1/1.2 of the panel either way
+MIN_HALF_M = 1_000.0  # the least half-width shown around a single point
 
 Log = Callable[..., None]
 
 
-def view(name: str = "Map (WGS-84, 95 % rings)") -> rrb.MapView:
-    """The blueprint's map panel."""
-    return rrb.MapView(origin=MAP_ROOT, name=name, background=rrb.MapProvider.OpenStreetMap)
+def view(name: str = "Map (WGS-84, 95 % rings)", zoom: float | None = None) -> rrb.MapView:
+    """The blueprint's map panel, at ``zoom`` (OpenStreetMap's levels; None: Rerun's own)."""
+    return rrb.MapView(origin=MAP_ROOT, name=name, background=rrb.MapProvider.OpenStreetMap, zoom=zoom)
+
+
+def _mercator_y(lat_deg: np.ndarray) -> np.ndarray:
+    """Web Mercator's y of a latitude, the world being 0..1."""
+    return 0.5 + np.arcsinh(np.tan(np.radians(lat_deg))) / (2 * math.pi)
+
+
+def fit_zoom(lat_lon: np.ndarray, panel: tuple[float, float] = PANEL_PT) -> float:
+    """The zoom level at which the points ``lat_lon`` ((n, 2), degrees) fill ``panel``
+    (width, height in UI points) with a margin: Web Mercator, ``256·2^z`` points for the
+    world's width (what Rerun's map view computes for the data it is shown; the area's
+    extent is at least ``2·MIN_HALF_M``)."""
+    lat, lon = lat_lon[:, 0], lat_lon[:, 1]
+    y = _mercator_y(lat)
+    # the least extent, as a fraction of the world, at the area's latitude
+    least = 2 * MIN_HALF_M / (40_075_016.686 * math.cos(math.radians(float(np.mean(lat)))))
+    wide = max(float(lon.max() - lon.min()) / 360.0, least)
+    high = max(float(y.max() - y.min()), least)
+    zoom_x = math.log2(panel[0] / (MARGIN * wide * TILE_PX))
+    zoom_y = math.log2(panel[1] / (MARGIN * high * TILE_PX))
+    return round(min(zoom_x, zoom_y), 2)
+
+
+AREA_SAMPLES = 17  # points of each target's path over the scenario's duration
+
+
+def area(sc, scale_m: float) -> np.ndarray:
+    """The session's area, ENU (n, 3): its sites (where moving ones go), jammers, targets'
+    paths (run 0's, at ``AREA_SAMPLES`` times) and a traffic box's corners; with fewer than
+    two distinct places (a site with one sensor, or sensors sharing one mast), that place
+    ± ``scale_m``, the reach the recorder gives its rays."""
+    pts: list[np.ndarray] = []
+    sites = [s.site for s in sc.sensors.values() if s.site is not None]
+    sites += [j.site for j in getattr(sc, "jammers", {}).values()]
+    for site in sites:
+        pts.extend(np.atleast_2d(site.points))
+    if getattr(sc, "targets", None):
+        times = np.linspace(0.0, float(sc.duration), AREA_SAMPLES)
+        pts.extend(traj.state(float(t))[:3] for traj in truth_trajectories(sc).values() for t in times)
+    traffic = getattr(sc, "traffic", None)
+    if traffic is not None:
+        x0, x1, y0, y1 = traffic.box
+        pts.extend(np.array([x, y, 0.0]) for x in (x0, x1) for y in (y0, y1))
+    out = np.array(pts, dtype=float).reshape(-1, 3)
+    centre = out.mean(axis=0) if len(out) else np.zeros(3)
+    if len(out) < 2 or float(np.ptp(out[:, :2], axis=0).max()) < 1.0:
+        out = np.vstack([out, centre + [[-scale_m, -scale_m, 0.0], [scale_m, scale_m, 0.0]]])
+    return out
+
+
+def zoom_of(sc, scale_m: float, panel: tuple[float, float] = PANEL_PT) -> float:
+    """The map panel's zoom for the session ``sc`` (a scenario or a site): its :func:`area`."""
+    return fit_zoom(_lat_lon_of(geo.frame_of(sc.origin), area(sc, scale_m)), panel)
+
 
 
 def map_path(world_path: str) -> str:

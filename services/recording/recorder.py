@@ -73,9 +73,12 @@ DEFAULT_RAY_M = 20_000.0
 TRUTH_GONE_FRAMES = 30  # truth frames a target may miss before its samples are forgotten (it has left)
 BACKLOG_MAX = 50_000  # queued samples before the recorder starts dropping (and counting): seconds of traffic
 BACKLOG_IN_MEMORY = 2_048  # ... of which in memory; the rest waits in a temporary file (ListenerInbox)
-SEND_PERIOD_S = 0.2  # queued rows go out at least this often (wall clock)
+SEND_PERIOD_S = 0.2  # queued rows go out at least this often (wall clock) to a viewer ...
+FILE_SEND_PERIOD_S = 2.0  # ... and to a file alone: each send is a chunk per entity, ~2 kB each on disk
 SEND_ROWS_MAX = 2_000  # ... or once this many are queued (rows hold arrays: this bounds their memory)
 CONTAMINATION = ("jammed", "outliers")  # sensor counters plotted under jamming/<sensor>/
+COUNTER_ROW_S = 5.0  # a status counter that changes: a row at most this often (recording time)
+COUNTER_IDLE_S = 60.0  # one that does not: a row this often
 
 FUSED_NODE = "centre"
 
@@ -133,6 +136,7 @@ class Recorder:
         self._site_paths: dict[str, Trail] = {}
         self._scan: dict[str, tuple[float, dict[str, list[np.ndarray]]]] = {}  # by entity path
         self._bearings: deque[tuple[np.ndarray, np.ndarray]] = deque(maxlen=32)
+        self._counter_rows: dict[str, tuple[float, float]] = {}  # a counter's last row: (t, value)
         self._ref_pos: np.ndarray | None = None  # latest fused (else any) estimate: scales rays
         self._truth_paths: dict[str, Trail] = {}
         self._truth_drawn = Reports()  # truth frames: a target missing from one is no longer drawn
@@ -541,11 +545,24 @@ class Recorder:
                                       level=["WARN" if b["state"] == "stopped" else "INFO"]))
         for ev in b["events"]:
             self._log(events, t, part(rr.TextLog, text=[f"{src}: {ev}"], level=[_level(ev)]))
+        final = b["state"] in ("done", "stopped")
         for name, v in b["counters"].items():
-            if name in CONTAMINATION:
-                self._log(_p("jamming", src, name), t, part(rr.Scalars, scalars=[float(v)]))
-            else:
-                self._log(_p("status", src, "counters", name), t, part(rr.Scalars, scalars=[float(v)]))
+            path = _p("jamming", src, name) if name in CONTAMINATION else _p("status", src, "counters", name)
+            if final or self._counter_due(path, t, float(v)):
+                self._log(path, t, part(rr.Scalars, scalars=[float(v)]))
+
+    def _counter_due(self, path: str, t: float, v: float) -> bool:
+        """Whether a counter's row is worth a row: its first, a change at least
+        ``COUNTER_ROW_S`` after its last row, or the same value ``COUNTER_IDLE_S`` on (the
+        plot's line reaches the present). A process says its status once a second or
+        more often; a plot needs far fewer points (docs/viewing.md, "Recording size")."""
+        last = self._counter_rows.get(path)
+        if last is not None:
+            t_last, v_last = last
+            if t - t_last < (COUNTER_ROW_S if v != v_last else COUNTER_IDLE_S):
+                return False
+        self._counter_rows[path] = (t, v)
+        return True
 
 
 # -- the process ----------------------------------------------------------------------------------
@@ -554,8 +571,9 @@ class Recorder:
 class RecordingSink:
     """The recorder as a listener's sink (:func:`services.listener.run_listener`): a
     :class:`Recorder` on a recording file (rotated every ``rotate_s`` of session time),
-    whose rows go out at least every ``SEND_PERIOD_S`` and whose file is flushed once a
-    second, so a killed recorder loses little. Done once every process of ``expect``
+    whose rows go out (and whose file is flushed) at least every ``SEND_PERIOD_S`` with a
+    viewer, ``FILE_SEND_PERIOD_S`` to a file alone (each send writes a chunk per entity:
+    fewer, larger chunks make a smaller file), so a killed recorder loses little. Done once every process of ``expect``
     has reported done."""
 
     def __init__(self, node: Node, rrd_path: str, expect: list[str], sc, live, app: str, spawn: bool,
@@ -564,8 +582,10 @@ class RecordingSink:
         self.rotation = Rotation(rrd_path, rotate_s) if rotate_s else None
         self.opener = functools.partial(open_recording, app=app, spawn=spawn, df=df,
                                         many=hasattr(sc, "targets") and many_targets(sc), geo=sc is not None,
-                                        live=live is not None)
-        self.rec, _ = self.opener(str(self.rotation.first()) if self.rotation else rrd_path)
+                                        live=live is not None,
+                                        map_zoom=recorder_map.zoom_of(sc, DEFAULT_RAY_M) if sc is not None else None)
+        self.rec, viewer = self.opener(str(self.rotation.first()) if self.rotation else rrd_path)
+        self.send_period = SEND_PERIOD_S if viewer else FILE_SEND_PERIOD_S
         guard = ClockGuard(live.max_skew) if live is not None else None
         self.recorder = Recorder(self.rec, node.keys, node.reject, sc, clock_guard=guard)
         self.events = self.recorder.clock_events
@@ -593,9 +613,9 @@ class RecordingSink:
             self.recorder.finish()
             safe_flush(self.rec, 10.0)
             return
-        if time.monotonic() - self._sent >= SEND_PERIOD_S:
+        if time.monotonic() - self._sent >= self.send_period:
             self._send()
-        if time.monotonic() - self._flushed >= 1.0:
+        if time.monotonic() - self._flushed >= self.send_period:
             safe_flush(self.rec, 0.0)  # keep the file current: a killed recorder loses little
             self._flushed = time.monotonic()
 

@@ -35,9 +35,11 @@ LIVE_TIMELINE = "utc"  # live sessions: t is UTC POSIX seconds, a timestamp time
 VIEWER_PORT = 9876  # Rerun's default: a second run reuses a viewer that is already open
 
 
-def blueprint(df: bool = False, many: bool = False, geo: bool = False, timeline: str = TIMELINE) -> rrb.Blueprint:
-    """Scene (with ``geo``: beside the map) | error and consistency plots (many targets:
-    the picture's GOSPA, targets missed and false tracks, NIS) | event log, jamming and counters."""
+def blueprint(df: bool = False, many: bool = False, geo: bool = False, timeline: str = TIMELINE,
+              map_zoom: float | None = None) -> rrb.Blueprint:
+    """Scene (with ``geo``: beside the map, at ``map_zoom``) | error and consistency plots
+    (many targets: the picture's GOSPA, targets missed and false tracks, NIS) | event log,
+    jamming and counters."""
     scene = rrb.Spatial3DView(origin="world", name="Map (ENU; DF on the plane z = 0)" if df else "Scene (ENU)")
     if many:
         plots = rrb.Vertical(
@@ -57,7 +59,7 @@ def blueprint(df: bool = False, many: bool = False, geo: bool = False, timeline:
         rrb.TimeSeriesView(origin="status", name="Process counters"),
         row_shares=[2, 1, 1],
     )
-    columns = [scene, recorder_map.view(), plots, side] if geo else [scene, plots, side]
+    columns = [scene, recorder_map.view(zoom=map_zoom), plots, side] if geo else [scene, plots, side]
     return rrb.Blueprint(
         rrb.Horizontal(*columns, column_shares=[3, 3, 2, 2] if geo else [3, 2, 2]),
         rrb.BlueprintPanel(state="collapsed"),
@@ -180,12 +182,14 @@ def has_display() -> bool:
 
 def open_recording(rrd_path: str, app: str = "zfusion", spawn: bool = False, df: bool = False,
                    port: int = VIEWER_PORT, many: bool = False, geo: bool = False,
-                   recording_id: str | None = None, live: bool = False) -> tuple[Recording, bool]:
+                   recording_id: str | None = None, live: bool = False,
+                   map_zoom: float | None = None) -> tuple[Recording, bool]:
     """A recording stream writing to ``rrd_path`` and, with ``spawn`` and a display, to a
     Rerun viewer it starts (or one already listening on ``port``). Returns the stream and
-    whether a viewer is attached. ``live``: on the ``utc`` timestamp timeline."""
+    whether a viewer is attached. ``live``: on the ``utc`` timestamp timeline; ``geo``:
+    with the map panel, at ``map_zoom``."""
     rec = Recording(app, recording_id, live=live)
-    bp = blueprint(df, many, geo, rec.timeline)
+    bp = blueprint(df, many, geo, rec.timeline, map_zoom)
     sinks: list[Any] = [rr.FileSink(rrd_path)]
     live = False
     if spawn and not has_display():

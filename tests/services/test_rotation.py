@@ -48,6 +48,7 @@ def test_run_with_rotation(tmp_path, deployment):
     doc = json.loads((tmp_path / "out.json").read_text())
     files = [tmp_path / f"out.{k}.rrd" for k in range(4)]  # fused times 0..30: windows [0,10) ... [30,40)
     assert doc["recordings"] == [str(f) for f in files] and not (tmp_path / "out.rrd").exists()
+    assert doc["recording"] == str(files[0])  # a file there is, not the stem of their names
     fused_t: list[float] = []
     ids = set()
     for k, f in enumerate(files):
