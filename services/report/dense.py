@@ -62,7 +62,7 @@ def formation_merges(steps, pairs, radius: float = MERGE_RADIUS, grace: int = ME
     return out
 
 
-def _runs(scenario, runs: int, progress=None, offset: int = 0, total: int | None = None) -> dict:
+def _runs(scenario, runs: int, progress=None) -> dict:
     """Per association: the scores, CPU seconds and merges of runs ``0..runs-1``."""
     pairs = formation_pairs(scenario)
     got = {a: {"scores": [], "cpu_s": [], "merges": []} for a in ASSOCIATIONS}
@@ -76,7 +76,7 @@ def _runs(scenario, runs: int, progress=None, offset: int = 0, total: int | None
             got[a]["scores"].append(score_tracks(steps, GOSPA_CUTOFF))
             got[a]["merges"].append(formation_merges(steps, pairs))
         if progress:
-            progress(offset + r + 1, total or runs)
+            progress(r + 1, runs)
     methods = {}
     for a, g in got.items():
         m = tracks_summary(g["scores"])
@@ -90,11 +90,11 @@ def build_dense(runs: int, jobs: int = 1, progress=None, duration_s: float | Non
     """Both scenarios, ``runs`` runs each (``duration_s``: shortened, for a first look).
     ``jobs`` is accepted for the command line's sake; the runs are sequential."""
     docs = {}
-    for k, name in enumerate((DENSE, "air-picture")):
+    for name in (DENSE, "air-picture"):
         sc = load_scenario(name)
         if duration_s is not None:
             sc = dataclasses.replace(sc, duration=float(duration_s))
-        docs[name] = _runs(sc, runs, progress, k * runs, 2 * runs)
+        docs[name] = _runs(sc, runs, progress if name == DENSE else None)  # air-picture's runs take seconds
     command = f"python -m services.report {DENSE} --runs {runs}" + (f" --duration-s {duration_s:g}" if duration_s else "")
     return {"report": DENSE, "runs": runs, "duration_s": duration_s, "command": command, "criteria": CRITERIA,
             "evaluation": docs}
