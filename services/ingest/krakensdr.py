@@ -43,6 +43,9 @@ from .gateway import DECODE_ERRORS, Reading, Rejected, undecodable
 FORMATS = ("csv", "xml", "json", "form")
 CSV_FIELDS = 17  # fixed fields before the spectrum
 SPECTRUM_POINTS = 360
+#: a DoA is an angle on the array's circle, [0, 360] (360 is 0): anything else is a device
+#: fault, refused as ``range`` rather than wrapped into a plausible bearing
+DOA_MAX = 360.0
 MAX_BODY = 1 << 20  # bytes; a reading is ~3 kB per VFO
 _MS_THRESHOLD = 1e11  # a time below this is seconds (year 5138), above it milliseconds
 _MHZ_THRESHOLD = 1e5  # a frequency below this is MHz (100 GHz), above it Hz
@@ -190,7 +193,7 @@ def parse_csv(text: str) -> list[DoaReport | Rejected]:
             gps, compass = _angle(f[10], "gps heading", -360, 720), _angle(f[11], "compass heading", -360, 720)
             heading = compass if f[12].lower() == "compass" and compass is not None else gps
             out.append(DoaReport(
-                fmt="csv", t=utc_seconds(f[0], "time"), doa_deg=_angle(f[1], "doa", -360, 720, required=True),
+                fmt="csv", t=utc_seconds(f[0], "time"), doa_deg=_angle(f[1], "doa", 0, DOA_MAX, required=True),
                 convention="cw", vfo=vfo, station=f[7] or None, heading_deg=heading, lat_deg=lat, lon_deg=lon,
                 conf=_number(f[2], "confidence"), power_db=_number(f[3], "power"), freq_hz=hertz(f[4], "frequency")))
         except ParseError as e:
@@ -227,7 +230,7 @@ def parse_xml(data: bytes | str) -> list[DoaReport | Rejected]:
         pwr = _number(g("PWR"), "PWR")
         lat, lon = _position(g("LOCATION/LATITUDE"), g("LOCATION/LONGITUDE"))
         return [DoaReport(
-            fmt="xml", t=utc_seconds(g("TIME"), "TIME"), doa_deg=_angle(g("DOA"), "DOA", -360, 720, required=True),
+            fmt="xml", t=utc_seconds(g("TIME"), "TIME"), doa_deg=_angle(g("DOA"), "DOA", 0, DOA_MAX, required=True),
             convention="ccw", station=g("STATION_ID") or None,
             heading_deg=_angle(g("LOCATION/HEADING"), "HEADING", -360, 720), lat_deg=lat, lon_deg=lon, conf=conf,
             power_db=None if pwr is None else pwr - 100.0, freq_hz=hertz(g("FREQUENCY"), "FREQUENCY"))]
@@ -241,7 +244,7 @@ def _report_from_map(d: dict, fmt: str, keys: dict[str, str]) -> DoaReport:
     station = k("station")
     return DoaReport(
         fmt=fmt, t=utc_seconds(k("time"), keys["time"]),
-        doa_deg=_angle(k("doa"), keys["doa"], -360, 720, required=True), convention="ccw",
+        doa_deg=_angle(k("doa"), keys["doa"], 0, DOA_MAX, required=True), convention="ccw",
         station=None if station is None else str(station)[:64],
         heading_deg=_angle(k("heading"), keys["heading"], -360, 720), lat_deg=lat, lon_deg=lon,
         conf=_number(k("conf"), keys["conf"]), power_db=_number(k("power"), keys["power"]),

@@ -189,6 +189,9 @@ def test_confidence_and_station_filters():
     (b"<DATA><TIME>1764612000123</TIME><DOA>30</DOA><LOCATION><LATITUDE>95</LATITUDE>"
      b"<LONGITUDE>1</LONGITUDE></LOCATION></DATA>", "range"),
     (b"<DATA><TIME>-5</TIME><DOA>30</DOA></DATA>", "time"),
+    (b"<DATA><TIME>1764612000123</TIME><DOA>-30</DOA></DATA>", "range"),  # not wrapped to 330
+    (b"<DATA><TIME>1764612000123</TIME><DOA>400</DOA></DATA>", "range"),
+    (b'{"tStamp": 1764612000123, "radioBearing": "361"}', "range"),
     (b'{"tStamp": 1764612000123', "json"),
     (b'[1, 2]', "json"),
     (b'{"tStamp": 1764612000123, "radioBearing": "north"}', "value"),
