@@ -418,10 +418,14 @@ def report(args, launch: Launch, scenario, topology: str, method: str, rrd: str,
         Path(args.json).write_text(json.dumps(doc, indent=1))
     # A process killed from outside (negative code) is an outage the fuser rode through,
     # reported in the summary; a process that failed on its own is an error.
-    killed = {n: c for n, c in codes.items() if c is not None and c < 0}
+    forced = launch.children.forced
+    killed = {n: c for n, c in codes.items() if c is not None and c < 0 and n not in forced}
     if killed:
         print(f"zfusion run: processes killed during the run (see 'sources' in the summary): {killed}",
               file=sys.stderr)
+    if forced:  # the run was over: an end slower than the grace (a loaded machine), not an outage
+        print(f"zfusion run: processes that did not stop within their grace after SIGTERM, killed at the end: "
+              f"{', '.join(sorted(forced))}", file=sys.stderr)
     bad = {n: c for n, c in codes.items() if c not in (0, None) and c > 0}
     if bad:
         print(f"zfusion run: processes ended with errors: {bad}", file=sys.stderr)

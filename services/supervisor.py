@@ -54,6 +54,7 @@ class Children:
     argv: dict[str, list[str]] = field(default_factory=dict)  # each child's command line, to restart it
     last_line: dict[str, str] = field(default_factory=dict)  # each child's last line on stderr
     relays: list[threading.Thread] = field(default_factory=list)
+    forced: set[str] = field(default_factory=set)  # killed by us at the end: no exit within the grace
 
     def start(self, name: str, argv: list[str]) -> None:
         """Start ``zfusion ARGV`` as the child ``name``."""
@@ -116,20 +117,23 @@ class Children:
         deadline = time.monotonic() + grace
         while any(p.poll() is None for p in live) and time.monotonic() < deadline:
             drain(0.1)
-        for p in live:
-            if p.poll() is None:
+        for name in names:
+            p = self.procs.get(name)
+            if p is not None and p in live and p.poll() is None:
+                self.forced.add(name)
                 p.kill()
                 p.wait()
 
     def stop_all(self, grace: float = 5.0) -> None:
-        live = [p for p in self.procs.values() if p.poll() is None]
-        for p in live:
+        live = {n: p for n, p in self.procs.items() if p.poll() is None}
+        for p in live.values():
             p.send_signal(signal.SIGTERM)
         deadline = time.monotonic() + grace
-        for p in live:
+        for name, p in live.items():
             try:
                 p.wait(max(0.0, deadline - time.monotonic()))
             except subprocess.TimeoutExpired:
+                self.forced.add(name)
                 p.kill()
                 p.wait()
         for relay in self.relays:  # their last words before ours

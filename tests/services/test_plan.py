@@ -6,13 +6,14 @@ from __future__ import annotations
 import shlex
 import subprocess
 import sys
+import time
 
 import pytest
 
 from sensors_sim import load_scenario
 from services.cli import build_parser
 from services.plan import FUSER_ID, RECORDER_ID, Live, ProcessSpec, RunPlan, source_timeout
-from services.supervisor import Supervisor
+from services.supervisor import Children, Supervisor
 
 FABRIC = ["--connect", "tcp/127.0.0.1:7447"]
 
@@ -138,3 +139,23 @@ def test_a_plan_whose_processes_wait_for_each_other_cannot_start():
     sup = Supervisor(_Children(), plan, True, lambda: None, lambda text: None, fuser_grace=3.0)
     with pytest.raises(ValueError, match="wait for each other"):
         sup.start_consumers(_Node([]))
+
+
+@pytest.mark.parametrize("how", ["terminate", "stop_all"])
+def test_a_child_killed_at_the_end_is_told_apart_from_one_killed_during_the_run(how):
+    """A child that ignores SIGTERM past its grace is killed at the end and named in
+    ``Children.forced`` (the launcher says so apart from the processes killed during the
+    run, which are outages); one that stops in time is not."""
+    stubborn = "import signal, time; signal.signal(signal.SIGTERM, signal.SIG_IGN); print(flush=True); time.sleep(60)"
+    ch = Children()
+    ch.procs["slow"] = subprocess.Popen([sys.executable, "-c", stubborn], stdout=subprocess.PIPE)
+    ch.procs["quick"] = subprocess.Popen([sys.executable, "-c", "import time; print(flush=True); time.sleep(60)"],
+                                         stdout=subprocess.PIPE)
+    for p in ch.procs.values():
+        p.stdout.readline()  # its handler is set
+    if how == "terminate":
+        ch.terminate(["slow", "quick"], drain=time.sleep, grace=0.5)
+    else:
+        ch.stop_all(grace=0.5)
+    assert ch.forced == {"slow"}
+    assert ch.procs["slow"].returncode == -9 and ch.procs["quick"].returncode == -15
