@@ -44,6 +44,7 @@ from schemas.links import encode_downlink, horizon_message, uplink
 
 from .intake import HORIZON_SLACK_S, Intake
 from .lazy import lazy
+from .leader import Leadership
 from .live import ClockGuard, LiveOptions
 from .logs import utc_text
 from .node import Inbox, Node, Recovery, RejectLog
@@ -328,9 +329,11 @@ def _delete_misses(scenario) -> int:
 
 def run(process_id: str, scenario_ref: str, method_name: str, overrides: dict, keys: KeySpace, zopts,
         timeout: float, start_grace: float, seed: int | None = None, live: LiveOptions | None = None,
-        duration: float | None = None, json_path: str | None = None) -> int:
+        duration: float | None = None, json_path: str | None = None, standby_for: str | None = None) -> int:
     """The fuser of a scenario run (``scenario_ref``), or of a live session (``live``
     given: ``scenario_ref`` is a site or scenario file, time is UTC, it runs until stopped).
+    ``standby_for``: a hot standby of that fuser (:mod:`services.leader`): the same work,
+    published under that fuser's identity only once it leads.
     ``json_path``: a scenario run's summary, scored against its truth, written there when
     done (the result of a deployment started by hand; it keeps every estimate until then)."""
     scenario = load(scenario_ref, seed, duration) if live is None else load_site(scenario_ref)
@@ -371,6 +374,9 @@ def run(process_id: str, scenario_ref: str, method_name: str, overrides: dict, k
         picture = Picture(process_id, _delete_misses(scenario))
         node.keep(picture.serve(node.session, keys))
         down = {tid: publisher(keys.feedback(tid)) for tid in (intake.nodes if distributed else ())}
+        identity = standby_for or process_id  # what consumers take the fused output from
+        leader = Leadership(node.session, keys, identity, standby_for is not None, start_grace, node.event, node.stop)
+        node.keep(leader)
         node.announce()
         node.publish_status("ready")
         seq = down_seq = 0
@@ -387,12 +393,14 @@ def run(process_id: str, scenario_ref: str, method_name: str, overrides: dict, k
                     core.offer(key, data, time.monotonic(), utc())
             except queue.Empty:
                 pass
+            leader.check()
             for e in core.step(time.monotonic()):
-                data = core.encoded(encode_estimate, e, process_id, seq + 1)
+                data = core.encoded(encode_estimate, e, identity, seq + 1)
                 if data is None:
                     continue
                 seq += 1
-                pub.put(data)
+                if leader.leads:
+                    pub.put(data)
                 if kept is not None:
                     kept.append(to_estimate(decode(data)))  # what a listener gets
                 picture.published(e, data)
@@ -400,16 +408,17 @@ def run(process_id: str, scenario_ref: str, method_name: str, overrides: dict, k
             if down:
                 method = core.method
                 for d in method.take_downlinks():
-                    data = core.encoded(encode_downlink, d, process_id, down_seq + 1)
+                    data = core.encoded(encode_downlink, d, identity, down_seq + 1)
                     if data is not None:
                         down_seq += 1
-                        down[tracker_id(d.node)].put(data)
+                        if leader.leads:
+                            down[tracker_id(d.node)].put(data)
                 # Fed-back nodes, and every many-target node, wait for the horizon.
                 if method.horizon > horizon and math.isfinite(method.horizon):
                     horizon = method.horizon
                     down_seq += 1
-                    for p in down.values():
-                        p.put(horizon_message(process_id, down_seq, horizon))
+                    for p in down.values() if leader.leads else ():
+                        p.put(horizon_message(identity, down_seq, horizon))
             for src, n in recovery.take_misses() if recovery is not None else ():
                 if src in core.merger.sources:
                     core.merger.sources[src].missed += n
@@ -420,7 +429,8 @@ def run(process_id: str, scenario_ref: str, method_name: str, overrides: dict, k
             node.counters.update(received=core.received, processed=core.processed, published=seq,
                                  late=core.merger.late, held=core.merger.held(),
                                  inbox=inbox.qsize(), inbox_waits=inbox.waits,
-                                 unpublished=sum(core.unpublished.values()),
+                                 unpublished=sum(core.unpublished.values()), leads=int(leader.leads),
+                                 takeovers=leader.takeovers,
                                  **{f"unpublished.{c}": n for c, n in core.unpublished.items()})
             if core.refilter is not None:
                 node.counters.update(oosm=sum(st.oosm for st in core.merger.sources.values()),

@@ -289,7 +289,7 @@ class Launch:
         until = time.monotonic() + max_delay + 1.0  # the fuser releases what the sources sent
         while time.monotonic() < until and not node.stop.is_set():
             self.drain(0.1)
-        children.terminate([*self.plan.ids("tracker"), FUSER_ID], self.drain)
+        children.terminate([*self.plan.ids("tracker", "fuser")], self.drain)  # the fuser and its standby
         deadline_rec = time.monotonic() + 30.0  # the recorder ends once it has everyone's last status
         while children.procs[RECORDER_ID].poll() is None and time.monotonic() < deadline_rec \
                 and not node.stop.is_set():
@@ -333,7 +333,8 @@ def run(args) -> int:
         fabric=["--deployment", args.deployment, *fabric.theirs.to_args()] + (["-v"] if args.verbose else []),
         speed=args.speed, rrd=rrd, supervisor=LAUNCHER_ID, settings=getattr(args, "settings", []),
         fusion_rule=args.fusion_rule, duration=args.duration_s, live=live_opts,
-        spawn=getattr(args, "spawn", False), rotate_s=getattr(args, "rotate_s", None), outputs=outputs)
+        spawn=getattr(args, "spawn", False), rotate_s=getattr(args, "rotate_s", None), outputs=outputs,
+        standby=getattr(args, "standby", False))
 
     node = Node(LAUNCHER_ID, "launcher", KeySpace(args.deployment), fabric.mine, live=live)
     try:

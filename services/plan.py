@@ -32,6 +32,7 @@ from schemas import tracker_id
 
 FUSER_ID = "fuser"
 RECORDER_ID = "recorder"
+STANDBY_ID = "fuser-standby"
 ROUTER_ID = "router"
 ROLES = ("router", "fuser", "recorder", "exporter", "tracker", "source")
 # s of silence after which a source is dead at --speed max: nothing is paced there, so a
@@ -94,7 +95,8 @@ class RunPlan:
               supervisor: str | None = None, settings: Sequence[tuple[str, object]] = (),
               fusion_rule: str | None = None,
               duration: float | None = None, live: Live | None = None, spawn: bool = False,
-              rotate_s: float | None = None, outputs: Mapping[str, tuple[str, str, list[str]]] = {}) -> "RunPlan":
+              rotate_s: float | None = None, outputs: Mapping[str, tuple[str, str, list[str]]] = {},
+              standby: bool = False) -> "RunPlan":
         """The run of ``scenario`` (loaded from ``scenario_ref``) by ``method`` in ``topology``.
 
         Args:
@@ -109,6 +111,7 @@ class RunPlan:
             live: a live session; spawn, rotate_s: the recorder's ``--spawn``, ``--rotate-s``.
             outputs: exporters, process id -> (name, option, value) of
                 :data:`services.export.outputs.OUTPUTS`.
+            standby: a hot standby of the fuser, :data:`STANDBY_ID` (:mod:`services.leader`).
         """
         timeout = source_timeout(scenario, speed)
         seed = ["--seed", str(scenario.seed)]
@@ -124,6 +127,12 @@ class RunPlan:
             "fuser", *given, "--method", method, "--id", FUSER_ID, "--source-timeout", str(timeout), *tuned,
             *(["--max-delay", repr(live.max_delay), "--oosm-window", repr(live.oosm_window)] if live else []),
             *(["--json", json_path] if json_path else []), *fabric), restartable=True))
+        if standby:  # the fuser's work again, published only when the fuser's process is gone
+            specs.append(ProcessSpec(STANDBY_ID, "fuser", (
+                "fuser", *given, "--method", method, "--id", STANDBY_ID, "--standby", FUSER_ID,
+                "--source-timeout", str(timeout), *tuned,
+                *(["--max-delay", repr(live.max_delay), "--oosm-window", repr(live.oosm_window)] if live else []),
+                *fabric), restartable=True))
         specs.append(ProcessSpec(RECORDER_ID, "recorder", (
             "record", "--rrd", rrd, "--id", RECORDER_ID, *given, *(["--spawn"] if spawn else []),
             *(["--rotate-s", str(rotate_s)] if rotate_s else []),

@@ -20,6 +20,9 @@ def register(sub) -> None:
     options.method(p)
     options.fusion_rule(p)
     p.add_argument("--id", default="fuser", help="process id (default: %(default)s)")
+    p.add_argument("--standby", metavar="FUSER",
+                   help="a hot standby of the fuser FUSER on the same inputs: the same work, published under "
+                        "FUSER's identity only once FUSER's process is gone (leadership by Zenoh liveliness)")
     p.add_argument("--source-timeout", type=float, default=5.0, help="seconds of silence before a source is dead")
     p.add_argument("--start-grace", type=float, default=30.0, help="seconds a never-heard source gets at start")
     options.seed_option(p)
@@ -36,4 +39,5 @@ def run(args) -> int:
     method = args.method or values.defaults(args).get("method")
     return fuser.run(args.id, args.site or args.scenario, method, options.overrides(args), values.keys(args),
                      values.zopts(args), args.source_timeout, args.start_grace, seed=args.seed,
-                     live=values.live(args), duration=args.duration_s, json_path=args.json)
+                     live=values.live(args), duration=args.duration_s, json_path=args.json,
+                     standby_for=args.standby)

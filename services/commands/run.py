@@ -39,6 +39,9 @@ def register(sub) -> None:
     g.add_argument("--live", action="store_true",
                    help="run the scenario's processes as a live session on UTC time (scenario time 0 = start), "
                         "until Ctrl-C, --for, or the sources' end")
+    g.add_argument("--standby", action="store_true",
+                   help="live: a hot standby fuser beside the fuser, which takes over within a second if the "
+                        "fuser's process dies (docs/reliability.md)")
     g.add_argument("--for", dest="for_s", type=options.seconds, metavar="SECONDS", help="live: stop after this long")
     g.add_argument("--oosm-window", type=options.seconds, default=10.0, metavar="S",
                    help="live: the fuser's re-filtering window (default %(default)s s; docs/live.md)")
@@ -56,6 +59,8 @@ def run(args) -> int:
         raise UserError("--live runs in real time: remove --speed")
     if not args.live and args.for_s is not None:
         raise UserError("--for is for live runs: add --live, or use --duration-s")
+    if not args.live and args.standby:
+        raise UserError("--standby is for live runs: add --live")
     names.check_scenario(args.scenario)
     names.check_method(args.method)
     check_outputs(args)

@@ -1,0 +1,97 @@
+"""The hot standby fuser (services/leader.py): a live run with ``--standby``, kill -9 of
+the leading fuser, and the fused output goes on from the standby under the same
+identity, the same track ids, without a gap or a jump."""
+
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import threading
+import time
+
+import numpy as np
+import psutil
+import pytest
+import zenoh
+from scipy.stats import chi2
+
+from _runs import child, run_cmd
+from schemas import KeySpace, decode, to_estimate
+from services.launcher import free_port
+from services.node import ZenohOptions
+
+pytestmark = pytest.mark.slow
+
+
+class Fused:
+    """Every fused estimate as it arrives, with its arrival time (monotonic)."""
+
+    def __init__(self, deployment: str):
+        self.endpoint = f"tcp/127.0.0.1:{free_port()}"
+        self.session = zenoh.open(ZenohOptions(listen=[self.endpoint]).to_config())
+        self.got: list[tuple[float, object]] = []
+        self._lock = threading.Lock()
+        self._sub = self.session.declare_subscriber(KeySpace(deployment).fused(), self._on)
+
+    def _on(self, sample) -> None:
+        msg = decode(sample.payload.to_bytes())
+        with self._lock:
+            self.got.append((time.monotonic(), msg))
+
+    def wait(self, predicate, proc, timeout: float = 90.0) -> None:
+        deadline = time.monotonic() + timeout
+        while not predicate():
+            assert proc.poll() is None, "the run ended early"
+            assert time.monotonic() < deadline, "timed out"
+            time.sleep(0.02)
+
+    def close(self) -> None:
+        self._sub.undeclare()
+        self.session.close()
+
+
+def test_kill_of_the_leading_fuser_is_no_gap_same_ids_no_jump(tmp_path, deployment):
+    """Live patent-3d-orbit with ``--standby``: once the fuser has published for 5 s it is
+    killed -9. The standby publishes within a second (no gap in ``fused`` longer than one
+    update period plus 1 s), under the fuser's identity, with the same track ids, and its
+    first estimate is where the last one before the kill, moved along its velocity, says
+    within 3σ. The launcher restarts the killed fuser, which finds a leader and stands by
+    (it says so), and the run ends with every process exit 0 but the killed one."""
+    watch = Fused(deployment)
+    proc = subprocess.Popen(run_cmd(tmp_path, "patent-3d-orbit", deployment, "--live", "--for", "40", "--standby",
+                                    "--connect", watch.endpoint), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True)
+    try:
+        launcher = psutil.Process(proc.pid)
+        fuser = child(launcher, "fuser", "fuser")
+        child(launcher, "fuser", "fuser-standby")
+        watch.wait(lambda: len(watch.got) >= 6, proc)
+        killed_at = time.monotonic()
+        fuser.kill()
+        watch.wait(lambda: any(a > killed_at + 0.5 for a, _ in watch.got), proc, timeout=30)
+        watch.wait(lambda: len(watch.got) >= 20, proc)
+        _, err = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGINT)
+            proc.wait(30)
+        watch.close()
+    assert proc.returncode == 0, err[-3000:]
+    doc = json.loads((tmp_path / "out.json").read_text())
+    assert doc["exit_codes"]["fuser"] == -9 and doc["exit_codes"]["fuser-standby"] == 0, doc["exit_codes"]
+    assert "fuser-standby: the leader is gone: taking over" in err and "fuser: a leader holds" in err, err[-3000:]
+    arrivals = np.array([a for a, _ in watch.got])
+    msgs = [m for _, m in watch.got]
+    assert {m.src for m in msgs} == {"fuser"}  # one identity
+    period = 1.0  # patent-3d-orbit's sensors scan once a second
+    assert np.max(np.diff(arrivals)) <= period + 1.0, np.diff(arrivals)
+    before = [to_estimate(m) for a, m in watch.got if a < killed_at]
+    after = [to_estimate(m) for a, m in watch.got if a > killed_at + 0.5]
+    assert {e.track for e in after} == {e.track for e in before}, ({e.track for e in before}, {e.track for e in after})
+    last, first = before[-1], after[0]
+    dt = first.t - last.t
+    assert 0.0 < dt <= period + 1.0 + 1e-6
+    predicted = last.x[:3] + dt * last.x[3:6]
+    d2 = (first.x[:3] - predicted) @ np.linalg.solve(first.P[:3, :3] + last.P[:3, :3], first.x[:3] - predicted)
+    assert d2 <= chi2.ppf(0.9973, 3), d2  # within 3σ (the 3-D equivalent)
