@@ -28,11 +28,17 @@ def _measurement(m: Measurement, t: float) -> dict[str, Any]:
     return {"kind": m.kind, **measurement_fields(m)}
 
 
-def _state(e: Estimate, track: str) -> dict[str, Any]:
-    """A link's track, method and state (``e.extra`` travels on no link)."""
+def _state(e: Estimate, track: str, existence: bool = False) -> dict[str, Any]:
+    """A link's track, method and state (``e.extra`` travels on no link; ``existence``
+    on a local report only, JIPDA's)."""
     if e.extra:
         raise ValueError(f"a link estimate carries no {', '.join(sorted(e.extra))}")
-    return {"track": track, "method": e.method, "x": e.x, "P": e.P}
+    if e.existence is not None and not existence:
+        raise ValueError("only a local report's estimate carries an existence")
+    d = {"track": track, "method": e.method, "x": e.x, "P": e.P}
+    if e.existence is not None:
+        d["existence"] = float(e.existence)
+    return d
 
 
 def _optional(**fields: Any) -> dict[str, Any]:
@@ -47,9 +53,10 @@ def _terms(m: ModelTerms | None) -> dict | None:
 # Up: type -> (kind, payload) and kind -> type ------------------------------------------
 def _local_report(u: LocalReport) -> dict[str, Any]:
     e = u.estimate
-    return {"node": u.node, **_state(e, e.track), "prior_x": u.prior.x, "prior_P": u.prior.P, "KH": u.KH,
+    return {"node": u.node, **_state(e, e.track, existence=True), "prior_x": u.prior.x, "prior_P": u.prior.P,
+            "KH": u.KH,
             **_optional(nis=None if e.nis is None else float(e.nis), nis_dof=None if e.nis_dof is None else int(e.nis_dof),
-                        existence=None if e.existence is None else float(e.existence), feedback_t=None if u.feedback_t is None else float(u.feedback_t), models=_terms(u.models))}
+                        feedback_t=None if u.feedback_t is None else float(u.feedback_t), models=_terms(u.models))}
 
 
 def _prediction_report(u: PredictionReport) -> dict[str, Any]:

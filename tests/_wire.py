@@ -44,7 +44,7 @@ def good(kind: str) -> dict:
         "track": {"track": "T1", "node": "centre", "method": "SS", "x": [1.0, 2.0], "P": [[2.0, 0.1], [0.1, 3.0]],
                   "nis": 1.5, "nis_dof": 2},
         "init_request": {"node": "s1", "measurement": UPLINKED},
-        "local_report": {**_LOCAL, "prior_x": [0.5, 1.5], "prior_P": [[3.0, 0.0], [0.0, 4.0]],
+        "local_report": {**_LOCAL, "existence": 0.75, "prior_x": [0.5, 1.5], "prior_P": [[3.0, 0.0], [0.0, 4.0]],
                          "KH": [[0.2, 0.0], [0.0, 0.1]], "feedback_t": 1.0, "models": _TERMS},
         "prediction_report": {**{k: v for k, v in _LOCAL.items() if k not in ("nis", "nis_dof")},
                               "measurement": UPLINKED, "feedback_t": 1.0, "models": _TERMS},
@@ -68,7 +68,7 @@ LINK_KINDS = ["init_request", "local_report", "prediction_report", "measurement_
 ALL_KINDS = ["bearing", "azel", "range_az", "az_el_range", "watermark", "track", *LINK_KINDS, "truth", "jam_state",
              "status"]
 # Fields a message may leave out
-OPTIONAL = ("final", "nis", "nis_dof", "affects", "counters", "events", "feedback_t", "models", "update")
+OPTIONAL = ("final", "nis", "nis_dof", "existence", "affects", "counters", "events", "feedback_t", "models", "update")
 
 
 def with_field(d: dict, field: str, value) -> dict:
@@ -117,7 +117,9 @@ BAD_FIELDS = {
                      ("measurement", {**UPLINKED, "el": 0.1}, "unknown-field"),
                      ("measurement", {k: v for k, v in UPLINKED.items() if k != "std_az"}, "missing"),
                      ("measurement", {**UPLINKED, "seq": 3}, "unknown-field"), ("track", "T1", "unknown-field")],
-    "local_report": [("x", [1.0, math.nan], "non-finite"), ("x", [], "shape"), ("P", [[1.0, 0.0], [5.0, 1.0]], "value"),
+    "local_report": [("existence", 1.5, "range"), ("existence", -0.1, "range"), ("existence", "high", "type"),
+                     ("existence", None, "type"),
+                     ("x", [1.0, math.nan], "non-finite"), ("x", [], "shape"), ("P", [[1.0, 0.0], [5.0, 1.0]], "value"),
                      ("P", [[1.0]], "shape"), ("P", [[-1.0, 0.0], [0.0, 1.0]], "value"), ("track", "a/b", "value"),
                      ("track", ABSENT, "missing"), ("node", 3, "type"), ("node", ABSENT, "missing"),
                      ("method", None, "type"), ("nis", -1.0, "range"), ("nis", None, "type"), ("nis_dof", 0, "range"),
@@ -133,7 +135,8 @@ BAD_FIELDS = {
                      ("models.mu", [0.5, 0.5], "unknown-field"), ("measurement", UPLINKED, "unknown-field"),
                      ("prediction", False, "unknown-field"), ("extra", {}, "unknown-field"),
                      ("estimate", {}, "unknown-field"), ("drop", True, "unknown-field")],
-    "prediction_report": [("measurement", ABSENT, "missing"), ("measurement", {**UPLINKED, "az": 7.0}, "range"),
+    "prediction_report": [("existence", 0.5, "unknown-field"),
+                          ("measurement", ABSENT, "missing"), ("measurement", {**UPLINKED, "az": 7.0}, "range"),
                           ("measurement", {**UPLINKED, "sensor": "a/b"}, "value"), ("nis", 1.0, "unknown-field"),
                           ("nis_dof", 2, "unknown-field"), ("prior_x", [1.0, 2.0], "unknown-field"),
                           ("KH", [[0.0, 0.0], [0.0, 0.0]], "unknown-field"), ("feedback_t", "1", "type"),
@@ -145,11 +148,13 @@ BAD_FIELDS = {
     "drop": [("node", ABSENT, "missing"), ("node", "a b", "value"), ("track", ABSENT, "missing"),
              ("track", "a b", "value"), ("track", None, "type"), ("x", [1.0], "unknown-field"),
              ("estimate", {}, "unknown-field")],
-    "init": [("track", ABSENT, "missing"), ("track", None, "type"), ("method", 1, "type"), ("method", ABSENT, "missing"),
+    "init": [("existence", 0.5, "unknown-field"),
+             ("track", ABSENT, "missing"), ("track", None, "type"), ("method", 1, "type"), ("method", ABSENT, "missing"),
              ("x", [1.0, math.inf], "non-finite"), ("x", ABSENT, "missing"), ("P", [[-1.0, 0.0], [0.0, 1.0]], "value"),
              ("P", ABSENT, "missing"), ("node", "s1", "unknown-field"), ("init", True, "unknown-field"),
              ("prior_x", [1.0, 2.0], "unknown-field"), ("update", {}, "unknown-field"), ("nis", 1.0, "unknown-field")],
-    "feedback": [("update", [1.0], "type"), ("update", None, "type"), ("update.x", [1.0], "shape"),
+    "feedback": [("existence", 0.5, "unknown-field"),
+                 ("update", [1.0], "type"), ("update", None, "type"), ("update.x", [1.0], "shape"),
                  ("update.P", [[1.0]], "shape"), ("update.P", [[1.0, 0.0], [0.0, math.nan]], "non-finite"),
                  ("update.x", ABSENT, "missing"), ("update.P", ABSENT, "missing"), ("update.nis", 1.0, "unknown-field"),
                  ("models.xs", [[1.0, 2.0, 3.0]], "shape"), ("models.xs", ABSENT, "missing"),

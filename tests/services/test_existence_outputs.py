@@ -6,6 +6,7 @@ bytes of such a track unchanged."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import xml.etree.ElementTree as ET
@@ -16,12 +17,12 @@ import pytest
 import zenoh
 
 from fusion.motion import make_motion
-from fusion.links import LocalReport
+from fusion.links import Init, LocalReport
 from fusion.patent import LocalTracker
 from fusion.measurement.models import SphericalModel
 from fusion.types import Estimate
 from schemas import KeySpace, SchemaError, decode, encode, encode_estimate, to_estimate
-from schemas.links import encode_uplink, uplink
+from schemas.links import encode_downlink, encode_uplink, uplink
 from schemas.messages import _estimate_payload, _validate_strict
 from services import geo, picture
 from services.export import cot, geojson
@@ -63,15 +64,19 @@ def test_existence_outside_0_1_is_refused(bad):
 
 
 def test_existence_of_a_local_track_crosses_the_link():
-    """A JIPDA local track's report (the weighted update) in an uplink, encoded and decoded."""
+    """A JIPDA local track's report (the weighted update) as a ``local_report``, encoded
+    and decoded bit for bit; no other link carries an existence."""
     model = SphericalModel(("az", "el", "range"), [0.0, 0.0, 0.0], (0.01, 0.01, 20.0), n_x=6)
     tr = LocalTracker("radar", make_motion("cv", 0.1), "HNV", "L1")
     tr.initialise(np.array([0.0, 20000.0, 5000.0, 0.0, 100.0, 0.0]), np.diag([1e4] * 3 + [100.0] * 3), 0.0)
     Z = np.array([model.h(np.array([0.0, 20100.0, 5000.0, 0, 0, 0])), model.h(np.array([50.0, 20000.0, 5030.0, 0, 0, 0]))])
-    report = tr.update_weighted(model, Z, [0.5, 0.3], 0.2, 1.0, seq=1, existence=0.83)
-    got = uplink(decode(encode_uplink(report, "trk-radar", 1)))
-    assert isinstance(got, LocalReport) and got.estimate.existence == 0.83
-    assert got.estimate.nis == pytest.approx(report.estimate.nis) and np.array_equal(got.KH, report.KH)
+    r = tr.update_weighted(model, Z, [0.5, 0.3], 0.2, 1.0, seq=1, existence=0.83)
+    assert isinstance(r, LocalReport) and r.estimate.existence == 0.83
+    got = uplink(decode(encode_uplink(r, "trk-radar", 1)))
+    assert isinstance(got, LocalReport) and got.estimate.existence == 0.83 and got.estimate.nis == r.estimate.nis
+    assert got.estimate.x.tobytes() == r.estimate.x.tobytes() and got.KH.tobytes() == r.KH.tobytes()
+    with pytest.raises(ValueError, match="existence"):
+        encode_downlink(Init("radar", dataclasses.replace(r.estimate, node="centre")), "fuser", 1)
 
 
 def test_geojson_and_cot_carry_existence():
