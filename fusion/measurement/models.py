@@ -232,15 +232,9 @@ class SphericalModel:
     # Building composite models ----------------------------------------------------
     @staticmethod
     def stack(models: Sequence["SphericalModel"]) -> "SphericalModel":
-        """All rows of several models in one (the SS stacked measurement); R block-diagonal."""
-        if not models:
-            raise ValueError("cannot stack zero measurement models")
-        n_x = {m.n_x for m in models}
-        if len(n_x) != 1:
-            raise ValueError(f"cannot stack models written for different state lengths {sorted(n_x)}")
-        if len(models) == 1:
-            return models[0]
-        return _stack(tuple(models))
+        """All rows of several models in one (the SS stacked measurement); R block-diagonal
+        (:func:`stack`, whose spherical case this is)."""
+        return stack(models)
 
     def select(self, rows: Sequence[int]) -> "SphericalModel":
         """A model of some of this model's rows (in the given order)."""

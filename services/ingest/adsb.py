@@ -200,10 +200,15 @@ def _num(d: dict, key: str, lo: float = -math.inf, hi: float = math.inf) -> floa
         x = float(x)
     except OverflowError:
         raise ParseError("range", f"{key}: an integer beyond any float") from None
+    return _within(x, key, lo, hi)
+
+
+def _within(x: float, what: str, lo: float, hi: float) -> float:
+    """``x`` if finite and in [lo, hi], else the refusal by cause."""
     if not math.isfinite(x):
-        raise ParseError("non-finite", f"{key}: {x}")
+        raise ParseError("non-finite", f"{what}: {x}")
     if not lo <= x <= hi:
-        raise ParseError("range", f"{key}: {x:g} outside [{lo:g}, {hi:g}]")
+        raise ParseError("range", f"{what}: {x:g} outside [{lo:g}, {hi:g}]")
     return x
 
 
@@ -370,11 +375,7 @@ def _text_num(text: str, what: str, lo: float, hi: float) -> float | None:
         x = float(text)
     except ValueError:
         raise ParseError("value", f"{what}: {text[:20]!r} is not a number") from None
-    if not math.isfinite(x):
-        raise ParseError("non-finite", f"{what}: {text[:20]!r}")
-    if not lo <= x <= hi:
-        raise ParseError("range", f"{what}: {x:g} outside [{lo:g}, {hi:g}]")
-    return x
+    return _within(x, what, lo, hi)
 
 
 def _naive_seconds(date: str, clock: str) -> float | None:
