@@ -7,7 +7,8 @@ on; then the ``[traffic]`` aircraft alive at the scan, :mod:`sensors_sim.traffic
 its configured order, it yields one :class:`SensorEvent`:
 
 1. draw the scan's variates (:class:`sensors_sim.noise.ScanDraws`: always the same
-   pattern, so streams stay aligned whatever is detected or jammed);
+   pattern, so streams stay aligned whatever is detected or jammed; a traffic aircraft
+   that cannot be in coverage draws nothing and yields no event);
 2. coverage: azimuth sector, elevation limits, instrumented range (a jammer must be on);
 3. detection: ``u_detect < P_D``;
 4. noise: ``z = h(x) + σ_J·n``, ``σ_J = σ·√gain`` when jammed (:mod:`sensors_sim.jammer`),
@@ -37,12 +38,12 @@ import numpy as np
 from fusion.measurement.kinds import KINDS
 from fusion.types import Measurement
 
-from .geometry import coverage_span, finish_measurement, in_coverage, observe
+from .geometry import coverage_mask, coverage_span, finish_measurement, in_coverage, observe
 from .spec import SensorSpec
 from .jammer import jam_effect, switched_on_at
 from .noise import ScanDraws, outlier_from_uniform, process_rng
 from .spec import Scenario
-from .traffic import Traffic
+from .traffic import Traffic, aircraft_id
 from .trajectories import iter_times, sample_times, truth_trajectories
 
 
@@ -93,11 +94,16 @@ def sensor_events(scenario: Scenario, sensor_id: str, run: int = 0) -> Iterator[
         t = float(t)
         site = sensor.site.position(t)
         scan: list[tuple[SensorEvent, np.ndarray | None]] = []  # (event without measurement, z)
-        aircraft = {a.id: a for a in traffic.alive(t)} if traffic is not None else {}
+        aircraft: dict[str, np.ndarray] = {}
+        if traffic is not None:
+            fleet = traffic.fleet(t)
+            positions = fleet.positions(t)
+            near = coverage_mask(sensor, positions - site, margin=1e-6)  # the others cannot be in view
+            aircraft = {aircraft_id(i): p for i, p in zip(fleet.index[near], positions[near])}
         for obj in (*sensor.targets, *aircraft):
             draws = ScanDraws(rng, n)
             if obj in truths or obj in aircraft:
-                position, emitting = (truths[obj] if obj in truths else aircraft[obj]).position(t), True
+                position, emitting = (truths[obj].position(t) if obj in truths else aircraft[obj]), True
                 effect = jam_effect(scenario, sensor_id, t, position)
             else:  # a jammer, seen by a DF only while it transmits
                 jammer = scenario.jammers[obj]

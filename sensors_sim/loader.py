@@ -285,9 +285,21 @@ def _traffic(r: Reader) -> TrafficSpec:
     if speed[0] <= 0:
         raise r.error("must be [lowest, highest] with 0 < lowest <= highest", "speed_mps")
     alt = _pair(r, "alt_m")
+    waypoints = r.integer("waypoints", 0, ge=0)
+    offset = r.quantity("waypoint_offset", LENGTH, default=0.0, ge=0)
+    key = r.unit_key("turn_rate", RATE, required=False)
+    turn_rate = TrafficSpec.turn_rate if key is None else _pair(r, key, RATE[key[len("turn_rate_"):]])
+    if turn_rate[0] <= 0:
+        raise r.error("must be [lowest, highest] with 0 < lowest <= highest", key)
+    level_changes = r.integer("level_changes", 0, ge=0)
+    climb_rate = _pair(r, "climb_rate_mps") if r.has("climb_rate_mps") else TrafficSpec.climb_rate
+    if climb_rate[0] <= 0:
+        raise r.error("must be [lowest, highest] with 0 < lowest <= highest", "climb_rate_mps")
     r.finish()
     return TrafficSpec(rate, max_alive, (float(x0), float(x1), float(y0), float(y1)),
-                       (float(speed[0]), float(speed[1])), (float(alt[0]), float(alt[1])))
+                       (float(speed[0]), float(speed[1])), (float(alt[0]), float(alt[1])),
+                       waypoints, float(offset), (float(turn_rate[0]), float(turn_rate[1])), level_changes,
+                       (float(climb_rate[0]), float(climb_rate[1])))
 
 
 _SEGMENT_TYPES = ("static", "cv", "ca", "turn", "waypoints", "orbit")

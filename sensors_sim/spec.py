@@ -111,7 +111,12 @@ class TrafficSpec:
         max_alive: at most this many aircraft at once: a birth while that many fly is dropped.
         box: ``(x_min, x_max, y_min, y_max)`` ENU metres, the area crossed edge to edge.
         speed: ``(lowest, highest)`` ground speed (m/s), uniform.
-        alt: ``(lowest, highest)`` altitude (m, ENU up), uniform; level flight.
+        alt: ``(lowest, highest)`` altitude (m, ENU up), uniform.
+        waypoints: points each crossing flies by (fly-by turns); 0: a straight line.
+        waypoint_offset: the largest distance of a waypoint across the line (m).
+        turn_rate: ``(lowest, highest)`` rate of the turns (rad/s), uniform.
+        level_changes: climbs or descents to a new level per crossing; 0: level flight.
+        climb_rate: ``(lowest, highest)`` vertical rate of a level change (m/s), uniform.
     """
 
     rate: float
@@ -119,6 +124,11 @@ class TrafficSpec:
     box: tuple[float, float, float, float]
     speed: tuple[float, float]
     alt: tuple[float, float]
+    waypoints: int = 0
+    waypoint_offset: float = 0.0
+    turn_rate: tuple[float, float] = (float(np.radians(1.0)), float(np.radians(3.0)))
+    level_changes: int = 0
+    climb_rate: tuple[float, float] = (5.0, 15.0)
 
 
 @dataclass(frozen=True, eq=False)

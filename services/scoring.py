@@ -241,8 +241,11 @@ class TrackSteps:
         t, dim = self.starts.pop(0), self.dim or 3
         self.first += 1
         self.pending = []
-        aircraft = ((a.id, a) for a in self.traffic.alive(t)) if self.traffic else ()
-        return Step(t, {tid: tr.position(t)[:dim] for tid, tr in (*self.trajs.items(), *aircraft)}, tracks)
+        truths = {tid: tr.position(t)[:dim] for tid, tr in self.trajs.items()}
+        if self.traffic is not None:
+            fleet = self.traffic.fleet(t)
+            truths.update(zip(fleet.ids, fleet.positions(t)[:, :dim]))
+        return Step(t, truths, tracks)
 
 
 GOSPA_CUTOFF = 1000.0  # m: GOSPA's c, order p = 2, for every many-target score
