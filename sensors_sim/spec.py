@@ -158,6 +158,10 @@ class SensorSpec:
             after its time of validity; 0: at once.
         sac_sic: its ASTERIX data source identifier (SAC, SIC), for a radar whose
             plots come as ASTERIX (``zfusion ingest asterix``); None: none.
+        sectors: a rotating radar's sectors per turn (its plots are published sector by
+            sector, each at the time the beam crossed it; ``period`` is the rotation
+            period, ``start`` a time the beam points north); 0: a snapshot sensor, every
+            plot of a scan at the scan's time.
     """
 
     id: str
@@ -176,6 +180,7 @@ class SensorSpec:
     clutter_rate: float = 0.0
     latency: float = 0.0
     sac_sic: tuple[int, int] | None = None
+    sectors: int = 0
 
     @property
     def measurement_kind(self) -> str:
