@@ -300,7 +300,10 @@ def _sectors(scenario: Scenario, sensor: SensorSpec, run: int) -> Iterator[Batch
     for t_north in iter_times(sensor.start, T, end):
         t_north = float(t_north)
         fleet = _flying(traffic, t_north, t_north + T)
-        ids = [*sensor.targets, *(aircraft_id(i) for i in fleet.index)] if fleet is not None else list(sensor.targets)
+        count = len(targets) + (len(fleet) if fleet is not None else 0)
+
+        def name(row: int) -> str:
+            return sensor.targets[row] if row < len(targets) else aircraft_id(fleet.index[row - len(targets)])
 
         def kinematics(rows: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
             p, v = np.empty((len(rows), 3)), np.empty((len(rows), 3))
@@ -309,11 +312,11 @@ def _sectors(scenario: Scenario, sensor: SensorSpec, run: int) -> Iterator[Batch
                 x = targets[rows[k]].state(max(float(t[k]), 0.0))
                 p[k], v[k] = x[:3], x[3:6]
             if fleet is not None and not listed.all():
-                pa, va, _ = fleet.take(rows[~listed] - len(targets)).kinematics(t[~listed])
+                pa, va, _ = fleet.kinematics(t[~listed], rows[~listed] - len(targets))
                 p[~listed], v[~listed] = pa, va
             return p, v
 
-        rows, times = beam_crossings(kinematics, len(ids), site, t_north, T, sensor.max_range)
+        rows, times = beam_crossings(kinematics, count, site, t_north, T, sensor.max_range)
         if fleet is not None:  # alive at the crossing
             k = rows >= len(targets)
             alive = ~k.copy()
@@ -323,7 +326,7 @@ def _sectors(scenario: Scenario, sensor: SensorSpec, run: int) -> Iterator[Batch
         positions = kinematics(rows, times)[0] if len(rows) else np.empty((0, 3))
         d = positions - site
         covered = coverage_mask(sensor, d) & (times <= end)
-        plots: list[tuple[float, SensorEvent, np.ndarray | None]] = []  # (t, event, z)
+        plots: list[tuple] = []  # (t, the SensorEvent's fields after t and the measurement, z)
         h = np.column_stack([c for c, name in zip(az_el_range_arrays(d), ("az", "el", "range"))
                              if name in sensor.components]) if len(rows) else np.empty((0, n))
         for i in np.flatnonzero(covered):
@@ -335,13 +338,12 @@ def _sectors(scenario: Scenario, sensor: SensorSpec, run: int) -> Iterator[Batch
             if detected:
                 z = finish_measurement(kind, h[i] + _error(sensor, effect, outlier, draws.gauss[i], draws.law[i],
                                                            is_range))
-            plots.append((t, SensorEvent(t, None, effect is not None, outlier, detected, ids[rows[i]]), z))
+            plots.append((t, (effect is not None, outlier, detected, name(rows[i])), z))
         if sensor.clutter_rate > 0.0:
-            false_alarm = SensorEvent(t_north, None, False, False, True, "", True, clutter=True)
             for z in clutter_plots(rng, sensor):
                 t = t_north + T * float(z[az_index]) / TWO_PI  # when the beam points where it is
                 if t <= end:
-                    plots.append((t, dataclasses.replace(false_alarm, t=t), z))
+                    plots.append((t, (False, False, True, "", True, True), z))
         plots.sort(key=lambda p: p[0])
         i = 0
         for j in range(S):
@@ -351,12 +353,12 @@ def _sectors(scenario: Scenario, sensor: SensorSpec, run: int) -> Iterator[Batch
             yielded += 1
             events = []
             while i < len(plots) and (plots[i][0] < t1 or t1 == end):
-                t, ev, z = plots[i]
+                t, fields, z = plots[i]
+                m = None
                 if z is not None:
-                    ev = dataclasses.replace(ev, measurement=Measurement(t=t, sensor=sensor_id, kind=kind, z=z,
-                                                                         std=std, site=site, seq=seq))
+                    m = Measurement(t=t, sensor=sensor_id, kind=kind, z=z, std=std, site=site, seq=seq)
                     seq += 1
-                events.append(ev)
+                events.append(SensorEvent(t, m, *fields))
                 i += 1
             yield Batch(t0, t1, events)
 

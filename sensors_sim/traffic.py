@@ -93,15 +93,16 @@ class Fleet:
     def concat(parts: list["Fleet"]) -> "Fleet":
         return Fleet(*(np.concatenate([getattr(p, k) for p in parts]) for k in Fleet._ARRAYS))
 
-    def kinematics(self, t) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def kinematics(self, t, rows=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Position, velocity and acceleration (A, 3) at ``t`` (a scalar, or one time per
-        aircraft), from the leg and the altitude segment each is on."""
-        t = np.broadcast_to(np.asarray(t, dtype=float), self.t0.shape)
-        rows = np.arange(len(self.t0))
-        j = (t[:, None] >= self.leg_t[:, 1:]).sum(axis=1)
+        aircraft), from the leg and the altitude segment each is on; ``rows``: of those
+        aircraft only (indices, repeats allowed), ``t`` then one time per row."""
+        rows = np.arange(len(self.t0)) if rows is None else np.asarray(rows, dtype=int)
+        t = np.broadcast_to(np.asarray(t, dtype=float), rows.shape)
+        j = (t[:, None] >= self.leg_t[rows, 1:]).sum(axis=1)
         tau = t - self.leg_t[rows, j]
         p0, v0 = self.leg_p[rows, j], self.leg_v[rows, j]
-        w, psi0, speed = self.leg_w[rows, j], self.leg_psi[rows, j], self.speed
+        w, psi0, speed = self.leg_w[rows, j], self.leg_psi[rows, j], self.speed[rows]
         turning = w != 0.0
         p = p0 + v0 * tau[:, None]  # straight legs (and, below, arcs replaced)
         v = v0.copy()
@@ -115,7 +116,7 @@ class Fleet:
             p[k, 1] = p0[k, 1] + r * (sin1 - sin0)
             v[k, 0], v[k, 1] = speed[k] * sin1, speed[k] * cos1
             a[k, 0], a[k, 1] = speed[k] * w[k] * cos1, -speed[k] * w[k] * sin1
-        m = (t[:, None] >= self.alt_t[:, 1:]).sum(axis=1)
+        m = (t[:, None] >= self.alt_t[rows, 1:]).sum(axis=1)
         rate = self.alt_r[rows, m]
         z = self.alt_h[rows, m] + rate * (t - self.alt_t[rows, m])
         return np.column_stack([p, z]), np.column_stack([v, rate]), a
@@ -157,7 +158,7 @@ class Aircraft:
     def states(self, times) -> np.ndarray:
         """(N, 9) states at the N ``times``."""
         times = np.atleast_1d(np.asarray(times, dtype=float))
-        return self._fleet.take(np.zeros(len(times), dtype=int)).states(times)
+        return np.concatenate(self._fleet.kinematics(times, np.zeros(len(times), dtype=int)), axis=1)
 
 
 def longest_life(spec: TrafficSpec) -> float:
