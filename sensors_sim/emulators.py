@@ -18,7 +18,8 @@ configured order, it yields one :class:`SensorEvent`:
 
 Clutter (``clutter_rate`` λ > 0): ``n ~ Poisson(λ)`` false alarms per scan, uniform over
 the coverage in measurement space (the constant clutter density λ/V), then a random
-order of all the scan's plots, which is the order of their ``seq``.
+order of all the scan's plots, which is the order of their ``seq``: nothing on the wire
+tells a false alarm from a target. With λ = 0 nothing extra is drawn.
 
 **Rotating radars** (``sectors`` > 0): the beam points north at ``t_k = start + k·T``
 and turns clockwise, at azimuth ``β(t) = 2π(t − t_k)/T`` in turn k. A plot's time is

@@ -13,7 +13,7 @@ import pytest
 from scipy import stats
 
 from fusion.angles import wrap_pi
-from fusion.types import angle_mask
+from fusion.measurement.kinds import KINDS
 from sensors_sim import ScenarioError, load_scenario, sensor_events, truth_trajectory
 from sensors_sim.emulators import beam_crossings, sensor_batches
 from sensors_sim.geometry import observe
@@ -60,10 +60,10 @@ def test_a_plot_is_where_the_beam_was_when_it_was_taken(scenario, sensor_id):
         if ev.measurement is None or ev.clutter:
             continue
         truth = truth_trajectory(scenario, ev.target) if ev.target in scenario.targets else traffic[ev.target]
-        h = observe(ev.measurement.kind, truth.position(ev.t) - site)
+        h = observe(ev.measurement.kind, truth.position(ev.t), site)
         assert abs(wrap_pi(h[0] - beam_azimuth(sensor, ev.t))) < 1e-7
         e = ev.measurement.z - h
-        errors.append(np.where(angle_mask(ev.measurement.kind), wrap_pi(e), e) / sensor.std)
+        errors.append(np.where(KINDS[ev.measurement.kind].angles, wrap_pi(e), e) / sensor.std)
     errors = np.array(errors)
     assert len(errors) >= (7 if scenario is SC else 1000)
     if scenario is BUSY:
