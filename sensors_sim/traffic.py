@@ -8,8 +8,8 @@ the opposite edge, at constant ground speed ``v ~ U(v_lo, v_hi)`` from the altit
 ``h ~ U(h_lo, h_hi)``. By default it flies the straight line, level: alive on
 ``[t₀, t₁)``, ``t₁ = t₀ + L/v``, L the line's length.
 
-Manoeuvres (optional keys): ``waypoints`` W puts W points on the line at fractions
-``i/(W+1)``, each moved across it by ``U(−o, o)``; the aircraft flies the polyline with a
+Manoeuvres (optional keys): ``waypoints`` N puts N points on the line at fractions
+``i/(N+1)``, each moved across it by ``U(−o, o)``; the aircraft flies the polyline with a
 fly-by turn at each point, at a rate ``ω ~ U(ω_lo, ω_hi)`` (turning by Δ it starts
 ``D = R·tan(|Δ|/2)`` before the point, ``R = v/ω``; ``D`` is capped at 0.45 of the
 shorter neighbouring leg by turning faster), so its path is lines and circular arcs:
@@ -19,12 +19,12 @@ sin ψ − sin ψ₀)``, ``ψ = ψ₀ + ωτ`` (``ω > 0`` turns right), ``a = v
 at a uniform time of the slice's first half, a climb or descent at ``U(r_lo, r_hi)`` m/s
 to a new level ``U(h_lo, h_hi)`` (stopped at the slice's end if not reached).
 
-The process starts one longest life before 0 (``(√(W² + H²) + 2·W·o)/v_lo`` bounds every
-life), not at 0: at t = 0 the sky already holds the stationary population. A birth while
+The process starts one longest life before 0 (``(√(w² + h²) + 2·N·o)/v_lo`` bounds every
+life, ``w × h`` the box), not at 0: at t = 0 the sky already holds the stationary population. A birth while
 ``max_alive`` aircraft fly is dropped (counted in ``dropped``). Every birth draws the gap
-and ``5 + 2W + 3K`` uniforms from ``process_rng(seed, "traffic", run)``, kept or not, so
+and ``5 + 2N + 3K`` uniforms from ``process_rng(seed, "traffic", run)``, kept or not, so
 the population is a deterministic function of (seed, run) and the same in every process
-(W = K = 0: six draws a birth, the straight crossings of the first version).
+(N = K = 0: six draws a birth, the straight crossings of the first version).
 
 :class:`Traffic` is a cursor over time: :meth:`Traffic.fleet` answers for
 non-decreasing times with the alive aircraft as arrays (:class:`Fleet`, evaluated for all
@@ -190,7 +190,7 @@ def plan(spec: TrafficSpec, first: int, t0: np.ndarray, u: np.ndarray) -> Fleet:
                                                     (xb, np.full(n, y1)), (xb, np.full(n, y0)))])
     speed = spec.speed[0] + u[:, 3] * (spec.speed[1] - spec.speed[0])
     alt = spec.alt[0] + u[:, 4] * (spec.alt[1] - spec.alt[0])
-    W, K = spec.waypoints, spec.level_changes
+    W, K = spec.waypoints, spec.level_changes  # (N and K of the module docstring)
     uw, ur = u[:, 5:5 + W], u[:, 5 + W:5 + 2 * W]
     uk = u[:, 5 + 2 * W:].reshape(n, K, 3)
 
