@@ -33,6 +33,7 @@ from .tracking.config import AssociationConfig
 from .tracking.hypotheses import PlotHypothesiser
 from .tracking.initiators import Initiator
 from .tracking.manager import Frame, MultiTargetTracker, Taken
+from .tracking.sweep import SweepTracker
 from .tracking.table import Track, scores_hit
 from .types import Estimate, Measurement
 
@@ -118,11 +119,18 @@ class MultiTargetMethod(GroupedMethod):
         motion = config.motion_model()
         self.n_x = motion.n_x
         self._grouper = TimeGrouper(config.pair_tol)
+        updater = ScanUpdater(name, pieces, self.n_x, config.new_filter(motion, centralised=True))
+        initiator = Initiator(self.n_x, config.priors(), association.gate_prob)
+        if association.revisit_s is not None:  # rotating radars: a frame is a sweep
+            self.tracker = SweepTracker(initiator, updater, association.table(),
+                                        association.associator(confirmed_first=True), association.gate_prob,
+                                        association.rule(), association.revisit_s)
+            return
         self.tracker = MultiTargetTracker(
             PlotHypothesiser(self.n_x, association.gate_prob),
             association.associator(weighted=True, confirmed_first=True),
-            Initiator(self.n_x, config.priors(), association.gate_prob),
-            ScanUpdater(name, pieces, self.n_x, config.new_filter(motion, centralised=True)),
+            initiator,
+            updater,
             association.table(),
             association.duplicate_watch(),
         )

@@ -14,9 +14,18 @@ GOSPA counts it as localising that target. Over the run:
 * **hold** of a target: from the first step it is held, the fraction of steps it is;
 * **ghost persistence**: the longest run of steps one track spent on no target;
 * **found at the end**: the fraction of the last step's targets held there;
-* **false tracks**: tracks on no target at any step of their life.
+* **false tracks**: tracks on no target at any step of their life;
+* **held after initiation**: truth-steps with an assigned track over the truth-steps of
+  *settled* targets only, those a step marks as past their initiation (the scorer of a
+  scenario marks a target settled from its third scan by any sensor on: a tracker needs
+  a few scans to start and confirm a track, which ``held`` counts against it).
 
-GOSPA and OSPA are :func:`fusion.metrics.gospa` and :func:`fusion.metrics.ospa`.
+GOSPA and OSPA are :func:`fusion.metrics.gospa` and :func:`fusion.metrics.ospa`. For a
+large step (more than :data:`DENSE_MAX` truth-track pairs) all three come from one
+sparse matching instead: only pairs closer than ``c`` can be in the optimum (a pair at
+``d ≥ c`` costs ``cᵖ``, a miss plus a false track), so the pairs within ``c`` (a k-d
+tree) split into independent clusters, each solved alone (most hold one truth and one
+track); the optimum, the assignment and both distances are the dense ones.
 :class:`TrackScorer` folds the steps in one at a time and keeps only what the metrics
 need next (per live target and track, counters, a binned series), so a live run of days
 is scored in bounded memory; :func:`score_tracks`, a finished run, is that fold.
@@ -31,18 +40,25 @@ from typing import Iterable, Mapping, Sequence
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
 
 from .binning import BinnedSeries
-from .metrics import gospa, ospa
+from .metrics import GOSPA, gospa, ospa
+
+DENSE_MAX = 40_000  # truth-track pairs up to which a step is matched densely
 
 
 @dataclass(frozen=True)
 class Step:
-    """One output time: ``truths`` and ``tracks`` map ids to positions (d,)."""
+    """One output time: ``truths`` and ``tracks`` map ids to positions (d,); ``settled``:
+    the truths past their initiation (module docstring), None if the step does not say."""
 
     t: float
     truths: Mapping[str, np.ndarray]
     tracks: Mapping[str, np.ndarray]
+    settled: frozenset[str] | None = None
 
 
 def assign(truths: Mapping[str, np.ndarray], tracks: Mapping[str, np.ndarray], c: float,
@@ -57,6 +73,43 @@ def assign(truths: Mapping[str, np.ndarray], tracks: Mapping[str, np.ndarray], c
     D = np.linalg.norm(X[:, None, :] - Y[None, :, :], axis=-1) ** p
     rows, cols = linear_sum_assignment(np.minimum(D, c**p))
     return {tid[r]: kid[k] for r, k in zip(rows, cols) if D[r, k] < c**p}
+
+
+def match(truths: Mapping[str, np.ndarray], tracks: Mapping[str, np.ndarray], c: float,
+          p: float = 2.0) -> tuple[dict[str, str], GOSPA, float]:
+    """:func:`assign`, :func:`fusion.metrics.gospa` and :func:`fusion.metrics.ospa` of one
+    step: densely, or from one sparse matching for a large step (module docstring)."""
+    X = [np.asarray(truths[i], dtype=float) for i in truths]
+    Y = [np.asarray(tracks[k], dtype=float) for k in tracks]
+    if len(X) * len(Y) <= DENSE_MAX:
+        return assign(truths, tracks, c, p), gospa(Y, X, c, p), ospa(Y, X, c, p)
+    tid, kid = list(truths), list(tracks)
+    n, m = len(tid), len(kid)
+    D = cKDTree(np.array(X)).sparse_distance_matrix(cKDTree(np.array(Y)), c, output_type="coo_matrix")
+    near = D.data < c
+    rows, cols, cost = D.row[near], D.col[near], D.data[near] ** p
+    graph = coo_matrix((np.ones(len(rows)), (rows, n + cols)), shape=(n + m, n + m))
+    _, label = connected_components(graph, directed=False)
+    pairs: list[tuple[int, int, float]] = []
+    order = np.argsort(label[rows], kind="stable")
+    rows, cols, cost = rows[order], cols[order], cost[order]
+    bounds = np.flatnonzero(np.diff(label[rows])) + 1
+    for r, k, d in zip(np.split(rows, bounds), np.split(cols, bounds), np.split(cost, bounds)):
+        if len(r) == 1:
+            pairs.append((int(r[0]), int(k[0]), float(d[0])))
+            continue
+        ur, ri = np.unique(r, return_inverse=True)
+        uk, ki = np.unique(k, return_inverse=True)
+        block = np.full((len(ur), len(uk)), c**p)
+        block[ri, ki] = d
+        a, b = linear_sum_assignment(block)
+        pairs += [(int(ur[i]), int(uk[j]), float(block[i, j])) for i, j in zip(a, b) if block[i, j] < c**p]
+    loc = float(sum(d for _, _, d in pairs))
+    half, kept = c**p / 2.0, len(pairs)
+    g = GOSPA(float((loc + half * (n + m - 2 * kept)) ** (1.0 / p)), loc, half * (n - kept), half * (m - kept),
+              n - kept, m - kept)
+    o = float(((loc + c**p * (min(n, m) - kept) + c**p * abs(n - m)) / max(n, m)) ** (1.0 / p))
+    return {tid[r]: kid[k] for r, k, _ in pairs}, g, o
 
 
 @dataclass
@@ -89,6 +142,8 @@ class TrackScore:
     missed_steps: int = 0
     gospa_sum: float = 0.0
     ospa_sum: float = 0.0
+    settled_steps: int = 0
+    settled_held: int = 0
     bin: int = 1
     assignments: list[dict[str, str]] = field(default_factory=list)
     hold_fractions: list[float] = field(default_factory=list)
@@ -96,7 +151,8 @@ class TrackScore:
     found_at_end: list[float] = field(default_factory=list)
 
     COUNTS = ("truth_steps", "held_steps", "breaks", "break_chances", "track_steps", "dominant_steps",
-              "false_tracks", "false_track_steps", "n_tracks", "steps", "missed_steps", "gospa_sum", "ospa_sum")
+              "false_tracks", "false_track_steps", "n_tracks", "steps", "missed_steps", "gospa_sum", "ospa_sum",
+              "settled_steps", "settled_held")
 
     @classmethod
     def merged(cls, scores: Sequence["TrackScore"]) -> "TrackScore":
@@ -113,6 +169,12 @@ class TrackScore:
     @property
     def held(self) -> float:
         return self.held_steps / self.truth_steps if self.truth_steps else float("nan")
+
+    @property
+    def held_after_init(self) -> float:
+        """Held truth-steps of settled targets over their truth-steps (NaN: no step said
+        which targets are settled, or none was)."""
+        return self.settled_held / self.settled_steps if self.settled_steps else float("nan")
 
     @property
     def break_rate(self) -> float:
@@ -153,7 +215,8 @@ class TrackScore:
 
     def summary(self) -> dict:
         return {"mean_gospa": self.mean_gospa, "mean_ospa": self.mean_ospa if self.steps else None,
-                "held": self.held, "breaks": self.breaks, "break_rate": self.break_rate,
+                "held": self.held, "held_after_init": self.held_after_init, "breaks": self.breaks,
+                "break_rate": self.break_rate,
                 "purity": self.purity, "worst_hold": self.worst_hold, "tracks": self.n_tracks,
                 "longest_ghost": self.max_ghost, "all_found_runs": self.all_found_runs, "false_tracks": self.false_tracks,
                 "false_track_steps": self.false_track_steps,
@@ -198,11 +261,7 @@ class TrackScorer:
     def add(self, s: Step) -> dict[str, str]:
         """Score one step; returns its assignment (truth id -> track id)."""
         out, c, p = self.out, self.c, self.p
-        pairs = assign(s.truths, s.tracks, c, p)
-        X = [np.asarray(s.truths[i], dtype=float) for i in s.truths]
-        Y = [np.asarray(s.tracks[k], dtype=float) for k in s.tracks]
-        g = gospa(Y, X, c, p)
-        o = ospa(Y, X, c, p)
+        pairs, g, o = match(s.truths, s.tracks, c, p)
         self._series(float(s.t), g.distance, o, g.n_missed, g.n_false, pairs)
         out.steps += 1
         out.missed_steps += g.n_missed
@@ -210,6 +269,10 @@ class TrackScorer:
         out.ospa_sum += o
         out.truth_steps += len(s.truths)
         out.held_steps += len(pairs)
+        if s.settled is not None:
+            settled = s.settled & s.truths.keys()
+            out.settled_steps += len(settled)
+            out.settled_held += len(settled & pairs.keys())
         for truth in s.truths:
             before = self.last_on.get(truth)
             if before is not None:

@@ -77,3 +77,23 @@ def finish_measurement(kind: str, z: np.ndarray) -> np.ndarray:
     for i, c in enumerate(KINDS[kind].components):
         out[i] = wrap_2pi(out[i]) if c.periodic else min(max(out[i], c.lo), c.hi)
     return out
+
+
+def az_el_range_arrays(d: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`az_el_range` of many offsets ``d`` (N, 3) at once: (azimuth, elevation,
+    slant range), each (N,)."""
+    d = np.asarray(d, dtype=float)
+    horizontal = np.hypot(d[:, 0], d[:, 1])
+    return wrap_2pi(np.arctan2(d[:, 0], d[:, 1])), np.arctan2(d[:, 2], horizontal), np.hypot(horizontal, d[:, 2])
+
+
+def coverage_mask(sensor: SensorSpec, d: np.ndarray, margin: float = 0.0) -> np.ndarray:
+    """:func:`in_coverage` of many offsets ``d`` (N, 3) at once; ``margin`` widens every
+    bound by that relative amount (and 1 m, 1 nrad), for a test that may include a few
+    points outside but never leaves one inside out."""
+    az, el, r = az_el_range_arrays(d)
+    first, width = sensor.fov_az
+    lo, hi = sensor.fov_el
+    slack = margin * (1.0 + abs(hi) + abs(lo)) + (1e-9 if margin else 0.0)
+    sector = np.full(len(az), True) if width >= TWO_PI else wrap_2pi(az - first + slack) <= width + 2.0 * slack
+    return sector & (el >= lo - slack) & (el <= hi + slack) & (r <= sensor.max_range * (1.0 + margin) + (margin > 0))

@@ -191,6 +191,8 @@ def _scenario(root: Reader, name: str, display: str) -> Scenario:
         raise src.error(("targets", noisy[0], "jerk_psd"), "process noise needs truth_dt_s (the truth grid step)")
     if noisy:
         for sid, s in sensors.items():
+            if s.sectors:  # a beam crossing is at any time: the truth between nodes is carried forward
+                continue
             for key, value in (("start_s", s.start), ("period_s", s.period)):
                 if not _on_grid(value, truth_dt):
                     raise src.error(("sensors", sid, key), f"scans must fall on the truth grid: must be a "
@@ -285,9 +287,21 @@ def _traffic(r: Reader) -> TrafficSpec:
     if speed[0] <= 0:
         raise r.error("must be [lowest, highest] with 0 < lowest <= highest", "speed_mps")
     alt = _pair(r, "alt_m")
+    waypoints = r.integer("waypoints", 0, ge=0)
+    offset = r.quantity("waypoint_offset", LENGTH, default=0.0, ge=0)
+    key = r.unit_key("turn_rate", RATE, required=False)
+    turn_rate = TrafficSpec.turn_rate if key is None else _pair(r, key, RATE[key[len("turn_rate_"):]])
+    if turn_rate[0] <= 0:
+        raise r.error("must be [lowest, highest] with 0 < lowest <= highest", key)
+    level_changes = r.integer("level_changes", 0, ge=0)
+    climb_rate = _pair(r, "climb_rate_mps") if r.has("climb_rate_mps") else TrafficSpec.climb_rate
+    if climb_rate[0] <= 0:
+        raise r.error("must be [lowest, highest] with 0 < lowest <= highest", "climb_rate_mps")
     r.finish()
     return TrafficSpec(rate, max_alive, (float(x0), float(x1), float(y0), float(y1)),
-                       (float(speed[0]), float(speed[1])), (float(alt[0]), float(alt[1])))
+                       (float(speed[0]), float(speed[1])), (float(alt[0]), float(alt[1])),
+                       waypoints, float(offset), (float(turn_rate[0]), float(turn_rate[1])), level_changes,
+                       (float(climb_rate[0]), float(climb_rate[1])))
 
 
 _SEGMENT_TYPES = ("static", "cv", "ca", "turn", "waypoints", "orbit")
@@ -365,7 +379,14 @@ def _sensor(r: Reader, origin, targets: dict | None) -> tuple[SensorSpec, str | 
             raise r.error("a scenario's sensors need a position or a path (the emulator measures from it); "
                           f"site = {MOBILE!r} is for site files", "site")
         site, pos_key = _site(r, origin, require_path=(sensor_kind.airborne and targets is not None))
-    period = r.quantity("period", TIME, gt=0)
+    rotating = r.unit_key("rotation_period", TIME, required=False)
+    if rotating and r.has("period_s"):
+        raise r.error("give period_s (a snapshot sensor) or rotation_period_s (a rotating radar), not both",
+                      "period_s")
+    period = r.quantity("rotation_period" if rotating else "period", TIME, gt=0)
+    sectors = r.integer("sectors", 32 if rotating else 0, ge=1)
+    if sectors and not rotating:
+        raise r.error("sectors are a rotating radar's: give rotation_period_s", "sectors")
     start = r.quantity("start", TIME, default=0.0, ge=0)
     std = _std(r, sensor_kind)
     p_detect = r.number("p_detect", 1.0, gt=0, le=1)
@@ -399,7 +420,7 @@ def _sensor(r: Reader, origin, targets: dict | None) -> tuple[SensorSpec, str | 
         id=r.path[-1], kind=kind, site=site, period=period, start=start, std=std, p_detect=p_detect,
         fov_az=fov_az, fov_el=fov_el, max_range=max_range, band=band, signal_power=signal_power,
         targets=tuple(refs) if refs is not None else tuple(targets or ()), clutter_rate=clutter_rate,
-        latency=latency, sac_sic=None if sac_sic is None else tuple(sac_sic),
+        latency=latency, sac_sic=None if sac_sic is None else tuple(sac_sic), sectors=sectors,
     )
     unbounded = [c for c in spec.components if math.isinf(coverage_span(spec, c)[1])]
     if clutter_rate > 0 and unbounded:  # false alarms are spread uniformly over the coverage
@@ -407,6 +428,10 @@ def _sensor(r: Reader, origin, targets: dict | None) -> tuple[SensorSpec, str | 
                else f"a {kind} sensor's {', '.join(unbounded)} have no coverage bounds")
         raise r.error(f"clutter needs a finite coverage: {why}", "clutter_rate")
     r.finish()
+    if rotating and not spec.active:
+        raise r.error(f"only a radar's antenna rotates (radar2d, radar3d), not a {kind}'s", rotating)
+    if rotating and not (site is not None and site.fixed):
+        raise r.error("a rotating radar stands still: give it a fixed position", rotating)
     return spec, pos_key
 
 

@@ -110,3 +110,14 @@ class ScanDraws:
         self.outlier = float(u[1])
         self.law = u[2:]
         self.gauss = rng.standard_normal(n)
+
+    @classmethod
+    def rows(cls, rng: np.random.Generator, count: int, n: int) -> "ScanDraws":
+        """The variates of ``count`` scans at once, as arrays with a row per scan: all the
+        uniforms (``count × (2 + n)``), then all the normals (``count × n``). A rotating
+        radar draws a turn's so (:mod:`sensors_sim.emulators`)."""
+        out = cls.__new__(cls)
+        u = rng.random((count, 2 + n))
+        out.detect, out.outlier, out.law = u[:, 0], u[:, 1], u[:, 2:]
+        out.gauss = rng.standard_normal((count, n))
+        return out

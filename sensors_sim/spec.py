@@ -111,7 +111,12 @@ class TrafficSpec:
         max_alive: at most this many aircraft at once: a birth while that many fly is dropped.
         box: ``(x_min, x_max, y_min, y_max)`` ENU metres, the area crossed edge to edge.
         speed: ``(lowest, highest)`` ground speed (m/s), uniform.
-        alt: ``(lowest, highest)`` altitude (m, ENU up), uniform; level flight.
+        alt: ``(lowest, highest)`` altitude (m, ENU up), uniform.
+        waypoints: points each crossing flies by (fly-by turns); 0: a straight line.
+        waypoint_offset: the largest distance of a waypoint across the line (m).
+        turn_rate: ``(lowest, highest)`` rate of the turns (rad/s), uniform.
+        level_changes: climbs or descents to a new level per crossing; 0: level flight.
+        climb_rate: ``(lowest, highest)`` vertical rate of a level change (m/s), uniform.
     """
 
     rate: float
@@ -119,6 +124,11 @@ class TrafficSpec:
     box: tuple[float, float, float, float]
     speed: tuple[float, float]
     alt: tuple[float, float]
+    waypoints: int = 0
+    waypoint_offset: float = 0.0
+    turn_rate: tuple[float, float] = (float(np.radians(1.0)), float(np.radians(3.0)))
+    level_changes: int = 0
+    climb_rate: tuple[float, float] = (5.0, 15.0)
 
 
 @dataclass(frozen=True, eq=False)
@@ -148,6 +158,10 @@ class SensorSpec:
             after its time of validity; 0: at once.
         sac_sic: its ASTERIX data source identifier (SAC, SIC), for a radar whose
             plots come as ASTERIX (``zfusion ingest asterix``); None: none.
+        sectors: a rotating radar's sectors per turn (its plots are published sector by
+            sector, each at the time the beam crossed it; ``period`` is the rotation
+            period, ``start`` a time the beam points north); 0: a snapshot sensor, every
+            plot of a scan at the scan's time.
     """
 
     id: str
@@ -166,6 +180,7 @@ class SensorSpec:
     clutter_rate: float = 0.0
     latency: float = 0.0
     sac_sic: tuple[int, int] | None = None
+    sectors: int = 0
 
     @property
     def measurement_kind(self) -> str:

@@ -28,7 +28,7 @@ from fusion.motion import ConstantAcceleration as _CA
 from .noise import jerk_deviation, process_rng
 from .segments import Piece
 from .spec import TRUTH_PROCESS, Scenario, TargetSpec
-from .traffic import Traffic
+from .traffic import Traffic, aircraft_id
 
 _CA_TRANSITION = _CA(0.0)  # only its F₁(τ) is used, to carry the deviation between nodes
 # Relative tolerance for "this time is on that grid node" (float round-off of k·dt).
@@ -157,5 +157,7 @@ def truth_events(scenario: Scenario, run: int = 0, period: float | None = None) 
     for t in iter_times(0.0, period, scenario.duration):
         for tid, traj in trajectories.items():
             yield TruthSample(float(t), tid, traj.state(float(t)))
-        for a in traffic.alive(float(t)) if traffic is not None else ():
-            yield TruthSample(float(t), a.id, a.state(float(t)))
+        if traffic is not None:
+            fleet = traffic.fleet(float(t))
+            for index, x in zip(fleet.index.tolist(), fleet.states(float(t))):
+                yield TruthSample(float(t), aircraft_id(index), x)

@@ -52,14 +52,21 @@ from sensors_sim.geometry import in_coverage
 from sensors_sim.segments import ConstantAcceleration as CASegment
 from sensors_sim.segments import Static
 
-from .scoring import GOSPA_CUTOFF, many_targets, pair_tol_of, scan_groups, score_run, score_tracks_of, truth_function
+from .scoring import (GOSPA_CUTOFF, Looks, many_targets, pair_tol_of, scan_groups, score_run, score_tracks_of,
+                      truth_function)
 from .summary import aggregate, summary, tracks_summary
 
-def merged_measurements(scenario, run: int = 0, sensors: Iterable[str] | None = None) -> list[Measurement]:
-    streams = [
-        (ev.measurement for ev in sensor_events(scenario, sid, run=run) if ev.measurement is not None)
-        for sid in (sensors if sensors is not None else scenario.sensors)
-    ]
+def merged_measurements(scenario, run: int = 0, sensors: Iterable[str] | None = None,
+                        looks: Looks | None = None) -> list[Measurement]:
+    """The run's measurements in ``(t, sensor, seq)`` order; ``looks`` sees every event."""
+    def published(sid: str):
+        for ev in sensor_events(scenario, sid, run=run):
+            if looks is not None:
+                looks.see(ev)
+            if ev.measurement is not None:
+                yield ev.measurement
+
+    streams = [published(sid) for sid in (sensors if sensors is not None else scenario.sensors)]
     return list(heapq.merge(*streams, key=lambda m: m.order_key))
 
 
@@ -145,7 +152,8 @@ def _score_runs(scenario, variants: Sequence[Variant], run_ids: Sequence[int]) -
     out: dict[int, dict[str, list]] = {}
     for r in run_ids:
         streams: dict[tuple | None, list[Measurement]] = {}
-        full = merged_measurements(scenario, r)  # common random numbers: built once per run
+        looks = Looks() if many_targets(scenario) else None
+        full = merged_measurements(scenario, r, looks=looks)  # common random numbers: built once per run
         streams[None] = full
         scores: dict[str, list] = {}
         for v in variants:
@@ -154,8 +162,8 @@ def _score_runs(scenario, variants: Sequence[Variant], run_ids: Sequence[int]) -
                 wanted = set(key)
                 streams[key] = [m for m in full if m.sensor in wanted]
             estimates = run_method(scenario, v.method, v.overrides, r, streams[key])
-            scores[v.label] = (score_tracks_of(scenario, estimates, r) if many_targets(scenario)
-                               else score_run(estimates, truth, r))
+            scores[v.label] = (score_tracks_of(scenario, estimates, r, looks=looks)
+                               if many_targets(scenario) else score_run(estimates, truth, r))
         out[r] = scores
     return out
 

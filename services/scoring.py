@@ -14,7 +14,11 @@ Many targets (an air picture, scored with set metrics): :func:`track_steps` cuts
 into the scenario's scan groups (the methods' ``pair_tol``), each with every target's
 true position and every track's estimate, and :func:`score_tracks_of` scores them with
 GOSPA (cut-off :data:`GOSPA_CUTOFF`, order 2), track breaks, purity and false tracks
-(:mod:`fusion.mtt_metrics`). Emitter fixes are horizontal and scored so.
+(:mod:`fusion.mtt_metrics`). Emitter fixes are horizontal and scored so. With rotating
+radars no two sensors share a scan time: the steps are then the picture every
+:data:`PICTURE_STEP_S` (:class:`PictureSteps`). Each step marks the targets settled
+from their third look by any sensor on (:class:`Looks`), for the held fraction after
+initiation.
 """
 
 from __future__ import annotations
@@ -32,7 +36,7 @@ from fusion.metrics import chi2_bounds, gospa
 from fusion.mtt_metrics import Step, score_tracks
 from fusion.patent import TrackerConfig
 from fusion.types import Estimate
-from sensors_sim import truth_trajectory
+from sensors_sim import sensor_events, truth_trajectory
 from sensors_sim.trajectories import iter_times
 from sensors_sim.traffic import Traffic
 
@@ -159,19 +163,82 @@ def pair_tol_of(scenario, default: float) -> float:
 
 
 # Many targets ------------------------------------------------------------------------
-def track_steps(scenario, estimates: Sequence[Estimate], run: int = 0, node: str = "centre") -> list[Step]:
+SETTLE_LOOKS = 3  # a target is settled from its third look on (held after initiation)
+PICTURE_STEP_S = 1.0  # s between the steps of a scenario with rotating radars
+
+
+class Looks:
+    """When each target was looked at: its scans by any sensor while in coverage,
+    detected or not (a rotating radar's beam crossings), the ``n`` first kept. A target
+    is *settled* from its ``n``-th look on. Fed with events (:meth:`see`, as the
+    evaluation generates the streams), or following the scenario's own streams lazily
+    (:meth:`following`)."""
+
+    def __init__(self, n: int = SETTLE_LOOKS):
+        self.n = n
+        self._times: dict[str, list[float]] = {}  # target -> its first looks, at most n
+        self._feeds: list[list] = []  # [event iterator, next event]
+
+    @classmethod
+    def following(cls, scenario, run: int = 0, n: int = SETTLE_LOOKS) -> "Looks":
+        looks = cls(n)
+        for sid in scenario.sensors:
+            events = sensor_events(scenario, sid, run)
+            looks._feeds.append([events, next(events, None)])
+        return looks
+
+    def see(self, ev) -> None:
+        """Take one sensor event (:class:`sensors_sim.SensorEvent`)."""
+        if ev.in_coverage and not ev.clutter and ev.target:
+            times = self._times.setdefault(ev.target, [])
+            if len(times) < self.n:
+                times.append(ev.t)
+                times.sort()
+            elif ev.t < times[-1]:
+                times[-1] = ev.t
+                times.sort()
+
+    def settled(self, truths, t: float) -> frozenset[str]:
+        """Of ``truths`` (ids of the targets alive at ``t``), those settled by ``t``.
+        Following the streams, it forgets the targets looked at by ``t`` that are no
+        longer alive (ids are never reused), so a live run holds only the alive ones."""
+        for feed in self._feeds:
+            while feed[1] is not None and feed[1].t <= t:
+                self.see(feed[1])
+                feed[1] = next(feed[0], None)
+        if self._feeds:
+            for k in [k for k, times in self._times.items() if times[0] <= t and k not in truths]:
+                del self._times[k]
+        return frozenset(k for k in truths if len(self._times.get(k, ())) == self.n and self._times[k][-1] <= t)
+
+
+def track_steps(scenario, estimates: Sequence[Estimate], run: int = 0, node: str = "centre",
+                looks: Looks | None = None) -> list[Step]:
     """The run as :class:`fusion.mtt_metrics.Step` s: one per scan group of the scenario's
     sensors (as the methods group them, ``pair_tol`` of ``[tracker]``), with every
     target's (and alive ``[traffic]`` aircraft's) true position and every track's estimate
-    of that group (a track's last, in ``estimates``' order). Emitter fixes are horizontal
-    (``[px, py]``): they are scored against the truth's horizontal position."""
-    steps = TrackSteps(scenario, run, node)
+    of that group (a track's last, in ``estimates``' order), or, with rotating radars, the
+    picture every second (:class:`PictureSteps`). Emitter fixes are horizontal
+    (``[px, py]``): they are scored against the truth's horizontal position. ``looks``:
+    the scenario's looks if the caller has them (else they are followed)."""
+    steps = step_maker(scenario, run, node, looks=looks)
+    if isinstance(steps, PictureSteps):
+        out = [step for e in sorted(estimates, key=lambda e: e.t) for step in steps.add(e)]
+        return out + steps.close(scenario.duration)
     groups: dict[int, list[Estimate]] = {}
     for e in estimates:
         k = steps.group_of(e)
         if k is not None:
             groups.setdefault(k, []).append(e)
     return steps.close(scenario.duration, groups)
+
+
+def step_maker(scenario, run: int = 0, node: str = "centre", end: float | None = None,
+               looks: Looks | None = None) -> "TrackSteps | PictureSteps":
+    """The steps of the scenario's runs, as a stream: :class:`PictureSteps` with rotating
+    radars, else :class:`TrackSteps`."""
+    rotating = any(getattr(s, "sectors", 0) for s in scenario.sensors.values())
+    return (PictureSteps if rotating else TrackSteps)(scenario, run, node, end, looks)
 
 
 class TrackSteps:
@@ -181,7 +248,8 @@ class TrackSteps:
     stream holds one group's estimates, the groups' start times from it up to the first
     after the newest estimate, and a cursor on the traffic."""
 
-    def __init__(self, scenario, run: int = 0, node: str = "centre", end: float | None = None):
+    def __init__(self, scenario, run: int = 0, node: str = "centre", end: float | None = None,
+                 looks: Looks | None = None):
         self.node = node
         self.tol = pair_tol_of(scenario, TrackerConfig.pair_tol)
         self._groups = iter_scan_groups(scenario, list(scenario.sensors), self.tol, end)
@@ -191,6 +259,7 @@ class TrackSteps:
         self.pending: list[Estimate] = []  # the current group's estimates (stream)
         self.trajs = {tid: truth_trajectory(scenario, tid, run) for tid in scenario.targets}
         self.traffic = Traffic(scenario.traffic, scenario.seed, run) if scenario.traffic is not None else None
+        self.looks = looks if looks is not None else Looks.following(scenario, run)
         self.dim: int | None = None  # the tracks' position dimension (emitter fixes: 2)
         self.late = 0  # stream: estimates of a group already complete (dropped)
 
@@ -241,8 +310,65 @@ class TrackSteps:
         t, dim = self.starts.pop(0), self.dim or 3
         self.first += 1
         self.pending = []
-        aircraft = ((a.id, a) for a in self.traffic.alive(t)) if self.traffic else ()
-        return Step(t, {tid: tr.position(t)[:dim] for tid, tr in (*self.trajs.items(), *aircraft)}, tracks)
+        truths = truth_positions(self.trajs, self.traffic, t, dim)
+        return Step(t, truths, tracks, self.looks.settled(truths, t))
+
+
+def truth_positions(trajs: dict, traffic: Traffic | None, t: float, dim: int = 3) -> dict[str, np.ndarray]:
+    """Every target's and alive aircraft's true position at ``t`` (its first ``dim``)."""
+    truths = {tid: tr.position(t)[:dim] for tid, tr in trajs.items()}
+    if traffic is not None:
+        fleet = traffic.fleet(t)
+        truths.update(zip(fleet.ids, fleet.positions(t)[:, :dim]))
+    return truths
+
+
+class PictureSteps:
+    """The steps of a run with rotating radars, as a stream: at ``k·PICTURE_STEP_S`` up to
+    the end, the picture a display would show: each track's latest estimate at or before
+    the step, at most ``max_age`` old (the longest sensor period: a track no sensor has
+    updated for a turn of the slowest is gone), moved to the step's time along its
+    velocity. :meth:`add` takes estimates in time order and returns the steps they
+    complete (a step is complete once an estimate after it arrives), :meth:`close` the
+    rest up to a time. It holds one estimate per live track."""
+
+    def __init__(self, scenario, run: int = 0, node: str = "centre", end: float | None = None,
+                 looks: Looks | None = None):
+        self.node = node
+        self.end = scenario.duration if end is None else end
+        self.max_age = max(s.period for s in scenario.sensors.values())
+        self.trajs = {tid: truth_trajectory(scenario, tid, run) for tid in scenario.targets}
+        self.traffic = Traffic(scenario.traffic, scenario.seed, run) if scenario.traffic is not None else None
+        self.looks = looks if looks is not None else Looks.following(scenario, run)
+        self.k = 0  # the next step's index
+        self.latest: dict[str, Estimate] = {}
+        self.late = 0  # stream: estimates older than a step already out (scored from the next)
+
+    def add(self, e: Estimate) -> list[Step]:
+        if e.node != self.node:
+            return []
+        out = []
+        while self.k * PICTURE_STEP_S < e.t and self.k * PICTURE_STEP_S <= self.end:
+            out.append(self._next())
+        if e.t < (self.k - 1) * PICTURE_STEP_S:
+            self.late += 1
+        self.latest[e.track] = e
+        return out
+
+    def close(self, until: float, groups=None) -> list[Step]:
+        out = []
+        while self.k * PICTURE_STEP_S <= min(until, self.end):
+            out.append(self._next())
+        return out
+
+    def _next(self) -> Step:
+        t = self.k * PICTURE_STEP_S
+        self.k += 1
+        self.latest = {k: e for k, e in self.latest.items() if t - e.t <= self.max_age}
+        tracks = {k: np.asarray(e.x[:3], dtype=float) + np.asarray(e.x[3:6], dtype=float) * (t - e.t)
+                  for k, e in self.latest.items() if e.t <= t}
+        truths = truth_positions(self.trajs, self.traffic, t)
+        return Step(t, truths, tracks, self.looks.settled(truths, t))
 
 
 GOSPA_CUTOFF = 1000.0  # m: GOSPA's c, order p = 2, for every many-target score
@@ -254,10 +380,10 @@ def many_targets(scenario) -> bool:
 
 
 def score_tracks_of(scenario, estimates: Sequence[Estimate], run: int = 0, c: float = GOSPA_CUTOFF,
-                    p: float = 2.0):
+                    p: float = 2.0, looks: Looks | None = None):
     """A run's fused tracks scored by :func:`fusion.mtt_metrics.score_tracks`."""
 
-    return score_tracks(track_steps(scenario, estimates, run), c, p)
+    return score_tracks(track_steps(scenario, estimates, run, looks=looks), c, p)
 
 
 # The recorder's panels ---------------------------------------------------------------------

@@ -2,10 +2,11 @@
 
 Each plays its part of the scenario (``sensors_sim``) in scenario time, paced against
 the wall clock: the item for time ``t`` goes out at ``start_at + t / speed`` (or at once
-with ``--speed max``). A sensor publishes each scan's measurements on ``meas/<id>`` and
-then a watermark, so consumers can order sources; its last watermark is marked final.
-Watermarks look ahead: published right after a scan, each promises everything up to just
-before the sensor's next scan. Noise comes from the process's own generator, seeded by
+with ``--speed max``). A sensor publishes each scan's measurements (a rotating radar's:
+each sector's, when the beam leaves it) on ``meas/<id>`` and then a watermark, so
+consumers can order sources; its last watermark is marked final. Watermarks look ahead:
+published right after a scan or sector, each promises everything up to just before the
+sensor's next one. Noise comes from the process's own generator, seeded by
 ``(scenario seed, process id)``, so a distributed run draws exactly what the in-process
 evaluation draws.
 
@@ -32,7 +33,8 @@ import time
 from typing import Iterator
 
 from schemas import KeySpace, encode, encode_measurement
-from sensors_sim import jam_events, sensor_events, truth_events
+from sensors_sim import jam_events, truth_events
+from sensors_sim.emulators import sensor_batches
 
 from .errors import UserError
 from .node import Node
@@ -44,10 +46,11 @@ RECOVERY_S = 30.0  # s of a live sensor's stream its publisher keeps for a fuser
 
 def recovery_cache(scenario, sensor_id: str) -> int:
     """Samples in ``RECOVERY_S`` of a sensor's stream, twice over: per scan its targets
-    (and at most ``max_alive`` traffic aircraft), its mean clutter and one watermark."""
+    (and at most ``max_alive`` traffic aircraft), its mean clutter and one watermark (a
+    rotating radar: one per sector)."""
     s = scenario.sensor(sensor_id)
     traffic = getattr(scenario, "traffic", None)
-    per_scan = len(s.targets) + (traffic.max_alive if traffic is not None else 0) + s.clutter_rate + 1
+    per_scan = len(s.targets) + (traffic.max_alive if traffic is not None else 0) + s.clutter_rate + max(1, s.sectors)
     return math.ceil(2.0 * RECOVERY_S * per_scan / s.period)
 
 
@@ -133,31 +136,33 @@ def _play_sensor(node: Node, scenario, pacer: Pacer, run_index: int) -> float:
         sent[0] = t
 
     latency = scenario.sensor(node.id).latency
-    events = sensor_events(scenario, node.id, run=run_index)
-    ev = next(events, None)
+    batches = sensor_batches(scenario, node.id, run=run_index)
+    batch = next(batches, None)
     t_last: float | None = None
-    while ev is not None:
-        if not pacer.wait(ev.t + latency):  # a slow link: the scan goes out latency_s late
+    while batch is not None:
+        if not pacer.wait(batch.t1 + latency):  # a slow link: the batch goes out latency_s late
             if pacer.offset and math.isfinite(sent[0]):  # live: a stopped emulator's stream ends here
                 watermark(sent[0], True)
-            return ev.t
-        node.count("scans")
-        node.count("jammed", int(ev.jammed))
-        node.count("outliers", int(ev.outlier))
-        node.count("missed", int(ev.measurement is None))
-        if ev.measurement is not None:
-            m = ev.measurement
-            meas_pub.put(encode_measurement(dataclasses.replace(m, t=pacer.stamp(m.t)) if pacer.offset else m,
-                                            node.id))
-            node.count("published")
-        t_last, ev = ev.t, next(events, None)
-        if ev is not None and ev.t > t_last:
-            # Look-ahead watermark: the scan schedule is known, so right after a scan the
-            # sensor can promise "nothing up to just before my next scan" (a watermark
-            # still means "everything up to and including t has been sent"). Consumers
-            # then wait for no sensor's next scan, only for the data itself.
-            # (Taken on the wire's time base: one ulp of scenario time is nothing in UTC.)
-            watermark(math.nextafter(pacer.stamp(ev.t), -math.inf), False)
+            return batch.t1
+        for ev in batch.events:
+            node.count("scans")
+            node.count("jammed", int(ev.jammed))
+            node.count("outliers", int(ev.outlier))
+            node.count("missed", int(ev.measurement is None))
+            if ev.measurement is not None:
+                m = ev.measurement
+                meas_pub.put(encode_measurement(dataclasses.replace(m, t=pacer.stamp(m.t)) if pacer.offset else m,
+                                                node.id))
+                node.count("published")
+        t_last, batch = batch.t1, next(batches, None)
+        if batch is not None and batch.t1 > t_last:
+            # Look-ahead watermark: the schedule is known, so right after a scan (or a
+            # rotating radar's sector) the sensor can promise "nothing up to just before
+            # my next one" (a watermark still means "everything up to and including t has
+            # been sent"). Consumers then wait for no sensor's next scan, only for the
+            # data itself. (Taken on the wire's time base: one ulp of scenario time is
+            # nothing in UTC.)
+            watermark(math.nextafter(pacer.stamp(batch.t0), -math.inf), False)
         next(status)
     t_end = max(t_last if t_last is not None else 0.0, scenario.duration)
     watermark(pacer.stamp(t_end), True)

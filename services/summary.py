@@ -44,7 +44,7 @@ from fusion.metrics import chi2_bounds, median_point_distance
 from fusion.mtt_metrics import TrackScorer
 from fusion.types import Estimate
 
-from .scoring import GOSPA_CUTOFF, TrackSteps, TruthFn, many_targets, score_run, score_tracks_of, truth_function
+from .scoring import GOSPA_CUTOFF, TruthFn, many_targets, score_run, score_tracks_of, step_maker, truth_function
 
 
 def _rms(values: Sequence[float | None]) -> float | None:
@@ -285,6 +285,7 @@ def tracks_summary(scores: Sequence) -> dict:
                    **({"bin": run.bin} if run.bin > 1 else {})},
         "gospa": finite(run.mean_gospa),
         "held": finite(run.held),
+        "held_after_init": finite(run.held_after_init),
         "breaks": run.breaks,
         "break_rate": run.break_rate,
         "purity": finite(run.purity),
@@ -359,7 +360,7 @@ class RunScorer:
         self.kept: list[Estimate] = []  # a scenario run's estimates
         self.pending: dict[tuple, Estimate] = {}  # live: the latest estimate of each (node, track, t), unsettled
         self.running = Running()
-        self.steps = TrackSteps(scenario, node=node, end=math.inf) if self.many and epoch is not None else None
+        self.steps = step_maker(scenario, node=node, end=math.inf) if self.many and epoch is not None else None
         self.tracks = TrackScorer(GOSPA_CUTOFF, forget_after=FORGET_STEPS, series_max=SERIES_MAX)
         self.settled_before = -math.inf  # live: what is older than this has settled
         self.late = 0  # live: estimates that came after their time had settled (scored as they come)

@@ -37,10 +37,11 @@ class AssociationConfig:
     existence_birth: float = ExistenceRule.existence_birth
     existence_confirm: float = ExistenceRule.existence_confirm
     existence_delete: float = ExistenceRule.existence_delete
+    revisit_s: float | None = None  # rotating radars: frames are sweeps (fusion.tracking.sweep)
 
     KEYS = ("association", "gate_prob", "confirm_m", "confirm_n", "delete_misses", "max_pos_std",
             "local_max_pos_std", "merge_frames", "p_detect", "p_survive", "existence_birth", "existence_confirm",
-            "existence_delete")
+            "existence_delete", "revisit_s")
 
     @classmethod
     def split(cls, config: dict | None) -> tuple["AssociationConfig | None", dict]:
@@ -69,6 +70,8 @@ class AssociationConfig:
             raise ValueError(f"tracker config 'local_max_pos_std' must be > 0, got {cfg.local_max_pos_std}")
         if not 0.0 < cfg.p_detect <= 1.0:
             raise ValueError(f"tracker config 'p_detect' must lie in (0, 1], got {cfg.p_detect}")
+        if cfg.revisit_s is not None and not cfg.revisit_s > 0.0:
+            raise ValueError(f"tracker config 'revisit_s' must be > 0, got {cfg.revisit_s}")
         cfg.rule()  # M <= N, K >= 1
         cfg.duplicate_watch()  # F >= 0
         try:

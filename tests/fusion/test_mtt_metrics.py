@@ -4,6 +4,7 @@ memory bounded by the live targets and tracks however long the stream."""
 
 from __future__ import annotations
 
+import dataclasses
 import tracemalloc
 
 import numpy as np
@@ -99,3 +100,55 @@ def test_memory_is_bounded_by_the_live_targets_and_tracks():
     stream (about 0.14 kB a step)."""
     assert _growth(10, (400, 2_000)) < 8_000
     assert _growth(None, (400, 1_000)) > 40_000
+
+
+def test_held_after_init_breaks_and_false_tracks_of_a_hand_built_run():
+    """Two targets over six steps, counted by hand: A held by T1 from step 1, dropped at
+    step 4, taken up by T2 at step 5 (one break in A's 3 chances: a target not held
+    cannot break); B held by T3 from step 3 (2 chances, no break); a ghost G on nothing
+    for 3 steps (the one false track). A settles at step 2, B at step 3: of their 7
+    settled truth-steps 6 are held (12 truth-steps, 7 held in all)."""
+    A, B, G = np.zeros(3), np.array([1000.0, 0.0, 0.0]), np.array([-5000.0, 0.0, 0.0])
+    near = np.array([3.0, 4.0, 0.0])  # 5 m off
+    plan = [  # (tracks, settled)
+        ({"G": G}, set()),
+        ({"T1": A + near, "G": G}, set()),
+        ({"T1": A + near, "G": G}, {"A"}),
+        ({"T1": A - near, "T3": B + near}, {"A", "B"}),
+        ({"T3": B + near}, {"A", "B"}),
+        ({"T2": A + near, "T3": B - near}, {"A", "B"}),
+    ]
+    steps = [Step(float(k), {"A": A, "B": B}, tracks, frozenset(s)) for k, (tracks, s) in enumerate(plan)]
+    score = score_tracks(steps, C)
+    assert (score.truth_steps, score.held_steps) == (12, 7) and score.held == 7 / 12
+    assert (score.settled_steps, score.settled_held) == (7, 6) and score.held_after_init == 6 / 7
+    assert (score.breaks, score.break_chances) == (1, 5) and score.break_rate == 0.2
+    assert (score.false_tracks, score.n_tracks) == (1, 4)
+    merged = type(score).merged([score, score])
+    assert merged.held_after_init == 6 / 7 and merged.break_rate == 0.2 and merged.false_tracks == 2
+    unsaid = score_tracks([dataclasses.replace(s, settled=None) for s in steps], C)
+    assert np.isnan(unsaid.held_after_init) and unsaid.held == 7 / 12
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_a_large_step_is_matched_sparsely_as_densely(seed, monkeypatch):
+    """Random crowded steps (targets 300 m apart, tracks 0-3 km off, missed targets and
+    clutter tracks): the sparse matching of a large step gives the dense assignment, the
+    same GOSPA (and its counts) and OSPA, to rounding."""
+    from fusion import mtt_metrics
+
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(120, 180))
+    X = rng.uniform(-3000.0, 3000.0, (n, 3))
+    Y = np.vstack([X[: n - 15] + rng.normal(0.0, rng.uniform(50.0, 1000.0), (n - 15, 3)),
+                   rng.uniform(-3000.0, 3000.0, (int(rng.integers(0, 40)), 3))])
+    truths = {f"A{i}": X[i] for i in range(n)}
+    tracks = {f"T{i}": Y[i] for i in rng.permutation(len(Y))}
+    dense = mtt_metrics.match(truths, tracks, 1000.0)
+    assert len(truths) * len(tracks) <= mtt_metrics.DENSE_MAX
+    monkeypatch.setattr(mtt_metrics, "DENSE_MAX", 0)
+    sparse = mtt_metrics.match(truths, tracks, 1000.0)
+    assert sparse[0] == dense[0] and len(dense[0]) > n // 3
+    assert sparse[1].distance == pytest.approx(dense[1].distance, rel=1e-12)
+    assert sparse[1][4:] == dense[1][4:]
+    assert sparse[2] == pytest.approx(dense[2], rel=1e-12)

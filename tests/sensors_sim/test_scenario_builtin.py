@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import shutil
 from importlib import resources
@@ -9,6 +10,7 @@ from importlib import resources
 import numpy as np
 import pytest
 
+from sensors_sim.geometry import coverage_mask
 from sensors_sim.traffic import Traffic
 
 from fusion.methods import method_config
@@ -41,11 +43,26 @@ def test_builtin_loads_and_every_sensor_produces_measurements(name):
     sc = load_scenario(name)
     assert sc.name == name and sc.source == f"{name}.toml"
     assert sc.process_ids()[-1] == "truth"
+    if sc.traffic is not None and sc.traffic.max_alive > 100:  # the regions: their first 20 s
+        sc = dataclasses.replace(sc, duration=20.0)
     for sid in sc.sensors:
-        events = [e for e in sensor_events(sc, sid) if not e.clutter]  # one per scan per target
-        traffic = Traffic(sc.traffic, sc.seed) if sc.traffic is not None else None  # and per aircraft alive
-        alive = sum(len(traffic.alive(float(t))) for t in scan_times(sc, sid)) if traffic else 0
-        assert len(events) == len(scan_times(sc, sid)) * len(sc.sensors[sid].targets) + alive > 0
+        sensor = sc.sensors[sid]
+        events = [e for e in sensor_events(sc, sid) if not e.clutter]
+        traffic = Traffic(sc.traffic, sc.seed) if sc.traffic is not None else None
+        if sensor.sectors:  # a rotating radar: an event per beam crossing in coverage
+            lives = {}
+            for t in (0.0, sc.duration):  # (every life is longer than the run)
+                fleet = traffic.fleet(t)
+                lives.update(zip(fleet.ids, zip(fleet.t0, fleet.t1)))
+            for e in events:
+                assert e.in_coverage and (e.target in sensor.targets or lives[e.target][0] <= e.t < lives[e.target][1])
+            assert len(events) > 0
+        else:  # one per scan per target, and per aircraft alive in view
+            alive = 0
+            for t in scan_times(sc, sid) if traffic else ():
+                fleet = traffic.fleet(float(t))
+                alive += coverage_mask(sensor, fleet.positions(float(t)) - sensor.site.position(float(t))).sum()
+            assert len(events) == len(scan_times(sc, sid)) * len(sensor.targets) + alive > 0
         assert any(e.measurement is not None for e in events), sid
     for jid in sc.jammers:
         assert jam_state(sc, jid, sc.duration).jammer == jid
@@ -154,3 +171,24 @@ def test_patent_3d_maneuver_is_patent_3d_with_a_turning_aircraft():
     assert max(g[:20]) == 0.0 and max(g[56:]) == 0.0
     np.testing.assert_allclose(g[21:40], 4.0, rtol=1e-4)
     np.testing.assert_allclose(g[41:55], 6.0, rtol=1e-4)
+
+
+def test_the_two_regions_differ_only_in_their_traffic():
+    """region-400 and region-4000: the same 30 sensors (26 rotating radars, 4 angle
+    sensors) and tracker; traffic ten times as dense, each keeping its count alive."""
+    small, large = load_scenario("region-400"), load_scenario("region-4000")
+    assert small.tracker == large.tracker and small.origin == large.origin
+    assert list(small.sensors) == list(large.sensors) and len(small.sensors) == 30
+    for sid, a in small.sensors.items():
+        b = large.sensors[sid]
+        for f in dataclasses.fields(a):
+            x, y = getattr(a, f.name), getattr(b, f.name)
+            assert np.array_equal(x.points, y.points) if f.name == "site" else np.array_equal(x, y), (sid, f.name)
+    assert sum(s.sectors > 0 for s in small.sensors.values()) == 26
+    assert {s.period for s in small.sensors.values() if s.sectors} <= set(np.arange(4.0, 12.5, 0.1).round(1))
+    scaled = dataclasses.replace(small.traffic, rate=10 * small.traffic.rate, max_alive=10 * small.traffic.max_alive)
+    np.testing.assert_allclose(np.hstack(dataclasses.astuple(scaled)), np.hstack(dataclasses.astuple(large.traffic)),
+                               rtol=1e-12)
+    for sc, n in ((small, 400), (large, 4000)):
+        counts = [len(Traffic(sc.traffic, sc.seed).fleet(t)) for t in (0.0, 300.0)]
+        assert all(abs(c - n) < 0.03 * n for c in counts), counts

@@ -1,0 +1,257 @@
+r"""The many-target tracker on rotating radars: a frame is a sweep of plots, each at its
+own time.
+
+A rotating radar's plot is valid when the beam crossed its target, so no two plots of a
+sensor share a time, and a frame (the plots within ``pair_tol`` of its first one) holds
+the sectors the sensors' beams swept in that window. :class:`SweepTracker` runs the
+:class:`~fusion.tracking.manager.MultiTargetTracker`'s steps on such a frame, with three
+changes (switched on by ``revisit_s`` in ``[tracker]``):
+
+1. **gating at each plot's own time.** A scan is one sensor's plots of the frame; a
+   track is scored against plot ``j`` at its prediction to ``tⱼ``. A cheap screen first
+   (:func:`near`, all tracks at once): the track's position moved along its velocity to
+   the scan's time against the plot's azimuth, elevation and range, each within ``6σ``
+   (the track's σ bounded by its covariance's largest eigenvalue, plus the plot's) and
+   what the track can move besides; only the pairs it keeps get ``d²``.
+2. **updates at each plot's time**: a track's plots of the frame in time order, the
+   filter predicted to each one's time and updated (plots at one time: one scan).
+3. **track management in time** (:class:`SweepLogic`): a track is looked at whenever a
+   beam crosses it, each sensor at its own period, so a frame says nothing of the tracks
+   it did not update. ``revisit_s`` is the longest time between two looks at a target
+   (the slowest sensor's period). A tentative track is confirmed at its ``confirm_m``-th
+   hit once two sensors have seen it (clutter feeds a track from one radar at most; an
+   aircraft is seen by three or four) and one that measures elevation has (two 2D
+   radars' ranges and azimuths fit a ghost kilometres off in height and position), and is
+   deleted once ``revisit_s`` passes without a hit; a confirmed track is deleted
+   once ``delete_misses · revisit_s`` passes without a hit (``K`` missed looks of the
+   slowest sensor), or when its position σ passes ``max_pos_std``.
+
+A frame reports the confirmed tracks it updated or confirmed (the others' estimates have
+not changed). No duplicate review: two tracks' latest estimates are of different times.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+
+from ..angles import wrap_pi
+from ..measurement.components import AZ, EL, RANGE
+from ..measurement.kinds import KINDS, model_of
+from ..types import Estimate
+from .hypotheses import Hypotheses, by_sensor, gate_threshold, mahalanobis2
+from .manager import Frame, MultiTargetTracker, Taken
+from .table import CONFIRMED, DELETED, TENTATIVE, ManagementRule, Track, scores_hit
+
+SCREEN_SIGMAS = 6.0  # the screen's width in σ of the track and of the plot
+MAX_ACC = 20.0  # m/s²: what a track's velocity may be off by, per second, beyond its σ
+
+
+@dataclass
+class SweepLogic:
+    """A track's life in time (module docstring, 3.): ``record(hit, P_pos, t, sensors,
+    elevation)`` once per frame after its birth at ``last_hit`` from the plots of
+    ``sensors``; ``elevation``: whether a plot that measures elevation has hit it."""
+
+    rule: ManagementRule
+    revisit_s: float
+    last_hit: float
+    sensors: frozenset = frozenset()
+    elevation: bool = True
+    status: str = TENTATIVE
+    hits: int = 1
+    #: no existence probability (the protocol of a track's logic, fusion.tracking.table.Track)
+    existence = None
+
+    def __post_init__(self):
+        self._confirm()
+
+    def survive(self, t: float) -> None:
+        """Nothing to age: the life is kept in time by :meth:`record`."""
+
+    def _confirm(self) -> None:
+        if (self.status == TENTATIVE and self.hits >= self.rule.confirm_m and len(self.sensors) >= 2
+                and self.elevation):
+            self.status = CONFIRMED
+
+    def record(self, hit: bool, P_pos: np.ndarray | None = None, t: float | None = None,
+               sensors=(), elevation: bool = False) -> str:
+        if self.status == DELETED:
+            raise ValueError("a deleted track records no more frames")
+        t = self.last_hit if t is None else t
+        if hit:
+            self.hits += 1
+            self.last_hit = max(self.last_hit, t)
+            self.sensors = self.sensors | frozenset(sensors)
+            self.elevation = self.elevation or elevation
+            self._confirm()
+        limit = self.revisit_s * (self.rule.delete_misses if self.status == CONFIRMED else 1)
+        if t - self.last_hit > limit:
+            self.status = DELETED
+        elif P_pos is not None and math.sqrt(float(np.trace(P_pos))) > self.rule.max_pos_std:
+            self.status = DELETED
+        return self.status
+
+
+@dataclass(frozen=True)
+class Spread:
+    """The tracks as the screen reads them, once per frame: position and velocity ``X
+    (n, 6)`` at the filters' times ``t (n,)``, and the square roots of the largest
+    eigenvalues of the horizontal and 3D position (and velocity) covariances, which
+    bound the σ of any linear function of unit gradient (module docstring, 1.)."""
+
+    X: np.ndarray
+    t: np.ndarray
+    pos_h: np.ndarray
+    pos: np.ndarray
+    vel_h: np.ndarray
+    vel: np.ndarray
+
+    @classmethod
+    def of(cls, tracks: Sequence[Track]) -> "Spread":
+        n = len(tracks)
+        P = np.array([tr.filter.P[:6, :6] for tr in tracks]).reshape(n, 6, 6)
+        lam = lambda B: np.sqrt(np.clip(np.linalg.eigvalsh(B)[..., -1], 0.0, None))  # noqa: E731
+        return cls(np.array([tr.filter.x[:6] for tr in tracks]).reshape(n, 6), np.array([tr.filter.t for tr in tracks]),
+                   lam(P[:, :2, :2]), lam(P[:, :3, :3]), lam(P[:, 3:5, 3:5]), lam(P[:, 3:6, 3:6]))
+
+
+def near(tracks, t: float, plots: Sequence) -> np.ndarray:
+    """``(tracks, plots)``: the pairs worth a ``d²`` (module docstring, 1.) for plots of one
+    sited sensor with azimuth, elevation or range components (``tracks``: a
+    :class:`Spread` or the tracks); a pair it drops is at least ``SCREEN_SIGMAS`` σ away
+    in one component, so outside any gate up to χ² of that many σ. Every pair for other
+    kinds."""
+    spread = tracks if isinstance(tracks, Spread) else Spread.of(tracks)
+    n = len(spread.t)
+    kind = KINDS[plots[0].kind]
+    comps = kind.components
+    if not kind.sited or not ({AZ, EL, RANGE} & set(comps)) or not n:
+        return np.ones((n, len(plots)), dtype=bool)
+    X = spread.X
+    span = max(abs(p.t - t) for p in plots)
+    dt = np.abs(t - spread.t) + span
+    pos = X[:, :3] + X[:, 3:6] * (t - spread.t)[:, None] - np.asarray(plots[0].site, float)
+    drift = 0.5 * MAX_ACC * dt**2 + np.linalg.norm(X[:, 3:6], axis=1) * span  # beyond the CV line to t
+    sig_h = spread.pos_h + spread.vel_h * dt + drift
+    sig = spread.pos + spread.vel * dt + drift
+    ground = np.hypot(pos[:, 0], pos[:, 1])
+    rng = np.hypot(ground, pos[:, 2])
+    Z = np.array([p.z for p in plots], float)
+    S = np.array([p.std for p in plots], float)
+    ok = np.ones((n, len(plots)), dtype=bool)
+    for k, c in enumerate(comps):
+        if c is AZ:  # an azimuth's gradient in metres is horizontal
+            miss = np.abs(wrap_pi(np.arctan2(pos[:, 0], pos[:, 1])[:, None] - Z[None, :, k])) * ground[:, None]
+            bound = sig_h[:, None] + rng[:, None] * S[None, :, k]
+        elif c is EL:
+            miss = np.abs(np.arctan2(pos[:, 2], ground)[:, None] - Z[None, :, k]) * rng[:, None]
+            bound = sig[:, None] + rng[:, None] * S[None, :, k]
+        elif c is RANGE:
+            miss = np.abs(rng[:, None] - Z[None, :, k])
+            bound = sig[:, None] + S[None, :, k]
+        else:
+            continue
+        ok &= miss <= SCREEN_SIGMAS * bound
+    return ok
+
+
+class SweepTracker(MultiTargetTracker):
+    """The tracker's steps on a sweep of plots (module docstring). The parts are a
+    :class:`~fusion.tracking.manager.MultiTargetTracker`'s; ``updater`` is a
+    :class:`fusion.mtt.ScanUpdater` (its ``scan`` and ``start``), ``rule`` and
+    ``revisit_s`` the management (:class:`SweepLogic`)."""
+
+    def __init__(self, initiator, updater, table, associator, gate_prob: float, rule: ManagementRule,
+                 revisit_s: float):
+        super().__init__(None, associator, initiator, updater, table, None)
+        if not revisit_s > 0.0:
+            raise ValueError(f"revisit_s must be > 0, got {revisit_s}")
+        self.gate_prob, self.rule, self.revisit_s = gate_prob, rule, float(revisit_s)
+
+    def frame(self, plots: Sequence) -> list[Track]:
+        """One frame; returns the confirmed tracks it updated or confirmed, in id order."""
+        frame = Frame(plots)
+        t_end = plots[-1].t
+        tracks = list(self.table.tracks)
+        taken, left = self.associate(tracks, frame)
+        continued, births = self.initiator.initiate(left, tracks, frame)
+        changed = set()
+        for i, track in enumerate(tracks):
+            was = track.confirmed
+            mine = taken[i] + continued.get(i, [])
+            plots_i = sorted((m for tk in mine for m in tk.plots), key=lambda m: m.order_key)
+            if plots_i:
+                self.update(track, plots_i)
+            hit = bool(plots_i) and scores_hit([m.kind for m in {m.sensor: m for m in plots_i}.values()],
+                                               track.confirmed, 1)
+            track.logic.record(hit, track.filter.P[:3, :3] if plots_i else None, t_end, {m.sensor for m in plots_i},
+                               any(_measures_el(m) for m in plots_i))
+            if plots_i or (track.confirmed and not was):
+                changed.add(id(track))
+        for group in births:
+            track = self.start(group)
+            first, more = group[0], group[1]
+            track.logic = SweepLogic(self.rule, self.revisit_s, track.last.t, frozenset(m.sensor for m in (*first, *more)),
+                                     any(_measures_el(m) for m in (*first, *more)))
+            self.table.add(track)
+            changed.add(id(track))
+        return [tr for tr in self.table.close_frame() if id(tr) in changed]
+
+    def associate(self, tracks: list[Track], frame: Frame) -> tuple[list[list[Taken]], list]:
+        """Scan by scan (one sensor's plots), each pair scored at the plot's time; the
+        associator sees the tracks with a pair in the screen."""
+        taken: list[list[Taken]] = [[] for _ in tracks]
+        left: list = []
+        spread = Spread.of(tracks)
+        confirmed = np.array([tr.confirmed for tr in tracks], dtype=bool)
+        for scan in by_sensor(frame.plots):
+            keep = near(spread, scan[0].t, scan)
+            rows = np.flatnonzero(keep.any(axis=1))
+            if not len(rows):
+                left += scan
+                continue
+            model = model_of(scan[0], tracks[0].filter.x.size)
+            gate = gate_threshold(model.n_z, self.gate_prob)
+            d2 = np.full((len(rows), len(scan)), np.inf)
+            for r, j in zip(*np.nonzero(keep[rows])):
+                x, P = tracks[rows[r]].filter.predicted(scan[j].t)
+                d2[r, j] = mahalanobis2(model, x, P, scan[j].z)[0]
+            hyp = Hypotheses(scan, rows, d2, np.full(len(rows), gate), confirmed[rows], model)
+            association = self.associator.associate(hyp)
+            for r, cols, beta, miss in association.per_row():
+                taken[rows[r]].append(Taken(tuple(scan[c] for c in cols), tuple(d2[r, list(cols)]), beta, miss))
+            used = association.used
+            left += [scan[c] for c in range(len(scan)) if c not in used]
+        return taken, left
+
+    def update(self, track: Track, plots: list) -> None:
+        """The filter predicted to each plot's time and updated (plots at one time: one scan)."""
+        plots = [m for m in plots if m.t >= track.filter.t]
+        i = 0
+        while i < len(plots):
+            j = i
+            while j < len(plots) and plots[j].t == plots[i].t:
+                j += 1
+            track.last = self.updater.scan(track.filter, plots[i:j])
+            i = j
+
+    def start(self, group) -> Track:
+        """A track from an initiation group ``(first, more, x, P)``: its filter started at
+        ``(x, P)`` at the time of ``first``, updated with ``more`` at their own times."""
+        first, more, x, P = group
+        f = self.updater.new_filter(x, P, first[0].t)
+        track = Track(f, Estimate(first[0].t, x, P, self.updater.name, "centre"))
+        later = sorted((m for m in more if m.t >= f.t), key=lambda m: m.order_key)  # none before its start
+        if later:
+            self.update(track, later)
+        return track
+
+
+def _measures_el(m) -> bool:
+    """Whether a plot fixes its target's height: it measures elevation, or is a position."""
+    kind = KINDS[m.kind]
+    return EL in kind.components or not kind.sited
