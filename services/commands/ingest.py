@@ -1,4 +1,4 @@
-"""``zfusion ingest krakensdr|asterix|jsonl``: a gateway for real sensors (:mod:`services.ingest.process`).
+"""``zfusion ingest krakensdr|adsb|asterix|jsonl``: a gateway for real sensors (:mod:`services.ingest.process`).
 
 A new gateway registers its sub-parser in :func:`register` and its loop in
 :func:`services.ingest.process.main`.
@@ -16,7 +16,7 @@ values = lazy("services.commands.values")
 
 
 def register(sub) -> None:
-    p = sub.add_parser("ingest", help="a gateway for real sensors: KrakenSDR, JSON lines, ASTERIX")
+    p = sub.add_parser("ingest", help="a gateway for real sensors: KrakenSDR, ADS-B, JSON lines, ASTERIX")
     gw = p.add_subparsers(dest="gateway", required=True, metavar="GATEWAY")
 
     k = gw.add_parser("krakensdr", help="a KrakenSDR DF station (Kraken App CSV, doa.xml, Kraken Pro POSTs)")
@@ -50,6 +50,22 @@ def register(sub) -> None:
                    help="a CAT034 crossing promises the plots older than this many crossings back (default "
                         "%(default)s: radars send a sector's plots after its crossing)")
     _common(a, "this gateway's process id (its radars: the site file's sensors with sac_sic)")
+
+    b = gw.add_parser("adsb", help="an ADS-B receiver: readsb/dump1090-fa/tar1090 aircraft.json, or its BaseStation "
+                                   "(SBS-1) feed (docs/ingest.md)")
+    src = b.add_mutually_exclusive_group(required=True)
+    src.add_argument("--url", help="poll the receiver's aircraft.json, e.g. http://HOST/tar1090/data/aircraft.json")
+    src.add_argument("--sbs", metavar="HOST:PORT", help="read its BaseStation feed, e.g. 127.0.0.1:30003")
+    b.add_argument("--poll-s", type=float, default=1.0,
+                   help="seconds between polls, and the first reconnection wait (default %(default)s)")
+    b.add_argument("--timeout-s", type=float, default=2.0, help="HTTP or connect timeout (default %(default)s s)")
+    b.add_argument("--sources", default="adsb,mlat,tisb,adsc",
+                   help="which positions to publish: adsb, mlat, tisb, adsc, other (default %(default)s)")
+    b.add_argument("--sbs-timezone", default="auto",
+                   help="SBS times: auto (the receiver's offset from this clock; default), UTC (readsb), or an "
+                        "IANA zone (dump1090-fa writes local time)")
+    b.add_argument("--sbs-mlat", action="store_true", help="the SBS feed carries multilateration results")
+    _common(b, "the receiver's id (a [sensors.<id>] of kind adsb in the site file)")
 
     j = gw.add_parser("jsonl", help="one JSON measurement per line (docs/ingest.md)")
     j.add_argument("--input", default="-", help="-, a file, udp://HOST:PORT or tcp://HOST:PORT (default: stdin); a "

@@ -36,6 +36,8 @@ from dataclasses import dataclass
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from typing import Callable
 
+import numpy as np
+
 from schemas import KeySpace
 from sensors_sim import ScenarioError
 from sensors_sim import load_site as load_site_file
@@ -44,6 +46,7 @@ from ..errors import UserError
 from ..logs import chatty, utc_text
 from ..node import Node
 from ..source import RECOVERY_S
+from .adsb import AdsbReceiver, PositionReport, SbsClock
 from .asterix import AsterixFeed, AsterixIngest, CaptureError, pcap_datagrams, radars
 from .gateway import Gateway, Reading, Rejected, local_frame, sensor_sites
 from .jsonl import MAX_LINE, LineSplitter, reading
@@ -104,6 +107,7 @@ class Outlet:
         self.pubs = {gateway.keys.meas(s): node.recoverable_publisher(gateway.keys.meas(s), gateway_cache(site.period))
                      for s, site in gateway.sensors.items()}
         self.skipped: dict[str, int] = {}
+        self.adsb_sensor = next(iter(gateway.sensors), "")  # the receiver's id (an ADS-B gateway has one)
         self.t_last = 0.0
         self._last_status = 0.0
         self._last_beat = -math.inf
@@ -117,6 +121,8 @@ class Outlet:
         """A parsed item: a reading (or bearing) to check and publish, or a refusal."""
         if isinstance(item, Bearing):
             item = item.reading()
+        elif isinstance(item, PositionReport):
+            item = adsb_reading(item, self.adsb_sensor)
         if isinstance(item, Rejected):
             self.node.reject(self.node.id, item.cause, item.detail)
         elif isinstance(item, Skipped):
@@ -209,12 +215,16 @@ def run_krakensdr(args, keys: KeySpace, zopts) -> int:
         gateway = _gateway(node, args, frame, sensors)
         station = KrakenStation(args.id, options)
         if url:
-            return _poll(node, gateway, station, url, args)
+            fmt = "auto" if args.format == "auto" else args.format
+            # The page is served as text/html whatever it holds: the content decides.
+            return _poll(node, gateway, url, args,
+                         lambda data, ctype: station.receive(data, fmt, None if "html" in (ctype or "") else ctype))
         return _listen(node, gateway, station, listen, args)
 
 
-def _poll(node: Node, gateway: Gateway, station: KrakenStation, url: str, args) -> int:
-    fmt = "auto" if args.format == "auto" else args.format
+def _poll(node: Node, gateway: Gateway, url: str, args, receive: Callable[[bytes, str | None], list]) -> int:
+    """Poll ``url`` every ``--poll-s``; ``receive(body, content_type)`` parses each answer
+    into readings (or bearings, position reports) and refusals."""
     counts = {"polls": 0, "http_errors": 0}
     outlet = Outlet(node, gateway, lambda: counts)
     backoff = Backoff(args.poll_s)
@@ -240,8 +250,7 @@ def _poll(node: Node, gateway: Gateway, station: KrakenStation, url: str, args) 
                 failing = False
             backoff.succeeded()
             now = time.time()
-            # The page is served as text/html whatever it holds: the content decides.
-            for item in station.receive(data, fmt, None if "html" in (ctype or "") else ctype):
+            for item in receive(data, ctype):
                 outlet.offer(item, now)
             delay = backoff.delay()
         outlet.tick(time.time(), heartbeat=not failing)
@@ -389,6 +398,88 @@ def _listen(node: Node, gateway: Gateway, station: KrakenStation, where: tuple[s
         server.shutdown()
         server.server_close()
         thread.join(timeout=2.0)
+    return 0
+
+
+# ------------------------------------------------------------------ adsb
+
+
+def adsb_reading(r: PositionReport, sensor: str) -> Reading | Skipped:
+    """An ADS-B position report as a ``position`` reading of the receiver ``sensor``: its
+    WGS-84 position and its own noise (σ per horizontal axis from NACp or the source,
+    σ of the altitude from GVA or the barometric bias; :mod:`.adsb`). One without an
+    altitude (on the ground, or none reported) is no 3D position: skipped."""
+    if r.alt_m is None or r.std_v_m is None:
+        return Skipped("no-altitude")
+    return Reading(sensor=sensor, t=r.t, kind="position", z=None,
+                   std=np.array([r.std_h_m, r.std_h_m, r.std_v_m]), geodetic=(r.lat_deg, r.lon_deg, r.alt_m))
+
+
+def run_adsb(args, keys: KeySpace, zopts) -> int:
+    """``zfusion ingest adsb``: a receiver's ``aircraft.json`` polled (``--url``) or its
+    BaseStation feed read (``--sbs HOST:PORT``, a TCP client, reconnecting with backoff)."""
+    frame, sensors = _site_sensors(args, [args.id])
+    if sensors[args.id].kind != "position":
+        raise UserError(f"[sensors.{args.id}] is a {sensors[args.id].kind} sensor: an ADS-B receiver is kind = \"adsb\"")
+    try:
+        receiver = AdsbReceiver(clock=SbsClock(args.sbs_timezone), sources=frozenset(args.sources.split(",")),
+                                sbs_mlat=args.sbs_mlat)
+    except (ValueError, KeyError) as e:
+        raise UserError(f"ingest adsb: {e}") from None
+    where = _host_port(args.sbs, "--sbs") if args.sbs else None
+    with Node(args.id, "ingest", keys, zopts, live=True) as node:
+        gateway = _gateway(node, args, frame, sensors)
+        if args.url:
+            return _poll(node, gateway, args.url, args, lambda data, ctype: receiver.receive_json(data))
+        return _sbs(node, gateway, receiver, where, args)
+
+
+def _sbs(node: Node, gateway: Gateway, receiver: AdsbReceiver, where: tuple[str, int], args) -> int:
+    counts = {"connections": 0, "connection_errors": 0, "lines": 0}
+    outlet = Outlet(node, gateway, lambda: counts)
+    backoff = Backoff(args.poll_s)
+    node.announce()
+    outlet.status("ready", force=True)
+    while not node.stop.is_set():
+        try:
+            sock = socket.create_connection(where, timeout=args.timeout_s)
+        except OSError as e:
+            counts["connection_errors"] += 1
+            delay = backoff.failed()
+            outlet.say_once(f"connect:{type(e).__name__}", f"{where[0]}:{where[1]}: {e.strerror or e}; "
+                                                            f"retrying with backoff (now {delay:g} s)")
+            outlet.tick(time.time(), heartbeat=False)
+            node.stop.wait(delay)
+            continue
+        counts["connections"] += 1
+        backoff.succeeded()
+        node.event(f"connected to the BaseStation feed at {where[0]}:{where[1]}")
+        split = LineSplitter()
+        with sock:
+            sock.settimeout(0.2)
+            while not node.stop.is_set():
+                try:
+                    data = sock.recv(65_536)
+                except (TimeoutError, socket.timeout):
+                    outlet.tick(time.time())  # drained: heartbeats may promise up to now
+                    continue
+                except OSError:
+                    break
+                if not data:  # the receiver closed the feed: connect again
+                    break
+                now = time.time()
+                for line in split.feed(data):
+                    if isinstance(line, Rejected):
+                        outlet.offer(line, now)
+                        continue
+                    counts["lines"] += 1
+                    for item in receiver.receive_sbs(line, now):
+                        outlet.offer(item, now)
+                outlet.tick(now, heartbeat=False)
+        if not node.stop.is_set():
+            outlet.say_once("closed", f"{where[0]}:{where[1]} closed the feed; connecting again")
+            node.stop.wait(backoff.failed())
+    outlet.status("stopped", force=True)
     return 0
 
 
@@ -779,4 +870,6 @@ def main(args, keys: KeySpace, zopts) -> int:
         return run_krakensdr(args, keys, zopts)
     if args.gateway == "asterix":
         return run_asterix(args, keys, zopts)
+    if args.gateway == "adsb":
+        return run_adsb(args, keys, zopts)
     return run_jsonl(args, keys, zopts)
