@@ -40,7 +40,9 @@ from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from zoneinfo import ZoneInfo, ZoneInfoNotFoundError
 
-from .gateway import DECODE_ERRORS, Rejected, undecodable
+import numpy as np
+
+from .gateway import DECODE_ERRORS, Reading, Rejected, undecodable
 from .krakensdr import ParseError, Skipped
 
 FT = 0.3048  # m
@@ -508,6 +510,17 @@ def _remember(d: dict, key: str, value) -> None:
         del d[next(iter(d))]
 
 
+def position_reading(r: PositionReport, sensor: str) -> Reading | Skipped:
+    """A position report as a ``position`` reading of the receiver (or ground station)
+    ``sensor``: its WGS-84 position and its own noise (σ per horizontal axis, σ of the
+    altitude). One without an altitude (on the ground, or none reported) is no 3D
+    position: skipped ``no-altitude``."""
+    if r.alt_m is None or r.std_v_m is None:
+        return Skipped("no-altitude")
+    return Reading(sensor=sensor, t=r.t, kind="position", z=None,
+                   std=np.array([r.std_h_m, r.std_h_m, r.std_v_m]), geodetic=(r.lat_deg, r.lon_deg, r.alt_m))
+
+
 @dataclass
 class AdsbReceiver:
     """One receiver's output -> each new position once, in time order.
@@ -589,5 +602,5 @@ class AdsbReceiver:
         return r
 
 
-__all__ = ["AdsbReceiver", "PositionReport", "SbsClock", "SbsIdentification", "SbsPosition", "SbsVelocity",
+__all__ = ["AdsbReceiver", "PositionReport", "position_reading", "SbsClock", "SbsIdentification", "SbsPosition", "SbsVelocity",
            "horizontal_std", "nacp_std_m", "parse_aircraft_json", "parse_sbs_line", "vertical_std", "velocity_std"]

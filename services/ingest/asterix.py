@@ -46,10 +46,11 @@ from typing import Callable, Iterable, Iterator, Mapping
 import numpy as np
 
 from fusion.geodetic import LocalFrame
+from fusion.measurement.kinds import KINDS
 from schemas import asterix as ax
 
 from . import adsb
-from .adsb import PositionReport
+from .adsb import PositionReport, position_reading
 from .gateway import Gateway, Reading, Rejected
 from .krakensdr import Skipped
 
@@ -161,7 +162,7 @@ def radars(site, frame: LocalFrame) -> dict[tuple[int, int], Radar]:
     kind that is not a radar's, or a mobile site."""
     out: dict[tuple[int, int], Radar] = {}
     for sid, spec in site.sensors.items():
-        if spec.sac_sic is None:
+        if spec.sac_sic is None or not KINDS[spec.measurement_kind].sited:  # (an ADS-B ground station: stations())
             continue
         if spec.sac_sic in out:
             raise ValueError(f"sensors {out[spec.sac_sic].sensor!r} and {sid!r} share sac_sic "
@@ -169,9 +170,16 @@ def radars(site, frame: LocalFrame) -> dict[tuple[int, int], Radar]:
         if spec.site is None or not spec.site.fixed:
             raise ValueError(f"sensor {sid!r} has sac_sic but no fixed position: a radar's plots are relative to it")
         out[spec.sac_sic] = Radar.at(sid, spec.sac_sic, spec.measurement_kind, spec.site.points[0], frame)
-    if not out:
+    if not out and not stations(site):
         raise ValueError("no sensor of the site file has sac_sic = [SAC, SIC]: nothing to publish")
     return out
+
+
+def stations(site) -> dict[tuple[int, int], str]:
+    """The site's ADS-B ground stations (sensors of a position kind, ``kind = "adsb"``)
+    with a ``sac_sic``: SAC/SIC -> sensor id, whose CAT021 reports it publishes."""
+    return {spec.sac_sic: sid for sid, spec in site.sensors.items()
+            if spec.sac_sic is not None and not KINDS[spec.measurement_kind].sited}
 
 
 @dataclass(frozen=True)
@@ -185,8 +193,7 @@ class ScanMark:
 @dataclass(frozen=True)
 class StationReport:
     """A CAT021 report as the ADS-B gateways give theirs (:class:`adsb.PositionReport`,
-    ``fmt = "asterix"``: what the ``position`` kind will take), with the SAC/SIC of the
-    ground station that sent it."""
+    ``fmt = "asterix"``), with the SAC/SIC of the ground station that sent it."""
 
     sac_sic: tuple[int, int]
     report: PositionReport
@@ -320,8 +327,8 @@ class AsterixFeed:
 class AsterixIngest:
     """The whole decision, sans I/O: datagrams -> the ``(key, bytes)`` messages to
     publish. ``reject(src, cause, detail)`` counts and logs refusals; ``skipped`` counts
-    what is deliberately not published, by cause (``position-pending``: an ADS-B report,
-    until the ``position`` measurement kind exists)."""
+    what is deliberately not published, by cause. A CAT021 report is a ``position``
+    reading of the ground station its SAC/SIC names (``stations``)."""
 
     feed: AsterixFeed
     gateway: Gateway
@@ -329,6 +336,7 @@ class AsterixIngest:
     src: str = "asterix"
     skipped: dict[str, int] = field(default_factory=dict)
     t_last: float = 0.0
+    stations: Mapping[tuple[int, int], str] = field(default_factory=dict)  # SAC/SIC -> ADS-B sensor id
 
     def receive(self, data: bytes, now: float) -> list[tuple[str, bytes]]:
         out: list[tuple[str, bytes]] = []
@@ -338,11 +346,22 @@ class AsterixIngest:
                 self.t_last = max(self.t_last, ev.t)
             elif isinstance(ev, ScanMark):
                 out.extend(self.gateway.promise(ev.sensor, ev.t))
+            elif isinstance(ev, StationReport):
+                sensor = self.stations.get(ev.sac_sic)
+                reading = position_reading(ev.report, sensor) if sensor is not None else Rejected(
+                    "unknown-source", f"ADS-B station SAC/SIC {ev.sac_sic[0]}/{ev.sac_sic[1]} is no sensor of the site "
+                                      f"file (give its [sensors.<id>] kind = \"adsb\" and sac_sic)")
+                if isinstance(reading, Reading):
+                    out.extend(self.gateway.offer(reading, now))
+                    self.t_last = max(self.t_last, reading.t)
+                elif isinstance(reading, Rejected):
+                    self.reject(self.src, reading.cause, reading.detail)
+                else:
+                    self.skipped[reading.cause] = self.skipped.get(reading.cause, 0) + 1
             elif isinstance(ev, Rejected):
                 self.reject(self.src, ev.cause, ev.detail)
             else:
-                cause = ev.cause if isinstance(ev, Skipped) else "position-pending"
-                self.skipped[cause] = self.skipped.get(cause, 0) + 1
+                self.skipped[ev.cause] = self.skipped.get(ev.cause, 0) + 1
         return out
 
     def counters(self) -> dict[str, float]:

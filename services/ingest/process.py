@@ -36,8 +36,6 @@ from dataclasses import dataclass
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from typing import Callable
 
-import numpy as np
-
 from schemas import KeySpace
 from sensors_sim import ScenarioError
 from sensors_sim import load_site as load_site_file
@@ -46,9 +44,9 @@ from ..errors import UserError
 from ..logs import chatty, utc_text
 from ..node import Node
 from ..source import RECOVERY_S
-from .adsb import AdsbReceiver, PositionReport, SbsClock
-from .asterix import AsterixFeed, AsterixIngest, CaptureError, pcap_datagrams, radars
-from .gateway import Gateway, Reading, Rejected, local_frame, sensor_sites
+from .adsb import AdsbReceiver, PositionReport, SbsClock, position_reading
+from .asterix import AsterixFeed, AsterixIngest, CaptureError, pcap_datagrams, radars, stations
+from .gateway import Gateway, Rejected, local_frame, sensor_sites
 from .jsonl import MAX_LINE, LineSplitter, reading
 from .krakensdr import MAX_BODY, Bearing, KrakenOptions, KrakenStation, Skipped
 
@@ -122,7 +120,7 @@ class Outlet:
         if isinstance(item, Bearing):
             item = item.reading()
         elif isinstance(item, PositionReport):
-            item = adsb_reading(item, self.adsb_sensor)
+            item = position_reading(item, self.adsb_sensor)
         if isinstance(item, Rejected):
             self.node.reject(self.node.id, item.cause, item.detail)
         elif isinstance(item, Skipped):
@@ -402,17 +400,6 @@ def _listen(node: Node, gateway: Gateway, station: KrakenStation, where: tuple[s
 
 
 # ------------------------------------------------------------------ adsb
-
-
-def adsb_reading(r: PositionReport, sensor: str) -> Reading | Skipped:
-    """An ADS-B position report as a ``position`` reading of the receiver ``sensor``: its
-    WGS-84 position and its own noise (σ per horizontal axis from NACp or the source,
-    σ of the altitude from GVA or the barometric bias; :mod:`.adsb`). One without an
-    altitude (on the ground, or none reported) is no 3D position: skipped."""
-    if r.alt_m is None or r.std_v_m is None:
-        return Skipped("no-altitude")
-    return Reading(sensor=sensor, t=r.t, kind="position", z=None,
-                   std=np.array([r.std_h_m, r.std_h_m, r.std_v_m]), geodetic=(r.lat_deg, r.lon_deg, r.alt_m))
 
 
 def run_adsb(args, keys: KeySpace, zopts) -> int:
@@ -769,7 +756,8 @@ def run_asterix(args, keys: KeySpace, zopts) -> int:
         feed = AsterixFeed(rs, args.sector_lag)
     except ValueError as e:
         raise UserError(str(e)) from None
-    _, sensors = _site_sensors(args, [r.sensor for r in rs.values()])
+    adsb_stations = stations(site)
+    _, sensors = _site_sensors(args, [r.sensor for r in rs.values()] + list(adsb_stations.values()))
     if args.pcap:
         speed = _speed(args.speed)
         try:
@@ -780,7 +768,8 @@ def run_asterix(args, keys: KeySpace, zopts) -> int:
     else:
         sock = _udp_socket(args.udp)
     with Node(args.id, "ingest", keys, zopts, live=True) as node:
-        ingest = AsterixIngest(feed, _gateway(node, args, frame, sensors), node.reject, src=args.id)
+        ingest = AsterixIngest(feed, _gateway(node, args, frame, sensors), node.reject, src=args.id,
+                               stations=adsb_stations)
         outlet = Outlet(node, ingest.gateway, ingest.counters)
         node.announce()
         outlet.status("ready", force=True)

@@ -18,9 +18,11 @@ import pytest
 from schemas import KeySpace, decode, to_measurement
 from schemas import asterix as ax
 from sensors_sim import ScenarioError, load_scenario, load_site, sensor_events
-from services.ingest.adsb import CPR_CELL_M, K95_2D
+from services.ingest.adsb import CPR_CELL_M, K95_2D, vertical_std
+from services.ingest.adsb import horizontal_std as adsb_horizontal_std
 from services.ingest.asterix import (
     AsterixFeed, AsterixIngest, CaptureError, Radar, ScanMark, StationReport, horizontal_std, pcap_datagrams, radars,
+    stations,
 )
 from services.ingest.gateway import Gateway, Reading, Rejected, local_frame, sensor_sites
 from services.ingest.krakensdr import Skipped
@@ -64,6 +66,12 @@ kind = "df"
 pos_km = [0, 0, 0]
 period_s = 1.0
 std_az_deg = 1.0
+
+[sensors.gs]
+kind = "adsb"
+period_s = 1.0
+std_pos_m = 30.0
+sac_sic = [30, 4]
 """
 
 
@@ -79,8 +87,10 @@ def rig(site):
     frame = local_frame(site)
     rs = radars(site, frame)
     log = RejectLog("asterix")
-    gw = Gateway(sensor_sites(site, [r.sensor for r in rs.values()]), frame, KeySpace("t"), log, lag=0.0)
-    return AsterixIngest(AsterixFeed(rs, sector_lag=1), gw, log), rs, frame, log
+    gs = stations(site)
+    gw = Gateway(sensor_sites(site, [r.sensor for r in rs.values()] + list(gs.values())), frame, KeySpace("t"), log,
+                 lag=0.0)
+    return AsterixIngest(AsterixFeed(rs, sector_lag=1), gw, log, stations=gs), rs, frame, log
 
 
 def on_grid(rho: float, theta: float) -> tuple[float, float]:
@@ -315,10 +325,26 @@ def test_datagrams_become_checked_measurements_and_watermarks(rig):
     assert ingest.receive(datagram(stale, ax.TargetReport(sac=7, sic=7)) + bytes.fromhex("f0 0005 80 00"),
                           NOW) == []
     assert log.by_cause == {"late": 1, "unknown-source": 1, "unknown-category": 1}
-    adsb = ax.AdsbReport(sac=30, sic=4, tod_position=1.0, lat=52.0, lon=4.0, address=1, quality=ax.Quality(nacp=9))
-    assert ingest.receive(datagram(adsb), NOW) == []
+    # CAT021 of the ground station gs: a position measurement with its own noise; of an
+    # unknown station, refused; without altitude, skipped
+    adsb = ax.AdsbReport(sac=30, sic=4, tod_position=35_999.5, lat=52.1, lon=4.2, address=1,
+                         quality=ax.Quality(nacp=9, gva=2), mops=2, geometric_height=9000.0)
+    (meas, _) = [decode(b) for _, b in ingest.receive(datagram(adsb), NOW)]
+    m = to_measurement(meas)
+    frame = ingest.gateway.frame
+    assert (m.sensor, m.kind, m.t) == ("gs", "position", NOW - 0.5)
+    (sent,) = ax.decode(datagram(adsb))  # on the wire's grid (6.25 ft, 180/2³⁰ °)
+    assert m.z == pytest.approx(frame.to_enu(sent.lat, sent.lon, sent.geometric_height), abs=1e-6)
+    C = np.outer(m.std, m.std) * (np.eye(3) if m.corr is None else m.corr)
+    want = [adsb_horizontal_std("adsb", 9)] * 2 + [vertical_std("geometric", gva=2)]
+    assert np.trace(C) == pytest.approx(sum(x * x for x in want), rel=1e-9)
+    other = ax.AdsbReport(**{**{f: getattr(adsb, f) for f in adsb.__dataclass_fields__}, "sic": 5})
+    low = ax.AdsbReport(**{**{f: getattr(adsb, f) for f in adsb.__dataclass_fields__}, "geometric_height": None,
+                           "tod_position": 35_999.75})
+    assert ingest.receive(datagram(other, low), NOW) == []
     c = ingest.counters()
-    assert c["skipped.position-pending"] == 1 and c["published"] == 1 and c["records.cat048"] == 3
+    assert c["skipped.no-altitude"] == 1 and log.by_cause["unknown-source"] == 2
+    assert c["published"] == 2 and c["records.cat048"] == 3 and c["records.cat021"] == 3
 
 
 def test_garbage_never_raises_and_is_counted(rig):
