@@ -79,13 +79,18 @@ class Refiltering:
         return self._checkpoints[0].t
 
     def step(self, items: list, t: float) -> list:
-        """Process ``items`` (in order, all after the previous ``t``) and ``advance(t)``."""
+        """Process ``items`` (in order, all after the previous ``t``) and ``advance(t)``.
+        Items may be later than ``t`` (a live release forced past a lagging source's
+        watermark): the checkpoint is then at the latest item's time, never before what
+        it has processed, so that a late measurement is replayed from a state that has
+        not seen the items after it."""
         out: list = []
         for m in items:
             out.extend(self.method.process(m))
             insort(self._log, (m.order_key, m), key=lambda e: e[0])
         if math.isfinite(t):
             out.extend(self.method.advance(t))
+        t = max([t, *(m.t for m in items)])
         if t > self.t:
             self.t = t
         if items or out:  # the state changed: a new checkpoint (else the last one still holds)
