@@ -58,8 +58,8 @@ def test_kill_of_the_leading_fuser_is_no_gap_same_ids_no_jump(tmp_path, deployme
     first estimate is where the last one before the kill, moved along its velocity, says
     within 3σ. The launcher restarts the killed fuser, which finds a leader and stands by
     (it says so), and the run ends with every process exit 0 but the killed one."""
-    watch = Fused(deployment)
-    proc = subprocess.Popen(run_cmd(tmp_path, "patent-3d-orbit", deployment, "--live", "--for", "40", "--standby",
+    watch = Fused(deployment)  # (--for is a cap: the test ends the run once it has what it checks)
+    proc = subprocess.Popen(run_cmd(tmp_path, "patent-3d-orbit", deployment, "--live", "--for", "120", "--standby",
                                     "--connect", watch.endpoint), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             text=True)
     try:
@@ -69,8 +69,8 @@ def test_kill_of_the_leading_fuser_is_no_gap_same_ids_no_jump(tmp_path, deployme
         watch.wait(lambda: len(watch.got) >= 6, proc)
         killed_at = time.monotonic()
         fuser.kill()
-        watch.wait(lambda: any(a > killed_at + 0.5 for a, _ in watch.got), proc, timeout=30)
-        watch.wait(lambda: len(watch.got) >= 20, proc)
+        watch.wait(lambda: sum(a > killed_at + 0.5 for a, _ in watch.got) >= 6, proc, timeout=60)
+        proc.send_signal(signal.SIGINT)  # ends a live run as --for would: in order, with its summary
         _, err = proc.communicate(timeout=120)
     finally:
         if proc.poll() is None:
