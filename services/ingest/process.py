@@ -46,7 +46,7 @@ from ..node import Node
 from ..source import RECOVERY_S
 from .adsb import AdsbReceiver, PositionReport, SbsClock, position_reading
 from .asterix import AsterixFeed, AsterixIngest, CaptureError, pcap_datagrams, radars, stations
-from .gateway import Gateway, Rejected, local_frame, sensor_sites
+from .gateway import Gateway, Reading, Rejected, local_frame, sensor_sites
 from .jsonl import MAX_LINE, LineSplitter, reading
 from .krakensdr import MAX_BODY, Bearing, KrakenOptions, KrakenStation, Skipped
 
@@ -631,7 +631,6 @@ class _Reader:
             self._emit(LineSplitter().feed(data + b"\n"))  # a datagram holds whole lines
 
     def _tcp(self) -> None:
-        open_: set[socket.socket] = set()
         while not self.stop.is_set():
             try:
                 conn, _ = self.sock.accept()
