@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import math
 import signal
+import socket
 import subprocess
 import sys
 import threading
@@ -75,6 +76,47 @@ class DocServer:
     def __exit__(self, *exc):
         self.server.shutdown()
         self.server.server_close()
+
+
+class TcpServer:
+    """A TCP server on a free loopback port: each connection is handed to
+    :meth:`handle` on its own thread (``n`` its number, from 1); ``closing`` is set when
+    the server stops. ``port``, ``connections``."""
+
+    def __init__(self):
+        self.sock = socket.create_server(("127.0.0.1", 0))
+        self.port = self.sock.getsockname()[1]
+        self.connections = 0
+        self.closing = threading.Event()
+        self.thread = threading.Thread(target=self._serve, daemon=True)
+
+    def handle(self, conn: socket.socket, n: int) -> None:
+        raise NotImplementedError
+
+    def _serve(self):
+        self.sock.settimeout(0.1)
+        while not self.closing.is_set():
+            try:
+                conn, _ = self.sock.accept()
+            except OSError:
+                continue
+            self.connections += 1
+            threading.Thread(target=self._handle, args=(conn, self.connections), daemon=True).start()
+
+    def _handle(self, conn: socket.socket, n: int) -> None:
+        try:
+            with conn:
+                self.handle(conn, n)
+        except OSError:
+            pass
+
+    def __enter__(self):
+        self.thread.start()
+        return self
+
+    def __exit__(self, *exc):
+        self.closing.set()
+        self.sock.close()
 
 
 class Capture:

@@ -5,16 +5,13 @@ and a BaseStation feed read from a local TCP server, each reading published as a
 from __future__ import annotations
 
 import json
-import math
-import socket
-import threading
 import time
 from datetime import datetime, timezone
 
 import numpy as np
 import pytest
 
-from _ingest_helpers import Capture, DocServer, gateway, stop
+from _ingest_helpers import Capture, DocServer, TcpServer, gateway, stop
 from fusion.geodetic import LocalFrame
 from schemas import to_measurement
 from services.ingest.adsb import FT, horizontal_std, nacp_std_m, vertical_std
@@ -87,35 +84,15 @@ def test_polled_aircraft_json_publishes_each_position_once(deployment, site):
     assert counters["skipped.no-altitude"] >= 1 and counters["rejected"] >= 1, counters
 
 
-class _Feed:
+class _Feed(TcpServer):
     """A BaseStation feed on loopback (port 30003 of a receiver): sends ``lines`` to each
     client that connects, then holds the connection open."""
 
-    def __init__(self):
-        self.sock = socket.create_server(("127.0.0.1", 0))
-        self.port = self.sock.getsockname()[1]
-        self.lines: list[str] = []
-        self.closing = threading.Event()
-        self.thread = threading.Thread(target=self._serve, daemon=True)
+    lines: list[str] = []
 
-    def _serve(self):
-        self.sock.settimeout(0.1)
-        while not self.closing.is_set():
-            try:
-                conn, _ = self.sock.accept()
-            except OSError:
-                continue
-            with conn:
-                conn.sendall("".join(self.lines).encode())
-                self.closing.wait()
-
-    def __enter__(self):
-        self.thread.start()
-        return self
-
-    def __exit__(self, *exc):
-        self.closing.set()
-        self.sock.close()
+    def handle(self, conn, n):
+        conn.sendall("".join(self.lines).encode())
+        self.closing.wait()
 
 
 def test_sbs_feed_publishes_positions_with_their_time(deployment, site):

@@ -8,14 +8,13 @@ import math
 import socket
 import subprocess
 import sys
-import threading
 import time
 import urllib.request
 
 import psutil
 import pytest
 
-from _ingest_helpers import Capture, DocServer, gateway, kraken_csv, kraken_json, site_toml, stop
+from _ingest_helpers import Capture, DocServer, TcpServer, gateway, kraken_csv, kraken_json, site_toml, stop
 from schemas import to_measurement
 from services.launcher import free_port
 from conftest import ROOT, wait_for
@@ -176,49 +175,23 @@ def test_the_documented_publisher_example_speaks_the_wire_format(deployment):
     assert all(abs(m.t - time.time()) < 60 for m in meas)
 
 
-class _Trickle:
+class _Trickle(TcpServer):
     """A web server that answers every GET a byte at a time, one every 0.3 s (forever):
     the headers on odd connections, the body after whole headers on even ones."""
 
-    def __init__(self):
-        self.sock = socket.create_server(("127.0.0.1", 0))
-        self.url = f"http://127.0.0.1:{self.sock.getsockname()[1]}"
-        self.connections = 0
-        self.closing = threading.Event()
-        self.thread = threading.Thread(target=self._serve, daemon=True)
+    @property
+    def url(self) -> str:
+        return f"http://127.0.0.1:{self.port}"
 
-    def _serve(self):
-        self.sock.settimeout(0.1)
-        while not self.closing.is_set():
-            try:
-                conn, _ = self.sock.accept()
-            except OSError:
-                continue
-            self.connections += 1
-            threading.Thread(target=self._trickle, args=(conn, self.connections % 2 == 1), daemon=True).start()
-
-    def _trickle(self, conn, headers: bool):
+    def handle(self, conn, n):
         head = b"HTTP/1.1 200 OK\r\nContent-Type: text/html\r\nContent-Length: 100000\r\n\r\n"
-        try:
-            conn.recv(4096)
-            if not headers:
-                conn.sendall(head)
-            for b in (head if headers else b"1" * 100_000):
-                if self.closing.wait(0.3):
-                    break
-                conn.sendall(bytes([b]) if headers else b"1")
-        except OSError:
-            pass
-        finally:
-            conn.close()
-
-    def __enter__(self):
-        self.thread.start()
-        return self
-
-    def __exit__(self, *exc):
-        self.closing.set()
-        self.sock.close()
+        conn.recv(4096)
+        if n % 2 == 0:
+            conn.sendall(head)
+        for b in (head if n % 2 else b"1" * 100_000):
+            if self.closing.wait(0.3):
+                break
+            conn.sendall(bytes([b]) if n % 2 else b"1")
 
 
 def test_a_trickled_answer_is_a_timeout_and_sigterm_ends_the_poll_at_once(deployment, site):
