@@ -221,18 +221,11 @@ def _estimate_fields(d: dict) -> dict:
     symmetric ``P`` with non-negative variances, optional ``nis``, ``nis_dof`` and
     ``existence`` (the probability that the track's target exists, in [0, 1], from a
     tracker that holds one: JIPDA's)."""
-    x = _array(d, "x", (None,))
-    P = _array(d, "P", (x.size, x.size))
-    if not np.allclose(P, P.T, rtol=1e-9, atol=1e-9 * max(1.0, float(np.max(np.abs(P))))):
-        raise SchemaError("value", "P", "covariance is not symmetric")
-    if np.any(np.diag(P) < 0):
-        raise SchemaError("value", "P", "covariance has a negative variance")
     body = {
         "track": _str(d, "track", ident=True),
         "node": _str(d, "node", ident=True),
         "method": _str(d, "method"),
-        "x": x,
-        "P": P,
+        **_state(d),
         "nis": _num(d, "nis", lo=0.0, optional=True),
         "nis_dof": None,
         "existence": _num(d, "existence", lo=0.0, hi=1.0, optional=True),
