@@ -196,3 +196,25 @@ def assert_equals_in_process(doc: dict, until: float = math.inf) -> None:
     assert n and got["series"]["t"][:n] == ref["series"]["t"][:n]
     for key in ("rmse_pos", "anees"):
         np.testing.assert_allclose(got["series"][key][:n], ref["series"][key][:n], rtol=0, atol=1e-9)
+
+
+def sensor_stream(deployment: str, scenario: str, sensor: str, *extra: str, timeout: float = 120) -> list[bytes]:
+    """Every sample ``zfusion sensor --id SENSOR`` of ``scenario`` publishes at
+    ``--speed max`` (``extra``: more of its options), captured by a peer it dials, which
+    it waits for (``--wait-for``: a liveliness token of this session)."""
+    ep = f"tcp/127.0.0.1:{free_port()}"
+    keys = KeySpace(deployment)
+    got: list[bytes] = []
+    session = zenoh.open(ZenohOptions(listen=[ep]).to_config())
+    try:
+        sub = session.declare_subscriber(keys.meas(sensor), lambda smp: got.append(smp.payload.to_bytes()))
+        token = session.liveliness().declare_token(keys.alive("probe", "test"))
+        p = subprocess.run([sys.executable, "-m", "services.cli", "sensor", "--scenario", scenario, "--id", sensor,
+                            "--speed", "max", *extra, "--wait-for", "probe", "--deployment", deployment,
+                            "--connect", ep], capture_output=True, text=True, timeout=timeout)
+        assert p.returncode == 0, p.stderr[-2000:]
+        token.undeclare()
+        sub.undeclare()
+    finally:
+        session.close()
+    return got

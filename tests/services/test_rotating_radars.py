@@ -6,45 +6,20 @@ from __future__ import annotations
 
 import json
 import math
-import socket
 import subprocess
-import sys
 
 import numpy as np
 import pytest
-import zenoh
 
-from schemas import KeySpace, decode, to_measurement
-from services.node import ZenohOptions
+from schemas import decode, to_measurement
 from sensors_sim import load_scenario
 from sensors_sim.emulators import sensor_batches
 
-from _runs import in_process, run_cmd, same_series
+from _runs import in_process, run_cmd, same_series, sensor_stream
 from conftest import DATA
 
 pytestmark = pytest.mark.slow
 ROTATING = DATA / "rotating.toml"
-
-
-def _capture(deployment: str, sensor: str) -> list[bytes]:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        ep = f"tcp/127.0.0.1:{s.getsockname()[1]}"
-    keys = KeySpace(deployment)
-    got: list[bytes] = []
-    session = zenoh.open(ZenohOptions(listen=[ep]).to_config())
-    try:
-        sub = session.declare_subscriber(keys.meas(sensor), lambda smp: got.append(smp.payload.to_bytes()))
-        token = session.liveliness().declare_token(keys.alive("probe", "test"))
-        p = subprocess.run([sys.executable, "-m", "services.cli", "sensor", "--scenario", str(ROTATING), "--id",
-                            sensor, "--speed", "max", "--wait-for", "probe", "--deployment", deployment,
-                            "--connect", ep], capture_output=True, text=True, timeout=120)
-        assert p.returncode == 0, p.stderr[-2000:]
-        token.undeclare()
-        sub.undeclare()
-    finally:
-        session.close()
-    return got
 
 
 @pytest.mark.parametrize("sensor", ["radar3d", "angle"])
@@ -53,7 +28,7 @@ def test_the_sensor_process_publishes_the_sectors_each_with_its_watermark(deploy
     a watermark just before the next batch's start; the last one final, at the end. A
     rotating radar's batches are its sectors; the staring sensor's, its scans."""
     scenario = load_scenario(ROTATING)
-    got = [decode(x) for x in _capture(deployment, sensor)]
+    got = [decode(x) for x in sensor_stream(deployment, str(ROTATING), sensor)]
     want = []
     batches = list(sensor_batches(scenario, sensor))
     for b, after in zip(batches, [*batches[1:], None]):
