@@ -12,6 +12,18 @@ from dataclasses import dataclass, field
 import numpy as np
 
 
+@dataclass(frozen=True)
+class Identity:
+    """Who a cooperative target says it is: its ICAO 24-bit address (six lower-case hex
+    digits, or a non-ICAO address as the source gives it) and its flight identification
+    (callsign). Either may be unknown (None). An identity is a claim, not a proof: a
+    tracker may use it to prefer an association, never to merge what the gate keeps apart.
+    """
+
+    address: str | None = None
+    callsign: str | None = None
+
+
 @dataclass(frozen=True, eq=False)
 class Measurement:
     """One report of one sensor.
@@ -27,6 +39,8 @@ class Measurement:
         seq: the sensor's message counter; ``(t, sensor, seq)`` orders a stream.
         corr: the stated correlation matrix of the noise (n_z × n_z, unit diagonal), for
             a kind whose reports state one; None: uncorrelated components.
+        identity: the target's own claim of who it is (a position report's address and
+            callsign), or None.
     """
 
     t: float
@@ -37,6 +51,7 @@ class Measurement:
     site: np.ndarray
     seq: int = 0
     corr: np.ndarray | None = None
+    identity: Identity | None = None
 
     @property
     def R(self) -> np.ndarray:
@@ -63,6 +78,7 @@ class Measurement:
             and np.array_equal(self.site, other.site)
             and (self.corr is None) == (other.corr is None)
             and (self.corr is None or np.array_equal(self.corr, other.corr))
+            and self.identity == other.identity
         )
 
     __hash__ = None  # type: ignore[assignment]
@@ -83,6 +99,8 @@ class Estimate:
         nis_dof: degrees of freedom of that NIS.
         existence: the probability that the track's target exists, from a tracker that
             holds one (JIPDA), else None.
+        identity: the identity the track's target claims (from position reports that
+            carry one), else None.
     """
 
     t: float
@@ -95,3 +113,4 @@ class Estimate:
     nis_dof: int | None = None
     extra: dict = field(default_factory=dict)
     existence: float | None = None
+    identity: Identity | None = None
