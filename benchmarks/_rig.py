@@ -384,7 +384,7 @@ def run_trial(trial: Trial, log_dir: Path | None = None) -> dict:
     try:
         with contextlib.ExitStack() as stack:
             node = stack.enter_context(Node("bench", "bench", keys, ZenohOptions(listen=[hub])))
-            node.subscribe(keys.fused(), obs.on_fused)
+            node.subscribe(keys.fused("fuser"), obs.on_fused)
             node.subscribe(keys.all("status"), obs.on_status)
             node.announce()
             if trial.tracks == 1 and not trial.harness:

@@ -22,6 +22,7 @@ def check_id(value: str, what: str = "id") -> str:
 
 
 TRACKER_PREFIX = "trk-"
+DEFAULT_FUSER = "fuser"  # the id of a deployment's fuser unless it is given another
 
 
 def tracker_id(sensor: str) -> str:
@@ -57,12 +58,16 @@ class KeySpace:
     def feedback(self, node: str) -> str:
         return self._key("feedback", node)
 
-    def fused(self) -> str:
-        return self._key("fused")
+    def fused(self, fuser: str) -> str:
+        """The tracks of the fuser ``fuser`` (its id, which a hot standby publishes under
+        too); ``*`` every fuser's. A track is named by its fuser and its id there, so
+        fusers (regional centres, a system centre) publish side by side."""
+        return self._key("fused", fuser) if fuser != "*" else f"{self.prefix}/fused/*"
 
-    def picture(self) -> str:
-        """The fuser's queryable: its current tracks, for late joiners (services.picture)."""
-        return self._key("picture")
+    def picture(self, fuser: str) -> str:
+        """A fuser's queryable: its current tracks, for late joiners (services.picture);
+        ``*`` every fuser's."""
+        return self._key("picture", fuser) if fuser != "*" else f"{self.prefix}/picture/*"
 
     def truth(self, target: str) -> str:
         return self._key("truth", target)

@@ -370,11 +370,11 @@ def run(process_id: str, scenario_ref: str, method_name: str, overrides: dict, k
         else:
             node.subscribe(keys.all(intake.family), inbox)
             publisher = node.publisher
-        pub = publisher(keys.fused())
-        picture = Picture(process_id, _delete_misses(scenario))
+        identity = standby_for or process_id  # the fuser consumers take the fused output of
+        pub = publisher(keys.fused(identity))
+        picture = Picture(identity, _delete_misses(scenario))
         node.keep(picture.serve(node.session, keys))
         down = {tid: publisher(keys.feedback(tid)) for tid in (intake.nodes if distributed else ())}
-        identity = standby_for or process_id  # what consumers take the fused output from
         leader = Leadership(node.session, keys, identity, standby_for is not None, start_grace, node.event, node.stop)
         node.keep(leader)
         node.announce()

@@ -46,9 +46,9 @@ class Route:
     Attributes:
         family: the key's family (``zf/<deployment>/<family>/<id>``).
         kinds: the message kinds it carries.
-        names: what the key's id is: ``"src"`` the sender (and a measurement's sensor),
-            ``"target"`` a truth's target, ``"receiver"`` the node a downlink is for, or
-            None (a family of one key).
+        names: what the key's id is: ``"src"`` the sender (a measurement's sensor, a
+            fuser), ``"target"`` a truth's target, ``"receiver"`` the node a downlink is
+            for.
     """
 
     family: str
@@ -60,7 +60,7 @@ ROUTES: dict[str, Route] = {r.family: r for r in (
     Route("meas", frozenset(MEASUREMENT_KINDS) | {"watermark"}, "src"),
     Route("local", frozenset(UP_KINDS) | {"watermark"}, "src"),
     Route("feedback", frozenset(DOWN_KINDS) | {"watermark"}, "receiver"),
-    Route("fused", frozenset({"track"}), None),
+    Route("fused", frozenset({"track"}), "src"),
     Route("truth", frozenset({"truth"}), "target"),
     Route("jam", frozenset({"jam_state"}), "src"),
     Route("status", frozenset({"status"}), "src"),
@@ -90,11 +90,14 @@ class Intake:
         senders: per family whose key does not name its sender, the one sender taken
             (e.g. ``{"feedback": "fuser"}`` for a local tracker).
         dedup: drop repeats (the recorder, the exporters; the fuser's ordering does its own).
+        only: per family, the one key id taken (e.g. ``{"fused": "fuser"}``: one fuser's
+            tracks): another id's samples are not this consumer's, passed over uncounted
+            (:attr:`passed`) — another fuser publishing beside it is no error.
     """
 
     def __init__(self, keys: KeySpace, reject, families: Iterable[str], *, horizon: float = math.inf,
                  earliest: float = -math.inf, clock=None, senders: Mapping[str, str] | None = None,
-                 dedup: bool = False):
+                 dedup: bool = False, only: Mapping[str, str] | None = None):
         self.keys = keys
         self.reject = reject
         self.routes = {f: ROUTES[f] for f in families}
@@ -102,6 +105,8 @@ class Intake:
         self.earliest = earliest
         self.clock = clock
         self.senders = dict(senders or {})
+        self.only = dict(only or {})
+        self.passed = 0  # samples of another key id than the one taken (``only``)
         self.events: list[str] = []  # what the clock guard says about sources' clocks
         self._seen: OrderedDict[tuple, OrderedDict[int, int]] | None = OrderedDict() if dedup else None
 
@@ -118,6 +123,9 @@ class Intake:
             family, ident = self.keys.family_and_id(key)
         except ValueError as e:
             self.reject("?", "key", str(e))
+            return None
+        if family in self.only and ident != self.only[family]:
+            self.passed += 1
             return None
         route = self.routes.get(family)
         if route is None:

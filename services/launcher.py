@@ -165,7 +165,7 @@ class Launch:
         self.inbox = Inbox(node.stop)
         self.intake = Intake(node.keys, node.reject, ["fused", "status"])
         self.sup = Supervisor(self.children, plan, restart, self.clock, self.event, fuser_grace=timeout)
-        node.subscribe(node.keys.fused(), self.inbox)
+        node.subscribe(node.keys.fused(FUSER_ID), self.inbox)
         node.subscribe(node.keys.all("status"), self.inbox)
         node.announce()
 

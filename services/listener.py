@@ -58,7 +58,7 @@ class Sink(Protocol):
 
 
 def run_listener(process_id: str, role: str, keys: KeySpace, zopts: ZenohOptions, make_sink: Callable[[Node], Sink],
-                 *, subscribe: str, live: bool, backlog: int, in_memory: int | None = None,
+                 *, subscribe: str, fuser: str, live: bool, backlog: int, in_memory: int | None = None,
                  counted: str = "taken") -> int:
     """Run the listener ``process_id`` until its sink is done or it is told to stop.
 
@@ -67,6 +67,7 @@ def run_listener(process_id: str, role: str, keys: KeySpace, zopts: ZenohOptions
             (so a stop at any time leaves its output whole, and a sink that cannot be
             built is an error at start).
         subscribe: the key expression it listens to.
+        fuser: the fuser whose tracks it takes (and whose picture it asks for at the start).
         live: a live session: a recovering subscriber, and its clock is UTC.
         backlog, in_memory: the inbox's bounds (:class:`~services.node.ListenerInbox`).
         counted: the status counter of the samples the sink took.
@@ -82,10 +83,11 @@ def run_listener(process_id: str, role: str, keys: KeySpace, zopts: ZenohOptions
                     node.recovering_subscriber(subscribe, inbox, recovery.on_miss)
                 else:
                     node.subscribe(subscribe, inbox)
-                late_join = Request(node.session, keys, lambda data: inbox.put((keys.fused(), data)))
+                fused = keys.fused(fuser)
+                late_join = Request(node.session, keys, fuser, lambda data: inbox.put((fused, data)))
 
                 def handle(key: str, data: bytes) -> None:
-                    if key == keys.fused():
+                    if key == fused:
                         late_join.cancel()  # the fuser's own stream: its picture is coming anyway
                     msg = sink.offer(key, data, utc())
                     if msg is not None:

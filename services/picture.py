@@ -3,7 +3,7 @@
 A process that starts late (a recorder, a display, ``zfusion picture``) has missed the
 tracks the fuser has been publishing on ``fused``. The fuser therefore keeps, per live
 track, the bytes of the last ``fused`` message it published about it, and answers a
-Zenoh query on ``picture`` (:meth:`schemas.KeySpace.picture`) with one reply per track
+Zenoh query on ``picture/<fuser>`` (:meth:`schemas.KeySpace.picture`) with one reply per track
 — exactly those bytes, so a late joiner decodes them as it decodes ``fused`` — and a
 last reply, a ``watermark`` of the picture's time (the latest fused time): "this is
 the picture as of t", so that an empty picture is an answer too.
@@ -27,6 +27,7 @@ import zenoh
 
 from fusion.mtt import AssociationConfig
 from schemas import KeySpace, SchemaError, decode, encode, to_estimate
+from schemas.keys import DEFAULT_FUSER
 from fusion.types import Estimate
 
 
@@ -86,7 +87,7 @@ class Picture:
 
     def serve(self, session: zenoh.Session, keys: KeySpace):
         """Declare the queryable (the caller undeclares it, or closes the session)."""
-        key = keys.picture()
+        key = keys.picture(self.src)
 
         def on_query(query: zenoh.Query) -> None:
             for data in self.replies():
@@ -109,9 +110,9 @@ class Request:
     or ``patience`` seconds have passed. Each track's message goes to ``on_track``, on
     Zenoh's thread, as it comes."""
 
-    def __init__(self, session: zenoh.Session, keys: KeySpace, on_track: Callable[[bytes], None],
+    def __init__(self, session: zenoh.Session, keys: KeySpace, fuser: str, on_track: Callable[[bytes], None],
                  patience: float = 5.0, every: float = 0.5, clock: Callable[[], float] = time.monotonic):
-        self.session, self.keys, self.on_track = session, keys, on_track
+        self.session, self.keys, self.fuser, self.on_track = session, keys, fuser, on_track
         self.every, self.clock = every, clock
         self.deadline = clock() + patience
         self.answered = False
@@ -138,21 +139,30 @@ class Request:
                 self.on_track(reply.ok.payload.to_bytes())
                 self.tracks += 1
 
-        self.session.get(self.keys.picture(), on_reply, timeout=self.every,
+        self.session.get(self.keys.picture(self.fuser), on_reply, timeout=self.every,
                          consolidation=zenoh.ConsolidationMode.NONE)
 
 
-def query(session: zenoh.Session, keys: KeySpace, timeout: float = 2.0) -> dict | None:
-    """The picture as a JSON-ready dict ``{"t", "fuser", "tracks": [...]}`` from the first
-    fuser that answers, or None if none does within ``timeout`` (asked again every
-    0.25 s meanwhile: see :class:`Request`)."""
+def query(session: zenoh.Session, keys: KeySpace, timeout: float = 2.0, fuser: str = DEFAULT_FUSER) -> dict | None:
+    """The picture of ``fuser`` as a JSON-ready dict ``{"t", "fuser", "tracks": [...]}``,
+    or None if it does not answer within ``timeout``."""
+    found = pictures(session, keys, fuser, timeout)
+    return found[0] if found else None
+
+
+def pictures(session: zenoh.Session, keys: KeySpace, fuser: str, timeout: float = 2.0) -> list[dict]:
+    """The pictures of the fusers that answer a query of ``fuser`` (``*``: every fuser),
+    one dict each in the order of their ids, as soon as at least one has answered whole;
+    empty if none does within ``timeout`` (asked again every 0.25 s meanwhile: see
+    :class:`Request`)."""
     deadline = time.monotonic() + timeout
     while True:
         left = deadline - time.monotonic()
         if left <= 0:
-            return None
+            return []
         answers: dict[str, dict] = {}
-        for reply in session.get(keys.picture(), timeout=min(left, 0.25), consolidation=zenoh.ConsolidationMode.NONE):
+        for reply in session.get(keys.picture(fuser), timeout=min(left, 0.25),
+                                 consolidation=zenoh.ConsolidationMode.NONE):
             msg = _track_or_none(reply.ok.payload.to_bytes()) if reply.ok is not None else None
             if msg is None:
                 continue
@@ -164,19 +174,21 @@ def query(session: zenoh.Session, keys: KeySpace, timeout: float = 2.0) -> dict 
                 doc["tracks"].append({"id": e.track, "t": e.t, "x": e.x.tolist(), "P": e.P.tolist(),
                                       "method": e.method, "node": e.node, "nis": e.nis, "nis_dof": e.nis_dof,
                                       "existence": e.existence, "seq": msg.seq})
-        complete = [d for d in answers.values() if d["t"] is not None]
+        complete = [answers[f] for f in sorted(answers) if answers[f]["t"] is not None]
         if complete:
-            return complete[0]
+            return complete
         time.sleep(min(0.05, max(0.0, deadline - time.monotonic())))
 
 
-def main(keys: KeySpace, zopts, timeout: float) -> int:
-    """``zfusion picture``: print the picture as one line of JSON (exit 1 if no fuser answers)."""
+def main(keys: KeySpace, zopts, fuser: str, timeout: float) -> int:
+    """``zfusion picture``: print each answering fuser's picture as one line of JSON (exit
+    1 if none answers)."""
     with zenoh.open(zopts.to_config()) as session:
-        doc = query(session, keys, timeout)
-    if doc is None:
-        print(f"zfusion picture: no fuser answered on {keys.picture()} within {timeout:g} s; check --connect "
-              f"(the fabric's endpoint) and --deployment", file=sys.stderr)
+        docs = pictures(session, keys, fuser, timeout)
+    if not docs:
+        print(f"zfusion picture: no fuser answered on {keys.picture(fuser)} within {timeout:g} s; check --connect "
+              f"(the fabric's endpoint), --deployment and --fuser", file=sys.stderr)
         return 1
-    print(json.dumps(doc))
+    for doc in docs:
+        print(json.dumps(doc))
     return 0

@@ -29,8 +29,9 @@ from dataclasses import dataclass
 from typing import Mapping, Sequence
 
 from schemas import tracker_id
+from schemas.keys import DEFAULT_FUSER
 
-FUSER_ID = "fuser"
+FUSER_ID = DEFAULT_FUSER
 RECORDER_ID = "recorder"
 STANDBY_ID = "fuser-standby"
 ROUTER_ID = "router"

@@ -12,6 +12,7 @@ from pathlib import Path
 import zenoh
 
 from schemas import KeySpace, decode, to_estimate, tracker_id
+from schemas.keys import DEFAULT_FUSER
 from services.scoring import truth_function
 from services.summary import method_summary
 
@@ -69,14 +70,16 @@ class Watcher:
     def messages(self, key: str) -> list:
         return [decode(data) for k, data in list(self.samples) if k == key]
 
-    def wait_fused(self, n: int, timeout: float = 5.0) -> None:
-        """Until ``n`` fused samples are in (the last ones may still be crossing the router)."""
+    decode = staticmethod(decode)
+
+    def wait_fused(self, n: int, timeout: float = 5.0, fuser: str = DEFAULT_FUSER) -> None:
+        """Until ``n`` of ``fuser``'s samples are in (the last ones may still be crossing the router)."""
         deadline = time.monotonic() + timeout
-        while len(self.messages(self.keys.fused())) < n and time.monotonic() < deadline:
+        while len(self.messages(self.keys.fused(fuser))) < n and time.monotonic() < deadline:
             time.sleep(0.05)
 
-    def summary(self, scenario) -> dict:
-        estimates = [to_estimate(m) for m in self.messages(self.keys.fused()) if m.kind == "track"]
+    def summary(self, scenario, fuser: str = DEFAULT_FUSER) -> dict:
+        estimates = [to_estimate(m) for m in self.messages(self.keys.fused(fuser)) if m.kind == "track"]
         return method_summary([estimates], truth_function(scenario))
 
     def close(self) -> None:

@@ -78,7 +78,7 @@ class FusedWatch:
         opts = ZenohOptions(connect=[connect], mode="client") if connect else ZenohOptions(listen=[self.endpoint])
         self.session = zenoh.open(opts.to_config())
         self.t = -1.0
-        self._sub = self.session.declare_subscriber(KeySpace(deployment).fused(), self._on_fused)
+        self._sub = self.session.declare_subscriber(KeySpace(deployment).fused("fuser"), self._on_fused)
 
     def _on_fused(self, sample) -> None:
         self.t = max(self.t, decode(sample.payload.to_bytes()).t)
@@ -112,7 +112,7 @@ class LiveRun:
         self.fused_t = -math.inf
         self.statuses: list[dict] = []
         self._pubs: dict[str, zenoh.Publisher] = {}
-        self._subs = [self.session.declare_subscriber(self.keys.fused(), self._on_fused),
+        self._subs = [self.session.declare_subscriber(self.keys.fused("fuser"), self._on_fused),
                       self.session.declare_subscriber(self.keys.status(FUSER_ID), self._on_status)]
         self.fuser = self._child(FUSER_ID)
 

@@ -82,7 +82,7 @@ def _run_once(where: Path, scenario: str, extra: tuple[str, ...], watch: bool) -
                 published[msg.body["track"]] = published.get(msg.body["track"], 0) + 1
 
         with zenoh.open(ZenohOptions(listen=[ep]).to_config()) as session:
-            sub = session.declare_subscriber(KeySpace(deployment).fused(), on_fused)
+            sub = session.declare_subscriber(KeySpace(deployment).fused("fuser"), on_fused)
             try:
                 p = _run_cli(where, scenario, (*extra, "--connect", ep), deployment)
             finally:

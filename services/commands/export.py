@@ -21,6 +21,7 @@ def register(sub) -> None:
         output.options(q)
         options.site_or_scenario(q)  # --site: a live session, times in UTC; --scenario: scenario seconds
         q.add_argument("--id", default=output.process_id, help="process id (default: %(default)s)")
+        options.fuser(q)
         options.fabric(q)
         q.set_defaults(main=run)
 
@@ -34,4 +35,4 @@ def run(args) -> int:
         raise UserError(f"{e}; give a site or scenario file") from None
     output.check(args)
     return process.run(args.id, values.keys(args), values.zopts(args), site, lambda: output.sink(args, site, live),
-                       live=live, max_skew=args.max_skew)
+                       live=live, max_skew=args.max_skew, fuser=args.fuser)

@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import math
 import os
+import re
 import tomllib
 from pathlib import Path
 
@@ -18,11 +19,14 @@ from fusion.topology import FUSION_RULES, TOPOLOGIES
 
 from ..errors import UserError
 
-# The key space's default deployment (schemas.keys.DEFAULT_DEPLOYMENT, which a test
-# checks this is: schemas loads numpy, which the command line does not).
+# The key space's default deployment and fuser (schemas.keys.DEFAULT_DEPLOYMENT and
+# DEFAULT_FUSER, which a test checks these are: schemas loads numpy, which the command
+# line does not).
 DEFAULT_DEPLOYMENT = "default"
+DEFAULT_FUSER = "fuser"
+_KEY_ID = re.compile(r"^[A-Za-z0-9_.+-]{1,64}$")  # schemas.keys.check_id's rule
 
-__all__ = ["FUSION_RULES", "TOPOLOGIES", "DEFAULT_DEPLOYMENT"]
+__all__ = ["FUSION_RULES", "TOPOLOGIES", "DEFAULT_DEPLOYMENT", "DEFAULT_FUSER"]
 
 
 class Parser(argparse.ArgumentParser):
@@ -43,6 +47,13 @@ def speed(text: str) -> str:
                 raise ValueError
         except ValueError:
             raise argparse.ArgumentTypeError(f"--speed takes a positive number or 'max', not {text!r}") from None
+    return text
+
+
+def key_id(text: str) -> str:
+    """An id that names a key chunk (a process, a fuser): ``[A-Za-z0-9_.+-]``, 1-64."""
+    if not _KEY_ID.match(text):
+        raise argparse.ArgumentTypeError(f"{text!r}: an id is 1-64 characters of [A-Za-z0-9_.+-]")
     return text
 
 
@@ -162,6 +173,13 @@ def method(p: argparse.ArgumentParser, help: str = "estimation method (default: 
 
 def fusion_rule(p: argparse.ArgumentParser, help: str = "track-to-track fusion rule of a track-fusion method") -> None:
     p.add_argument("--fusion-rule", choices=FUSION_RULES, help=help)
+
+
+def fuser(p: argparse.ArgumentParser, help: str = "the fuser whose tracks to take (default: %(default)s)",
+          every: bool = False) -> None:
+    """``--fuser ID``: which fuser's output a process takes (``every``: ``*`` may name them all)."""
+    p.add_argument("--fuser", type=(lambda t: t if t == "*" else key_id(t)) if every else key_id,
+                   default=DEFAULT_FUSER, metavar="ID", help=help)
 
 
 def topology(p: argparse.ArgumentParser) -> None:

@@ -24,6 +24,7 @@ def register(sub) -> None:
     p.add_argument("--rotate-s", type=options.seconds, metavar="N",
                    help="write <stem>.<k>.rrd, one file per N seconds of session time, each complete")
     options.duration_option(p)
+    options.fuser(p)
     options.fabric(p)
     p.set_defaults(main=run)
 
@@ -32,4 +33,4 @@ def run(args) -> int:
     options.writable_file(rotated_path(args.rrd, 0) if args.rotate_s else args.rrd, "--rrd")
     return recorder.run(args.id, values.keys(args), values.zopts(args), args.rrd, args.expect, spawn=args.spawn,
                         scenario=args.site or args.scenario, seed=args.seed, rotate_s=args.rotate_s,
-                        live=values.live(args), duration=args.duration_s)
+                        live=values.live(args), duration=args.duration_s, fuser=args.fuser)

@@ -20,7 +20,7 @@ def register(sub) -> None:
     p.add_argument("--sensor", required=True, help="the sensor this tracker runs beside")
     options.method(p, "distributed method: HNV, PHHNV, DDHNV, KF+TR, MKF+TR (default: the scenario's)")
     options.fusion_rule(p)
-    p.add_argument("--fuser", default="fuser", help="process id of the fuser whose feedback to take")
+    options.fuser(p, "the fuser whose feedback to take (default: %(default)s)")
     p.add_argument("--feedback-timeout", type=float, default=5.0,
                    help="seconds without an answer from the fuser before running alone")
     p.add_argument("--start-grace", type=float, default=30.0, help=argparse.SUPPRESS)

@@ -110,7 +110,7 @@ def _cot_options(q: argparse.ArgumentParser) -> None:
 
 def _cot_sink(args, site, live: bool):
     types = cot.Types(track=args.type_track, emitter=args.type_emitter, sensor=args.type_sensor)
-    return process.CoTSink(cot.sender_for(args.to), site, args.deployment, types, args.stale_s, live)
+    return process.CoTSink(cot.sender_for(args.to), site, args.deployment, types, args.stale_s, live, args.fuser)
 
 
 # -- ASTERIX ----------------------------------------------------------------------------------

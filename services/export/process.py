@@ -19,6 +19,7 @@ from pathlib import Path
 
 from fusion.mtt import AssociationConfig
 from schemas import KeySpace, Message
+from schemas.keys import DEFAULT_FUSER
 
 from ..geo import frame_of
 from ..listener import run_listener
@@ -80,12 +81,17 @@ class GeoJSONSink(Sink):
 
 
 class CoTSink(Sink):
-    """Sends an event per update, and the sensors at start and every ``stale_s / 2``."""
+    """Sends an event per update, and the sensors at start and every ``stale_s / 2``. A
+    track's uid names its deployment, its fuser and its id there
+    (``zfusion.<deployment>.<fuser>.<track>``: two fusers' tracks never share one), a
+    sensor's its deployment (``zfusion.<deployment>.sensor.<id>``)."""
 
-    def __init__(self, sender, site, deployment: str, types: cot.Types, stale_s: float, live: bool):
+    def __init__(self, sender, site, deployment: str, types: cot.Types, stale_s: float, live: bool,
+                 fuser: str = DEFAULT_FUSER):
         super().__init__(site, live)
         self.sender = sender
         self.deployment = deployment
+        self.fuser = fuser
         self.types = types
         self.stale_s = stale_s
         self.sent = 0
@@ -95,8 +101,9 @@ class CoTSink(Sink):
         return f"zfusion.{self.deployment}.{what}"
 
     def update(self, table: TrackTable, e) -> None:
-        data = cot.track_event(e, self.frame, self.uid(e.track), self.types, time.time(), self.stale_s, self.live)
-        self.sent += self.sender.send(self.uid(e.track), data)
+        uid = self.uid(f"{self.fuser}.{e.track}")
+        data = cot.track_event(e, self.frame, uid, self.types, time.time(), self.stale_s, self.live)
+        self.sent += self.sender.send(uid, data)
 
     def tick(self, table: TrackTable, final: bool = False) -> None:
         self.sender.poll()
@@ -154,10 +161,11 @@ class Exporter:
 
 
 def run(process_id: str, keys: KeySpace, zopts: ZenohOptions, site, make_sink, live: bool = False,
-        max_skew: float = MAX_SKEW_S) -> int:
+        max_skew: float = MAX_SKEW_S, fuser: str = DEFAULT_FUSER) -> int:
     """Run until SIGINT/SIGTERM. ``site`` is the loaded site or scenario; ``make_sink()``
     builds the sink once the process has its session (so a bad sink is an error at start);
-    ``live``: a session on UTC time (no end; data may lead the clock by ``max_skew`` s)."""
+    ``live``: a session on UTC time (no end; data may lead the clock by ``max_skew`` s);
+    ``fuser``: the fuser whose tracks it exports."""
     return run_listener(process_id, "exporter", keys, zopts,
                         lambda node: Exporter(node, site, make_sink(), live, max_skew),
-                        subscribe=keys.fused(), live=live, backlog=BACKLOG_MAX, counted="updates")
+                        subscribe=keys.fused(fuser), fuser=fuser, live=live, backlog=BACKLOG_MAX, counted="updates")

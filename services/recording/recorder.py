@@ -52,6 +52,7 @@ from fusion.measurement.kinds import KINDS, SPHERE
 from fusion.types import Estimate, Measurement
 from schemas import KeySpace, Message, to_estimate, to_measurement
 from schemas.links import downlink, uplink
+from schemas.keys import DEFAULT_FUSER
 from sensors_sim.spec import DF_KINDS
 
 from . import draw
@@ -117,7 +118,7 @@ class Recorder:
     """
 
     def __init__(self, rec: Recording, keys: KeySpace, reject: RejectLog | None = None, scenario=None,
-                 clock_guard=None):
+                 clock_guard=None, fuser: str = DEFAULT_FUSER):
         self.rec = rec
         self.keys = keys
         self.reject = reject if reject is not None else RejectLog("recorder")
@@ -156,7 +157,7 @@ class Recorder:
             self.horizon = float(duration) + HORIZON_SLACK_S
         # everything on the deployment's keys; a row's time is never before 0 nor past the end
         self.intake = Intake(keys, self.reject, ROUTES, horizon=self.horizon, earliest=0.0, clock=clock_guard,
-                             dedup=True)
+                             only={"fused": fuser}, dedup=True)
         self.clock_events = self.intake.events  # what the clock guard says of the sources' clocks
         self._handlers = {"meas": self._on_measurement, "fused": self._on_estimate, "local": self._on_uplink,
                           "feedback": self._on_feedback, "truth": self._on_truth, "jam": self._on_jam_state,
@@ -577,7 +578,7 @@ class RecordingSink:
     has reported done."""
 
     def __init__(self, node: Node, rrd_path: str, expect: list[str], sc, live, app: str, spawn: bool,
-                 rotate_s: float | None):
+                 rotate_s: float | None, fuser: str = DEFAULT_FUSER):
         df = sc is not None and bool(sc.sensors) and all(s.kind in DF_KINDS for s in sc.sensors.values())
         self.rotation = Rotation(rrd_path, rotate_s) if rotate_s else None
         self.opener = functools.partial(open_recording, app=app, spawn=spawn, df=df,
@@ -587,7 +588,7 @@ class RecordingSink:
         self.rec, viewer = self.opener(str(self.rotation.first()) if self.rotation else rrd_path)
         self.send_period = SEND_PERIOD_S if viewer else FILE_SEND_PERIOD_S
         guard = ClockGuard(live.max_skew) if live is not None else None
-        self.recorder = Recorder(self.rec, node.keys, node.reject, sc, clock_guard=guard)
+        self.recorder = Recorder(self.rec, node.keys, node.reject, sc, clock_guard=guard, fuser=fuser)
         self.events = self.recorder.clock_events
         self.expect = set(expect)
         self._sent = self._flushed = time.monotonic()
@@ -635,14 +636,15 @@ class RecordingSink:
 
 def run(process_id: str, keys: KeySpace, zopts, rrd_path: str, expect: list[str], app: str = "zfusion", *,
         spawn: bool = False, scenario: str | None = None, seed: int | None = None,
-        rotate_s: float | None = None, live=None, duration: float | None = None) -> int:
+        rotate_s: float | None = None, live=None, duration: float | None = None, fuser: str = DEFAULT_FUSER) -> int:
     """``live`` (:class:`services.live.LiveOptions`): a live session; ``scenario`` is then
-    a site (or a scenario taken as its site), optional."""
+    a site (or a scenario taken as its site), optional. ``fuser``: the fuser whose tracks
+    it records (everything else on the deployment's keys is recorded whoever sends it)."""
     sc = None
     if scenario is not None:
         sc = load(scenario, seed, duration) if live is None else load_site(scenario)
     # The file is opened once SIGTERM/SIGINT are handled, so a stop at any time leaves a whole file.
     return run_listener(process_id, "recorder", keys, zopts,
-                        lambda node: RecordingSink(node, rrd_path, expect, sc, live, app, spawn, rotate_s),
-                        subscribe=keys.all(), live=live is not None, backlog=BACKLOG_MAX,
+                        lambda node: RecordingSink(node, rrd_path, expect, sc, live, app, spawn, rotate_s, fuser),
+                        subscribe=keys.all(), fuser=fuser, live=live is not None, backlog=BACKLOG_MAX,
                         in_memory=BACKLOG_IN_MEMORY, counted="recorded")

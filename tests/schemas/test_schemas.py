@@ -74,7 +74,7 @@ def test_key_space():
     k = KeySpace("test-1")
     assert k.meas("radar2d") == "zf/test-1/meas/radar2d"
     assert k.family_and_id("zf/test-1/meas/radar2d") == ("meas", "radar2d")
-    assert k.family_and_id(k.fused()) == ("fused", None)
+    assert k.family_and_id(k.fused("fuser")) == ("fused", "fuser")
     with pytest.raises(ValueError):
         k.meas("a/b")
     with pytest.raises(ValueError):

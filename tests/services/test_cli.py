@@ -57,8 +57,9 @@ def test_every_option_of_every_command_says_what_it_does():
 
 
 def test_the_command_line_offers_the_key_spaces_default():
-    """The parser names the default deployment itself (the key space's module loads numpy)."""
-    from schemas.keys import DEFAULT_DEPLOYMENT
-    from services.commands.options import DEFAULT_DEPLOYMENT as offered
+    """The parser names the default deployment and fuser itself (the key space's module
+    loads numpy)."""
+    from schemas.keys import DEFAULT_DEPLOYMENT, DEFAULT_FUSER
+    from services.commands import options
 
-    assert offered == DEFAULT_DEPLOYMENT
+    assert (options.DEFAULT_DEPLOYMENT, options.DEFAULT_FUSER) == (DEFAULT_DEPLOYMENT, DEFAULT_FUSER)

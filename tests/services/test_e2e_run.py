@@ -144,7 +144,7 @@ def test_garbage_on_the_wire_changes_nothing(tmp_path, deployment):
         pub = session.declare_publisher(keys.meas("radar2d"), congestion_control=zenoh.CongestionControl.BLOCK)
         spoof = session.declare_publisher(keys.meas("mallory"), congestion_control=zenoh.CongestionControl.BLOCK)
         fused = []
-        sub = session.declare_subscriber(keys.fused(), lambda s: fused.append(1))
+        sub = session.declare_subscriber(keys.fused("fuser"), lambda s: fused.append(1))
         deadline = time.monotonic() + 60
         while not fused and time.monotonic() < deadline:  # inject only once the run is going
             time.sleep(0.05)

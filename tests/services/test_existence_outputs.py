@@ -93,10 +93,10 @@ def test_geojson_and_cot_carry_existence():
 def test_recording_holds_the_existence_of_each_track(tmp_path):
     s = Session(tmp_path)
     for k, r in enumerate([0.5, 0.8, 0.95]):
-        s.put(KEYS.fused(), encode_estimate(Estimate(float(k + 1), np.array([1000.0, 2000.0, 5000.0, 0, 0, 0.0]),
+        s.put(KEYS.fused("fuser"), encode_estimate(Estimate(float(k + 1), np.array([1000.0, 2000.0, 5000.0, 0, 0, 0.0]),
                                                      np.eye(6) * 100.0, "SS", "centre", "T1", existence=r),
                                             "fuser", k + 1))
-    s.put(KEYS.fused(), encode_estimate(Estimate(3.5, np.array([5000.0, 2000.0, 5000.0, 0, 0, 0.0]), np.eye(6) * 100.0,
+    s.put(KEYS.fused("fuser"), encode_estimate(Estimate(3.5, np.array([5000.0, 2000.0, 5000.0, 0, 0, 0.0]), np.eye(6) * 100.0,
                                                  "SS", "centre", "T2"), "fuser", 4))
     rows = s.close()
     series = rows["/metrics/existence/centre/T1"]
@@ -111,11 +111,11 @@ def test_picture_answer_carries_existence(deployment):
     hub = zenoh.open(ZenohOptions(listen=[ep]).to_config())
     try:
         def on_query(q) -> None:
-            q.reply(keys.picture(), encode_estimate(_track(0.64, "T1"), "fuser", 3))
-            q.reply(keys.picture(), encode_estimate(_track(None, "T2"), "fuser", 4))
-            q.reply(keys.picture(), encode("watermark", "fuser", 0, 12.0, final=False))
+            q.reply(keys.picture("fuser"), encode_estimate(_track(0.64, "T1"), "fuser", 3))
+            q.reply(keys.picture("fuser"), encode_estimate(_track(None, "T2"), "fuser", 4))
+            q.reply(keys.picture("fuser"), encode("watermark", "fuser", 0, 12.0, final=False))
 
-        queryable = hub.declare_queryable(keys.picture(), on_query)
+        queryable = hub.declare_queryable(keys.picture("fuser"), on_query)
         with zenoh.open(ZenohOptions(connect=[ep]).to_config()) as session:
             doc = picture.query(session, keys, timeout=10.0)
         queryable.undeclare()

@@ -81,18 +81,18 @@ def test_picture_drops_bad_input_counts_it_and_is_unchanged():
     reject = RejectLog("x")
     pic = TrackTable(KEYS, reject, duration=100.0)
     good = _est(1.0, [10.0, 20.0], seq=1)
-    assert pic.offer(KEYS.fused(), good) is not None
+    assert pic.offer(KEYS.fused("fuser"), good) is not None
     before = {k: (e.t, e.x.tolist()) for k, e in pic.tracks.items()}
     nan = msgpack.packb({**msgpack.unpackb(_est(2.0, [1.0, 2.0], seq=2)), "x": [float("nan"), 2.0]})
     bad = {
         "key": (KEYS.truth("E1"), _est(2.0, [1.0, 2.0], seq=3)),
-        "malformed": (KEYS.fused(), b"\x93garbage"),
-        "non-finite": (KEYS.fused(), nan),
-        "duplicate": (KEYS.fused(), good),
-        "out-of-order": (KEYS.fused(), _est(0.5, [1.0, 2.0], seq=4)),
-        "future": (KEYS.fused(), _est(1e6, [1.0, 2.0], seq=5)),
-        "past": (KEYS.fused(), _est(-5.0, [1.0, 2.0], seq=6)),
-        "kind": (KEYS.fused(), encode_downlink(Init("df1", Estimate(2.0, np.ones(2), np.eye(2), "EKF", "centre", "E1")),
+        "malformed": (KEYS.fused("fuser"), b"\x93garbage"),
+        "non-finite": (KEYS.fused("fuser"), nan),
+        "duplicate": (KEYS.fused("fuser"), good),
+        "out-of-order": (KEYS.fused("fuser"), _est(0.5, [1.0, 2.0], seq=4)),
+        "future": (KEYS.fused("fuser"), _est(1e6, [1.0, 2.0], seq=5)),
+        "past": (KEYS.fused("fuser"), _est(-5.0, [1.0, 2.0], seq=6)),
+        "kind": (KEYS.fused("fuser"), encode_downlink(Init("df1", Estimate(2.0, np.ones(2), np.eye(2), "EKF", "centre", "E1")),
                                                "fuser", 7)),
     }
     for cause, (key, data) in bad.items():
@@ -105,18 +105,18 @@ def test_live_table_refuses_updates_ahead_of_the_clock_and_has_no_end():
     reject = RejectLog("x")
     now = 1_796_000_000.0
     table = TrackTable(KEYS, reject, duration=None, clock=lambda: now, max_skew=5.0)
-    assert table.offer(KEYS.fused(), _est(now - 3600.0, [1.0, 2.0], seq=1)) is not None  # an hour old: fine
-    assert table.offer(KEYS.fused(), _est(now + 4.0, [1.0, 2.0], seq=2)) is not None
-    assert table.offer(KEYS.fused(), _est(now + 6.0, [1.0, 2.0], seq=3)) is None
+    assert table.offer(KEYS.fused("fuser"), _est(now - 3600.0, [1.0, 2.0], seq=1)) is not None  # an hour old: fine
+    assert table.offer(KEYS.fused("fuser"), _est(now + 4.0, [1.0, 2.0], seq=2)) is not None
+    assert table.offer(KEYS.fused("fuser"), _est(now + 6.0, [1.0, 2.0], seq=3)) is None
     assert reject.by_cause == {"future": 1}
 
 
 def test_picture_forgets_a_track_the_fused_stream_stopped_reporting():
     pic = TrackTable(KEYS, RejectLog("x"), delete_misses=3)
     for k in range(1, 9):
-        pic.offer(KEYS.fused(), _est(k, [k, 0.0], track="E1", seq=2 * k))
+        pic.offer(KEYS.fused("fuser"), _est(k, [k, 0.0], track="E1", seq=2 * k))
         if k <= 2:
-            pic.offer(KEYS.fused(), _est(k, [0.0, k], track="E2", seq=2 * k + 1))
+            pic.offer(KEYS.fused("fuser"), _est(k, [0.0, k], track="E2", seq=2 * k + 1))
     assert list(pic.tracks) == ["E1"]  # E2 missed frames 3, 4, 5: gone from frame 6 on
 
 
@@ -293,7 +293,7 @@ def test_geojson_process_rides_through_a_fuser_restart_and_stops_cleanly(tmp_pat
         assert status, "the exporter never reported"
         for incarnation in range(2):  # the fuser, then the fuser restarted
             fuser = zenoh.open(ZenohOptions(connect=[ep]).to_config())
-            pub = fuser.declare_publisher(keys.fused(), congestion_control=zenoh.CongestionControl.BLOCK,
+            pub = fuser.declare_publisher(keys.fused("fuser"), congestion_control=zenoh.CongestionControl.BLOCK,
                                           reliability=zenoh.Reliability.RELIABLE)
             deadline = time.monotonic() + 30  # the exporter's subscription reaches the new session
             while not pub.matching_status.matching and time.monotonic() < deadline:
@@ -397,6 +397,9 @@ def test_run_with_cot_over_udp_delivers_tracks_within_100_m_of_truth(tmp_path, d
     assert {e.find("detail/contact").get("callsign") for e in sensors} == set(sc.sensors)
     tracks = [e for e in events if e.find("detail/zfusion") is not None]
     assert len(tracks) > 10
+    # a track's uid names its fuser: two fusers' tracks never share one in a TAK server
+    assert {ev.get("uid") for ev in tracks} == {f"zfusion.{deployment}.fuser.{ev.find('detail/contact').get('callsign')}"
+                                                for ev in tracks}
     truth = truth_function(sc)
     misses = []
     for ev in tracks:
@@ -419,10 +422,10 @@ def test_an_exporter_started_mid_session_begins_with_the_fusers_picture(tmp_path
     hub = zenoh.open(ZenohOptions(listen=[ep]).to_config())
 
     def on_query(q) -> None:
-        q.reply(keys.picture(), _est(7.0, [15_000.0, 15_000.0], track="E3", seq=41))
-        q.reply(keys.picture(), encode("watermark", "fuser", 0, 7.0, final=False))
+        q.reply(keys.picture("fuser"), _est(7.0, [15_000.0, 15_000.0], track="E3", seq=41))
+        q.reply(keys.picture("fuser"), encode("watermark", "fuser", 0, 7.0, final=False))
 
-    queryable = hub.declare_queryable(keys.picture(), on_query)
+    queryable = hub.declare_queryable(keys.picture("fuser"), on_query)
     proc = zfusion("export", "geojson", "--file", str(path), "--scenario", "thesis-fixed-c1", "--deployment",
                    deployment, "--connect", ep, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:

@@ -153,7 +153,7 @@ def test_the_exporter_process_sends_what_it_is_fed(deployment):
     rx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     rx.bind(("127.0.0.1", 0))
     rx.settimeout(0.2)
-    pub = hub.declare_publisher(keys.fused())
+    pub = hub.declare_publisher(keys.fused("fuser"))
     proc = zfusion("export", "asterix", "--udp", f"127.0.0.1:{rx.getsockname()[1]}", "--sac", "25", "--sic", "7",
                    "--scenario", "patent-3d", "--deployment", deployment, "--connect", ep,
                    stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)

@@ -349,7 +349,7 @@ def test_recorder_rows_sent_as_columns_equal_rows_logged_one_by_one(tmp_path):
                                                    t, k, site=(10.0, 0.0, 0.0))))
         P = np.diag([400.0, 300.0, 200.0] + [10.0] * 6)
         P[0, 1] = P[1, 0] = 50.0 + k
-        samples.append((keys.fused(), est_msg(t, x + [30.0, -40.0, 0, 0, 0, 0, 0, 0, 0], P, nis=1.0 + k % 5, dof=3,
+        samples.append((keys.fused("fuser"), est_msg(t, x + [30.0, -40.0, 0, 0, 0, 0, 0, 0, 0], P, nis=1.0 + k % 5, dof=3,
                                            seq=k + 1)))
         if k % 10 == 0:
             samples.append((keys.status("fuser"), status_msg("fuser", k, t, role="fuser", counters={"held": k},
@@ -377,7 +377,7 @@ def test_recorder_rows_sent_as_columns_equal_rows_logged_one_by_one(tmp_path):
             for col in b:
                 assert np.array_equal(np.asarray(a[col], dtype=object), np.asarray(b[col], dtype=object)), (entity, col)
     trail = got["/world/tracks/centre/T1"][-1]["LineStrips3D:strips"][0]
-    assert len(trail) == len([s for s in samples if s[0] == keys.fused()])
+    assert len(trail) == len([s for s in samples if s[0] == keys.fused("fuser")])
 
 
 def test_trail_views_are_never_changed_by_later_points():

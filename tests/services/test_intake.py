@@ -42,7 +42,7 @@ def test_what_passes_comes_with_its_family_and_id():
 
 @pytest.mark.parametrize("key,data,cause", [
     ("zf/other/meas/radar2d", meas(), "key"),  # another deployment
-    (KEYS.fused(), est(), "key"),  # a family this consumer does not take
+    (KEYS.fused("fuser"), est(), "key"),  # a family this consumer does not take
     (KEYS.meas("radar2d"), b"\xc1", "malformed"),
     (KEYS.meas("radar2d"), est(), "kind"),  # an estimate never travels on meas/
     (KEYS.meas("radar2d"), meas(src="angle"), "spoofed-src"),  # sent by another process
@@ -87,12 +87,12 @@ def test_a_repeat_is_dropped_but_a_restarted_sender_is_heard_again():
     """The same bytes with the same seq are a repeat; a restarted process numbers from 1
     again, and its seq 1 with other bytes is a new message."""
     it, reject = intake("fused", dedup=True)
-    assert it.offer(KEYS.fused(), est(t=1.0, seq=1)) is not None
-    assert it.offer(KEYS.fused(), est(t=1.0, seq=1)) is None
-    assert it.offer(KEYS.fused(), est(t=5.0, seq=1)) is not None
+    assert it.offer(KEYS.fused("fuser"), est(t=1.0, seq=1)) is not None
+    assert it.offer(KEYS.fused("fuser"), est(t=1.0, seq=1)) is None
+    assert it.offer(KEYS.fused("fuser"), est(t=5.0, seq=1)) is not None
     assert dict(reject.by_cause) == {"duplicate": 1}
     plain, _ = intake("fused")
-    assert plain.offer(KEYS.fused(), est(t=1.0, seq=1)) is not None and plain.offer(KEYS.fused(), est()) is not None
+    assert plain.offer(KEYS.fused("fuser"), est(t=1.0, seq=1)) is not None and plain.offer(KEYS.fused("fuser"), est()) is not None
 
 
 def test_repeats_are_remembered_for_a_bounded_number_of_streams():
@@ -149,3 +149,19 @@ def test_the_fuser_takes_its_input_through_the_intake():
     assert dict(reject.by_cause) == {"past": 1, "future": 1}
     garbage = msgpack.packb({"v": 1})
     assert core.offer(KEYS.meas("radar2d"), garbage, 0.0) is None and reject.total == 3
+
+
+def test_a_fusers_tracks_come_only_from_that_fuser():
+    """``fused/<fuser>`` names its sender: another fuser's tracks on it are forged."""
+    it, reject = intake("fused")
+    assert it.offer(KEYS.fused("north"), est(src="north")) is not None
+    assert it.offer(KEYS.fused("north"), est(src="south", seq=2)) is None
+    assert dict(reject.by_cause) == {"spoofed-src": 1}
+
+
+def test_a_consumer_of_one_fuser_passes_over_another_fusers_tracks_uncounted():
+    """Fusers publish side by side: what a consumer does not follow is no error."""
+    it, reject = intake("fused", only={"fused": "north"})
+    assert it.offer(KEYS.fused("south"), est(src="south")) is None
+    assert it.offer(KEYS.fused("north"), est(src="north")) is not None
+    assert (it.passed, reject.total) == (1, 0)

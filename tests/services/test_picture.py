@@ -41,7 +41,7 @@ class Feed:
         self.t = -1.0
         self.ready: set[str] = set()
         self.counters: dict[str, tuple[float, dict]] = {}  # process -> (when heard, its last status counters)
-        self._subs = [self.session.declare_subscriber(self.keys.fused(), self._on_fused),
+        self._subs = [self.session.declare_subscriber(self.keys.fused("fuser"), self._on_fused),
                       self.session.declare_subscriber(self.keys.all("status"), self._on_status)]
         sc = load_scenario("patent-3d")
         self.events = {s: [e for e in sensor_events(sc, s) if e.measurement is not None] for s in sc.sensors}

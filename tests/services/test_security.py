@@ -104,7 +104,7 @@ def test_only_authorised_identities_reach_the_fuser(certs, router, deployment, t
         forged_meas = encode("range_az", "radar2d", FORGED, 0.5, sensor="radar2d", site=[0.0, 0.0, 0.0], az=0.5,
                              std_az=0.01, range=1e4, std_range=20.0)
         forged_track = encode_estimate(Estimate(t=0.5, x=np.zeros(6), P=np.eye(6), method=method), "fuser", FORGED)
-        forgeries = {keys.meas("radar2d"): forged_meas, keys.fused(): forged_track}
+        forgeries = {keys.meas("radar2d"): forged_meas, keys.fused("fuser"): forged_track}
         if topology != "centralised":
             forgeries |= {keys.local("trk-radar2d"): forged_track, keys.feedback("trk-angle"): forged_track}
         angle, mallory = intruders["angle"], intruders["mallory"]
@@ -119,7 +119,7 @@ def test_only_authorised_identities_reach_the_fuser(certs, router, deployment, t
                 mallory_pub.put(payload)
         mallory.put(keys.meas("mallory"), forged_meas)
         # Unknown to the access control, mallory is told nothing, not even who listens.
-        assert not matched(mallory.declare_publisher(keys.fused()), timeout=0.5)
+        assert not matched(mallory.declare_publisher(keys.fused("fuser")), timeout=0.5)
 
         watcher.announce("recorder")  # the sensors wait for it: the scenario starts now
         for name in plan:

@@ -32,7 +32,7 @@ class Fused:
         self.session = zenoh.open(ZenohOptions(listen=[self.endpoint]).to_config())
         self.got: list[tuple[float, object]] = []
         self._lock = threading.Lock()
-        self._sub = self.session.declare_subscriber(KeySpace(deployment).fused(), self._on)
+        self._sub = self.session.declare_subscriber(KeySpace(deployment).fused("fuser"), self._on)
 
     def _on(self, sample) -> None:
         msg = decode(sample.payload.to_bytes())

@@ -51,13 +51,13 @@ def test_patent_like_stream_rows_read_back_from_file(tmp_path):
         x_true = [6000.0 + 100 * t, 8000.0, 2000.0, 100.0, 0, 0, 0, 0, 0]
         est = np.array(x_true) + np.r_[30.0, -40.0, 0.0, np.zeros(6)]
         if k % 2:  # truth late for odd scans: the estimate must wait for it
-            s.put(KEYS.fused(), est_msg(t, est, np.eye(9) * 400.0, nis=1.0 + k, dof=3, seq=k + 1))
+            s.put(KEYS.fused("fuser"), est_msg(t, est, np.eye(9) * 400.0, nis=1.0 + k, dof=3, seq=k + 1))
         s.put(KEYS.truth("T1"), truth_msg(k + 1, t))
         s.put(KEYS.meas("radar2d"), meas_msg("radar2d", "range_az", [0.64, 10200.0], [0.017, 20.0], t, k))
         s.put(KEYS.meas("radar2d"), encode("watermark", "radar2d", k + 1, t))
         s.put(KEYS.meas("angle"), meas_msg("angle", "azel", [0.64, 0.19], [1e-3, 1e-3], t, k))
         if not k % 2:
-            s.put(KEYS.fused(), est_msg(t, est, np.eye(9) * 400.0, nis=1.0 + k, dof=3, seq=k + 1))
+            s.put(KEYS.fused("fuser"), est_msg(t, est, np.eye(9) * 400.0, nis=1.0 + k, dof=3, seq=k + 1))
     assert s.reject.total == 0
     rows = s.close()
     for path in ("/world/meas/radar2d", "/world/meas/angle", "/world/tracks/centre/T1", "/world/truth/T1",
@@ -124,10 +124,10 @@ def test_bad_input_is_counted_and_dropped(tmp_path, monkeypatch):
     assert s.put(KEYS.meas("radar2d"), meas_msg("radar2d", "range_az", [0.5, 1e4], [0.01, 20.0], 2.0, 1)) is not None
     # a message the schema accepts but drawing chokes on: counted, and the recorder goes on
     monkeypatch.setattr(draw, "ellipsoid", lambda *a, **k: (_ for _ in ()).throw(np.linalg.LinAlgError("boom")))
-    assert s.put(KEYS.fused(), est_msg(1.0, np.zeros(9), np.eye(9))) is None
+    assert s.put(KEYS.fused("fuser"), est_msg(1.0, np.zeros(9), np.eye(9))) is None
     monkeypatch.undo()
-    assert s.put(KEYS.fused(), est_msg(2.0, np.zeros(9), np.eye(9), seq=2)) is not None
-    assert s.put(KEYS.fused(), est_msg(2.0, np.zeros(9), np.eye(9), seq=2)) is None  # the same update again
+    assert s.put(KEYS.fused("fuser"), est_msg(2.0, np.zeros(9), np.eye(9), seq=2)) is not None
+    assert s.put(KEYS.fused("fuser"), est_msg(2.0, np.zeros(9), np.eye(9), seq=2)) is None  # the same update again
     by = dict(s.reject.by_cause)
     for cause in ("malformed", "not-a-map", "version", "range", "future", "past", "key", "unrecordable"):
         assert by.get(cause) == 1, (cause, by)
@@ -143,18 +143,18 @@ def test_bad_input_is_counted_and_dropped(tmp_path, monkeypatch):
 def test_a_restarted_process_is_recorded_again_from_its_first_message(tmp_path):
     s = Session(tmp_path)
     s.put(KEYS.status("fuser"), status_msg("fuser", 1, 0.0, state="ready", role="fuser"))
-    assert s.put(KEYS.fused(), est_msg(1.0, np.zeros(9), np.eye(9), seq=1)) is not None
+    assert s.put(KEYS.fused("fuser"), est_msg(1.0, np.zeros(9), np.eye(9), seq=1)) is not None
     s.put(KEYS.status("fuser"), status_msg("fuser", 2, 1.0, role="fuser"))
-    assert s.put(KEYS.fused(), est_msg(1.0, np.zeros(9), np.eye(9), seq=1)) is None  # a repeat
+    assert s.put(KEYS.fused("fuser"), est_msg(1.0, np.zeros(9), np.eye(9), seq=1)) is None  # a repeat
     # kill -9, restart: the new fuser says it is ready and counts from 1 again
     s.put(KEYS.status("fuser"), status_msg("fuser", 1, 0.0, state="ready", role="fuser"))
-    assert s.put(KEYS.fused(), est_msg(5.0, np.zeros(9), np.eye(9), seq=1)) is not None
+    assert s.put(KEYS.fused("fuser"), est_msg(5.0, np.zeros(9), np.eye(9), seq=1)) is not None
     assert s.reject.by_cause["duplicate"] == 1
     # restarted again, and its "ready" (published as its session opens) reached no one:
     # its seq 1 and 2, other messages, are recorded; a replay of the same bytes is not
-    assert s.put(KEYS.fused(), est_msg(9.0, np.zeros(9), np.eye(9), seq=1)) is not None
-    assert s.put(KEYS.fused(), est_msg(10.0, np.zeros(9), np.eye(9), seq=2)) is not None
-    assert s.put(KEYS.fused(), est_msg(10.0, np.zeros(9), np.eye(9), seq=2)) is None
+    assert s.put(KEYS.fused("fuser"), est_msg(9.0, np.zeros(9), np.eye(9), seq=1)) is not None
+    assert s.put(KEYS.fused("fuser"), est_msg(10.0, np.zeros(9), np.eye(9), seq=2)) is not None
+    assert s.put(KEYS.fused("fuser"), est_msg(10.0, np.zeros(9), np.eye(9), seq=2)) is None
     assert s.reject.by_cause["duplicate"] == 2
     assert [r["t"] for r in s.close()["/world/tracks/centre/T1"]] == [1.0, 5.0, 9.0, 10.0]
 
@@ -175,7 +175,7 @@ def test_local_tracks_feedback_predictions_and_uplinked_measurements(tmp_path):
         s.put(KEYS.local("trk-angle"), uplink_msg(t, x, P6, "HNV", "angle", seq=k + 1, measurement=up))
         s.put(KEYS.feedback("trk-radar2d"), downlink_msg(t, x, P6, "HNV", "radar2d", seq=2 * k + 1))
         s.put(KEYS.feedback("trk-radar2d"), encode("watermark", "fuser", 2 * k + 2, t))  # feedback horizon
-        s.put(KEYS.fused(), est_msg(t, x, P6, "HNV", "centre", seq=k + 1))
+        s.put(KEYS.fused("fuser"), est_msg(t, x, P6, "HNV", "centre", seq=k + 1))
     assert s.reject.total == 0 and s.r.uplinked == N
     rows = s.close()
     assert len(rows["/world/meas/radar2d"]) == N  # the sensor's reports, once
@@ -230,7 +230,7 @@ def test_df_bearings_fixes_and_airborne_path(tmp_path):
         s.put(KEYS.truth("E1"), truth_msg(k + 1, t, "E1", [*emitter, 0, 0, 0, 0, 0, 0, 0]))
         s.put(KEYS.meas("adf"), meas_msg("adf", "bearing", [az], [0.0175], t, k, site))
     P = np.array([[4e6, 1e6], [1e6, 9e6]])
-    s.put(KEYS.fused(), est_msg(300.0, emitter + [300.0, -400.0], P, "EKF", track="T1"))
+    s.put(KEYS.fused("fuser"), est_msg(300.0, emitter + [300.0, -400.0], P, "EKF", track="T1"))
     s.put(KEYS.meas("adf"), meas_msg("adf", "bearing", [0.1], [0.0175], 300.5, 2, sites[1]))  # after the fix
     assert s.reject.total == 0
     rows = s.close()
@@ -353,7 +353,7 @@ def test_record_process_over_zenoh_until_expected_processes_are_done(tmp_path, d
         wait_for(lambda: statuses, "the recorder reported")
         meas = session.declare_publisher(keys.meas("radar2d"), congestion_control=zenoh.CongestionControl.BLOCK,
                                          reliability=zenoh.Reliability.RELIABLE)
-        fused = session.declare_publisher(keys.fused(), congestion_control=zenoh.CongestionControl.BLOCK,
+        fused = session.declare_publisher(keys.fused("fuser"), congestion_control=zenoh.CongestionControl.BLOCK,
                                           reliability=zenoh.Reliability.RELIABLE)
         status = session.declare_publisher(keys.status("radar2d"))
         for k in range(N):
@@ -393,7 +393,7 @@ def test_run_with_recorder_killed_half_way_completes_unchanged(tmp_path, deploym
     keys = KeySpace(deployment)
     session = zenoh.open(ZenohOptions(listen=[ep]).to_config())
     seen = {"fused": 0, "truth": 0}
-    subs = [session.declare_subscriber(keys.fused(), lambda s: seen.__setitem__("fused", seen["fused"] + 1)),
+    subs = [session.declare_subscriber(keys.fused("fuser"), lambda s: seen.__setitem__("fused", seen["fused"] + 1)),
             session.declare_subscriber(keys.all("truth"), lambda s: seen.__setitem__("truth", seen["truth"] + 1))]
     launcher = zfusion("run", "--scenario", "patent-3d", "--speed", "4", "--rrd", str(tmp_path / "k.rrd"),
                        "--json", str(js), "--deployment", deployment, "--connect", ep,
@@ -458,7 +458,7 @@ def test_many_target_tracks_have_entities_by_id_and_are_cleared_once_gone(tmp_pa
         src = "fuser" if fused else tracker_id(e.node)
         seq = seqs[src] = seqs.get(src, 0) + 1
         if fused:
-            s.put(KEYS.fused(), encode_estimate(e, src, seq))
+            s.put(KEYS.fused("fuser"), encode_estimate(e, src, seq))
         else:
             data = encode_uplink(report_of(e, seq), src, seq)
             s.put(KEYS.local(src), data)
@@ -530,9 +530,9 @@ def test_many_target_picture_is_scored_as_eval_scores_it(tmp_path, truth_first):
     samples = list(truth_events(sc))
     truth = [(x.t, KEYS.truth(x.target), encode("truth", "truth", k + 1, x.t, target=x.target, x=x.x))
              for k, x in enumerate(samples)]
-    fused = [(e.t, KEYS.fused(), encode_estimate(e, "fuser", k + 1)) for k, e in enumerate(out)]
+    fused = [(e.t, KEYS.fused("fuser"), encode_estimate(e, "fuser", k + 1)) for k, e in enumerate(out)]
     if truth_first:  # each truth sample just before the estimates of its time
-        stream = sorted(truth + fused, key=lambda r: (r[0], r[1] == KEYS.fused()))
+        stream = sorted(truth + fused, key=lambda r: (r[0], r[1] == KEYS.fused("fuser")))
     else:
         stream = fused + truth
     s = Session(tmp_path, scenario=sc)
@@ -574,10 +574,10 @@ def test_traffic_picture_scored_against_the_aircraft_alive_and_departed_forgotte
     samples = list(truth_events(sc))
     truth = [(x.t, KEYS.truth(x.target), encode("truth", "truth", k + 1, x.t, target=x.target, x=x.x))
              for k, x in enumerate(samples)]
-    fused = [(e.t, KEYS.fused(), encode_estimate(e, "fuser", k + 1)) for k, e in enumerate(out)]
+    fused = [(e.t, KEYS.fused("fuser"), encode_estimate(e, "fuser", k + 1)) for k, e in enumerate(out)]
     s = Session(tmp_path, scenario=sc)
     held = []  # aircraft whose truth the recorder holds, after each truth frame
-    for _, key, data in sorted(truth + fused, key=lambda r: (r[0], r[1] == KEYS.fused())):
+    for _, key, data in sorted(truth + fused, key=lambda r: (r[0], r[1] == KEYS.fused("fuser"))):
         assert s.put(key, data) is not None
         held.append(len(s.r.score._truth))
     last_seen = {}
@@ -625,7 +625,7 @@ def test_a_path_gets_a_point_per_trail_step_whatever_the_update_rate(tmp_path):
     n, dt = 200, 0.01
     xs = [[6000.0 + 100 * k * dt, 8000.0, 2000.0, 100.0, 0, 0, 0, 0, 0] for k in range(n)]
     for k, x in enumerate(xs):
-        s.put(KEYS.fused(), est_msg(k * dt, x, np.eye(9), seq=k + 1))
+        s.put(KEYS.fused("fuser"), est_msg(k * dt, x, np.eye(9), seq=k + 1))
     rows = s.close()["/world/tracks/centre/T1"]
     assert len(rows) == n
     kept = list(range(0, n, round(draw.TRAIL_STEP_S / dt)))  # the first update of every step
@@ -646,7 +646,7 @@ def test_an_estimate_older_than_the_truth_kept_is_counted_unscored_not_held(tmp_
         s.put(KEYS.truth("T1"), truth_msg(k + 1, float(k)))
     x = lambda t: [6000.0 + 100 * t + 10.0, 8000.0, 2000.0, 100.0, 0, 0, 0, 0, 0]  # 10 m east of the truth
     for k in range(n):
-        s.put(KEYS.fused(), est_msg(float(k), x(float(k)), np.eye(9), seq=k + 1))
+        s.put(KEYS.fused("fuser"), est_msg(float(k), x(float(k)), np.eye(9), seq=k + 1))
     assert s.r.unscored == n - 20 and s.r.score._n_pending == 0
     rows = s.close()
     assert len(rows["/world/tracks/centre/T1"]) == n  # every estimate drawn

@@ -88,9 +88,9 @@ def test_recorder_draws_sites_bearings_fixes_tracks_and_truth_on_the_map(tmp_pat
         t = float(k)
         r.offer(KEYS.truth("E1"), truth_msg(k, t, "E1", x=[15_000.0, 15_000.0, 0, 0, 0, 0, 0, 0, 0]))
         r.offer(KEYS.meas("df1"), meas_msg("df1", "bearing", [math.pi / 4], [0.0175], t, k))
-        r.offer(KEYS.fused(), est_msg(t, x_fix, P_fix, method="EKF", track="E1", seq=k))
+        r.offer(KEYS.fused("fuser"), est_msg(t, x_fix, P_fix, method="EKF", track="E1", seq=k))
     x3 = np.array([6_000.0, 8_000.0, 2_000.0, 100.0, 0.0, 0.0])
-    r.offer(KEYS.fused(), est_msg(3.0, x3, np.diag([100.0, 400.0, 900.0, 1, 1, 1]), method="SS", track="T1", seq=9))
+    r.offer(KEYS.fused("fuser"), est_msg(3.0, x3, np.diag([100.0, 400.0, 900.0, 1, 1, 1]), method="SS", track="T1", seq=9))
     r.finish()
     rec.flush()
     rec.disconnect()
@@ -166,7 +166,7 @@ def test_map_paths_are_the_world_paths_converted_row_by_row_past_a_full_path(tmp
         t = k * draw.TRAIL_STEP_S
         x = [6_000.0 + 150.0 * t, 8_000.0 + 20_000.0 * math.sin(t / 200.0), 2_000.0, 150.0, 0.0, 0.0]
         r.offer(KEYS.truth("T1"), truth_msg(k + 1, t, "T1", x=[*x, 0.0, 0.0, 0.0]))
-        r.offer(KEYS.fused(), est_msg(t, np.add(x, [30.0, -40.0, 5.0, 0, 0, 0]), P, track="T1", seq=k + 1))
+        r.offer(KEYS.fused("fuser"), est_msg(t, np.add(x, [30.0, -40.0, 5.0, 0, 0, 0]), P, track="T1", seq=k + 1))
     r.finish()
     rec.flush()
     rec.disconnect()
