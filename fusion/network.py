@@ -478,6 +478,9 @@ class MultiTrackNode(FramedNode):
 
     def _process(self, frame: list[Measurement], alone: bool) -> list[Uplink]:
         t = frame[0].t
+        out: list[Uplink] = []
+        for lid in [i for i, tr in self.tracks.items() if gap_too_long(t - tr.t, self.config.max_gap_s)]:
+            out.append(self._delete(lid, t))  # too old to predict (fusion.guards): the frame starts afresh
         ids = list(self.tracks)
         for lid in ids:
             if lid in self.existence:
@@ -485,7 +488,6 @@ class MultiTrackNode(FramedNode):
         existence = np.array([self.existence[i].existence for i in ids]) if self.existence else None
         hyp = self._hypothesiser.hypotheses([self.tracks[i].predicted(t) for i in ids], frame, [True] * len(ids),
                                             existence)
-        out: list[Uplink] = []
         association = self._associator.associate(hyp)
         if association.existence is not None:
             for r, e in enumerate(association.existence):
@@ -510,10 +512,7 @@ class MultiTrackNode(FramedNode):
                 gone = self.misses[lid] >= self.association.delete_misses or \
                     math.sqrt(float(np.trace(tr.P[:3, :3]))) > self._max_pos_std
             if gone:
-                del self.tracks[lid], self.misses[lid]
-                self.existence.pop(lid, None)
-                # Tell the centre, which would otherwise keep it as its fused track's member.
-                out.append(Drop(t, self.node, self._next_seq(), lid))
+                out.append(self._delete(lid, t))
         for c, m in enumerate(frame):
             if c in taken:
                 continue
@@ -523,6 +522,13 @@ class MultiTrackNode(FramedNode):
             else:
                 out.append(InitRequest(m.t, self.node, self._next_seq(), m))
         return out
+
+    def _delete(self, lid: str, t: float) -> Drop:
+        """Delete a local track on the node's own account; the notice tells the centre,
+        which would otherwise keep it as its fused track's member."""
+        del self.tracks[lid], self.misses[lid]
+        self.existence.pop(lid, None)
+        return Drop(t, self.node, self._next_seq(), lid)
 
     def _start(self, lid: str, x: np.ndarray, P: np.ndarray, t: float, confirmed: bool = True) -> None:
         """A local track; with JIPDA its existence starts at ``existence_confirm`` on the

@@ -3,6 +3,7 @@ r"""One many-target tracker over injected parts.
 :class:`MultiTargetTracker` runs one *frame* (the plots within ``pair_tol`` of its first
 one) at a time:
 
+0. **expire** the tracks more than ``max_gap_s`` old (:mod:`fusion.guards`);
 1. **associate** scan by scan (a scan: one sensor's plots): the hypothesiser gives the
    scan's gated costs against every track, the associator decides who took what, and
    the hypothesiser conditions the tracks' gating states on it before the next scan
@@ -94,7 +95,8 @@ class Initiator(Protocol):
 
 class Updater(Protocol):
     def update(self, track: Track, taken: list[Taken], frame: Frame) -> bool:
-        """Update (or coast) the track with what it took; returns whether it scores a hit."""
+        """Update (or coast) the track with what it took; returns whether it scores a hit.
+        A track it cannot update it marks deleted."""
 
     def position_cov(self, track: Track) -> np.ndarray:
         """The covariance ``max_pos_std`` is checked on."""
@@ -105,7 +107,8 @@ class Updater(Protocol):
 
 class Reviewer(Protocol):
     def review(self, tracks: Sequence[Track]) -> None:
-        """After the updates: mark tracks deleted (duplicates, a failed consistency test)."""
+        """After the updates: mark tracks deleted (duplicates, a failed consistency test).
+        ``tracks`` begins with those the frame expired (deleted already)."""
 
 
 class MultiTargetTracker:
@@ -135,14 +138,16 @@ class MultiTargetTracker:
     def frame(self, plots: Sequence) -> list[Track]:
         """One frame (module docstring); returns its confirmed tracks, in id order."""
         frame = Frame(plots)
+        expired = self.table.expire(frame.t)
         tracks = list(self.table.tracks)
         taken, left = self.associate(tracks, frame)
         continued, births = self.initiator.initiate(left, tracks, frame)
         for i, track in enumerate(tracks):
             hit = self.updater.update(track, taken[i] + continued.get(i, []), frame)
-            track.logic.record(hit, self.updater.position_cov(track))
+            if not track.deleted:  # (an updater deletes a track it cannot update)
+                track.logic.record(hit, self.updater.position_cov(track))
         if self.reviewer is not None:
-            self.reviewer.review(tracks)
+            self.reviewer.review(expired + tracks)
         for group in births:
             track = self.updater.start(group, frame)
             if track is not None:

@@ -19,6 +19,13 @@ confirmed ones are reported in it.
 *Duplicates* (:class:`DuplicateWatch`): two tracks whose states agree within the
 track-to-track χ² gate for ``F`` consecutive frames follow one target; the later in
 priority order is deleted.
+
+*The guards* (:mod:`fusion.guards`): a track whose state is more than ``max_gap_s``
+older than a frame is deleted before the frame (:meth:`TrackTable.expire`), and one
+whose position covariance is not positive definite after a frame is deleted with it
+(:meth:`TrackLogic.record`): either way the frame's plots start new tracks, exactly as
+they would in an empty table. An updater that cannot update a track (a fusion whose
+inverses fail) deletes it itself.
 """
 
 from __future__ import annotations
@@ -29,6 +36,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
+from ..guards import MAX_GAP_S, gap_too_long, positive_definite
 from ..measurement.kinds import KINDS
 from ..types import Estimate
 from .hypotheses import gate_threshold, track_distance2
@@ -83,14 +91,15 @@ class TrackLogic:
 
     def record(self, hit: bool, P_pos: np.ndarray | None = None) -> str:
         """One more frame, with the track's position covariance ``P_pos`` after it (for
-        ``max_pos_std``); returns the new status."""
+        ``max_pos_std``, and deleted if not positive definite); returns the new status."""
         if self.status == DELETED:
             raise ValueError("a deleted track records no more frames")
         self.frames += 1
         self.hits += int(hit)
         self.misses = 0 if hit else self.misses + 1
         self._settle()
-        if P_pos is not None and self.status != DELETED and math.sqrt(float(np.trace(P_pos))) > self.rule.max_pos_std:
+        if P_pos is not None and self.status != DELETED and (
+                not positive_definite(P_pos) or math.sqrt(float(np.trace(P_pos))) > self.rule.max_pos_std):
             self.status = DELETED
         return self.status
 
@@ -179,10 +188,14 @@ class TrackTable:
     Args:
         new_logic: a new track's logic (default: :class:`TrackLogic` under the default rule).
         prefix: of the published ids.
+        max_gap_s: a track whose state is older than this before a frame is deleted
+            (:meth:`expire`).
     """
 
-    def __init__(self, new_logic: Callable[[], TrackLogic] | None = None, prefix: str = "T"):
+    def __init__(self, new_logic: Callable[[], TrackLogic] | None = None, prefix: str = "T",
+                 max_gap_s: float = MAX_GAP_S):
         self.new_logic = new_logic or (lambda: TrackLogic(ManagementRule()))
+        self.max_gap_s = max_gap_s
         self.ids = TrackIds(prefix)
         self.births = 0
         self.tracks: list[Track] = []  # confirmed in id order, then tentative in birth order
@@ -199,6 +212,17 @@ class TrackTable:
         track.birth = self.births
         self.tracks.append(track)
         return track
+
+    def expire(self, t: float) -> list[Track]:
+        """Before a frame at ``t``: the tracks whose latest estimate is more than
+        ``max_gap_s`` before it (:func:`fusion.guards.gap_too_long`) are deleted and
+        leave the table; returns them (their configuration may have to tell others)."""
+        gone = [tr for tr in self.tracks if gap_too_long(t - tr.last.t, self.max_gap_s)]
+        for tr in gone:
+            tr.logic.status = DELETED
+        if gone:
+            self.tracks = [tr for tr in self.tracks if tr.logic.status != DELETED]
+        return gone
 
     def close_frame(self) -> list[Track]:
         """The end of a frame: ids for the tracks confirmed in it (in table order), the

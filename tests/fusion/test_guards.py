@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import dataclasses
 from functools import lru_cache
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -14,6 +15,8 @@ from fusion.guards import MAX_GAP_S, NIS_MAX_DOF, epoch_nis, gap_too_long, posit
 from fusion.methods import make_method, method_config
 from schemas.messages import MAX_DIM
 from sensors_sim import load_scenario, sensor_events
+
+CROSSING = Path(__file__).resolve().parents[1] / "data" / "crossing.toml"
 
 
 @lru_cache(maxsize=None)
@@ -32,7 +35,8 @@ def _run(sc, name: str, measurements, overrides=None) -> list:
 
 
 CASES = [("patent-3d", n) for n in ("SS", "LCDD", "HNDD", "RADAR2D", "ANGLE", "HNV", "PHHNV", "DDHNV")] + \
-        [("thesis-fixed-c1", n) for n in ("EKF", "MEKF1", "MEKF4", "IMM")]
+        [("thesis-fixed-c1", n) for n in ("EKF", "MEKF1", "MEKF4", "IMM")] + \
+        [(str(CROSSING), n) for n in ("SS", "HNV", "PHHNV")]  # many targets: the track table's rule
 
 
 @pytest.mark.parametrize("scenario,name", CASES)
