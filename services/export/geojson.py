@@ -8,7 +8,8 @@ session's ENU frame with pymap3d (:mod:`services.geo`):
   ``time`` (ISO 8601 UTC in a live session, scenario seconds otherwise) and
   ``position_std_m`` (√ trace of the position covariance); a 3D track also
   ``velocity_enu_mps``, and ``existence`` (the probability that its target exists)
-  where its tracker holds one (JIPDA);
+  where its tracker holds one (JIPDA); ``callsign`` and ``address`` where its target
+  claims an identity (:class:`fusion.types.Identity`);
 * one ``Polygon`` per emitter fix: its 95 % confidence ellipse (``kind`` ``ellipse``,
   ``id`` the fix's), a closed ring, counter-clockwise (RFC 7946 §3.1.6);
 * one ``Point`` per sensor (``kind`` ``sensor``, ``sensor_kind``: ``df``, ``radar2d``, ...).
@@ -60,6 +61,9 @@ def estimate_features(e: Estimate, frame: LocalFrame, live: bool) -> list[dict]:
         props["velocity_enu_mps"] = [_round(c, 3) for c in v]
     if e.existence is not None:
         props["existence"] = _round(e.existence, 4)
+    if e.identity is not None:  # what the target claims: its callsign and address, where known
+        props.update({k: v for k, v in (("callsign", e.identity.callsign), ("address", e.identity.address))
+                      if v is not None})
     pos = geo.enu3(e.x)
     out = [{"type": "Feature", "geometry": {"type": "Point", "coordinates": _position(geo.lat_lon_alt(frame, pos))},
             "properties": props}]

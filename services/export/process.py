@@ -81,8 +81,9 @@ class GeoJSONSink(Sink):
 
 
 class CoTSink(Sink):
-    """Sends an event per update, and the sensors at start and every ``stale_s / 2``. A
-    track's uid names its deployment, its fuser and its id there
+    """Sends what :class:`~services.export.cot.CoTPicture` says: an event per update (and
+    the track's trail), the sensors at start and every ``stale_s / 2``. A track's uid
+    names its deployment, its fuser and its id there
     (``zfusion.<deployment>.<fuser>.<track>``: two fusers' tracks never share one), a
     sensor's its deployment (``zfusion.<deployment>.sensor.<id>``)."""
 
@@ -90,29 +91,19 @@ class CoTSink(Sink):
                  fuser: str = DEFAULT_FUSER):
         super().__init__(site, live)
         self.sender = sender
-        self.deployment = deployment
-        self.fuser = fuser
-        self.types = types
-        self.stale_s = stale_s
+        self.picture = cot.CoTPicture(self.frame, self.sensors, deployment, types, stale_s, live, fuser)
         self.sent = 0
-        self._sensors_at = -float("inf")
 
-    def uid(self, what: str) -> str:
-        return f"zfusion.{self.deployment}.{what}"
+    def _send(self, events: list[tuple[str, bytes]]) -> None:
+        for uid, data in events:
+            self.sent += self.sender.send(uid, data)
 
     def update(self, table: TrackTable, e) -> None:
-        uid = self.uid(f"{self.fuser}.{e.track}")
-        data = cot.track_event(e, self.frame, uid, self.types, time.time(), self.stale_s, self.live)
-        self.sent += self.sender.send(uid, data)
+        self._send(self.picture.update(e, time.time(), time.monotonic()))
 
     def tick(self, table: TrackTable, final: bool = False) -> None:
         self.sender.poll()
-        if time.monotonic() - self._sensors_at >= self.stale_s / 2:
-            self._sensors_at = time.monotonic()
-            for sid, (kind, enu) in self.sensors.items():
-                uid = self.uid(f"sensor.{sid}")
-                data = cot.sensor_event(sid, kind, enu, self.frame, uid, self.types, time.time(), self.stale_s)
-                self.sent += self.sender.send(uid, data)
+        self._send(self.picture.tick(table.tracks, time.time(), time.monotonic()))
 
     def counters(self) -> dict[str, float]:
         return {"sent": self.sent, "send_failed": self.sender.failed}
