@@ -13,13 +13,15 @@ import pymap3d
 import pytest
 
 from _cot_schema import check_event
-from fusion.types import Estimate, Identity
+from fusion.types import Estimate, Identity, Measurement
+from schemas import KeySpace, encode_measurement
 from sensors_sim import load_scenario
 from sensors_sim.loader import list_scenarios
 from sensors_sim.spec import SENSOR_KINDS
 from services import geo
 from services.export import cot, geojson
-from services.export.tracks import sensor_sites
+from services.export.tracks import Bearings, TrackTable, sensor_sites
+from services.node import RejectLog
 
 WGS84 = pymap3d.Ellipsoid.from_name("wgs84")
 ORIGIN = (51.5, -0.12, 10.0)
@@ -192,3 +194,22 @@ def test_every_sensor_with_a_site_is_a_point_of_its_kinds_type(name):
         assert ev.get("type") == want and ev.find("detail/zfusion").get("sensor_kind") == kind.name
     assert p.tick({}, NOW, 10.0) == []  # again only after stale_s / 2
     assert len(p.tick({}, NOW, 30.0)) == len(events)
+
+
+def test_bearings_off_meas_pass_the_intake_and_bad_ones_are_counted():
+    keys = KeySpace("x")
+    reject = RejectLog("x")
+    feed = Bearings(TrackTable(keys, reject, duration=100.0))
+    m = Measurement(3.0, "df1", "bearing", np.array([0.7]), np.array([0.02]), np.array([10.0, 20.0, 0.0]), seq=1)
+    got = feed.offer(keys.meas("df1"), encode_measurement(m, "df1"))
+    assert got == m
+    radar = Measurement(3.0, "r1", "range_az", np.array([0.5, 1000.0]), np.array([0.01, 10.0]), np.zeros(3), seq=1)
+    assert feed.offer(keys.meas("r1"), encode_measurement(radar, "r1")) is None and not reject.by_cause
+    bad = {"malformed": (keys.meas("df1"), b"\x93garbage"),
+           "future": (keys.meas("df1"), encode_measurement(Measurement(1e6, "df1", "bearing", m.z, m.std, m.site, 2),
+                                                          "df1")),
+           "spoofed-src": (keys.meas("df2"), encode_measurement(Measurement(4.0, "df1", "bearing", m.z, m.std, m.site, 3),
+                                                               "df1"))}
+    for cause, (key, data) in bad.items():
+        assert feed.offer(key, data) is None, cause
+        assert reject.by_cause[cause] == 1, (cause, dict(reject.by_cause))
