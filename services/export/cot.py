@@ -19,7 +19,8 @@ vertices, :func:`line_event`): each track's breadcrumb trail (its latest
 ``TRAIL_POINTS`` positions, one per ``TRAIL_STEP_S`` of its time, re-sent at most every
 ``TRAIL_PERIOD_S``) and each DF station's latest bearing (:func:`bearing_event`, at most
 every ``BEARING_PERIOD_S``, stale after ``BEARING_STALE_S``). Every sensor is a point of
-its kind's type (:func:`sensor_event`, :mod:`.cot_types`). ``start`` is the estimate's
+its kind's type (:func:`sensor_event`, :mod:`.cot_types`); a DF station moves with its
+bearings' positions (a mobile or airborne one). ``start`` is the estimate's
 UTC time in a live session, else now (scenario seconds have no date; the scenario time is
 in ``<zfusion t=…>``). Over TCP a failed send closes the connection and the sender
 reconnects with exponential backoff (``BACKOFF_MIN_S`` to ``BACKOFF_MAX_S``), then
@@ -65,6 +66,7 @@ BEARING_PERIOD_S = 1.0  # a station's bearing line is sent at most this often (w
 BEARING_STALE_S = 5.0  # and stays on the map this long
 BEARING_RANGE_M = 30_000.0  # a bearing line's length when no fix says better
 BEARING_FIX_FACTOR = 1.5  # else it reaches this many times the farthest fix's distance
+MOVED_M = 1.0  # a DF station whose bearing comes from this far from its known position is re-sent there
 COLOR_TRAIL = -32768  # ARGB as TAK's signed int: opaque orange (0xffff8000)
 COLOR_BEARING = -16711681  # opaque cyan (0xff00ffff)
 KML_ELLIPSE = "ff0080ff"  # the ellipse's line, KML aabbggrr: opaque orange
@@ -202,7 +204,7 @@ class CoTPicture:
                  types: Types, stale_s: float, live: bool, fuser: str = DEFAULT_FUSER,
                  trail_points: int = TRAIL_POINTS):
         self.frame = frame
-        self.sensors = sensors
+        self.sensors = dict(sensors)  # id -> (kind, ENU): a DF station's moves with its bearings
         self.deployment = deployment
         self.fuser = fuser
         self.types = types
@@ -239,17 +241,27 @@ class CoTPicture:
                                          self.stale_s)))
         return out
 
-    def bearing(self, sensor: str, site: np.ndarray, azimuth: float, t: float, fixes,
+    def bearing(self, sensor: str, kind: str, site: np.ndarray, azimuth: float, t: float, fixes,
                 now: float, mono: float) -> list[tuple[str, bytes]]:
-        """A DF station's bearing; ``fixes``: the live estimates, whose farthest emitter
-        fix from the station sets the line's length (else ``BEARING_RANGE_M``)."""
+        """A DF station's bearing, from ``site`` (ENU, where the measurement says the
+        station was); ``fixes``: the live estimates, whose farthest emitter fix from the
+        station sets the line's length (else ``BEARING_RANGE_M``). A station first seen here
+        (a mobile one, whose position comes with its measurements) or moved more than
+        ``MOVED_M`` is also sent as a sensor at its new position."""
         if mono - self._bearing_sent.get(sensor, -math.inf) < BEARING_PERIOD_S:
             return []
         self._bearing_sent[sensor] = mono
+        site = np.asarray(site, dtype=float)
+        out = []
+        known = self.sensors.get(sensor)
+        if known is None or np.linalg.norm(known[1] - site) > MOVED_M:
+            self.sensors[sensor] = (kind, site)
+            uid = self.uid(f"sensor.{sensor}")
+            out.append((uid, sensor_event(sensor, kind, site, self.frame, uid, self.types, now, self.stale_s)))
         far = [math.hypot(f.x[0] - site[0], f.x[1] - site[1]) for f in fixes if f.x.size == 2]
         length = min(BEARING_FIX_FACTOR * max(far), BEARING_RANGE_M) if far else BEARING_RANGE_M
         uid = self.uid(f"sensor.{sensor}.bearing")
-        return [(uid, bearing_event(sensor, site, azimuth, length, self.frame, uid, now, t))]
+        return [*out, (uid, bearing_event(sensor, site, azimuth, length, self.frame, uid, now, t))]
 
     def tick(self, tracks, now: float, mono: float) -> list[tuple[str, bytes]]:
         """The sensors when due; forgets the trails of tracks no longer in ``tracks``."""

@@ -100,7 +100,7 @@ class CoTSink(Sink):
         super().__init__(site, live)
         self.sender = sender
         self.picture = cot.CoTPicture(self.frame, self.sensors, deployment, types, stale_s, live, fuser)
-        self.df = [sid for sid, s in site.sensors.items() if SENSOR_KINDS[s.kind].measures == "bearing"]
+        self.df = {sid: s.kind for sid, s in site.sensors.items() if SENSOR_KINDS[s.kind].measures == "bearing"}
         self._inbox = ListenerInbox(BEARINGS_MAX)
         self._bearings: Bearings | None = None
         self.sent = 0
@@ -126,10 +126,11 @@ class CoTSink(Sink):
                 m = self._bearings.offer(*self._inbox.get_nowait())
             except queue.Empty:
                 break
-            if m is not None:
+            if m is not None and m.sensor in self.df:
                 latest[m.sensor] = m
         for m in latest.values():
-            self._send(self.picture.bearing(m.sensor, m.site, float(m.z[0]), m.t, table.tracks.values(), now, mono))
+            self._send(self.picture.bearing(m.sensor, self.df[m.sensor], m.site, float(m.z[0]), m.t,
+                                            table.tracks.values(), now, mono))
         self._send(self.picture.tick(table.tracks, now, mono))
 
     def counters(self) -> dict[str, float]:

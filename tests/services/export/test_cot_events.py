@@ -160,9 +160,9 @@ def test_a_bearing_is_a_line_from_the_station_along_its_azimuth_rate_limited():
     p = _picture()
     site = np.array([-3000.0, 1000.0, 5.0])
     fix = Estimate(0.0, np.array([1000.0, 4000.0]), np.eye(2), "EKF", "centre", "E1")  # 5 km from the site
-    out = p.bearing("df1", site, math.radians(53.13), 3.0, [fix], NOW, 100.0)
-    assert [uid for uid, _ in out] == ["zfusion.x.sensor.df1.bearing"]
-    ev = check_event(out[0][1])
+    out = p.bearing("df1", "df", site, math.radians(53.13), 3.0, [fix], NOW, 100.0)
+    assert [uid for uid, _ in out] == ["zfusion.x.sensor.df1", "zfusion.x.sensor.df1.bearing"]  # a new station
+    ev = check_event(out[1][1])
     assert ev.get("type") == "u-d-f"
     vertices = np.array([_enu(link.get("point")) for link in ev.iterfind("detail/link")])
     assert vertices[0] == pytest.approx(site, abs=0.02)
@@ -171,11 +171,27 @@ def test_a_bearing_is_a_line_from_the_station_along_its_azimuth_rate_limited():
     assert math.degrees(math.atan2(ray[0], ray[1])) == pytest.approx(53.13, abs=1e-4)  # 1 cm in 7.5 km
     stale = dt.datetime.fromisoformat(ev.get("stale").replace("Z", "+00:00")).timestamp()
     assert stale - NOW == pytest.approx(cot.BEARING_STALE_S, abs=1e-3)
-    assert p.bearing("df1", site, 0.5, 3.2, [fix], NOW, 100.5) == []  # within BEARING_PERIOD_S
-    assert len(p.bearing("df2", site, 0.5, 3.2, [fix], NOW, 100.5)) == 1  # another station
-    (_, data), = p.bearing("df1", site, 0.0, 4.0, [], NOW, 101.0)
+    assert p.bearing("df1", "df", site, 0.5, 3.2, [fix], NOW, 100.5) == []  # within BEARING_PERIOD_S
+    assert len(p.bearing("df2", "df", site, 0.5, 3.2, [fix], NOW, 100.5)) == 2  # another station
+    (_, data), = p.bearing("df1", "df", site, 0.0, 4.0, [], NOW, 101.0)  # the same station, where it was
     end = _enu(ET.fromstring(data).findall("detail/link")[-1].get("point"))
     assert end - site == pytest.approx([0.0, cot.BEARING_RANGE_M, 0.0], abs=0.05)  # no fix: the range
+
+
+def test_a_mobile_df_station_is_placed_where_its_bearings_come_from():
+    p = _picture()
+    assert p.tick({}, NOW, 0.0) == []  # no position before its first bearing
+    for i, pos in enumerate(([100.0, 200.0, 0.0], [100.5, 200.0, 0.0], [300.0, 200.0, 0.0])):
+        out = dict(p.bearing("kraken", "df", np.array(pos), 1.0, float(i), [], NOW, float(i)))
+        moved = i != 1  # first seen, then within MOVED_M, then 200 m on
+        assert ("zfusion.x.sensor.kraken" in out) == moved
+        if moved:
+            ev = check_event(out["zfusion.x.sensor.kraken"])
+            assert _enu((ev.find("point").get(k) for k in ("lat", "lon", "hae"))) == pytest.approx(pos, abs=0.02)
+            assert ev.get("type") == "a-f-G-E-S"
+    (_, data), = p.tick({}, NOW, 40.0)  # and re-sent where it was last, with the other sensors
+    assert _enu((ET.fromstring(data).find("point").get(k) for k in ("lat", "lon", "hae"))) == pytest.approx(
+        [300.0, 200.0, 0.0], abs=0.02)
 
 
 # -- sensors ----------------------------------------------------------------------------------

@@ -45,7 +45,7 @@ def _events() -> list[tuple[str, bytes]]:
     fix = Estimate(10.0, np.array([1500.0, 2500.0]), np.array([[2500.0, -300.0], [-300.0, 900.0]]), "EKF",
                    "centre", "E1")
     return [*p.tick({}, NOW, 0.0), *p.update(track, NOW, 0.0), *p.update(fix, NOW, 0.0),
-            *p.update(moved, NOW, 1.0), *p.bearing("df1", np.array([-2000.0, 500.0, 3.0]), math.radians(70.0),
+            *p.update(moved, NOW, 1.0), *p.bearing("df1", "df", np.array([-2000.0, 500.0, 3.0]), math.radians(70.0),
                                                    10.0, [fix], NOW, 1.0)]
 
 
