@@ -12,7 +12,8 @@ send when (sans I/O); :class:`UdpSender` or :class:`TcpSender` sends them::
 
 A fused track or fix (:func:`track_event`) carries its 95 % horizontal error ellipse
 (:func:`error_ellipse`: semi-axes ``√(χ²₂(0.95) λᵢ)`` of the 2×2 ENU covariance, the
-major axis's compass angle) and, where its target claims one, the identity's callsign.
+major axis's compass angle), also sent as a drawn ellipse (``u-d-c-e``,
+:func:`ellipse_event`), and, where its target claims one, the identity's callsign.
 ``ce``/``le`` are 1σ metres, as the CoT 2.0 schema defines an error
 (:func:`services.geo.ce_le`). Drawings (``u-d-f``, a line of ``<link point=…>``
 vertices, :func:`line_event`): each track's breadcrumb trail (its latest
@@ -56,6 +57,7 @@ UNKNOWN = 9999999.0  # CoT's "not known" for hae, ce, le
 SENSOR_TYPES = {**{k.name: "a-f-G-E-S-R" for k in SENSOR_KINDS.values() if k.active},  # radars
                 **{k.name: "a-f-A" for k in SENSOR_KINDS.values() if k.airborne}}
 TYPE_LINE = "u-d-f"  # a drawn line: the trails and the bearings
+TYPE_ELLIPSE = "u-d-c-e"  # a drawn ellipse: a track's 95 % region
 BACKOFF_MIN_S = 0.5
 BACKOFF_MAX_S = 30.0
 MAX_PENDING = 4096
@@ -112,6 +114,11 @@ def error_ellipse(P2: np.ndarray, p: float = geo.CONFIDENCE) -> tuple[float, flo
             math.degrees(math.atan2(e, n)) % 180.0)
 
 
+def callsign_of(e: Estimate) -> str:
+    """What TAK labels a track with: the callsign its target claims, else its track id."""
+    return e.identity.callsign if e.identity is not None and e.identity.callsign else e.track
+
+
 def track_event(e: Estimate, frame: LocalFrame, uid: str, types: Types, now: float, stale_s: float,
                 live: bool) -> bytes:
     """The event of one fused track or fix, ``now`` being the UTC POSIX time."""
@@ -120,20 +127,13 @@ def track_event(e: Estimate, frame: LocalFrame, uid: str, types: Types, now: flo
     lla = geo.lat_lon_alt(frame, geo.enu3(e.x))
     ev, detail = _event(uid, types.emitter if fix else types.track, "m-f", now, e.t if live else now, stale_s,
                         lla, ce, le)
-    callsign = e.identity.callsign if e.identity is not None and e.identity.callsign else e.track
-    ET.SubElement(detail, "contact", callsign=callsign)
+    ET.SubElement(detail, "contact", callsign=callsign_of(e))
     v = geo.velocity(e.x)
     if v is not None:  # course: degrees clockwise from true north; speed: m/s over ground
         ET.SubElement(detail, "track", course=_num(round(math.degrees(math.atan2(v[0], v[1])), 1) % 360.0, 1),
                       speed=_num(math.hypot(v[0], v[1]), 1))
     major, minor, angle = error_ellipse(geo.horizontal_cov(e.P))
-    shape = ET.SubElement(detail, "shape")
-    ET.SubElement(shape, "ellipse", major=_num(major, 1), minor=_num(minor, 1), angle=_num(angle, 1))
-    style = ET.SubElement(ET.SubElement(shape, "link", uid=f"{uid}.Style", type="b-x-KmlStyle", relation="p-c"),
-                          "Style")
-    line = ET.SubElement(style, "LineStyle")
-    ET.SubElement(line, "color").text = KML_ELLIPSE
-    ET.SubElement(line, "width").text = "2.0"
+    _shape(detail, uid, major, minor, angle)
     what = "emitter fix" if fix else "track"
     ET.SubElement(detail, "remarks").text = (f"zfusion {e.method} {what} {e.track}, 1-sigma {ce:.0f} m, "
                                              f"95 % ellipse {major:.0f} x {minor:.0f} m at {angle:.0f} deg")
@@ -143,6 +143,36 @@ def track_event(e: Estimate, frame: LocalFrame, uid: str, types: Types, now: flo
         z.set("existence", _num(e.existence, 4))
     if e.identity is not None and e.identity.address:
         z.set("address", e.identity.address)
+    return ET.tostring(ev, encoding="utf-8", xml_declaration=False)
+
+
+def _shape(detail: ET.Element, uid: str, major: float, minor: float, angle: float) -> None:
+    """``<shape><ellipse major minor angle/>`` and its line style, as TAK's drawn ellipses carry them."""
+    shape = ET.SubElement(detail, "shape")
+    ET.SubElement(shape, "ellipse", major=_num(major, 1), minor=_num(minor, 1), angle=_num(angle, 1))
+    style = ET.SubElement(ET.SubElement(shape, "link", uid=f"{uid}.Style", type="b-x-KmlStyle", relation="p-c"),
+                          "Style")
+    line = ET.SubElement(style, "LineStyle")
+    ET.SubElement(line, "color").text = KML_ELLIPSE
+    ET.SubElement(line, "width").text = "2.0"
+
+
+def ellipse_event(e: Estimate, frame: LocalFrame, uid: str, callsign: str, now: float, stale_s: float,
+                  live: bool) -> bytes:
+    """A track's 95 % ellipse as a drawn ellipse (``u-d-c-e``) centred on its position:
+    the shape TAK clients draw (on a marker's own event they may ignore it)."""
+    lla = geo.lat_lon_alt(frame, geo.enu3(e.x))
+    ev, detail = _event(uid, TYPE_ELLIPSE, "m-f", now, e.t if live else now, stale_s, lla, UNKNOWN, None)
+    major, minor, angle = error_ellipse(geo.horizontal_cov(e.P))
+    _shape(detail, uid, major, minor, angle)
+    ET.SubElement(detail, "strokeColor", value=str(COLOR_TRAIL))
+    ET.SubElement(detail, "strokeWeight", value="2.0")
+    ET.SubElement(detail, "fillColor", value="0")
+    ET.SubElement(detail, "labels_on", value="false")
+    ET.SubElement(detail, "contact", callsign=f"{callsign} 95 %")
+    ET.SubElement(detail, "remarks").text = (f"zfusion {e.track}: 95 % ellipse {major:.0f} x {minor:.0f} m "
+                                             f"at {angle:.0f} deg")
+    ET.SubElement(detail, "zfusion", kind="ellipse", track=e.track, t=repr(float(e.t)))
     return ET.tostring(ev, encoding="utf-8", xml_declaration=False)
 
 
@@ -194,7 +224,7 @@ class CoTPicture:
     """Which events the exporter sends, and when (sans I/O: each call returns
     ``[(uid, event bytes)]``; ``now`` is UTC POSIX seconds, ``mono`` monotonic seconds).
 
-    Per update, the track's event, and its trail when ``TRAIL_PERIOD_S`` has passed since
+    Per update, the track's event and its ellipse's, and its trail when ``TRAIL_PERIOD_S`` has passed since
     the last one; per DF bearing, the station's line when ``BEARING_PERIOD_S`` has passed;
     per tick, the sensors every ``stale_s / 2`` (so they never go stale). Memory: a trail of
     at most ``trail_points`` positions for each live track (``tracks`` of the last tick,
@@ -223,7 +253,10 @@ class CoTPicture:
 
     def update(self, e: Estimate, now: float, mono: float) -> list[tuple[str, bytes]]:
         uid = self.uid(f"{self.fuser}.{e.track}")
-        out = [(uid, track_event(e, self.frame, uid, self.types, now, self.stale_s, self.live))]
+        callsign = callsign_of(e)
+        out = [(uid, track_event(e, self.frame, uid, self.types, now, self.stale_s, self.live)),
+               (f"{uid}.ellipse", ellipse_event(e, self.frame, f"{uid}.ellipse", callsign, now, self.stale_s,
+                                                self.live))]
         trail = self.trails.get(e.track)
         if trail is None:
             trail = self.trails[e.track] = deque(maxlen=self.trail_points)
@@ -236,7 +269,6 @@ class CoTPicture:
         if len(trail) >= 2 and mono - self._trail_sent.get(e.track, -math.inf) >= TRAIL_PERIOD_S:
             self._trail_sent[e.track] = mono
             uid = self.uid(f"{self.fuser}.{e.track}.trail")
-            callsign = e.identity.callsign if e.identity is not None and e.identity.callsign else e.track
             out.append((uid, trail_event(e.track, callsign, np.array([p for _, p in trail]), uid, now,
                                          self.stale_s)))
         return out

@@ -109,6 +109,12 @@ def test_pytak_and_takproto_read_every_event_as_we_meant_it():
     assert [float(el.get(k)) for k in ("major", "minor", "angle")] == pytest.approx([major, minor, angle], abs=0.05)
     assert extra.find("zfusion").get("address") == "3c6444" and extra.find("zfusion").get("track") == "T4"
 
+    drawn = msgs["zfusion.paris.fuser.T4.ellipse"]  # the same ellipse as a shape TAK draws
+    assert (drawn.type, drawn.how) == ("u-d-c-e", "m-f") and (drawn.lat, drawn.lon) == (ev.lat, ev.lon)
+    assert drawn.detail.contact.callsign == "DLH4AB 95 %" and drawn.staleTime == ev.staleTime
+    el = ET.fromstring(f"<x>{drawn.detail.xmlDetail}</x>").find("shape/ellipse")
+    assert [float(el.get(k)) for k in ("major", "minor", "angle")] == pytest.approx([major, minor, angle], abs=0.05)
+
     fix = msgs["zfusion.paris.fuser.E1"]
     assert fix.type == "a-u-G-E" and fix.le == cot.UNKNOWN and fix.detail.contact.callsign == "E1"
     assert (fix.lat, fix.lon) == pytest.approx(_geodetic((1500.0, 2500.0, 0.0))[:2], abs=1e-6)
