@@ -38,6 +38,7 @@ import time
 import xml.etree.ElementTree as ET
 from collections import OrderedDict, deque
 from dataclasses import dataclass
+from typing import NamedTuple
 from urllib.parse import urlsplit
 
 import numpy as np
@@ -119,12 +120,24 @@ def callsign_of(e: Estimate) -> str:
     return e.identity.callsign if e.identity is not None and e.identity.callsign else e.track
 
 
+class Geometry(NamedTuple):
+    """Where an estimate is and its 95 % ellipse, worked out once for all its events."""
+
+    lla: np.ndarray  # [lat °, lon °, alt m]
+    ellipse: tuple[float, float, float]  # error_ellipse's
+
+    @classmethod
+    def of(cls, e: Estimate, frame: LocalFrame) -> "Geometry":
+        return cls(geo.lat_lon_alt(frame, geo.enu3(e.x)), error_ellipse(geo.horizontal_cov(e.P)))
+
+
 def track_event(e: Estimate, frame: LocalFrame, uid: str, types: Types, now: float, stale_s: float,
-                live: bool) -> bytes:
-    """The event of one fused track or fix, ``now`` being the UTC POSIX time."""
+                live: bool, g: Geometry | None = None) -> bytes:
+    """The event of one fused track or fix, ``now`` being the UTC POSIX time (``g``:
+    its geometry, if worked out already)."""
     fix = e.x.size == 2
     ce, le = geo.ce_le(e.x, e.P)
-    lla = geo.lat_lon_alt(frame, geo.enu3(e.x))
+    lla, (major, minor, angle) = g or Geometry.of(e, frame)
     ev, detail = _event(uid, types.emitter if fix else types.track, "m-f", now, e.t if live else now, stale_s,
                         lla, ce, le)
     ET.SubElement(detail, "contact", callsign=callsign_of(e))
@@ -132,7 +145,6 @@ def track_event(e: Estimate, frame: LocalFrame, uid: str, types: Types, now: flo
     if v is not None:  # course: degrees clockwise from true north; speed: m/s over ground
         ET.SubElement(detail, "track", course=_num(round(math.degrees(math.atan2(v[0], v[1])), 1) % 360.0, 1),
                       speed=_num(math.hypot(v[0], v[1]), 1))
-    major, minor, angle = error_ellipse(geo.horizontal_cov(e.P))
     _shape(detail, uid, major, minor, angle)
     what = "emitter fix" if fix else "track"
     ET.SubElement(detail, "remarks").text = (f"zfusion {e.method} {what} {e.track}, 1-sigma {ce:.0f} m, "
@@ -158,12 +170,11 @@ def _shape(detail: ET.Element, uid: str, major: float, minor: float, angle: floa
 
 
 def ellipse_event(e: Estimate, frame: LocalFrame, uid: str, callsign: str, now: float, stale_s: float,
-                  live: bool) -> bytes:
+                  live: bool, g: Geometry | None = None) -> bytes:
     """A track's 95 % ellipse as a drawn ellipse (``u-d-c-e``) centred on its position:
     the shape TAK clients draw (on a marker's own event they may ignore it)."""
-    lla = geo.lat_lon_alt(frame, geo.enu3(e.x))
+    lla, (major, minor, angle) = g or Geometry.of(e, frame)
     ev, detail = _event(uid, TYPE_ELLIPSE, "m-f", now, e.t if live else now, stale_s, lla, UNKNOWN, None)
-    major, minor, angle = error_ellipse(geo.horizontal_cov(e.P))
     _shape(detail, uid, major, minor, angle)
     ET.SubElement(detail, "strokeColor", value=str(COLOR_TRAIL))
     ET.SubElement(detail, "strokeWeight", value="2.0")
@@ -254,9 +265,10 @@ class CoTPicture:
     def update(self, e: Estimate, now: float, mono: float) -> list[tuple[str, bytes]]:
         uid = self.uid(f"{self.fuser}.{e.track}")
         callsign = callsign_of(e)
-        out = [(uid, track_event(e, self.frame, uid, self.types, now, self.stale_s, self.live)),
+        g = Geometry.of(e, self.frame)
+        out = [(uid, track_event(e, self.frame, uid, self.types, now, self.stale_s, self.live, g)),
                (f"{uid}.ellipse", ellipse_event(e, self.frame, f"{uid}.ellipse", callsign, now, self.stale_s,
-                                                self.live))]
+                                                self.live, g))]
         trail = self.trails.get(e.track)
         if trail is None:
             trail = self.trails[e.track] = deque(maxlen=self.trail_points)
@@ -265,7 +277,7 @@ class CoTPicture:
                 self._trail_sent.pop(gone, None)
         self.trails.move_to_end(e.track)
         if not trail or e.t - trail[-1][0] >= TRAIL_STEP_S:
-            trail.append((e.t, geo.lat_lon_alt(self.frame, geo.enu3(e.x))))
+            trail.append((e.t, g.lla))
         if len(trail) >= 2 and mono - self._trail_sent.get(e.track, -math.inf) >= TRAIL_PERIOD_S:
             self._trail_sent[e.track] = mono
             uid = self.uid(f"{self.fuser}.{e.track}.trail")
