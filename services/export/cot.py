@@ -50,7 +50,7 @@ from sensors_sim.spec import SENSOR_KINDS
 
 from .. import geo
 from .cot_types import TYPE_EMITTER, TYPE_SENSOR, TYPE_TRACK
-from .tracks import utc_iso
+from .tracks import is_fix, utc_iso
 
 log = logging.getLogger("zfusion")
 
@@ -135,7 +135,7 @@ def track_event(e: Estimate, frame: LocalFrame, uid: str, types: Types, now: flo
                 live: bool, g: Geometry | None = None) -> bytes:
     """The event of one fused track or fix, ``now`` being the UTC POSIX time (``g``:
     its geometry, if worked out already)."""
-    fix = e.x.size == 2
+    fix = is_fix(e)
     ce, le = geo.ce_le(e.x, e.P)
     lla, (major, minor, angle) = g or Geometry.of(e, frame)
     ev, detail = _event(uid, types.emitter if fix else types.track, "m-f", now, e.t if live else now, stale_s,
@@ -302,7 +302,7 @@ class CoTPicture:
             self.sensors[sensor] = (kind, site)
             uid = self.uid(f"sensor.{sensor}")
             out.append((uid, sensor_event(sensor, kind, site, self.frame, uid, self.types, now, self.stale_s)))
-        far = [math.hypot(f.x[0] - site[0], f.x[1] - site[1]) for f in fixes if f.x.size == 2]
+        far = [math.hypot(f.x[0] - site[0], f.x[1] - site[1]) for f in fixes if is_fix(f)]
         length = min(BEARING_FIX_FACTOR * max(far), BEARING_RANGE_M) if far else BEARING_RANGE_M
         uid = self.uid(f"sensor.{sensor}.bearing")
         return [*out, (uid, bearing_event(sensor, site, azimuth, length, self.frame, uid, now, t))]

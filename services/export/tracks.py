@@ -101,6 +101,12 @@ class Bearings:
         return to_measurement(sample.msg)
 
 
+def is_fix(e: Estimate) -> bool:
+    """An emitter fix: a state on the map plane, ``[e n]``, or ``[e n ve vn]`` for a moving
+    emitter (``motion = "cv"``); every other state is a 3D track."""
+    return e.x.size in (2, 4)
+
+
 def utc_iso(t: float) -> str:
     """POSIX seconds as ISO 8601 UTC with milliseconds, e.g. ``2026-12-01T20:14:33.491Z``."""
     return dt.datetime.fromtimestamp(t, dt.timezone.utc).isoformat(timespec="milliseconds").replace("+00:00", "Z")

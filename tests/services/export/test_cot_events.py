@@ -229,3 +229,16 @@ def test_bearings_off_meas_pass_the_intake_and_bad_ones_are_counted():
     for cause, (key, data) in bad.items():
         assert feed.offer(key, data) is None, cause
         assert reject.by_cause[cause] == 1, (cause, dict(reject.by_cause))
+
+
+def test_a_moving_emitters_fix_is_a_fix_with_its_ellipse_not_an_air_track():
+    P = np.diag([400.0, 100.0, 4.0, 4.0])
+    e = Estimate(9.0, np.array([1500.0, -700.0, 3.0, 4.0]), P, "EKF", "centre", "E1")  # [e n ve vn]
+    ev = check_event(cot.track_event(e, FRAME, "u", cot.Types(), NOW, 60.0, live=False))
+    assert ev.get("type") == cot.Types().emitter and ev.find("detail/zfusion").get("kind") == "fix"
+    assert float(ev.find("point").get("le")) == cot.UNKNOWN  # no height
+    assert float(ev.find("detail/track").get("speed")) == pytest.approx(5.0)
+    assert float(ev.find("detail/track").get("course")) == pytest.approx(math.degrees(math.atan2(3.0, 4.0)), abs=0.05)
+    point, ellipse = geojson.estimate_features(e, FRAME, live=False)
+    assert point["properties"]["kind"] == "fix" and ellipse["properties"]["kind"] == "ellipse"
+    assert point["properties"]["velocity_enu_mps"] == [3.0, 4.0, 0.0]
