@@ -19,18 +19,18 @@ centre (:mod:`fusion.network`).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from functools import partial
 from typing import Any, Callable, Mapping, Sequence
 
-from .df.methods import DF_METHODS
+from .df.methods import DF_METHODS, DFConfig
 from .df.multi import MultiEmitterMethod
 from .measurement.kinds import KINDS, RAY, SPHERE, kinds_of
 from .mtt import MultiTargetMethod
 from .df.stations import station_split
 from .network import NetworkMethod, Split, track_split
 from .patent import KINDS_3D, TrackerConfig, centralised, pieces_hndd, pieces_lcdd, pieces_stacked
-from .topology import METHOD_TOPOLOGIES, TOPOLOGIES, scheme_of
+from .topology import METHOD_TOPOLOGIES, TOPOLOGIES, TRACKER_KEYS, scheme_of
 from .tracking.config import AssociationConfig
 
 FAMILIES = ("df", "3d")
@@ -125,6 +125,9 @@ if set(DF_METHODS) != {n for n, s in METHODS.items() if s.family == "df"}:
     raise RuntimeError("fusion.df.methods.DF_METHODS and the registry disagree")
 if list(METHOD_TOPOLOGIES.items()) != [(n, s.topology) for n, s in METHODS.items()]:
     raise RuntimeError("fusion.topology.METHOD_TOPOLOGIES and the registry disagree")
+if TRACKER_KEYS != ({f.name for f in fields(TrackerConfig)} | {f.name for f in fields(DFConfig)}
+                     | set(AssociationConfig.KEYS)):
+    raise RuntimeError("fusion.topology.TRACKER_KEYS and the methods' configurations disagree")
 TRACK_FUSION_METHODS = tuple(s.name for s in METHODS.values() if s.fuses_tracks)
 SPLIT_METHODS = tuple(s.name for s in METHODS.values() if s.split is not None)
 

@@ -11,8 +11,8 @@ predictions, updates that with each measurement, and fuses those updates.
 A split topology's :class:`Scheme` says this as a value, which the nodes and centre of
 :mod:`fusion.network` read. A leaf module (no imports from the package), so a scenario
 loader can check a topology's name, and the command line offer the topologies and the
-centre's fusion rules, without loading the estimation methods; each method's topology
-is its registry record's (:mod:`fusion.methods`).
+centre's fusion rules, and a ``--set`` key (:data:`TRACKER_KEYS`), without loading the
+estimation methods; each method's topology is its registry record's (:mod:`fusion.methods`).
 """
 
 from __future__ import annotations
@@ -31,6 +31,21 @@ METHOD_TOPOLOGIES = {
     **dict.fromkeys(("RADAR2D", "ANGLE", "RADAR3D", "LCDD", "HNDD", "SS"), "centralised"),
     "HNV": "distributed", "PHHNV": "feedback", "DDHNV": "two-stage",
 }
+# Every key a [tracker] table (and --set) may give some method: the 3D methods'
+# (fusion.patent.TrackerConfig), the DF methods' (fusion.df.methods.DFConfig) and the
+# many-target association's (fusion.tracking.config.AssociationConfig), as the registry
+# checks, so the command line refuses a misspelt --set key without loading them; whether
+# the key is one the scenario's method takes is checked once the scenario is loaded.
+TRACKER_KEYS = frozenset((
+    "association", "ci_criterion", "confirm_m", "confirm_n", "delete_misses", "ekf_iterations", "existence_birth",
+    "existence_confirm", "existence_delete", "filter", "fusion_rule", "gate", "gate_prob", "imm_models", "imm_mu0",
+    "imm_p", "imm_q_ca", "imm_q_ct", "imm_q_cv", "imm_q_turn", "imm_sigma2", "imm_sojourn_ca", "imm_sojourn_ct",
+    "imm_sojourn_cv", "imm_sojourn_turn", "imm_transition", "imm_turn_rates", "init", "init_acc_std",
+    "init_acc_std_up", "init_el", "init_el_std", "init_epochs", "init_range", "init_range_std", "init_vel_std",
+    "init_vel_std_up", "ipu_cov", "ipu_max_rel", "local_max_pos_std", "max_gap_s", "max_pos_std", "mekf_handoff",
+    "merge_frames", "motion", "p_detect", "p_survive", "pair_tol", "process_noise", "q", "q11", "q22", "revisit_s",
+    "sigma", "smoother_q", "torrieri_iterations",
+))
 
 
 @dataclass(frozen=True)

@@ -10,7 +10,9 @@ come), ``finish()`` the end of the stream; each returns the estimates it can rel
 on the bearings alone. An epoch's bearings are processed in arrival order and one
 :class:`~fusion.types.Estimate` (``[px, py]``, or ``[px, py, vx, vy]`` with
 ``motion = "cv"``) is emitted, stamped with its latest bearing's time, from the first
-epoch with a fix; an incomplete epoch is processed as it is.
+epoch with a fix; an incomplete epoch is processed as it is. Its track id is ``E1``, as
+the first emitter of a many-emitter picture (:mod:`fusion.df.multi`), so a fix is called
+the same from a site, a scenario and the many-emitter tracker.
 
 **Start-up and restarts.** Until two bearings give a fix, the recursive methods hold
 bearings: at most :data:`HELD_PER_STATION` per station (its latest) and none more than
@@ -57,6 +59,7 @@ from .triangulation import Fix, GeometryError, fix_from_bearings, ipu, leave_one
 INITS = ("ipu", "robust")
 #: bearings of one station a recursive method holds while it waits for a fix (its latest)
 HELD_PER_STATION = 16
+EMITTER_PREFIX = "E"  # an emitter's track id: E1 (one emitter), E1, E2, ... (many, fusion.df.multi)
 
 
 @dataclass(frozen=True)
@@ -225,7 +228,7 @@ class DFMethod:
 
     def _estimate(self, group: list[Measurement], x, P, nis=None, nis_dof=None, **extra) -> Estimate:
         return Estimate(t=max(m.t for m in group), x=np.array(x, dtype=float), P=np.array(P, dtype=float),
-                        method=self.name, nis=nis, nis_dof=nis_dof, extra=extra)
+                        method=self.name, track=f"{EMITTER_PREFIX}1", nis=nis, nis_dof=nis_dof, extra=extra)
 
     def _epoch(self, group: list[Measurement]) -> Estimate | None:
         raise NotImplementedError

@@ -47,7 +47,7 @@ from ..tracking.table import CONFIRMED, DELETED, Track, TrackLogic
 from ..grouping import TimeGrouper
 from ..types import Estimate, Measurement
 from .init import usable_pairs
-from .methods import DFMethod
+from .methods import EMITTER_PREFIX, DFMethod
 from .models import bearing, bearing_of
 from .triangulation import GeometryError, intersection_jacobian, torrieri
 
@@ -289,7 +289,7 @@ class MultiEmitterMethod:
         self._grouper = TimeGrouper(self.df.pair_tol)
         self._window: deque = deque(maxlen=int(self.df.init_epochs) - 1)  # earlier epochs, newest first
         self.tracker = MultiTargetTracker(self, config.associator(confirmed_first=True), self, self,
-                                          config.table(prefix="E"), self)
+                                          config.table(prefix=EMITTER_PREFIX), self)
         self._epoch = Bearings(np.zeros((0, 2)), np.zeros(0), np.zeros(0), [], [], 0.0)  # the frame's bearings
 
     @classmethod

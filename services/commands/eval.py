@@ -45,6 +45,7 @@ def run(args) -> int:
         raise UserError("--jobs must be >= 1")
     names.check_scenario(args.scenario)
     names.check_methods(args.methods)
+    names.check_settings(args.settings)
     if args.json:  # the outputs checked before the Monte Carlo, not after it
         options.writable_file(args.json, "--json")
     if args.report:

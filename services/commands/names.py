@@ -1,20 +1,22 @@
 """The names a command line gives, checked before any heavy import: a method's name
 (:data:`fusion.topology.METHOD_TOPOLOGIES`, the registry's light table) and a scenario's
-(a built-in's file, or a file the user names).
+(a built-in's file, or a file the user names), and a ``--set`` key (one that some
+method's ``[tracker]`` takes: :data:`fusion.topology.TRACKER_KEYS`).
 
 Light on purpose, as :mod:`.options`: ``zfusion run --scenario patent-3d --method XYZ``
 answers before numpy, scipy or Zenoh load. Whether a known method fits the scenario's
-sensors, and whether a ``--set`` key is one its ``[tracker]`` takes, is checked against
+sensors, and whether a ``--set`` key is one its own ``[tracker]`` takes, is checked against
 the loaded scenario (:mod:`services.request`), still before any process starts.
 """
 
 from __future__ import annotations
 
+import difflib
 import importlib.util
 import os
 from pathlib import Path
 
-from fusion.topology import METHOD_TOPOLOGIES
+from fusion.topology import METHOD_TOPOLOGIES, TRACKER_KEYS
 
 from ..errors import UserError
 
@@ -28,6 +30,15 @@ def check_method(name: str | None) -> None:
 def check_methods(names: list[str] | None) -> None:
     for name in names or []:
         check_method(name)
+
+
+def check_settings(settings: list[tuple[str, object]] | None) -> None:
+    """Every ``--set`` key is one that some method takes (a misspelt key answers at once)."""
+    for key, _ in settings or []:
+        if key not in TRACKER_KEYS:
+            close = difflib.get_close_matches(key, sorted(TRACKER_KEYS), n=1, cutoff=0.75)
+            hint = f"did you mean {close[0]!r}? " if close else ""
+            raise UserError(f"unknown tracker config key {key!r} ({hint}known: {', '.join(sorted(TRACKER_KEYS))})")
 
 
 def builtin_scenarios() -> list[str]:

@@ -63,6 +63,7 @@ def run(args) -> int:
         raise UserError("--standby is for live runs: add --live")
     names.check_scenario(args.scenario)
     names.check_method(args.method)
+    names.check_settings(args.settings)
     check_outputs(args)
     return launcher.run(args)
 

@@ -4,11 +4,13 @@ Features, all in WGS-84 ``[lon °, lat °, alt m]`` (RFC 7946 §3.1.1), converte
 session's ENU frame with pymap3d (:mod:`services.geo`):
 
 * one ``Point`` per fused track or emitter fix; properties ``id`` (the track id),
-  ``kind`` (``track``: a 3D track; ``fix``: an emitter fix on the map plane), ``method``,
+  ``kind`` (``track``: a 3D track; ``fix``: an emitter fix on the map plane, moving or
+  not: :func:`.tracks.is_fix`), ``method``,
   ``time`` (ISO 8601 UTC in a live session, scenario seconds otherwise) and
-  ``position_std_m`` (√ trace of the position covariance); a 3D track also
-  ``velocity_enu_mps``, and ``existence`` (the probability that its target exists)
-  where its tracker holds one (JIPDA);
+  ``position_std_m`` (√ trace of the position covariance); a 3D track or a moving
+  fix also ``velocity_enu_mps``, and ``existence`` (the probability that its target exists)
+  where its tracker holds one (JIPDA); ``callsign`` and ``address`` where its target
+  claims an identity (:class:`fusion.types.Identity`);
 * one ``Polygon`` per emitter fix: its 95 % confidence ellipse (``kind`` ``ellipse``,
   ``id`` the fix's), a closed ring, counter-clockwise (RFC 7946 §3.1.6);
 * one ``Point`` per sensor (``kind`` ``sensor``, ``sensor_kind``: ``df``, ``radar2d``, ...).
@@ -30,7 +32,7 @@ from fusion.geodetic import LocalFrame
 from fusion.types import Estimate
 
 from .. import geo
-from .tracks import session_time
+from .tracks import is_fix, session_time
 
 DEGREES = 7  # decimals of a degree kept: about 1 cm
 METRES = 2
@@ -46,11 +48,6 @@ def _position(g: np.ndarray) -> list[float]:
     return [_round(lon, DEGREES), _round(lat, DEGREES), _round(alt, METRES)]
 
 
-def is_fix(e: Estimate) -> bool:
-    """An emitter fix: a position on the map plane (``[e n]``)."""
-    return e.x.size == 2
-
-
 def estimate_features(e: Estimate, frame: LocalFrame, live: bool) -> list[dict]:
     """The Point of a track or fix, and a fix's 95 % ellipse."""
     common = {"id": e.track, "method": e.method, "time": session_time(e.t, live)}
@@ -60,6 +57,9 @@ def estimate_features(e: Estimate, frame: LocalFrame, live: bool) -> list[dict]:
         props["velocity_enu_mps"] = [_round(c, 3) for c in v]
     if e.existence is not None:
         props["existence"] = _round(e.existence, 4)
+    if e.identity is not None:  # what the target claims: its callsign and address, where known
+        props.update({k: v for k, v in (("callsign", e.identity.callsign), ("address", e.identity.address))
+                      if v is not None})
     pos = geo.enu3(e.x)
     out = [{"type": "Feature", "geometry": {"type": "Point", "coordinates": _position(geo.lat_lon_alt(frame, pos))},
             "properties": props}]

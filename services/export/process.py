@@ -14,22 +14,25 @@ session closes; exit 0. Which sinks there are: :data:`services.export.outputs.OU
 from __future__ import annotations
 
 import logging
+import queue
 import time
 from pathlib import Path
 
 from fusion.mtt import AssociationConfig
 from schemas import KeySpace, Message
 from schemas.keys import DEFAULT_FUSER
+from sensors_sim.spec import SENSOR_KINDS
 
 from ..geo import frame_of
 from ..listener import run_listener
-from ..node import ZenohOptions
+from ..node import ListenerInbox, ZenohOptions
 from . import cot, geojson
-from .tracks import MAX_SKEW_S, TrackTable, sensor_sites
+from .tracks import MAX_SKEW_S, Bearings, TrackTable, sensor_sites
 
 log = logging.getLogger("zfusion")
 
 BACKLOG_MAX = 10_000  # samples queued from Zenoh's threads: seconds of fused output
+BEARINGS_MAX = 1_000  # DF bearings queued for the CoT exporter between two ticks
 WRITE_PERIOD_S = 0.1  # the GeoJSON file is rewritten at most this often (and after the last update)
 
 
@@ -41,6 +44,9 @@ class Sink:
         self.frame = frame_of(site.origin)
         self.sensors = sensor_sites(site)
         self.live = live
+
+    def start(self, node, table: TrackTable) -> None:
+        """The process's session is open (a sink may subscribe to more, e.g. DF bearings)."""
 
     def update(self, table: TrackTable, e) -> None:
         """An accepted update ``e``, already in ``table``."""
@@ -81,7 +87,10 @@ class GeoJSONSink(Sink):
 
 
 class CoTSink(Sink):
-    """Sends an event per update, and the sensors at start and every ``stale_s / 2``. A
+    """Sends what :class:`~services.export.cot.CoTPicture` says: an event per update (and
+    the track's trail), each DF station's latest bearing as a line, the sensors at start
+    and every ``stale_s / 2``. The bearings come on the DF stations' ``meas`` keys, into an
+    inbox of their own (``BEARINGS_MAX``, overflow counted as ``bearings_dropped``). A
     track's uid names its deployment, its fuser and its id there
     (``zfusion.<deployment>.<fuser>.<track>``: two fusers' tracks never share one), a
     sensor's its deployment (``zfusion.<deployment>.sensor.<id>``)."""
@@ -90,35 +99,46 @@ class CoTSink(Sink):
                  fuser: str = DEFAULT_FUSER):
         super().__init__(site, live)
         self.sender = sender
-        self.deployment = deployment
-        self.fuser = fuser
-        self.types = types
-        self.stale_s = stale_s
+        self.picture = cot.CoTPicture(self.frame, self.sensors, deployment, types, stale_s, live, fuser)
+        self.df = {sid: s.kind for sid, s in site.sensors.items() if SENSOR_KINDS[s.kind].measures == "bearing"}
+        self._inbox = ListenerInbox(BEARINGS_MAX)
+        self._bearings: Bearings | None = None
         self.sent = 0
-        self._sensors_at = -float("inf")
 
-    def uid(self, what: str) -> str:
-        return f"zfusion.{self.deployment}.{what}"
+    def start(self, node, table: TrackTable) -> None:
+        self._bearings = Bearings(table)
+        for sid in self.df:
+            node.subscribe(node.keys.meas(sid), self._inbox)
+
+    def _send(self, events: list[tuple[str, bytes]]) -> None:
+        for uid, data in events:
+            self.sent += self.sender.send(uid, data)
 
     def update(self, table: TrackTable, e) -> None:
-        uid = self.uid(f"{self.fuser}.{e.track}")
-        data = cot.track_event(e, self.frame, uid, self.types, time.time(), self.stale_s, self.live)
-        self.sent += self.sender.send(uid, data)
+        self._send(self.picture.update(e, time.time(), time.monotonic()))
 
     def tick(self, table: TrackTable, final: bool = False) -> None:
         self.sender.poll()
-        if time.monotonic() - self._sensors_at >= self.stale_s / 2:
-            self._sensors_at = time.monotonic()
-            for sid, (kind, enu) in self.sensors.items():
-                uid = self.uid(f"sensor.{sid}")
-                data = cot.sensor_event(sid, kind, enu, self.frame, uid, self.types, time.time(), self.stale_s)
-                self.sent += self.sender.send(uid, data)
+        now, mono = time.time(), time.monotonic()
+        latest = {}  # station -> its latest bearing of this tick
+        for _ in range(BEARINGS_MAX):
+            try:
+                m = self._bearings.offer(*self._inbox.get_nowait())
+            except queue.Empty:
+                break
+            if m is not None and m.sensor in self.df:
+                latest[m.sensor] = m
+        for m in latest.values():
+            self._send(self.picture.bearing(m.sensor, self.df[m.sensor], m.site, float(m.z[0]), m.t,
+                                            table.tracks.values(), now, mono))
+        self._send(self.picture.tick(table.tracks, now, mono))
 
     def counters(self) -> dict[str, float]:
-        return {"sent": self.sent, "send_failed": self.sender.failed}
+        return {"sent": self.sent, "send_failed": self.sender.failed, "bearings_dropped": self._inbox.dropped}
 
     def close(self) -> None:
         self.sender.close()
+        self._inbox.close()
 
 
 class Exporter:
@@ -133,6 +153,7 @@ class Exporter:
                                 association.delete_misses if association is not None else AssociationConfig.delete_misses,
                                 clock=time.time if live else None, max_skew=max_skew)
         self.sink = sink
+        sink.start(node, self.table)
         self.events = self.table.intake.events
         self.t = 0.0  # the latest update's time
 

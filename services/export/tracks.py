@@ -25,8 +25,8 @@ from typing import Callable
 import numpy as np
 
 from fusion.mtt import AssociationConfig
-from fusion.types import Estimate
-from schemas import KeySpace, Message, to_estimate
+from fusion.types import Estimate, Measurement
+from schemas import KeySpace, Message, to_estimate, to_measurement
 
 from ..intake import Intake
 from ..live import ClockGuard
@@ -56,6 +56,7 @@ class TrackTable:
         self.intake = Intake.of_scenario(keys, reject, ["fused"], duration, dedup=True,
                                          clock=ClockGuard(max_skew) if clock is not None else None)
         self.msg: Message | None = None  # the message of the last estimate taken
+        self.keys, self.duration, self.max_skew = keys, duration, max_skew
         self.clock = clock
         self.delete_misses = delete_misses
         self.tracks: OrderedDict[str, Estimate] = OrderedDict()  # by track id, oldest update first
@@ -80,6 +81,30 @@ class TrackTable:
             old, _ = self.tracks.popitem(last=False)
             self._reports.forget(old)
         return e
+
+
+class Bearings:
+    """DF bearings off ``meas`` for a picture's lines (sans I/O): :meth:`offer` takes a
+    sample through the intake under ``table``'s rules (its session's times and clock) and
+    returns a ``bearing`` measurement, or None (a refused sample is counted in the table's
+    reject log; another kind, a watermark, is skipped)."""
+
+    def __init__(self, table: TrackTable):
+        self.table = table
+        self.intake = Intake.of_scenario(table.keys, table.reject, ["meas"], table.duration,
+                                         clock=ClockGuard(table.max_skew) if table.clock is not None else None)
+
+    def offer(self, key: str, data: bytes) -> Measurement | None:
+        sample = self.intake.offer(key, data, self.table.clock() if self.table.clock is not None else None)
+        if sample is None or sample.msg.kind != "bearing":
+            return None
+        return to_measurement(sample.msg)
+
+
+def is_fix(e: Estimate) -> bool:
+    """An emitter fix: a state on the map plane, ``[e n]``, or ``[e n ve vn]`` for a moving
+    emitter (``motion = "cv"``); every other state is a 3D track."""
+    return e.x.size in (2, 4)
 
 
 def utc_iso(t: float) -> str:

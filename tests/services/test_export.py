@@ -395,17 +395,17 @@ def test_run_with_cot_over_udp_delivers_tracks_within_100_m_of_truth(tmp_path, d
     sc = load_scenario("patent-3d")
     sensors = [e for e in events if e.get("uid").endswith(tuple(f"sensor.{s}" for s in sc.sensors))]
     assert {e.find("detail/contact").get("callsign") for e in sensors} == set(sc.sensors)
-    tracks = [e for e in events if e.find("detail/zfusion") is not None]
+    tracks = [e for e in events if e.find("detail/zfusion[@kind='track']") is not None]
     assert len(tracks) > 10
     # a track's uid names its fuser: two fusers' tracks never share one in a TAK server
-    assert {ev.get("uid") for ev in tracks} == {f"zfusion.{deployment}.fuser.{ev.find('detail/contact').get('callsign')}"
+    assert {ev.get("uid") for ev in tracks} == {f"zfusion.{deployment}.fuser.{ev.find('detail/zfusion').get('track')}"
                                                 for ev in tracks}
     truth = truth_function(sc)
     misses = []
     for ev in tracks:
         assert ev.get("type") == "a-u-A" and ev.get("version") == "2.0"
         t = float(ev.find("detail/zfusion").get("t"))
-        x = truth(0, ev.find("detail/contact").get("callsign"), t)
+        x = truth(0, ev.find("detail/zfusion").get("track"), t)
         lat, lon, _ = pymap3d.enu2geodetic(*x[:3], *sc.origin, ell=WGS84, deg=True)
         pt = ev.find("point")
         misses.append(_horizontal_m((float(pt.get("lon")), float(pt.get("lat"))), (lat, lon)))
