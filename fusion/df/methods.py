@@ -30,6 +30,7 @@ does, the motion models, the initialisation and the maths: docs/algorithms.md
 
 from __future__ import annotations
 
+from collections import deque
 from dataclasses import dataclass
 from typing import Callable, Mapping, NamedTuple
 
@@ -100,6 +101,8 @@ class DFConfig:
     imm_transition         "symmetric" ``"symmetric"`` [[1−p,p],[p,1−p]] or ``"iid"`` [[1−p,p],[1−p,p]]
     imm_mu0                0.05        initial probability of the outlier model (the thesis's 0.05)
     torrieri_iterations    0           0 = Gauss–Newton to convergence; k ≥ 1 = k Torrieri steps
+    torrieri_bearings      10000       TORRIERI: the latest bearings it keeps (integer >= 2; a
+                                       live fuser's memory and per-epoch time are bounded by it)
     smoother_q             0.0         KF/MKF bearing-smoother process noise (rad² per bearing)
     gate                   0.0         leave-one-out bound (studentised residual, in σ) for
                                        TORRIERI and the KF+TR/MKF+TR centre; 0 = off
@@ -126,6 +129,7 @@ class DFConfig:
     imm_transition: str = "symmetric"
     imm_mu0: float = 0.05
     torrieri_iterations: int = 0
+    torrieri_bearings: int = 10_000
     smoother_q: float = 0.0
     gate: float = 0.0
     max_gap_s: float = MAX_GAP_S
@@ -167,6 +171,8 @@ class DFConfig:
         need(0 < self.imm_mu0 < 1, "imm_mu0", "must be in (0, 1)")
         need(float(self.torrieri_iterations).is_integer() and self.torrieri_iterations >= 0,
              "torrieri_iterations", "must be an integer >= 0")
+        need(float(self.torrieri_bearings).is_integer() and self.torrieri_bearings >= 2,
+             "torrieri_bearings", "must be an integer >= 2")
         need(self.smoother_q >= 0, "smoother_q", "must be >= 0")
         need(self.gate >= 0, "gate", "must be >= 0")
         need(self.max_gap_s > 0, "max_gap_s", "must be > 0")
@@ -476,7 +482,8 @@ class IMMMethod(_RecursiveMethod):
 
 
 class TorrieriMethod(DFMethod):
-    """TORRIERI: at every epoch, Torrieri's weighted LS on all bearings so far.
+    """TORRIERI: at every epoch, Torrieri's weighted LS on all bearings so far (the latest
+    ``torrieri_bearings`` of them: a batch method over a stream without end needs a bound).
 
     Reference point: the previous epoch's fix (the pairwise-intersection average at the
     first fix). With ``torrieri_iterations = 1`` this is Torrieri's one-step estimator
@@ -488,9 +495,10 @@ class TorrieriMethod(DFMethod):
 
     def __init__(self, config: dict | None = None):
         super().__init__(config)
-        self._sites: list[np.ndarray] = []
-        self._betas: list[float] = []
-        self._sigmas: list[float] = []
+        keep = int(self.config.torrieri_bearings)
+        self._sites: deque[np.ndarray] = deque(maxlen=keep)
+        self._betas: deque[float] = deque(maxlen=keep)
+        self._sigmas: deque[float] = deque(maxlen=keep)
         self._x = None
 
     def _epoch(self, group):

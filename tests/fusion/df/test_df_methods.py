@@ -226,6 +226,23 @@ def test_torrieri_gate_rejects_jammed_bearings():
     assert one.extra["iterations"] == 1
 
 
+def test_torrieri_keeps_its_latest_bearings_only():
+    """A live fuser's TORRIERI is bounded: with ``torrieri_bearings = 30`` its fixes over
+    40 epochs of three stations are, from the tenth epoch on, the ML fixes of the latest
+    30 bearings (10 epochs), as a fresh run on those alone gives them (to the
+    Gauss–Newton tolerance: another warm start)."""
+    rng = np.random.default_rng(19)
+    ms = stream(C3, 40, gaussian(rng, SIGMA, (40, 3)))
+    kept = run(make("TORRIERI", {"torrieri_bearings": 30}), ms)
+    assert [e.extra["n_bearings"] for e in kept][-1] == 30
+    for k in (10, 25, 40):  # epoch k's fix (kept[k - 1]): the bearings of epochs k - 9 .. k
+        fresh = run(make("TORRIERI", {}), ms[3 * (k - 10):3 * k])[-1]
+        np.testing.assert_allclose(kept[k - 1].x, fresh.x, rtol=0, atol=1e-6)
+        np.testing.assert_allclose(kept[k - 1].P, fresh.P, rtol=1e-6)
+    whole = run(make("TORRIERI", {}), ms)[-1]
+    assert whole.extra["n_bearings"] == 120 and not np.allclose(whole.x, kept[-1].x, atol=1e-3)
+
+
 @pytest.mark.parametrize("cross_fed", [False, True])
 def test_station_smoothers_plus_centre_reproduce_kf_tr(cross_fed):
     # the distributed topology: one smoother per station process, the fix at the centre
