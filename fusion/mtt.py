@@ -156,4 +156,5 @@ class MultiTargetMethod(GroupedMethod):
         return self.tracker.tracks
 
     def _group(self, frame: list[Measurement]) -> list[Estimate]:
-        return [dataclasses.replace(tr.last, track=tr.id, existence=tr.existence) for tr in self.tracker.frame(frame)]
+        return [dataclasses.replace(tr.last, track=tr.id, existence=tr.existence, identity=tr.identity)
+                for tr in self.tracker.frame(frame)]

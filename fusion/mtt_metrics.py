@@ -18,7 +18,10 @@ GOSPA counts it as localising that target. Over the run:
 * **held after initiation**: truth-steps with an assigned track over the truth-steps of
   *settled* targets only, those a step marks as past their initiation (the scorer of a
   scenario marks a target settled from its third scan by any sensor on: a tracker needs
-  a few scans to start and confirm a track, which ``held`` counts against it).
+  a few scans to start and confirm a track, which ``held`` counts against it);
+* **assigned position RMSE** (``rmse_pos_assigned``): ``√(Σ‖x − y‖² / n)`` over the n
+  truth-track pairs of that assignment, every step: how well the held targets are
+  localised, apart from GOSPA's penalties for the missed and the false.
 
 GOSPA and OSPA are :func:`fusion.metrics.gospa` and :func:`fusion.metrics.ospa`. For a
 large step (more than :data:`DENSE_MAX` truth-track pairs) all three come from one
@@ -144,6 +147,7 @@ class TrackScore:
     ospa_sum: float = 0.0
     settled_steps: int = 0
     settled_held: int = 0
+    assigned_sq: float = 0.0  # Σ‖truth − track‖² over the assigned pairs (held_steps of them)
     bin: int = 1
     assignments: list[dict[str, str]] = field(default_factory=list)
     hold_fractions: list[float] = field(default_factory=list)
@@ -152,7 +156,7 @@ class TrackScore:
 
     COUNTS = ("truth_steps", "held_steps", "breaks", "break_chances", "track_steps", "dominant_steps",
               "false_tracks", "false_track_steps", "n_tracks", "steps", "missed_steps", "gospa_sum", "ospa_sum",
-              "settled_steps", "settled_held")
+              "settled_steps", "settled_held", "assigned_sq")
 
     @classmethod
     def merged(cls, scores: Sequence["TrackScore"]) -> "TrackScore":
@@ -175,6 +179,11 @@ class TrackScore:
         """Held truth-steps of settled targets over their truth-steps (NaN: no step said
         which targets are settled, or none was)."""
         return self.settled_held / self.settled_steps if self.settled_steps else float("nan")
+
+    @property
+    def rmse_pos_assigned(self) -> float:
+        """The position RMSE over the assigned truth-track pairs (NaN: none)."""
+        return float(np.sqrt(self.assigned_sq / self.held_steps)) if self.held_steps else float("nan")
 
     @property
     def break_rate(self) -> float:
@@ -216,6 +225,7 @@ class TrackScore:
     def summary(self) -> dict:
         return {"mean_gospa": self.mean_gospa, "mean_ospa": self.mean_ospa if self.steps else None,
                 "held": self.held, "held_after_init": self.held_after_init, "breaks": self.breaks,
+                "rmse_pos_assigned": self.rmse_pos_assigned,
                 "break_rate": self.break_rate,
                 "purity": self.purity, "worst_hold": self.worst_hold, "tracks": self.n_tracks,
                 "longest_ghost": self.max_ghost, "all_found_runs": self.all_found_runs, "false_tracks": self.false_tracks,
@@ -269,6 +279,8 @@ class TrackScorer:
         out.ospa_sum += o
         out.truth_steps += len(s.truths)
         out.held_steps += len(pairs)
+        out.assigned_sq += sum(float(np.sum((np.asarray(s.truths[a], dtype=float) - np.asarray(s.tracks[k], dtype=float))
+                                            ** 2)) for a, k in pairs.items())
         if s.settled is not None:
             settled = s.settled & s.truths.keys()
             out.settled_steps += len(settled)

@@ -24,7 +24,7 @@ import msgpack
 import numpy as np
 
 from fusion.measurement.kinds import KINDS as _KINDS
-from fusion.types import Estimate, Measurement
+from fusion.types import Estimate, Identity, Measurement
 
 from .keys import check_id
 
@@ -190,8 +190,52 @@ def _check_measurement(kind: str, d: dict, envelope: frozenset | set = ENVELOPE)
         body[c.std_field] = _num(d, c.std_field, lo=0.0, lo_open=True)
     if k.own_noise and d.get("corr") is not None:
         body["corr"] = _corr(d, "corr", k.n_z)
-    _no_extra(d, envelope | _measurement_fields(kind) | ({"corr"} if k.own_noise else set()))
+    if "identity" in d:
+        body["identity"] = _identity(d)
+    _no_extra(d, envelope | _measurement_fields(kind) | ({"corr"} if k.own_noise else set()) | {"identity"})
     return body
+
+
+_HEX = frozenset("0123456789abcdef")
+_CALLSIGN = frozenset("ABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789 ")  # ICAO's flight identification set
+ADDRESS_MAX = 8  # characters: six hex digits, or a source's non-ICAO form ("~" and six)
+
+
+def _identity(d: dict) -> Identity:
+    """``identity``: a map with an optional ``address`` (1–8 lower-case hex digits, a
+    non-ICAO one led by ``~``) and an optional ``callsign`` (1–8 characters A–Z, 0–9 and
+    space, as ICAO's flight identification), at least one of them; present or absent,
+    never null."""
+    raw = d["identity"]
+    if type(raw) is not dict:
+        raise SchemaError("type", "identity", f"expected a map, got {type(raw).__name__}")
+    _no_extra(raw, {"address", "callsign"})
+    address, callsign = raw.get("address"), raw.get("callsign")
+    for f, v in (("address", address), ("callsign", callsign)):
+        if v is not None and type(v) is not str:
+            raise SchemaError("type", f"identity.{f}", f"expected a string, got {type(v).__name__}")
+    if address is not None and not (0 < len(address) <= ADDRESS_MAX and set(address.removeprefix("~")) <= _HEX
+                                    and address != "~"):
+        raise SchemaError("value", "identity.address", "expected up to 8 lower-case hex digits (a '~' first: non-ICAO)")
+    if callsign is not None and not (0 < len(callsign) <= 8 and set(callsign) <= _CALLSIGN):
+        raise SchemaError("value", "identity.callsign", "expected 1-8 characters A-Z, 0-9 or space")
+    if address is None and callsign is None:
+        raise SchemaError("value", "identity", "neither an address nor a callsign")
+    return Identity(address, callsign)
+
+
+def _identity_fast(raw: Any) -> Identity | None:
+    """:func:`_identity` of a plainly valid one, None for anything else (the strict path
+    then decides)."""
+    try:
+        return _identity({"identity": raw})
+    except SchemaError:
+        return None
+
+
+def identity_fields(identity: Identity) -> dict[str, str]:
+    """An identity's wire map: its known parts."""
+    return {k: v for k, v in (("address", identity.address), ("callsign", identity.callsign)) if v is not None}
 
 
 def _corr(d: dict, f: str, n: int) -> np.ndarray:
@@ -249,7 +293,8 @@ def _check_track(d: dict) -> dict:
             raise SchemaError("type", "extra", "keys must be strings")
         body["extra"][k] = _array(extra, k, (None, None)) if isinstance(extra[k], list) and extra[k] \
             and isinstance(extra[k][0], list) else _array(extra, k, (None,))
-    _no_extra(d, ENVELOPE | _ESTIMATE_FIELDS | {"extra"})
+    body["identity"] = _identity(d) if "identity" in d else None
+    _no_extra(d, ENVELOPE | _ESTIMATE_FIELDS | {"extra", "identity"})
     return body
 
 
@@ -482,7 +527,8 @@ _MEASUREMENT_FIELDS = {k: ENVELOPE | _measurement_fields(k) for k in _KINDS}
 _FAST_COMPONENTS = {k: tuple((c.name, c.std_field, (c.lo, c.hi, c.lo_open, c.hi_open)) for c in kind.components)
                     for k, kind in _KINDS.items()}
 _WATERMARK_FIELDS = frozenset(ENVELOPE | {"final"})
-_TRACK_FIELDS = frozenset(ENVELOPE | {"track", "node", "method", "x", "P", "nis", "nis_dof", "existence", "extra"})
+_TRACK_FIELDS = frozenset(ENVELOPE | {"track", "node", "method", "x", "P", "nis", "nis_dof", "existence", "extra",
+                                      "identity"})
 _SEQ_MAX = 2**63 - 1
 
 
@@ -516,6 +562,10 @@ def _validate_fast(d: Any) -> Message | None:
         body = _estimate_body_fast(d)
         return None if body is None else Message(kind=kind, src=src, seq=seq, t=t, body=body)
     fields = _MEASUREMENT_FIELDS.get(kind) if type(kind) is str else None
+    identity = None
+    if fields is not None and "identity" in d:
+        identity = _identity_fast(d["identity"])
+        fields = fields | {"identity"} if identity is not None else None
     if fields is None or d.keys() != fields:
         return None
     sensor, site = d["sensor"], d["site"]
@@ -529,11 +579,16 @@ def _validate_fast(d: Any) -> Message | None:
             return None
         body[name] = value
         body[std_field] = std
+    if identity is not None:
+        body["identity"] = identity
     return Message(kind=kind, src=src, seq=seq, t=t, body=body)
 
 
 def _estimate_body_fast(d: dict) -> dict | None:
     if not d.keys() <= _TRACK_FIELDS:
+        return None
+    identity = None
+    if "identity" in d and (identity := _identity_fast(d["identity"])) is None:
         return None
     x, P, track, node, method = d.get("x"), d.get("P"), d.get("track"), d.get("node"), d.get("method")
     nis, nis_dof, extra, existence = d.get("nis"), d.get("nis_dof"), d.get("extra", {}), d.get("existence")
@@ -554,7 +609,7 @@ def _estimate_body_fast(d: dict) -> dict | None:
             and (Pa == Pa.T).all() and (Pa.diagonal() >= 0.0).all()):
         return None
     return {"track": track, "node": node, "method": method, "x": xa, "P": Pa, "nis": nis, "nis_dof": nis_dof,
-            "existence": existence, "extra": {}}
+            "existence": existence, "extra": {}, "identity": identity}
 
 
 def validate(d: Any) -> Message:
@@ -622,6 +677,8 @@ def measurement_fields(m: Measurement) -> dict[str, Any]:
     if m.corr is not None:
         corr = np.asarray(m.corr, dtype=float)
         payload["corr"] = corr[np.triu_indices(corr.shape[0], 1)]
+    if m.identity is not None:
+        payload["identity"] = identity_fields(m.identity)
     return payload
 
 
@@ -629,7 +686,8 @@ def measurement_of(kind: str, b: dict, t: float, seq: int) -> Measurement:
     """The :class:`Measurement` of a validated measurement payload."""
     comps = _KINDS[kind].components
     return Measurement(t=t, sensor=b["sensor"], kind=kind, z=np.array([b[c.name] for c in comps]),
-                       std=np.array([b[c.std_field] for c in comps]), site=b["site"], seq=seq, corr=b.get("corr"))
+                       std=np.array([b[c.std_field] for c in comps]), site=b["site"], seq=seq, corr=b.get("corr"),
+                       identity=b.get("identity"))
 
 
 def encode_measurement(m: Measurement, src: str) -> bytes:
@@ -659,6 +717,8 @@ def _estimate_payload(e: Estimate) -> dict[str, Any]:
                    extra=extra)
     if e.existence is not None:  # optional: left out where the tracker holds none
         payload["existence"] = e.existence
+    if e.identity is not None:
+        payload["identity"] = identity_fields(e.identity)
     return payload
 
 
@@ -689,10 +749,16 @@ def _encode_estimate_fast(e: Estimate, src: str, seq: int) -> bytes | None:
          "method": e.method, "x": x.tolist(), "P": P.tolist(), "nis": nis, "nis_dof": nis_dof, "extra": {}}
     if existence is not None:
         d["existence"] = existence
+    if e.identity is not None:
+        identity = identity_fields(e.identity)
+        if _identity_fast(identity) is None:
+            return None
+        d["identity"] = identity
     return msgpack.packb(d, use_bin_type=True)
 
 
 def to_estimate(msg: Message) -> Estimate:
     b = msg.body
     return Estimate(t=msg.t, x=b["x"], P=b["P"], method=b["method"], node=b["node"], track=b["track"],
-                    nis=b["nis"], nis_dof=b["nis_dof"], extra=dict(b["extra"]), existence=b["existence"])
+                    nis=b["nis"], nis_dof=b["nis_dof"], extra=dict(b["extra"]), existence=b["existence"],
+                    identity=b.get("identity"))

@@ -53,14 +53,14 @@ import numpy as np
 
 from fusion.angles import TWO_PI, wrap_2pi, wrap_pi
 from fusion.measurement.kinds import KINDS
-from fusion.types import Measurement
+from fusion.types import Identity, Measurement
 
 from .geometry import az_el_range_arrays, coverage_mask, coverage_span, finish_measurement, in_coverage, observe
 from .spec import SensorSpec
 from .jammer import jam_effect, switched_on_at
 from .noise import ScanDraws, outlier_from_uniform, process_rng
 from .spec import Scenario
-from .traffic import Fleet, Traffic, aircraft_id
+from .traffic import population
 from .trajectories import iter_times, sample_times, truth_trajectories
 
 _NEWTON_STEPS = 12
@@ -135,7 +135,9 @@ def _scans(scenario: Scenario, sensor: SensorSpec, run: int) -> Iterator[Batch]:
     rng = process_rng(scenario.seed, sensor_id, run)
     truths = truth_trajectories(scenario, run)
     seq = 0
-    traffic = Traffic(scenario.traffic, scenario.seed, run) if scenario.traffic is not None else None
+    traffic = population(scenario, run)
+    reports = _reporting(scenario, sensor, traffic)
+    identity: dict[str, Identity] = {}
     for t in iter_times(sensor.start, sensor.period, scenario.duration):  # lazily: an endless scenario's too
         t = float(t)
         site = sensor.site.position(t)
@@ -145,7 +147,11 @@ def _scans(scenario: Scenario, sensor: SensorSpec, run: int) -> Iterator[Batch]:
             fleet = traffic.fleet(t)
             positions = fleet.positions(t)
             near = coverage_mask(sensor, positions - site, margin=1e-6)  # the others cannot be in view
-            aircraft = {aircraft_id(i): p for i, p in zip(fleet.index[near], positions[near])}
+            ids = fleet.ids
+            if reports is not None:
+                near &= np.fromiter((i in reports for i in ids), bool, len(ids))
+                identity = {ids[i]: reports[ids[i]] for i in np.flatnonzero(near)}
+            aircraft = {ids[i]: positions[i] for i in np.flatnonzero(near)}
         for obj in (*sensor.targets, *aircraft):
             draws = ScanDraws(rng, n)
             if obj in truths or obj in aircraft:
@@ -170,11 +176,23 @@ def _scans(scenario: Scenario, sensor: SensorSpec, run: int) -> Iterator[Batch]:
         events = []
         for ev, z in scan:  # seq in publication order
             if z is not None:
-                m = Measurement(t=t, sensor=sensor_id, kind=kind, z=z, std=sensor.std.copy(), site=site, seq=seq)
+                m = Measurement(t=t, sensor=sensor_id, kind=kind, z=z, std=sensor.std.copy(), site=site, seq=seq,
+                                identity=identity.get(ev.target))
                 seq += 1
                 ev = dataclasses.replace(ev, measurement=m)
             events.append(ev)
         yield Batch(t, t, events)
+
+
+def _reporting(scenario: Scenario, sensor: SensorSpec, traffic) -> dict[str, Identity] | None:
+    """An ADS-B receiver's view of a recording: the aircraft that send ADS-B (all but the
+    recording's ``without_adsb`` share, drawn from the seed), each with the identity its
+    reports carry (its address and last callsign); None: every aircraft, no identity."""
+    if sensor.kind != "adsb" or not hasattr(traffic, "equipped"):
+        return None
+    equipped = traffic.equipped(scenario.seed)
+    return {a: Identity(a, c or None) for a, c in zip(traffic.ids.tolist(), traffic.callsigns.tolist())
+            if a in equipped}
 
 
 def _error(sensor: SensorSpec, effect, outlier: bool, gauss: np.ndarray, law: np.ndarray,
@@ -295,16 +313,17 @@ def _sectors(scenario: Scenario, sensor: SensorSpec, run: int) -> Iterator[Batch
     std = sensor.std.copy()
     truths = truth_trajectories(scenario, run)
     targets = [truths[tid] for tid in sensor.targets]
-    traffic = Traffic(scenario.traffic, scenario.seed, run) if scenario.traffic is not None else None
+    traffic = population(scenario, run)
     end = scenario.duration
     seq = yielded = 0
     for t_north in iter_times(sensor.start, T, end):
         t_north = float(t_north)
         fleet = _flying(traffic, t_north, t_north + T)
         count = len(targets) + (len(fleet) if fleet is not None else 0)
+        ids = fleet.ids if fleet is not None else []
 
         def name(row: int) -> str:
-            return sensor.targets[row] if row < len(targets) else aircraft_id(fleet.index[row - len(targets)])
+            return sensor.targets[row] if row < len(targets) else ids[row - len(targets)]
 
         def kinematics(rows: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
             p, v = np.empty((len(rows), 3)), np.empty((len(rows), 3))
@@ -364,11 +383,11 @@ def _sectors(scenario: Scenario, sensor: SensorSpec, run: int) -> Iterator[Batch
             yield Batch(t0, t1, events)
 
 
-def _flying(traffic: Traffic | None, t0: float, t1: float) -> Fleet | None:
+def _flying(traffic, t0: float, t1: float):
     """The aircraft alive at some time of ``[t0, t1)``, in birth order."""
     if traffic is None:
         return None
     first = traffic.fleet(t0)
     later = traffic.fleet(math.nextafter(t1, -math.inf))
     born = later.take(later.index > (first.index.max() if len(first) else -1))
-    return Fleet.concat([first, born])
+    return type(first).concat([first, born])

@@ -20,12 +20,13 @@ from pathlib import Path
 
 import numpy as np
 
-from fusion.geodetic import geodetic_to_enu
+from fusion.geodetic import LocalFrame, geodetic_to_enu
 from fusion.measurement.kinds import KINDS
 
 from ._toml import ANGLE, LENGTH, RATE, TIME, Reader, TomlSource
 from .geometry import coverage_span
 from .noise import OUTLIER_LAWS
+from .recorded import Recording, RecordedTraffic, SmoothingOptions, read_records, traffic_sample
 from .spec import (
     DF_KINDS,
     JAM_MODES,
@@ -53,7 +54,7 @@ from .segments import (
 _ID = re.compile(r"^[A-Za-z0-9_-]+$")  # ids become Zenoh key chunks: no '/', '*', ...
 _MIN_SEPARATION = 1.0  # m: a sensor closer than this to a target or jammer is "at" it
 _GRID_TOL = 1e-9
-_SCENARIO_KEYS = ("seed", "duration_s", "truth_dt_s", "targets", "jammers", "traffic")  # what makes a file a scenario
+_SCENARIO_KEYS = ("seed", "duration_s", "truth_dt_s", "targets", "jammers", "traffic", "truth")  # what makes a file a scenario
 MOBILE = "messages"  # ``site = "messages"``: a mobile station's position comes with each measurement
 
 
@@ -166,6 +167,11 @@ def _scenario(root: Reader, name: str, display: str) -> Scenario:
     origin = header["origin"]
     traffic_r = root.table("traffic", required=False)
     traffic = _traffic(traffic_r) if traffic_r is not None else None
+    truth_r = root.table("truth", required=False)
+    if truth_r is not None:
+        if traffic is not None:
+            raise truth_r.error("a scenario takes its aircraft from [traffic] or from [truth], not both", "file")
+        traffic = _recorded(truth_r, origin, display, duration)
     targets = {tid: _target(r, origin) for tid, r in root.tables("targets", required=traffic is None)}
     jammers = {jid: _jammer(r, origin) for jid, r in root.tables("jammers", required=False)}
     sensors, sensor_pos_keys = {}, {}
@@ -302,6 +308,51 @@ def _traffic(r: Reader) -> TrafficSpec:
                        (float(speed[0]), float(speed[1])), (float(alt[0]), float(alt[1])),
                        waypoints, float(offset), (float(turn_rate[0]), float(turn_rate[1])), level_changes,
                        (float(climb_rate[0]), float(climb_rate[1])))
+
+
+TRAFFIC_SAMPLE = "traffic:"  # ``file = "traffic:quickstart"``: a collection of the traffic package
+
+
+def _recorded(r: Reader, origin, display: str, duration: float) -> RecordedTraffic:
+    """The ``[truth]`` table: recorded aircraft as the targets (:mod:`sensors_sim.recorded`).
+    ``file``: a path (relative to the scenario file) or ``traffic:<name>``, a collection
+    of the ``traffic`` package; ``format``: ``traffic`` or ``jsonl`` (default: from the
+    name); the window ``[start_s, start_s + duration_s]`` after the first record (default
+    the scenario's duration); ``max_gap_s``, ``keep_ground`` (segmentation);
+    ``without_adsb``: the share of the aircraft that send no ADS-B."""
+    name = r.string("file")
+    if name.startswith(TRAFFIC_SAMPLE):
+        try:
+            path = traffic_sample(name[len(TRAFFIC_SAMPLE):])
+        except FileNotFoundError as e:
+            raise r.error(str(e), "file") from None
+    else:
+        path = Path(name) if os.path.isabs(name) else Path(display).parent / name
+        if not path.is_file():
+            raise r.error(f"no such file: {path}", "file")
+    jsonl = path.name.endswith((".jsonl", ".jsonl.gz"))
+    form = r.string("format", "jsonl" if jsonl else "traffic", choices=("traffic", "jsonl"))
+    start = r.quantity("start", TIME, default=0.0, ge=0)
+    length = r.quantity("duration", TIME, default=duration, gt=0)
+    options = SmoothingOptions(max_gap_s=r.quantity("max_gap", TIME, default=SmoothingOptions.max_gap_s, gt=0),
+                               keep_ground=r.raw("keep_ground", False))
+    if not isinstance(options.keep_ground, bool):
+        raise r.error("must be true or false", "keep_ground")
+    without = r.number("without_adsb", 0.0, ge=0, le=1)
+    r.finish()
+    try:
+        records = read_records(path, form)
+    except (OSError, ValueError) as e:
+        raise r.error(f"cannot read {path}: {e}", "file") from None
+    if not len(records):
+        raise r.error(f"{path}: no record could be read ({dict(records.rejected)})", "file")
+    t_zero = float(records.t.min()) + start
+    recording = Recording(records, LocalFrame(*origin, deg=True), options, window=(t_zero, t_zero + length))
+    if not recording.segments:
+        span = float(records.t.max() - records.t.min())
+        raise r.error(f"no aircraft in the window [{start:g}, {start + length:g}] s of the recording "
+                      f"({span:g} s long)", "start_s")
+    return RecordedTraffic(recording, t_zero, name, without)
 
 
 _SEGMENT_TYPES = ("static", "cv", "ca", "turn", "waypoints", "orbit")

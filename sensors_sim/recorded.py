@@ -37,8 +37,10 @@ import gzip
 import importlib.metadata
 import json
 import math
+import zlib
 from collections import Counter
 from dataclasses import dataclass, field
+from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
@@ -208,13 +210,26 @@ def read_jsonl(path: str | Path) -> Records:
     return out
 
 
+@lru_cache(maxsize=4)
+def _read_cached(path: str, form: str, stamp: tuple[int, int]) -> Records:
+    return read_traffic_json(path) if form == "traffic" else read_jsonl(path)
+
+
+def read_records(path: str | Path, form: str) -> Records:
+    """:func:`read_traffic_json` (``form`` ``traffic``) or :func:`read_jsonl` (``jsonl``),
+    cached while the file is unchanged (a scenario loaded twice reads it once). The
+    records are shared: not to be modified."""
+    st = Path(path).stat()
+    return _read_cached(str(path), form, (st.st_mtime_ns, st.st_size))
+
+
 def traffic_sample(name: str = "quickstart") -> Path:
     """The path of a collection shipped in ``traffic``'s wheel, found from its installed
     metadata without importing it. FileNotFoundError says how to install it."""
     try:
         dist = importlib.metadata.distribution("traffic")
     except importlib.metadata.PackageNotFoundError:
-        raise FileNotFoundError("the 'traffic' package is not installed: pip install --no-deps traffic") from None
+        raise FileNotFoundError("the 'traffic' package is not installed: pip install --no-deps traffic==2.13") from None
     path = Path(dist.locate_file(TRAFFIC_SAMPLE.format(name=name)))
     if not path.is_file():
         raise FileNotFoundError(f"{path}: not in traffic {dist.version}")
@@ -467,5 +482,134 @@ class Recording:
         return [s for s in self.segments if s.id == aircraft]
 
 
-__all__ = ["FT", "FPM", "KT", "Records", "Recording", "Segment", "SmoothingOptions", "read_jsonl",
-           "read_traffic_json", "records_from_dicts", "smooth_axis", "traffic_sample"]
+# ------------------------------------------------------------------ a scenario's traffic
+
+
+class RecordedTraffic:
+    """A recording's aircraft as a scenario's traffic (``[truth] file = ...``): every
+    segment a target that exists on ``[t0, t1)`` in scenario time (UTC − ``t_zero``),
+    named by its aircraft's address (an aircraft seen again after a gap is the same
+    target), numbered in order of appearance (its birth order, as ``[traffic]``'s).
+
+    It is its own cursor (:meth:`fleet`, as :class:`sensors_sim.traffic.Traffic`'s), and
+    evaluates every segment's Hermite at once: the knots of all segments are one array,
+    a segment's found by one ``searchsorted`` on ``segment·span + t``. Before its first
+    knot and after its last a segment is extrapolated along its end velocity (a rotating
+    radar's root finder may ask there); nothing outside ``[t0, t1)`` is alive.
+
+    Attributes:
+        source: the file as the scenario names it.
+        t_zero: the UTC time (s) of scenario time 0.
+        ids, callsigns, t0, t1: per segment, in birth order.
+        max_alive: the most segments alive at once; box: ``(e_min, e_max, n_min, n_max)``
+            of every knot (m), as a ``[traffic]`` table's.
+        without_adsb: the share of the aircraft that send no ADS-B (the ``adsb``
+            emulator draws which, from the seed: :meth:`equipped`).
+        counts: the recording's (:class:`Recording`).
+    """
+
+    def __init__(self, recording: Recording, t_zero: float, source: str = "", without_adsb: float = 0.0):
+        segs = sorted(recording.segments, key=lambda s: (s.start, s.id))
+        if not segs:
+            raise ValueError("no aircraft")
+        self.source, self.t_zero, self.without_adsb = source, float(t_zero), float(without_adsb)
+        self.counts = recording.counts
+        self.ids = np.array([s.id for s in segs])
+        self.callsigns = np.array([s.callsign for s in segs])
+        self.t0 = np.array([s.start for s in segs]) - self.t_zero
+        self.t1 = np.array([s.end for s in segs]) - self.t_zero
+        self._t = np.concatenate([s.t for s in segs]) - self.t_zero
+        self._p = np.concatenate([s.p for s in segs])
+        self._v = np.concatenate([s.v for s in segs])
+        sizes = np.array([len(s.t) for s in segs])
+        self._first = np.r_[0, np.cumsum(sizes)[:-1]]
+        self._last = self._first + sizes - 1
+        self._span = 2.0 * (float(self._t.max()) - min(float(self._t.min()), 0.0)) + 1.0
+        self._key = np.repeat(np.arange(len(segs)), sizes) * self._span + self._t
+        events = np.r_[np.ones(len(segs)), -np.ones(len(segs))][np.argsort(np.r_[self.t0, self.t1], kind="stable")]
+        self.max_alive = int(np.cumsum(events).max())
+        self.box = (float(self._p[:, 0].min()), float(self._p[:, 0].max()),
+                    float(self._p[:, 1].min()), float(self._p[:, 1].max()))
+
+    def __len__(self) -> int:
+        return len(self.ids)
+
+    def fleet(self, t: float) -> "RecordedFleet":
+        """The segments alive at ``t`` (``t0 <= t < t1``), in birth order."""
+        return RecordedFleet(self, np.flatnonzero((self.t0 <= t) & (t < self.t1)))
+
+    def equipped(self, seed: int) -> frozenset[str]:
+        """The aircraft that send ADS-B: all but ``round(without_adsb·n)`` of the ``n``
+        addresses, those left out drawn from ``seed`` alone (the same in every run)."""
+        names = np.unique(self.ids)
+        out = round(self.without_adsb * len(names))
+        rng = np.random.Generator(np.random.PCG64(np.random.SeedSequence([int(seed), zlib.crc32(b"adsb")])))
+        return frozenset(names[rng.permutation(len(names))[out:]].tolist())
+
+    def kinematics(self, seg: np.ndarray, t) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Position, velocity, acceleration (k, 3) of segments ``seg`` (k,) at ``t`` (one
+        time, or one per row): the cubic Hermite between the neighbouring knots."""
+        seg = np.asarray(seg, dtype=int)
+        t = np.broadcast_to(np.asarray(t, dtype=float), seg.shape)
+        a, b = self._first[seg], self._last[seg]
+        tc = np.clip(t, self._t[a], self._t[b])
+        k = np.clip(np.searchsorted(self._key, seg * self._span + tc, side="right") - 1, a, b - 1)
+        h = (self._t[k + 1] - self._t[k])[:, None]
+        s = (tc - self._t[k])[:, None]
+        s = s / h
+        p0, p1, v0, v1 = self._p[k], self._p[k + 1], self._v[k], self._v[k + 1]
+        s2, s3 = s * s, s * s * s
+        p = (2 * s3 - 3 * s2 + 1) * p0 + (s3 - 2 * s2 + s) * h * v0 + (3 * s2 - 2 * s3) * p1 + (s3 - s2) * h * v1
+        v = (6 * s2 - 6 * s) / h * (p0 - p1) + (3 * s2 - 4 * s + 1) * v0 + (3 * s2 - 2 * s) * v1
+        acc = (12 * s - 6) / h ** 2 * (p0 - p1) + (6 * s - 4) / h * v0 + (6 * s - 2) / h * v1
+        outside = (t != tc)[:, None]
+        p = p + np.where(outside, v * (t - tc)[:, None], 0.0)
+        return p, v, np.where(outside, 0.0, acc)
+
+
+class RecordedFleet:
+    """Some segments of a :class:`RecordedTraffic`, with the interface of
+    :class:`sensors_sim.traffic.Fleet` the emulators and the scoring use."""
+
+    __slots__ = ("traffic", "index")
+
+    def __init__(self, traffic: RecordedTraffic, index: np.ndarray):
+        self.traffic, self.index = traffic, np.asarray(index, dtype=int)
+
+    def __len__(self) -> int:
+        return len(self.index)
+
+    @property
+    def ids(self) -> list[str]:
+        return self.traffic.ids[self.index].tolist()
+
+    @property
+    def t0(self) -> np.ndarray:
+        return self.traffic.t0[self.index]
+
+    @property
+    def t1(self) -> np.ndarray:
+        return self.traffic.t1[self.index]
+
+    def take(self, rows) -> "RecordedFleet":
+        return RecordedFleet(self.traffic, self.index[rows])
+
+    @staticmethod
+    def concat(parts: list["RecordedFleet"]) -> "RecordedFleet":
+        return RecordedFleet(parts[0].traffic, np.concatenate([p.index for p in parts]))
+
+    def kinematics(self, t, rows=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """As :meth:`sensors_sim.traffic.Fleet.kinematics`."""
+        rows = np.arange(len(self.index)) if rows is None else np.asarray(rows, dtype=int)
+        return self.traffic.kinematics(self.index[rows], t)
+
+    def positions(self, t) -> np.ndarray:
+        return self.kinematics(t)[0]
+
+    def states(self, t) -> np.ndarray:
+        return np.concatenate(self.kinematics(t), axis=1)
+
+
+__all__ = ["FT", "FPM", "KT", "RecordedFleet", "RecordedTraffic", "Records", "Recording", "Segment",
+           "SmoothingOptions", "read_jsonl", "read_records", "read_traffic_json", "records_from_dicts", "smooth_axis",
+           "traffic_sample"]

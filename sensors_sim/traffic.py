@@ -343,3 +343,14 @@ class Traffic:
             objects[index] = self._objects.get(index) or Aircraft(fleet.take([i]))
         self._objects = objects
         return list(objects.values())
+
+
+def population(scenario, run: int = 0):
+    """The cursor over the scenario's aircraft beyond its listed targets, for one run: a
+    ``[traffic]`` stream's (:class:`Traffic`), a recording's (``[truth] file``: it is its
+    own, :class:`sensors_sim.recorded.RecordedTraffic`), or None. Either answers
+    ``fleet(t)`` with a fleet of the aircraft alive at ``t``, ``fleet.ids`` their names."""
+    spec = scenario.traffic
+    if spec is None:
+        return None
+    return Traffic(spec, scenario.seed, run) if isinstance(spec, TrafficSpec) else spec

@@ -28,7 +28,7 @@ from fusion.motion import ConstantAcceleration as _CA
 from .noise import jerk_deviation, process_rng
 from .segments import Piece
 from .spec import TRUTH_PROCESS, Scenario, TargetSpec
-from .traffic import Traffic, aircraft_id
+from .traffic import population
 
 _CA_TRANSITION = _CA(0.0)  # only its F₁(τ) is used, to carry the deviation between nodes
 # Relative tolerance for "this time is on that grid node" (float round-off of k·dt).
@@ -153,11 +153,11 @@ def truth_events(scenario: Scenario, run: int = 0, period: float | None = None) 
     if period is None:
         period = min(s.period for s in scenario.sensors.values())
     trajectories = truth_trajectories(scenario, run)
-    traffic = Traffic(scenario.traffic, scenario.seed, run) if scenario.traffic is not None else None
+    traffic = population(scenario, run)
     for t in iter_times(0.0, period, scenario.duration):
         for tid, traj in trajectories.items():
             yield TruthSample(float(t), tid, traj.state(float(t)))
         if traffic is not None:
             fleet = traffic.fleet(float(t))
-            for index, x in zip(fleet.index.tolist(), fleet.states(float(t))):
-                yield TruthSample(float(t), aircraft_id(index), x)
+            for name, x in zip(fleet.ids, fleet.states(float(t))):
+                yield TruthSample(float(t), name, x)

@@ -38,7 +38,7 @@ from fusion.patent import TrackerConfig
 from fusion.types import Estimate
 from sensors_sim import sensor_events, truth_trajectory
 from sensors_sim.trajectories import iter_times
-from sensors_sim.traffic import Traffic
+from sensors_sim.traffic import Traffic, population
 
 # Truth is [px py pz vx vy vz ax ay az]; an estimate of n states is compared with these
 # components of it. Sizes not listed are drawn when possible but not scored.
@@ -258,7 +258,7 @@ class TrackSteps:
         self.first = 0  # the current group's index: starts[0]'s
         self.pending: list[Estimate] = []  # the current group's estimates (stream)
         self.trajs = {tid: truth_trajectory(scenario, tid, run) for tid in scenario.targets}
-        self.traffic = Traffic(scenario.traffic, scenario.seed, run) if scenario.traffic is not None else None
+        self.traffic = population(scenario, run)
         self.looks = looks if looks is not None else Looks.following(scenario, run)
         self.dim: int | None = None  # the tracks' position dimension (emitter fixes: 2)
         self.late = 0  # stream: estimates of a group already complete (dropped)
@@ -338,7 +338,7 @@ class PictureSteps:
         self.end = scenario.duration if end is None else end
         self.max_age = max(s.period for s in scenario.sensors.values())
         self.trajs = {tid: truth_trajectory(scenario, tid, run) for tid in scenario.targets}
-        self.traffic = Traffic(scenario.traffic, scenario.seed, run) if scenario.traffic is not None else None
+        self.traffic = population(scenario, run)
         self.looks = looks if looks is not None else Looks.following(scenario, run)
         self.k = 0  # the next step's index
         self.latest: dict[str, Estimate] = {}

@@ -286,6 +286,7 @@ def tracks_summary(scores: Sequence) -> dict:
         "gospa": finite(run.mean_gospa),
         "held": finite(run.held),
         "held_after_init": finite(run.held_after_init),
+        "rmse_pos_assigned": finite(run.rmse_pos_assigned),
         "breaks": run.breaks,
         "break_rate": run.break_rate,
         "purity": finite(run.purity),

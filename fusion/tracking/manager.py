@@ -32,6 +32,7 @@ from typing import Any, Protocol, Sequence
 
 import numpy as np
 
+from ..types import Measurement
 from .associators import Associator
 from .hypotheses import Hypotheses
 from .table import Track, TrackTable
@@ -143,15 +144,18 @@ class MultiTargetTracker:
         taken, left = self.associate(tracks, frame)
         continued, births = self.initiator.initiate(left, tracks, frame)
         for i, track in enumerate(tracks):
-            hit = self.updater.update(track, taken[i] + continued.get(i, []), frame)
+            mine = taken[i] + continued.get(i, [])
+            hit = self.updater.update(track, mine, frame)
             if not track.deleted:  # (an updater deletes a track it cannot update)
                 track.logic.record(hit, self.updater.position_cov(track))
+            track.claim([m for tk in mine if not tk.weighted for m in tk.plots])
         if self.reviewer is not None:
             self.reviewer.review(expired + tracks)
         for group in births:
             track = self.updater.start(group, frame)
             if track is not None:
                 self.table.add(track).logic.survive(frame.t)
+                track.claim(initial_plots(group))
         return self.table.close_frame()
 
     def associate(self, tracks: list[Track], frame: Frame) -> tuple[list[list[Taken]], list]:
@@ -177,3 +181,11 @@ class MultiTargetTracker:
             if k + 1 < len(scans):
                 self.hypothesiser.condition(states, hyp, association)
         return taken, left
+
+
+def initial_plots(group) -> list:
+    """The plots of a measurement initiation group ``(first, more, x, P)``, in stream
+    order; [] for any other group (a network centre's local tracks)."""
+    if isinstance(group, tuple) and len(group) == 4:
+        return sorted((m for m in (*group[0], *group[1]) if isinstance(m, Measurement)), key=lambda m: m.order_key)
+    return []

@@ -43,7 +43,7 @@ from ..measurement.components import AZ, EL, RANGE
 from ..measurement.kinds import KINDS, model_of
 from ..types import Estimate
 from .hypotheses import Hypotheses, by_sensor, gate_threshold, mahalanobis2
-from .manager import Frame, MultiTargetTracker, Taken
+from .manager import Frame, MultiTargetTracker, Taken, initial_plots
 from .table import CONFIRMED, DELETED, TENTATIVE, ManagementRule, Track, scores_hit
 
 SCREEN_SIGMAS = 6.0  # the screen's width in σ of the track and of the plot
@@ -186,6 +186,7 @@ class SweepTracker(MultiTargetTracker):
             plots_i = sorted((m for tk in mine for m in tk.plots), key=lambda m: m.order_key)
             if plots_i:
                 self.update(track, plots_i)
+                track.claim(plots_i)
             hit = bool(plots_i) and scores_hit([m.kind for m in {m.sensor: m for m in plots_i}.values()],
                                                track.confirmed, 1)
             track.logic.record(hit, track.filter.P[:3, :3] if plots_i else None, t_end, {m.sensor for m in plots_i},
@@ -198,6 +199,7 @@ class SweepTracker(MultiTargetTracker):
             track.logic = SweepLogic(self.rule, self.revisit_s, track.last.t, frozenset(m.sensor for m in (*first, *more)),
                                      any(_measures_el(m) for m in (*first, *more)))
             self.table.add(track)
+            track.claim(initial_plots(group))
             changed.add(id(track))
         return [tr for tr in self.table.close_frame() if id(tr) in changed]
 

@@ -38,7 +38,7 @@ import numpy as np
 
 from ..guards import MAX_GAP_S, gap_too_long, positive_definite
 from ..measurement.kinds import KINDS
-from ..types import Estimate
+from ..types import Estimate, Identity
 from .hypotheses import gate_threshold, track_distance2
 
 TENTATIVE, CONFIRMED, DELETED = "tentative", "confirmed", "deleted"
@@ -159,14 +159,32 @@ class Track:
             given by :meth:`TrackTable.add` if None).
         birth: its place in the order of births (set by :meth:`TrackTable.add`).
         id: its published id, issued at confirmation (None before).
+        identity: the identity its target claims: that of the latest plot assigned to it
+            that carries one (a position report's), else None. Only an assignment sets
+            it: an identity never decides one (the gate does), so two aircraft sending
+            one address keep two tracks with the same identity.
+        identity_changes: how often a plot's identity replaced a different one.
     """
 
-    __slots__ = ("filter", "last", "logic", "birth", "id")
+    __slots__ = ("filter", "last", "logic", "birth", "id", "identity", "identity_changes")
 
     def __init__(self, filter, last: Estimate, logic=None):
         self.filter, self.last, self.logic = filter, last, logic
         self.birth = 0
         self.id: str | None = None
+        self.identity: Identity | None = None
+        self.identity_changes = 0
+
+    def claim(self, plots) -> None:
+        """Take the identity of the last of ``plots`` (assigned to it, in stream order)
+        that carries one, counting a change."""
+        for m in reversed(plots):
+            identity = getattr(m, "identity", None)
+            if identity is not None:
+                if self.identity is not None and identity != self.identity:
+                    self.identity_changes += 1
+                self.identity = identity
+                return
 
     @property
     def confirmed(self) -> bool:

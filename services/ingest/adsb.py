@@ -42,6 +42,8 @@ from zoneinfo import ZoneInfo, ZoneInfoNotFoundError
 
 import numpy as np
 
+from fusion.types import Identity
+
 from .gateway import DECODE_ERRORS, Reading, Rejected, undecodable
 from .krakensdr import ParseError, Skipped
 
@@ -514,11 +516,13 @@ def position_reading(r: PositionReport, sensor: str) -> Reading | Skipped:
     """A position report as a ``position`` reading of the receiver (or ground station)
     ``sensor``: its WGS-84 position and its own noise (σ per horizontal axis, σ of the
     altitude). One without an altitude (on the ground, or none reported) is no 3D
-    position: skipped ``no-altitude``."""
+    position: skipped ``no-altitude``. The reading carries the aircraft's identity (its
+    address and callsign), which the tracker keeps on the track."""
     if r.alt_m is None or r.std_v_m is None:
         return Skipped("no-altitude")
     return Reading(sensor=sensor, t=r.t, kind="position", z=None,
-                   std=np.array([r.std_h_m, r.std_h_m, r.std_v_m]), geodetic=(r.lat_deg, r.lon_deg, r.alt_m))
+                   std=np.array([r.std_h_m, r.std_h_m, r.std_v_m]), geodetic=(r.lat_deg, r.lon_deg, r.alt_m),
+                   identity=Identity(r.address, r.callsign))
 
 
 @dataclass

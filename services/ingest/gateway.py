@@ -40,7 +40,7 @@ import numpy as np
 
 from fusion.geodetic import LocalFrame
 from fusion.measurement.kinds import KINDS
-from fusion.types import Measurement
+from fusion.types import Identity, Measurement
 from schemas import KeySpace, SchemaError, encode, encode_measurement
 
 MAX_DIGESTS = 4096
@@ -90,7 +90,8 @@ class Reading:
     (lat °, lon °, alt m or None), or neither; used only for a sensor the site file
     does not pin. A position report (a kind that is not sited) has no site: ``geodetic``
     is then the reported position, and ``z`` None. ``corr``: the stated correlation
-    matrix of a kind whose reports state their own noise.
+    matrix of a kind whose reports state their own noise. ``identity``: what a
+    cooperative target says it is (a position report's address and callsign), or None.
     """
 
     sensor: str
@@ -101,11 +102,13 @@ class Reading:
     site: np.ndarray | None = None
     geodetic: tuple[float, float, float | None] | None = None
     corr: np.ndarray | None = None
+    identity: Identity | None = None
 
     def digest(self) -> tuple:
         def values(a):
             return None if a is None else tuple(np.asarray(a, float).ravel().tolist())
-        return (self.kind, values(self.z), values(self.std), values(self.site), self.geodetic, values(self.corr))
+        return (self.kind, values(self.z), values(self.std), values(self.site), self.geodetic, values(self.corr),
+                self.identity)
 
 
 @dataclass
@@ -194,7 +197,7 @@ class Gateway:
             return self.refuse(r.sensor, "no-position", f"{r.sensor} has no site in the site file and the "
                                                         f"reading gives none (no GPS fix?)")
         m = Measurement(t=float(r.t), sensor=r.sensor, kind=r.kind, z=np.asarray(z, dtype=float), std=std,
-                        site=site, seq=st.seq + 1, corr=corr)
+                        site=site, seq=st.seq + 1, corr=corr, identity=r.identity)
         try:
             data = encode_measurement(m, r.sensor)
         except (SchemaError, ValueError, TypeError) as e:

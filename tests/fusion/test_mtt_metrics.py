@@ -49,7 +49,7 @@ def test_streaming_is_the_batch_with_forgetting_and_binning():
         s.add(step)
     got = s.score()
     for k in ("truth_steps", "held_steps", "breaks", "break_chances", "track_steps", "dominant_steps",
-              "false_tracks", "false_track_steps", "n_tracks", "steps", "missed_steps"):
+              "false_tracks", "false_track_steps", "n_tracks", "steps", "missed_steps", "assigned_sq"):
         assert getattr(got, k) == getattr(ref, k), k
     assert ref.breaks > 0 and ref.false_tracks > 0 and ref.n_tracks > 100  # the stream exercises them
     assert got.worst_hold == ref.worst_hold < 1.0 and got.found_at_end == ref.found_at_end
@@ -128,6 +128,23 @@ def test_held_after_init_breaks_and_false_tracks_of_a_hand_built_run():
     assert merged.held_after_init == 6 / 7 and merged.break_rate == 0.2 and merged.false_tracks == 2
     unsaid = score_tracks([dataclasses.replace(s, settled=None) for s in steps], C)
     assert np.isnan(unsaid.held_after_init) and unsaid.held == 7 / 12
+
+
+def test_rmse_pos_assigned_is_over_the_gospa_pairs_of_a_hand_built_run():
+    """Step 0: A at 0, B at 10 m, tracks X at 4 m and Y at −5 m on one line. The nearest
+    pair first would put X on A (4 m) and Y on B (15 m); GOSPA's assignment (least Σd²)
+    puts Y on A (5 m) and X on B (6 m): 25 + 36. Step 1: X 12 m from A, and a track
+    150 m from B, beyond the cut-off: not a pair. RMSE √((25 + 36 + 144)/3)."""
+    A, B = np.zeros(3), np.array([10.0, 0.0, 0.0])
+    steps = [Step(0.0, {"A": A, "B": B}, {"X": np.array([4.0, 0, 0]), "Y": np.array([-5.0, 0, 0])}),
+             Step(1.0, {"A": A, "B": B}, {"X": np.array([0, 12.0, 0]), "Z": B + [0, 150.0, 0]})]
+    score = score_tracks(steps, C)
+    assert score.held_steps == 3 and score.assignments[0] == {"A": "Y", "B": "X"}
+    assert score.rmse_pos_assigned == pytest.approx(np.sqrt((25 + 36 + 144) / 3), rel=1e-12)
+    assert score.summary()["rmse_pos_assigned"] == score.rmse_pos_assigned
+    assert type(score).merged([score, score_tracks(steps[:1], C)]).rmse_pos_assigned == pytest.approx(
+        np.sqrt((2 * 61 + 144) / 5), rel=1e-12)
+    assert np.isnan(score_tracks(steps[1:], C / 20).rmse_pos_assigned)  # nothing assigned
 
 
 @pytest.mark.parametrize("seed", range(6))

@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 
 from sensors_sim.geometry import coverage_mask
-from sensors_sim.traffic import Traffic
+from sensors_sim.recorded import RecordedTraffic
+from sensors_sim.traffic import Traffic, population
 
 from fusion.methods import method_config
 from sensors_sim import (
@@ -43,25 +44,38 @@ def test_builtin_loads_and_every_sensor_produces_measurements(name):
     sc = load_scenario(name)
     assert sc.name == name and sc.source == f"{name}.toml"
     assert sc.process_ids()[-1] == "truth"
+    recorded = isinstance(sc.traffic, RecordedTraffic)
     if sc.traffic is not None and sc.traffic.max_alive > 100:  # the regions: their first 20 s
         sc = dataclasses.replace(sc, duration=20.0)
+    if recorded:  # a recording's first 10 minutes
+        sc = dataclasses.replace(sc, duration=600.0)
     for sid in sc.sensors:
         sensor = sc.sensors[sid]
         events = [e for e in sensor_events(sc, sid) if not e.clutter]
-        traffic = Traffic(sc.traffic, sc.seed) if sc.traffic is not None else None
+        traffic = population(sc)
         if sensor.sectors:  # a rotating radar: an event per beam crossing in coverage
             lives = {}
-            for t in (0.0, sc.duration):  # (every life is longer than the run)
+            for t in (0.0, sc.duration):  # (every synthetic life is longer than the run)
                 fleet = traffic.fleet(t)
                 lives.update(zip(fleet.ids, zip(fleet.t0, fleet.t1)))
+            if recorded:  # an aircraft's every segment: when it is alive
+                lives = {a: list(zip(sc.traffic.t0[sc.traffic.ids == a], sc.traffic.t1[sc.traffic.ids == a]))
+                         for a in set(sc.traffic.ids.tolist())}
             for e in events:
-                assert e.in_coverage and (e.target in sensor.targets or lives[e.target][0] <= e.t < lives[e.target][1])
+                assert e.in_coverage
+                if e.target not in sensor.targets:
+                    spans = lives[e.target] if recorded else [lives[e.target]]
+                    assert any(t0 <= e.t < t1 for t0, t1 in spans)
             assert len(events) > 0
-        else:  # one per scan per target, and per aircraft alive in view
+        else:  # one per scan per target, and per aircraft alive in view (with ADS-B, for a receiver)
             alive = 0
+            sending = sc.traffic.equipped(sc.seed) if recorded and sensor.kind == "adsb" else None
             for t in scan_times(sc, sid) if traffic else ():
                 fleet = traffic.fleet(float(t))
-                alive += coverage_mask(sensor, fleet.positions(float(t)) - sensor.site.position(float(t))).sum()
+                seen = coverage_mask(sensor, fleet.positions(float(t)) - sensor.site.position(float(t)))
+                if sending is not None:
+                    seen &= np.isin(fleet.ids, list(sending))
+                alive += seen.sum()
             assert len(events) == len(scan_times(sc, sid)) * len(sensor.targets) + alive > 0
         assert any(e.measurement is not None for e in events), sid
     for jid in sc.jammers:

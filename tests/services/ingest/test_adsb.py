@@ -10,17 +10,25 @@ nautical mile) and the formats' documentation, not taken from the code under tes
 from __future__ import annotations
 
 import calendar
+import dataclasses
 import json
 import math
 from collections import Counter
 
+import numpy as np
 import pytest
 from scipy import stats
+
+from fusion.geodetic import LocalFrame
+from fusion.types import Identity
+from schemas import KeySpace, decode, to_measurement
+from services.node import RejectLog
 
 from conftest import DATA as TESTS_DATA
 from services.ingest import adsb
 from services.ingest.adsb import (
     AdsbReceiver,
+    position_reading,
     PositionReport,
     SbsClock,
     SbsIdentification,
@@ -33,7 +41,7 @@ from services.ingest.adsb import (
     velocity_std,
     vertical_std,
 )
-from services.ingest.gateway import Rejected
+from services.ingest.gateway import Gateway, Rejected, SensorSite
 from services.ingest.krakensdr import Skipped
 
 DATA = TESTS_DATA / "adsb"
@@ -168,6 +176,26 @@ def test_readsb_document():
     c = r["a1b2c3"]  # ADS-C: an old position, no NACp
     assert c.source == "adsc" and c.t == pytest.approx(now - 412.0, abs=1e-9)
     assert c.std_h_m == nacp_std_m(adsb.DEFAULT_NACP)
+
+
+def test_a_position_carries_its_aircrafts_identity_to_the_wire():
+    """Each reading of the readsb scene, through the gateway: the published measurement
+    carries the aircraft's address and callsign (none: the address alone), and two
+    aircraft at one position at one time are two measurements, not a repeat."""
+    r = reports(parse_aircraft_json(body("readsb_aircraft.json")))
+    gw = Gateway({"rx": SensorSite("rx", "position", np.array([30.0, 30.0, 45.0]), None)},
+                 LocalFrame(48.85, 2.35, 0.0, deg=True), KeySpace("t"), RejectLog("gw"), max_age=1e6)
+    now = T_SCENE + 0.5
+    got = {}
+    for report in sorted((x for x in r.values() if x.alt_m is not None), key=lambda x: x.t):
+        reading = position_reading(report, "rx")
+        assert reading.identity == Identity(report.address, report.callsign)
+        (_, data), *_ = gw.offer(reading, now)
+        got[report.address] = to_measurement(decode(data)).identity
+    assert got["0101de"] == Identity("0101de", "MSR799") and got["~2a1f0c"] == Identity("~2a1f0c", None)
+    twin = dataclasses.replace(r["0101de"], address="0101df", callsign=None)
+    (_, data), *_ = gw.offer(position_reading(twin, "rx"), now)
+    assert to_measurement(decode(data)).identity == Identity("0101df", None) and gw.counters["repeats"] == 0
 
 
 def test_dump1090fa_document():

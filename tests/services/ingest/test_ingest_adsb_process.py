@@ -13,6 +13,7 @@ import pytest
 
 from _ingest_helpers import Capture, DocServer, TcpServer, gateway, stop
 from fusion.geodetic import LocalFrame
+from fusion.types import Identity
 from schemas import to_measurement
 from services.ingest.adsb import FT, horizontal_std, nacp_std_m, vertical_std
 
@@ -57,8 +58,8 @@ def _check(m, lat, lon, alt, std):
 def test_polled_aircraft_json_publishes_each_position_once(deployment, site):
     now = time.time()
     doc = {"now": now, "aircraft": [
-        {"hex": "39b002", "type": "adsb_icao", "lat": 48.9, "lon": 2.4, "alt_geom": 10000, "seen_pos": 0.4,
-         "nac_p": 9, "gva": 2},
+        {"hex": "39b002", "type": "adsb_icao", "flight": "AFR1234 ", "lat": 48.9, "lon": 2.4, "alt_geom": 10000,
+         "seen_pos": 0.4, "nac_p": 9, "gva": 2},
         {"hex": "4ca7b1", "type": "mlat", "lat": 48.7, "lon": 2.1, "alt_baro": 24000, "seen_pos": 1.0,
          "mlat": ["lat", "lon"]},
         {"hex": "3c6444", "type": "adsb_icao", "lat": 48.8, "lon": 2.3, "alt_baro": "ground", "seen_pos": 0.2,
@@ -81,6 +82,7 @@ def test_polled_aircraft_json_publishes_each_position_once(deployment, site):
     assert adsb.t == pytest.approx(now - 0.4, abs=1e-3) and mlat.t == pytest.approx(now - 1.0, abs=1e-3)
     _check(adsb, 48.9, 2.4, 10000 * FT, [nacp_std_m(9)] * 2 + [vertical_std("geometric", gva=2)])
     _check(mlat, 48.7, 2.1, 24000 * FT, [horizontal_std("mlat", None)] * 2 + [vertical_std("barometric")])
+    assert (adsb.identity, mlat.identity) == (Identity("39b002", "AFR1234"), Identity("4ca7b1", None))
     assert counters["skipped.no-altitude"] >= 1 and counters["rejected"] >= 1, counters
 
 
@@ -114,6 +116,7 @@ def test_sbs_feed_publishes_positions_with_their_time(deployment, site):
     (m,) = [to_measurement(x) for x in cap.of("position")]
     assert m.t == pytest.approx(round(t * 1000) / 1000, abs=2e-3)
     _check(m, 52.1, 4.2, 35000 * FT, [horizontal_std("adsb", None)] * 2 + [vertical_std("barometric")])
+    assert m.identity == Identity("4ca2d6", "RYR12AB")  # the callsign of an earlier MSG,1
     assert counters["connections"] == 1 and counters["rejected"] >= 1, counters
 
 
