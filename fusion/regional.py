@@ -2,10 +2,12 @@ r"""The regional topology as pure state machines: regional fusers under one syst
 
 A *regional fuser* (:class:`RegionalFuser`) is an ordinary centralised many-target
 method (:class:`fusion.mtt.MultiTargetMethod`, the method's own ``[tracker]``) over the
-plots of its region's sensors. After each frame it drops the tracks that have left its
-region and margin (:meth:`fusion.regions.Region.holds`) and publishes its confirmed
-tracks, ids namespaced by region (``north.T3``), with the ids it stopped publishing:
-one :class:`RegionalFrame`.
+plots of its region's sensors that it can place over its region and margin (a radar
+plot's ground point within :data:`PLOT_SLACK_M` of them; a ray is always taken). After
+each frame it drops the tracks that have left its region and margin
+(:meth:`fusion.regions.Region.holds`) and publishes its confirmed tracks, ids
+namespaced by region (``north.T3``), with the ids it stopped publishing: one
+:class:`RegionalFrame`.
 
 The *system fuser* (:class:`SystemFuser`) takes the regional frames as a distributed
 centre takes local tracks, and keeps the system tracks ``T<n>``:
@@ -17,10 +19,12 @@ centre takes local tracks, and keeps the system tracks ``T<n>``:
    to the system tracks that hold no track of its region, against their latest fused
    estimate, or starts a new system track;
 3. each system track is the covariance intersection of its members, predicted to the
-   latest of their times: ``P⁻¹ = Σ ωᵢPᵢ⁻¹``, ``P⁻¹x = Σ ωᵢPᵢ⁻¹xᵢ``, ω minimising
-   ``tr P`` (:func:`fusion.track_fusion.fuse_ci`). Two regions fed by one sensor, with
-   the same process noise, have errors correlated in a way neither knows; CI is
-   consistent for every such correlation, the naive product is not (docs/regional.md).
+   latest of their times: ``P⁻¹ = ωP₁⁻¹ + (1−ω)P₂⁻¹``, ``P⁻¹x = ωP₁⁻¹x₁ + (1−ω)P₂⁻¹x₂``,
+   ω minimising ``tr P`` (:func:`fusion.track_fusion.fuse_ci`), folded pairwise over
+   three or four members (where regions meet), most certain first. Two regions fed by
+   one sensor, with the same process noise, have errors correlated in a way neither
+   knows; CI is consistent for every such correlation, the naive product is not
+   (docs/regional.md).
 
 So an aircraft's system id survives a handover: the next region's track joins the system
 track while both regions hold the aircraft in the overlap, and the first region's track
@@ -31,11 +35,13 @@ the in-process evaluation; with one region the system picture is its fuser's pic
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass, field
 from typing import Callable, Mapping, Sequence
 
 import numpy as np
 
+from .measurement.kinds import KINDS
 from .patent import TrackerConfig, uses
 from .regions import Region
 from .track_fusion import fuse_ci, fuse_naive
@@ -49,6 +55,20 @@ __all__ = ["RegionalFrame", "RegionalFuser", "RegionalMethod", "SYSTEM_RULES", "
 
 SYSTEM_RULES = ("ci", "naive")  # the system fuser's rules: CI; naive only to show why not (tests, docs)
 _COMPARED = np.arange(6)  # position, velocity: what track-to-track association compares
+PLOT_SLACK_M = 15_000.0  # m: how far beyond its region and margin a plot's ground point may be, and still be used
+SCREEN_SLACK_M = 2000.0  # m: the screen's allowance for the spread's growth over an extrapolation
+
+
+def _screen(a: Sequence[Estimate], b: Sequence[Estimate], gate: float) -> np.ndarray:
+    """``(len(a), len(b))``: the pairs that may be in the gate (:meth:`SystemFuser._associate`)."""
+    def parts(es):
+        return (np.array([e.t for e in es]), np.array([e.x[:2] for e in es]), np.array([e.x[3:5] for e in es]),
+                np.array([e.P[0, 0] + e.P[1, 1] for e in es]))
+    (ta, pa, va, sa), (tb, pb, vb, sb) = parts(a), parts(b)
+    t = np.maximum(ta[:, None], tb[None, :])
+    gap = (pa[:, None] + va[:, None] * (t - ta[:, None])[..., None]) - (pb[None] + vb[None] * (t - tb[None])[..., None])
+    radius = np.sqrt(gate * (sa[:, None] + sb[None, :])) + SCREEN_SLACK_M
+    return np.sum(gap * gap, axis=-1) <= radius * radius
 
 
 @dataclass(frozen=True)
@@ -61,6 +81,21 @@ class RegionalFrame:
     t: float
     tracks: tuple[Estimate, ...]
     dropped: tuple[str, ...] = ()
+
+
+def _ground(m: Measurement) -> tuple[float, float]:
+    """Where a plot puts its target over the ground, ``(e, n)``: a position report's
+    position; a radar plot's site plus its horizontal range (the slant range where the
+    elevation is not measured: at most 12 km off, a 12 km altitude seen from above) along
+    its azimuth; ``(nan, nan)`` for a plot with no range (an angle sensor's ray)."""
+    names = [c.name for c in KINDS[m.kind].components]
+    if "east" in names:
+        return float(m.z[names.index("east")]), float(m.z[names.index("north")])
+    if "range" not in names or m.site is None:
+        return math.nan, math.nan
+    az, r = m.z[names.index("az")], m.z[names.index("range")]
+    h = r * math.cos(m.z[names.index("el")]) if "el" in names else r
+    return float(m.site[0] + h * math.sin(az)), float(m.site[1] + h * math.cos(az))
 
 
 class RegionalFuser:
@@ -89,7 +124,12 @@ class RegionalFuser:
         return [self._frame(g) for g in self.method._grouper.finish()]
 
     def _frame(self, group: list[Measurement]) -> RegionalFrame:
-        estimates = self.method._group(group)
+        ground = np.array([_ground(m) for m in group])
+        placed = ~np.isnan(ground[:, 0])
+        keep = ~placed
+        keep[placed] = self.region.holds(ground[placed], PLOT_SLACK_M)
+        mine = [m for m, k in zip(group, keep) if k]
+        estimates = self.method._group(mine) if mine else []
         table = self.method.tracker.table
         if table.tracks:
             held = self.region.holds(np.array([tr.last.x[:2] for tr in table.tracks]))
@@ -177,10 +217,6 @@ class SystemFuser:
         the gate of its rank."""
         t = max(a.t, b.t)
         (xa, Pa), (xb, Pb) = self._at(a, t), self._at(b, t)
-        # d² ≥ |Δpos|² / tr(Pa_pos + Pb_pos): a pair farther apart cannot be in the gate
-        dp = xa[:3] - xb[:3]
-        if float(dp @ dp) > gate_threshold(len(_COMPARED), self.gate_prob) * float(np.trace(Pa[:3, :3] + Pb[:3, :3])):
-            return np.inf
         d2, rank = track_distance2(xa, Pa, xb, Pb, dims=_COMPARED)
         return d2 if not rank or d2 <= gate_threshold(rank, self.gate_prob) else np.inf
 
@@ -192,14 +228,21 @@ class SystemFuser:
 
     def _associate(self, region: str, unowned: list[Estimate]) -> None:
         """GNN of a region's regional tracks without a system track to the system tracks
-        holding no track of that region; the rest start system tracks."""
+        holding no track of that region; the rest start system tracks. The pairs are
+        screened first: only those whose horizontal positions, extrapolated to the later
+        time, lie within the gate's radius of their summed horizontal spread (plus
+        :data:`SCREEN_SLACK_M` for the growth of that spread over the extrapolation) get
+        the χ² of :meth:`_distance2`."""
         if not unowned:
             return
         free = [s for s in self.tracks.values() if region not in s.members and s.last is not None]
         pairs: list[tuple[int, int]] = []
         if free:
-            d2 = np.array([[self._distance2(e, s.last) for s in free] for e in unowned])
-            pairs = gnn(d2, gate_threshold(len(_COMPARED), self.gate_prob))
+            gate = gate_threshold(len(_COMPARED), self.gate_prob)
+            d2 = np.full((len(unowned), len(free)), np.inf)
+            for i, j in zip(*np.nonzero(_screen(unowned, [s.last for s in free], gate))):
+                d2[i, j] = self._distance2(unowned[i], free[j].last)
+            pairs = gnn(d2, gate)
         taken = dict(pairs)
         for i, e in enumerate(unowned):
             if i in taken:
@@ -227,12 +270,13 @@ class SystemFuser:
         members = [self.latest[rid] for rid in s.members.values()]
         t = max(e.t for e in members)
         states = [self._at(e, t) for e in members]
-        if len(states) == 1:
-            x, P = states[0]
-        elif self.rule == "ci":
-            x, P, _ = fuse_ci([x for x, _ in states], [P for _, P in states], self.ci_criterion)
-        else:
+        if self.rule == "naive" and len(states) > 1:
             x, P = fuse_naive([x for x, _ in states], [P for _, P in states])
+        else:  # CI folded pairwise, most certain first: each step's ω in closed form
+            states.sort(key=lambda s: float(np.trace(s[1][:3, :3])))
+            x, P = states[0]
+            for xi, Pi in states[1:]:
+                x, P, _ = fuse_ci([x, xi], [P, Pi], self.ci_criterion)
         return Estimate(t, x, P, self.name, "centre", s.id)
 
 

@@ -103,14 +103,15 @@ class Region:
         """``(m,)`` whether each point (``[e, n, ...]``) lies inside the polygon."""
         return inside_polygon(points, self.polygon)
 
-    def holds(self, points: np.ndarray) -> np.ndarray:
-        """``(m,)`` whether each point lies inside the polygon or within the margin of it."""
+    def holds(self, points: np.ndarray, beyond: float = 0.0) -> np.ndarray:
+        """``(m,)`` whether each point lies inside the polygon or within the margin of it
+        (and ``beyond`` more)."""
         p = np.atleast_2d(np.asarray(points, dtype=float))
         if p.shape[0] == 0:
             return np.zeros(0, dtype=bool)
         held = self.inside(p)
-        if self.margin > 0.0 and not held.all():
-            held[~held] = boundary_distance(p[~held], self.polygon) <= self.margin
+        if self.margin + beyond > 0.0 and not held.all():
+            held[~held] = boundary_distance(p[~held], self.polygon) <= self.margin + beyond
         return held
 
 

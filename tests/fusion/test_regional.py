@@ -5,6 +5,7 @@ naive product is not), and one region covering everything is the centralised tra
 from __future__ import annotations
 
 import dataclasses
+import re
 
 import numpy as np
 import pytest
@@ -17,76 +18,19 @@ from fusion.regions import Region, box_polygon
 from fusion.types import Estimate
 from sensors_sim import load_scenario, truth_trajectory
 from services.evaluation import merged_measurements, run_method
+from conftest import ROOT
 
-HEAD = """\
-description = "two regions, west and east of x = 0, overlapping by their margins"
-seed = 7
-duration_s = {duration}
-
-[origin]
-lat_deg = 21.0
-lon_deg = 105.8
-alt_m = 0.0
-
-[defaults]
-topology = "centralised"
-method = "SS"
-
-[tracker]
-motion = "cv"
-q = 0.001
-association = "gnn"
-gate_prob = 0.999
-confirm_m = 3
-confirm_n = 4
-delete_misses = 3
-init_vel_std = 300.0
-init_vel_std_up = 30.0
-
-[targets.A]
-pos_km = {pos}
-vel_mps = {vel}
-
-[sensors.w]
-kind = "radar3d"
-pos_km = [-20.0, 15.0, 0.0]
-period_s = 1.0
-std_az_deg = 0.3
-std_el_deg = 0.3
-std_range_m = 60.0
-
-[sensors.e]
-kind = "radar3d"
-pos_km = [20.0, 15.0, 0.0]
-period_s = 1.0
-std_az_deg = 0.3
-std_el_deg = 0.3
-std_range_m = 60.0
-
-[sensors.s]
-kind = "radar3d"
-pos_km = [0.0, -15.0, 0.0]
-period_s = 1.0
-start_s = 0.5
-std_az_deg = 0.05
-std_el_deg = 0.05
-std_range_m = 10.0
-
-[regions.west]
-box_km = [-60.0, -60.0, 0.0, 60.0]
-margin_km = 8.0
-sensors = ["w", "s"]
-
-[regions.east]
-box_km = [0.0, -60.0, 60.0, 60.0]
-margin_km = 8.0
-sensors = ["e", "s"]
-"""
+TWO_REGIONS = ROOT / "tests" / "data" / "two-regions.toml"
 
 
 def scenario(tmp_path, duration, pos, vel, name="two.toml"):
+    """tests/data/two-regions.toml with the aircraft's start, velocity and the duration replaced."""
+    text = TWO_REGIONS.read_text()
+    for key, value in (("duration_s", duration), ("pos_km", pos), ("vel_mps", vel)):
+        text, n = re.subn(rf"^{key} = .*$", f"{key} = {value}", text, count=1, flags=re.M)
+        assert n == 1
     p = tmp_path / name
-    p.write_text(HEAD.format(duration=duration, pos=pos, vel=vel))
+    p.write_text(text)
     return load_scenario(p)
 
 
