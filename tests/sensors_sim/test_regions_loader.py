@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from fusion.regions import boundary_distance
 from sensors_sim import ScenarioError, load_scenario, load_site
 
 HEAD = """\
@@ -99,3 +100,26 @@ def test_bad_regions_are_one_located_line(tmp_path, old, new, said):
     with pytest.raises(ScenarioError, match=said) as err:
         load_scenario(write(tmp_path, text.replace(old, new, 1)))
     assert "\n" not in str(err.value) and "case.toml:" in str(err.value)
+
+
+def test_region_400_quadrants_are_fed_by_every_sensor_that_reaches_them():
+    """region-400's four quadrants (and region-4000's, the same): together they cover the
+    traffic box; each is fed by exactly the sensors whose coverage disk reaches it or its
+    margin; each pair of neighbours overlaps by two margins."""
+    small, large = load_scenario("region-400"), load_scenario("region-4000")
+    assert list(small.regions) == list(large.regions) == ["nw", "ne", "sw", "se"]
+    g = np.linspace(-200e3, 200e3, 41)
+    box = np.array([[e, n] for e in g for n in g])
+    assert np.all(np.any([r.inside(box) | (boundary_distance(box, r.polygon) < 1e-6)
+                          for r in small.regions.values()], axis=0))
+    for name, region in small.regions.items():
+        other = large.regions[name]
+        np.testing.assert_array_equal(region.polygon, other.polygon)
+        assert (region.margin, region.sensors) == (other.margin, other.sensors) and region.margin == 25e3
+        reach = []
+        for sid, s in small.sensors.items():
+            p = s.site.points[:1, :2]
+            d = 0.0 if region.inside(p)[0] else boundary_distance(p, region.polygon)[0]
+            if d <= s.max_range + region.margin:
+                reach.append(sid)
+        assert list(region.sensors) == reach, name
