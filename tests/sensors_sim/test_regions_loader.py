@@ -8,52 +8,19 @@ import pytest
 
 from fusion.regions import boundary_distance
 from sensors_sim import ScenarioError, load_scenario, load_site
+from conftest import ROOT
 
-HEAD = """\
-description = "regions"
-seed = 1
-duration_s = 10.0
+TWO_REGIONS = ROOT / "tests" / "data" / "two-regions.toml"
+SITE_KEYS = ("seed", "duration_s", "[targets.A]", "pos_km = [-25.0", "vel_mps")  # lines only a scenario has
 
-[origin]
-lat_deg = 21.0
-lon_deg = 105.8
-alt_m = 0.0
 
-[defaults]
-topology = "centralised"
-method = "SS"
-
-[targets.T1]
-pos_km = [1.0, 1.0, 2.0]
-vel_mps = [100.0, 0.0, 0.0]
-
-[sensors.a]
-kind = "radar3d"
-pos_km = [-10.0, 0.0, 0.0]
-period_s = 1.0
-std_az_deg = 0.3
-std_el_deg = 0.3
-std_range_m = 50.0
-
-[sensors.b]
-kind = "radar3d"
-pos_km = [10.0, 0.0, 0.0]
-period_s = 1.0
-std_az_deg = 0.3
-std_el_deg = 0.3
-std_range_m = 50.0
-"""
-
-REGIONS = """
-[regions.west]
-box_km = [-20.0, -20.0, 0.0, 20.0]
-margin_km = 5.0
-sensors = ["a", "b"]
-
-[regions.east]
-polygon_m = [[0.0, -20000.0], [20000.0, -20000.0], [20000.0, 20000.0], [0.0, 20000.0]]
-sensors = ["b"]
-"""
+def case(east: str | None = None) -> str:
+    """tests/data/two-regions.toml, the east region given as a polygon in metres (or ``east``)."""
+    text = TWO_REGIONS.read_text()
+    head, _ = text.split("[regions.east]")
+    return head + "[regions.east]\n" + (east if east is not None else
+                                        "polygon_m = [[0.0, -60000.0], [60000.0, -60000.0], [60000.0, 60000.0], "
+                                        "[0.0, 60000.0]]\nsensors = [\"e\", \"s\"]\n")
 
 
 def write(tmp_path, text):
@@ -63,39 +30,38 @@ def write(tmp_path, text):
 
 
 def test_regions_load_in_metres(tmp_path):
-    sc = load_scenario(write(tmp_path, HEAD + REGIONS))
+    sc = load_scenario(write(tmp_path, case()))
     assert list(sc.regions) == ["west", "east"]
     west, east = sc.regions["west"], sc.regions["east"]
-    assert west.margin == 5000.0 and east.margin == 0.0
-    assert west.sensors == ("a", "b") and east.sensors == ("b",)
-    np.testing.assert_array_equal(west.polygon, [[-20000, -20000], [0, -20000], [0, 20000], [-20000, 20000]])
-    assert west.holds(np.array([[3000.0, 0.0], [6000.0, 0.0]])).tolist() == [True, False]
+    assert west.margin == 8000.0 and east.margin == 0.0
+    assert west.sensors == ("w", "s") and east.sensors == ("e", "s")
+    np.testing.assert_array_equal(west.polygon, [[-60000, -60000], [0, -60000], [0, 60000], [-60000, 60000]])
+    assert west.holds(np.array([[7000.0, 0.0], [9000.0, 0.0]])).tolist() == [True, False]
     assert east.inside(np.array([[3000.0, 0.0]])).tolist() == [True]
 
 
 def test_no_regions_is_an_empty_table(tmp_path):
-    assert load_scenario(write(tmp_path, HEAD)).regions == {}
+    assert load_scenario(write(tmp_path, TWO_REGIONS.read_text().split("[regions.west]")[0])).regions == {}
 
 
 def test_a_site_file_takes_regions(tmp_path):
-    site = HEAD.split("[targets.T1]")[0].replace("seed = 1\nduration_s = 10.0\n", "")
-    site += HEAD.split('vel_mps = [100.0, 0.0, 0.0]\n')[1] + REGIONS
+    site = "\n".join(line for line in case().splitlines() if not line.startswith(SITE_KEYS))
     spec = load_site(write(tmp_path, site))
-    assert set(spec.regions) == {"west", "east"}
+    assert not hasattr(spec, "targets") and set(spec.regions) == {"west", "east"}
 
 
 @pytest.mark.parametrize("old, new, said", [
-    ('sensors = ["b"]\n', 'sensors = ["b", "zz"]\n', r"regions\.east\.sensors: unknown sensor 'zz'"),
-    ('sensors = ["b"]\n', 'sensors = []\n', r"regions\.east\.sensors: must be a non-empty list"),
-    ("[[0.0, -20000.0], [20000.0, -20000.0], [20000.0, 20000.0], [0.0, 20000.0]]",
+    ('sensors = ["e", "s"]\n', 'sensors = ["e", "zz"]\n', r"regions\.east\.sensors: unknown sensor 'zz'"),
+    ('sensors = ["e", "s"]\n', 'sensors = []\n', r"regions\.east\.sensors: must be a non-empty list"),
+    ("[[0.0, -60000.0], [60000.0, -60000.0], [60000.0, 60000.0], [0.0, 60000.0]]",
      "[[0.0, 0.0], [1.0, 1.0], [2.0, 2.0]]", r"regions\.east\.polygon_m: degenerate polygon"),
-    ("[-20.0, -20.0, 0.0, 20.0]", "[0.0, -20.0, -20.0, 20.0]", r"regions\.west\.box_km: must be \[e_min"),
+    ("[-60.0, -60.0, 0.0, 60.0]", "[0.0, -60.0, -60.0, 60.0]", r"regions\.west\.box_km: must be \[e_min"),
     ("[regions.east]", "[regions.\"ea st\"]", r"region names may use only"),
-    ("margin_km = 5.0", "margin_km = -5.0", r"regions\.west\.margin_km: must be >= 0"),
-    ("margin_km = 5.0", "margin_km = 5.0\npolygon_km = [[0, 0], [1, 0], [0, 1]]", r"not both"),
+    ("margin_km = 8.0", "margin_km = -5.0", r"regions\.west\.margin_km: must be >= 0"),
+    ("margin_km = 8.0", "margin_km = 5.0\npolygon_km = [[0, 0], [1, 0], [0, 1]]", r"not both"),
 ])
 def test_bad_regions_are_one_located_line(tmp_path, old, new, said):
-    text = HEAD + REGIONS
+    text = case()
     assert old in text
     with pytest.raises(ScenarioError, match=said) as err:
         load_scenario(write(tmp_path, text.replace(old, new, 1)))
