@@ -15,6 +15,12 @@ GOSPA counts it as localising that target. Over the run:
 * **ghost persistence**: the longest run of steps one track spent on no target;
 * **found at the end**: the fraction of the last step's targets held there;
 * **false tracks**: tracks on no target at any step of their life;
+* **duplicates**: per step, the targets on which more than one track sits — a track
+  left out of the assignment whose nearest target, closer than ``c``, is held by
+  another track — summed over the steps;
+* **id changes**: the steps at which a target is held by another track than the one that
+  held it last (unlike a break, a step held by none does not count, nor does the first
+  track to hold it);
 * **held after initiation**: truth-steps with an assigned track over the truth-steps of
   *settled* targets only, those a step marks as past their initiation (the scorer of a
   scenario marks a target settled from its third scan by any sensor on: a tracker needs
@@ -148,6 +154,8 @@ class TrackScore:
     settled_steps: int = 0
     settled_held: int = 0
     assigned_sq: float = 0.0  # Σ‖truth − track‖² over the assigned pairs (held_steps of them)
+    duplicates: int = 0
+    id_changes: int = 0
     bin: int = 1
     assignments: list[dict[str, str]] = field(default_factory=list)
     hold_fractions: list[float] = field(default_factory=list)
@@ -156,7 +164,7 @@ class TrackScore:
 
     COUNTS = ("truth_steps", "held_steps", "breaks", "break_chances", "track_steps", "dominant_steps",
               "false_tracks", "false_track_steps", "n_tracks", "steps", "missed_steps", "gospa_sum", "ospa_sum",
-              "settled_steps", "settled_held", "assigned_sq")
+              "settled_steps", "settled_held", "assigned_sq", "duplicates", "id_changes")
 
     @classmethod
     def merged(cls, scores: Sequence["TrackScore"]) -> "TrackScore":
@@ -230,7 +238,8 @@ class TrackScore:
                 "purity": self.purity, "worst_hold": self.worst_hold, "tracks": self.n_tracks,
                 "longest_ghost": self.max_ghost, "all_found_runs": self.all_found_runs, "false_tracks": self.false_tracks,
                 "false_track_steps": self.false_track_steps,
-                "missed_steps": self.missed_steps, "steps": self.steps}
+                "missed_steps": self.missed_steps, "steps": self.steps, "duplicates": self.duplicates,
+                "id_changes": self.id_changes}
 
 
 class TrackScorer:
@@ -257,6 +266,7 @@ class TrackScorer:
         self.forget_after, self.series_max = forget_after, series_max
         self.out = TrackScore()  # counters, the closed targets' and tracks' totals, the series
         self.last_on: dict[str, str | None] = {}  # truth -> track at its previous step (None: not held)
+        self.last_id: dict[str, str] = {}  # truth -> the last track that held it
         self.found: dict[str, list[int]] = {}  # truth -> [steps held, steps since first held]
         self.on_counts: dict[str, Counter] = {}  # track -> Counter of the truths it was on (None: nothing)
         self.ghost: dict[str, int] = {}  # track -> consecutive steps on no target, up to now
@@ -295,7 +305,11 @@ class TrackScorer:
             if truth in pairs or f[1]:
                 f[0] += int(truth in pairs)
                 f[1] += 1
+        for truth, k in pairs.items():
+            out.id_changes += int(self.last_id.get(truth, k) != k)
+            self.last_id[truth] = k
         by_track = {k: tr for tr, k in pairs.items()}
+        out.duplicates += duplicates(s, pairs, by_track, c)
         self.ghost = {k: self.ghost.get(k, 0) + 1 for k in s.tracks if k not in by_track}
         self.longest = max(self.longest, *self.ghost.values(), 0)
         for k in s.tracks:
@@ -332,6 +346,7 @@ class TrackScorer:
                 _close_track(self.closed, self.on_counts.pop(name))
             else:
                 self.last_on.pop(name)
+                self.last_id.pop(name, None)
                 held, since = self.found.pop(name)
                 frac = held / since if since else 0.0
                 self.worst_forgotten = frac if self.worst_forgotten is None else min(self.worst_forgotten, frac)
@@ -358,6 +373,18 @@ class TrackScorer:
         out.longest_ghost = [self.longest]
         out.found_at_end = [] if self.found_last is None else [self.found_last]
         return out
+
+
+def duplicates(s: Step, pairs: Mapping[str, str], by_track: Mapping[str, str], c: float) -> int:
+    """The step's targets on which a second track sits: each target held in ``pairs``
+    that is the nearest target, closer than ``c``, of a track left out of them."""
+    extra = [k for k in s.tracks if k not in by_track]
+    if not extra or not pairs:
+        return 0
+    truths = list(s.truths)
+    d, j = cKDTree(np.array([s.truths[t] for t in truths], dtype=float)).query(
+        np.array([s.tracks[k] for k in extra], dtype=float), distance_upper_bound=c)
+    return len({truths[i] for di, i in zip(np.atleast_1d(d), np.atleast_1d(j)) if di < c and truths[i] in pairs})
 
 
 def _add(a: list, b: list) -> None:

@@ -22,6 +22,7 @@ import numpy as np
 
 from fusion.geodetic import LocalFrame, geodetic_to_enu
 from fusion.measurement.kinds import KINDS
+from fusion.regions import Region, box_polygon, polygon_area
 
 from ._toml import ANGLE, LENGTH, RATE, TIME, Reader, TomlSource
 from .geometry import coverage_span
@@ -151,9 +152,10 @@ def _header(root: Reader, scenario: bool) -> dict:
 def _site_file(root: Reader, name: str, display: str) -> SiteSpec:
     header = _header(root, scenario=False)
     sensors = {sid: _sensor(r, header["origin"], None)[0] for sid, r in root.tables("sensors")}
+    regions = _regions(root, sensors)
     root.finish()
     _check_ids(root.source, {}, sensors, {})
-    return SiteSpec(name=name, **header, sensors=sensors, source=display)
+    return SiteSpec(name=name, **header, sensors=sensors, source=display, regions=regions)
 
 
 def _scenario(root: Reader, name: str, display: str) -> Scenario:
@@ -177,6 +179,7 @@ def _scenario(root: Reader, name: str, display: str) -> Scenario:
     sensors, sensor_pos_keys = {}, {}
     for sid, r in root.tables("sensors"):
         sensors[sid], sensor_pos_keys[sid] = _sensor(r, origin, targets)
+    regions = _regions(root, sensors)
     root.finish()
 
     src = root.source
@@ -205,7 +208,7 @@ def _scenario(root: Reader, name: str, display: str) -> Scenario:
                                     f"multiple of truth_dt_s = {truth_dt:g}")
     return Scenario(
         name=name, **header, sensors=sensors, seed=seed, duration=duration, targets=targets, jammers=jammers,
-        truth_dt=truth_dt if noisy else None, source=display, traffic=traffic, endless=endless,
+        truth_dt=truth_dt if noisy else None, source=display, traffic=traffic, endless=endless, regions=regions,
     )
 
 
@@ -509,6 +512,43 @@ def _check_ids(src, targets, sensors, jammers) -> None:
             if i in seen:
                 raise src.error((table, i), f"id already used in [{seen[i]}]: ids must be unique")
             seen[i] = table
+
+
+# --- regions ----------------------------------------------------------------------------
+
+
+def _regions(root: Reader, sensors: dict) -> dict[str, Region]:
+    """``[regions.<name>]``: ``polygon_m``/``polygon_km`` (``[[e, n], ...]`` in the
+    origin's ENU frame) or ``box_m``/``box_km`` (``[e_min, n_min, e_max, n_max]``), a
+    ``margin_m``/``margin_km`` (default 0) and ``sensors``, the ids of the sensors that
+    feed it (a sensor may feed several regions)."""
+    out: dict[str, Region] = {}
+    for name, r in root.tables("regions", required=False):
+        if not _ID.match(name):
+            raise r.error("region names may use only letters, digits, '_' and '-' (they are key chunks)")
+        polygon, key = r.unit_vector("polygon", LENGTH, (2,), required=False, min_rows=3)
+        box_key = r.unit_key("box", LENGTH, required=polygon is None)
+        if polygon is not None and box_key is not None:
+            raise r.error(f"give either {key} or {box_key}, not both", box_key)
+        if box_key is not None:
+            key = box_key
+            e0, n0, e1, n1 = r.vector(box_key, (4,), LENGTH[box_key[4:]])
+            if not (e0 < e1 and n0 < n1):
+                raise r.error("must be [e_min, n_min, e_max, n_max] with e_min < e_max and n_min < n_max", box_key)
+            polygon = box_polygon(e0, n0, e1, n1)
+        elif abs(polygon_area(polygon)) <= 0.0:
+            raise r.error("degenerate polygon: its points enclose no area", key)
+        margin = r.quantity("margin", LENGTH, default=0.0, ge=0)
+        refs = r.raw("sensors")
+        if not isinstance(refs, list) or not refs or not all(isinstance(x, str) for x in refs) \
+                or len(set(refs)) != len(refs):
+            raise r.error("must be a non-empty list of distinct sensor ids (a region needs sensors)", "sensors")
+        unknown = [x for x in refs if x not in sensors]
+        if unknown:
+            raise r.error(f"unknown sensor {unknown[0]!r} (sensors: {', '.join(sensors)})", "sensors")
+        r.finish()
+        out[name] = Region(name, polygon, margin, tuple(refs))
+    return out
 
 
 # --- jammers ----------------------------------------------------------------------------

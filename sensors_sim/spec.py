@@ -12,7 +12,7 @@ jammers) is a pure function of them. Positions are local ENU metres around
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -243,6 +243,8 @@ class SiteSpec:
         defaults: ``{"topology": ..., "method": ...}``, what the processes use when the
             command line does not say.
         source: the file it came from (for messages).
+        regions: name -> :class:`fusion.regions.Region`, in file order (``[regions]``:
+            what each regional fuser holds; empty: one fuser holds everything).
     """
 
     name: str
@@ -252,6 +254,7 @@ class SiteSpec:
     tracker: dict
     defaults: dict
     source: str = ""
+    regions: dict = field(default_factory=dict)
 
     def sensor(self, sensor_id: str) -> SensorSpec:
         try:

@@ -31,6 +31,7 @@ import heapq
 import math
 import multiprocessing
 import os
+import time
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, field
 from typing import Callable, Iterable, Sequence
@@ -46,14 +47,15 @@ from fusion.methods import METHODS, make_method, method_config
 from fusion.metrics import cep50
 from fusion.motion import ConstantAcceleration
 from fusion.patent import COLOCATED_TOL, KINDS_3D, TrackerConfig
+from fusion.regional import RegionalMethod
 from fusion.types import Estimate, Measurement
 from sensors_sim import jam_effect, sensor_events, truth_trajectory
 from sensors_sim.geometry import in_coverage
 from sensors_sim.segments import ConstantAcceleration as CASegment
 from sensors_sim.segments import Static
 
-from .scoring import (GOSPA_CUTOFF, Looks, many_targets, pair_tol_of, scan_groups, score_run, score_tracks_of,
-                      truth_function)
+from .scoring import (GOSPA_CUTOFF, Looks, many_targets, pair_tol_of, region_crossings, scan_groups, score_run,
+                      score_tracks_of, truth_function)
 from .summary import aggregate, summary, tracks_summary
 
 def merged_measurements(scenario, run: int = 0, sensors: Iterable[str] | None = None,
@@ -70,10 +72,29 @@ def merged_measurements(scenario, run: int = 0, sensors: Iterable[str] | None = 
     return list(heapq.merge(*streams, key=lambda m: m.order_key))
 
 
+TOPOLOGIES = ("regional",)  # what ``zfusion eval --topology`` runs besides each method's own
+
+
+def build_method(scenario, method_name: str, overrides: dict | None = None, topology: str | None = None,
+                 clock=None):
+    """Method ``method_name`` with the scenario's ``[tracker]`` and ``overrides``; with
+    ``topology = "regional"``, its regional fusers over the scenario's ``[regions]``
+    under a system fuser (:mod:`fusion.regional`; ``clock`` times the parts)."""
+    config = method_config(scenario.tracker, method_name, overrides)
+    if topology is None:
+        return make_method(method_name, config)
+    if topology != "regional":
+        raise ValueError(f"unknown evaluation topology {topology!r} (one of {', '.join(TOPOLOGIES)})")
+    if not scenario.regions:
+        raise ValueError(f"--topology regional needs [regions] in the scenario; {scenario.name} has none")
+    return RegionalMethod.from_config(method_name, scenario.regions, config, make_method, clock=clock)
+
+
 def run_method(scenario, method_name: str, overrides: dict | None = None, run: int = 0,
-               measurements: list[Measurement] | None = None) -> list[Estimate]:
-    """Run one method over one Monte Carlo run; returns every estimate it emits."""
-    method = make_method(method_name, method_config(scenario.tracker, method_name, overrides))
+               measurements: list[Measurement] | None = None, method=None) -> list[Estimate]:
+    """Run one method over one Monte Carlo run; returns every estimate it emits. ``method``:
+    one already built (:func:`build_method`), else the method of that name."""
+    method = method or make_method(method_name, method_config(scenario.tracker, method_name, overrides))
     stream = measurements if measurements is not None else merged_measurements(scenario, run)
     out: list[Estimate] = []
     t_prev = None
@@ -141,15 +162,19 @@ class Variant:
     method: str
     overrides: dict = field(default_factory=dict)
     sensors: tuple[str, ...] | None = None
+    topology: str | None = None  # "regional": the method as regional fusers under a system fuser
 
 
-def variants_for(methods: Sequence[str], overrides: dict | None = None) -> list[Variant]:
-    return [Variant(m, m, dict(overrides or {})) for m in methods]
+def variants_for(methods: Sequence[str], overrides: dict | None = None, topology: str | None = None) -> list[Variant]:
+    return [Variant(m, m, dict(overrides or {}), topology=topology) for m in methods]
 
 
 def _score_runs(scenario, variants: Sequence[Variant], run_ids: Sequence[int]) -> dict[int, dict[str, list]]:
+    """Per run, each variant's score (by label); with ``[regions]`` also the run's
+    ``crossings`` (key ``None``), and each regional variant's CPU seconds per part (key
+    ``(label, "cpu_s")``)."""
     truth = truth_function(scenario)
-    out: dict[int, dict[str, list]] = {}
+    out: dict[int, dict] = {}
     for r in run_ids:
         streams: dict[tuple | None, list[Measurement]] = {}
         looks = Looks() if many_targets(scenario) else None
@@ -161,9 +186,14 @@ def _score_runs(scenario, variants: Sequence[Variant], run_ids: Sequence[int]) -
             if key not in streams:
                 wanted = set(key)
                 streams[key] = [m for m in full if m.sensor in wanted]
-            estimates = run_method(scenario, v.method, v.overrides, r, streams[key])
+            method = build_method(scenario, v.method, v.overrides, v.topology, time.process_time)
+            estimates = run_method(scenario, v.method, v.overrides, r, streams[key], method)
             scores[v.label] = (score_tracks_of(scenario, estimates, r, looks=looks)
                                if many_targets(scenario) else score_run(estimates, truth, r))
+            if v.topology == "regional":
+                scores[(v.label, "cpu_s")] = dict(method.cpu)
+        if scenario.regions and many_targets(scenario):
+            scores[None] = region_crossings(scenario, r)
         out[r] = scores
     return out
 
@@ -192,7 +222,7 @@ def evaluate(scenario, variants: Sequence[Variant], runs: int, *, jobs: int = 1,
     if len(set(labels)) != len(labels):
         raise ValueError(f"evaluate: duplicate variant labels {labels}")
     for v in variants:
-        make_method(v.method, method_config(scenario.tracker, v.method, v.overrides))  # fail early on a bad name/config
+        build_method(scenario, v.method, v.overrides, v.topology)  # fail early on a bad name/config/topology
         for s in v.sensors or ():
             scenario.sensor(s)
     jobs = max(1, min(int(jobs), runs))
@@ -219,6 +249,11 @@ def evaluate(scenario, variants: Sequence[Variant], runs: int, *, jobs: int = 1,
         if v.label != v.method or v.overrides or v.sensors:
             methods[v.label]["variant"] = {"method": v.method, "overrides": dict(v.overrides),
                                            "sensors": list(v.sensors) if v.sensors else None}
+        if scenario.regions and many_targets(scenario):
+            methods[v.label]["crossings"] = sum(per_run[r][None] for r in range(runs))
+        if v.topology == "regional":  # process time of each part, summed over the runs (not deterministic)
+            cpu = [per_run[r][(v.label, "cpu_s")] for r in range(runs)]
+            methods[v.label]["cpu_s"] = {part: sum(c[part] for c in cpu) for part in cpu[0]}
     bound = crb_summary(scenario, runs) if crb and not many_targets(scenario) else None
     doc = summary(scenario, topology, fusion_rule, scenario.seed, runs, methods, crb=bound)
     if many_targets(scenario):

@@ -35,6 +35,7 @@ import numpy as np
 from fusion.metrics import chi2_bounds, gospa
 from fusion.mtt_metrics import Step, score_tracks
 from fusion.patent import TrackerConfig
+from fusion.regions import Crossings
 from fusion.types import Estimate
 from sensors_sim import sensor_events, truth_trajectory
 from sensors_sim.trajectories import iter_times
@@ -384,6 +385,15 @@ def score_tracks_of(scenario, estimates: Sequence[Estimate], run: int = 0, c: fl
     """A run's fused tracks scored by :func:`fusion.mtt_metrics.score_tracks`."""
 
     return score_tracks(track_steps(scenario, estimates, run, looks=looks), c, p)
+
+
+def region_crossings(scenario, run: int = 0) -> int:
+    """The run's aircraft passing from one of the scenario's ``[regions]`` into another,
+    at the steps a many-target run is scored at (:class:`fusion.regions.Crossings`)."""
+    crossings = Crossings(scenario.regions)
+    for step in track_steps(scenario, [], run, looks=Looks()):
+        crossings.add(step.truths)
+    return crossings.count
 
 
 # The recorder's panels ---------------------------------------------------------------------

@@ -297,6 +297,8 @@ def tracks_summary(scores: Sequence) -> dict:
         "found_at_end_per_run": [float(f) for f in run.found_at_end],
         "tracks": run.n_tracks,
         "false_tracks": run.false_tracks,
+        "duplicates": run.duplicates,
+        "id_changes": run.id_changes,
         "steps": run.steps,
     }
 

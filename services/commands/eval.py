@@ -5,8 +5,12 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
+import tomllib
 from pathlib import Path
+
+from fusion.topology import METHOD_TOPOLOGIES
 
 from ..errors import UserError
 from ..lazy import lazy
@@ -27,6 +31,9 @@ def register(sub) -> None:
     p.add_argument("--methods", nargs="+",
                    help="methods to evaluate (default: every method the scenario's sensors can feed)")
     options.fusion_rule(p, "track-to-track fusion rule of the track-fusion methods")
+    p.add_argument("--topology", choices=("regional",),
+                   help="regional: each method as regional fusers over the scenario's [regions] under a system "
+                        "fuser (docs/regional.md); default: each method's own topology")
     options.seed_option(p)
     p.add_argument("--json", help="write the summary JSON here")
     p.add_argument("--report", metavar="DIR", help="write a Markdown report with PNG plots into DIR")
@@ -46,6 +53,8 @@ def run(args) -> int:
     names.check_scenario(args.scenario)
     names.check_methods(args.methods)
     names.check_settings(args.settings)
+    if args.topology == "regional":
+        check_regional(args.scenario, args.methods)
     if args.json:  # the outputs checked before the Monte Carlo, not after it
         options.writable_file(args.json, "--json")
     if args.report:
@@ -73,9 +82,10 @@ def run(args) -> int:
                     bar_format="{desc} {n}/{total} [{bar:30}] {elapsed} spent, {remaining} left", mininterval=0.0)
     bar.refresh()
     try:
-        doc = evaluation.evaluate(scenario, evaluation.variants_for(methods, overrides), args.runs, jobs=args.jobs,
+        doc = evaluation.evaluate(scenario, evaluation.variants_for(methods, overrides, args.topology), args.runs,
+                                  jobs=args.jobs,
                                   progress=(lambda done, total: bar.update(done - bar.n)) if show else None,
-                                  fusion_rule=rule)
+                                  fusion_rule=rule, topology=args.topology or "in-process")
     except ValueError as exc:
         raise UserError(str(exc)) from None
     finally:
@@ -88,9 +98,30 @@ def run(args) -> int:
         command = f"zfusion eval --scenario {args.scenario} --runs {args.runs}"
         command += f" --methods {' '.join(args.methods)}" if args.methods else ""
         command += f" --fusion-rule {args.fusion_rule}" if args.fusion_rule else ""
+        command += f" --topology {args.topology}" if args.topology else ""
         command += f" --seed {args.seed}" if args.seed is not None else ""
         command += f" --duration-s {args.duration_s:g}" if args.duration_s else ""
         command += "".join(f" --set {k}={v!r}" for k, v in args.settings)
         path = report.write_eval_report(doc, Path(args.report), command=command)
         print(f"report: {path}")
     return 0
+
+
+def check_regional(ref: str, methods: list[str] | None) -> None:
+    """``--topology regional`` needs ``[regions]`` in the scenario and centralised methods
+    named (a regional fuser is a centralised many-target tracker): read from the file
+    itself, before the heavy imports (its validity is the loader's to check)."""
+    try:
+        path = Path(ref) if os.path.isfile(ref) else Path(names.builtin_dir()) / f"{ref}.toml"
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except (OSError, tomllib.TOMLDecodeError):
+        return  # the loader says what is wrong with it
+    if not data.get("regions"):
+        raise UserError(f"--topology regional needs [regions.<name>] tables in the scenario (sensors_sim/README.md, "
+                        f"\"Regions\"); {ref} has none")
+    if not methods:
+        raise UserError("--topology regional: name the centralised methods to run (--methods SS ...)")
+    split = [m for m in methods if METHOD_TOPOLOGIES[m] != "centralised"]
+    if split:
+        raise UserError(f"--topology regional runs centralised methods as regional fusers; {', '.join(split)} "
+                        f"{'is' if len(split) == 1 else 'are'} {METHOD_TOPOLOGIES[split[0]]}")

@@ -41,12 +41,16 @@ def check_settings(settings: list[tuple[str, object]] | None) -> None:
             raise UserError(f"unknown tracker config key {key!r} ({hint}known: {', '.join(sorted(TRACKER_KEYS))})")
 
 
-def builtin_scenarios() -> list[str]:
-    """The built-in scenarios' names, from the package's directory (``sensors_sim`` is
-    located, not imported: its ``__init__`` loads numpy)."""
+def builtin_dir() -> Path:
+    """The built-in scenarios' directory (``sensors_sim`` is located, not imported: its
+    ``__init__`` loads numpy)."""
     spec = importlib.util.find_spec("sensors_sim")
-    folder = Path(next(iter(spec.submodule_search_locations))) / "scenarios"
-    return sorted(p.stem for p in folder.glob("*.toml"))
+    return Path(next(iter(spec.submodule_search_locations))) / "scenarios"
+
+
+def builtin_scenarios() -> list[str]:
+    """The built-in scenarios' names, from the package's directory."""
+    return sorted(p.stem for p in builtin_dir().glob("*.toml"))
 
 
 def check_scenario(ref: str | None) -> None:

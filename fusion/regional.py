@@ -1,0 +1,339 @@
+r"""The regional topology as pure state machines: regional fusers under one system fuser.
+
+A *regional fuser* (:class:`RegionalFuser`) is an ordinary centralised many-target
+method (:class:`fusion.mtt.MultiTargetMethod`, the method's own ``[tracker]``) over the
+plots of its region's sensors that it can place over its region and margin (a radar
+plot's ground point within :data:`PLOT_SLACK_M` of them; a ray is always taken). After
+each frame it drops the tracks that have left its region and margin
+(:meth:`fusion.regions.Region.holds`) and publishes its confirmed tracks, ids
+namespaced by region (``north.T3``), with the ids it stopped publishing: one
+:class:`RegionalFrame`.
+
+The *system fuser* (:class:`SystemFuser`) takes the regional frames as a distributed
+centre takes local tracks, and keeps the system tracks ``T<n>``:
+
+1. a regional track keeps its system track while it stays within the track-to-track
+   χ² gate of the system track's other members, ``d² = Δᵀ(P₁ + P₂)⁺Δ`` on position and
+   velocity, both predicted to the later time (:func:`fusion.tracking.hypotheses.track_distance2`);
+2. a regional track that has none is assigned by GNN (:func:`fusion.tracking.associators.gnn`)
+   to the system tracks that hold no track of its region, against their latest fused
+   estimate, or starts a new system track;
+3. each system track is the covariance intersection of its members, predicted to the
+   latest of their times: ``P⁻¹ = ωP₁⁻¹ + (1−ω)P₂⁻¹``, ``P⁻¹x = ωP₁⁻¹x₁ + (1−ω)P₂⁻¹x₂``,
+   ω minimising ``tr P`` (:func:`fusion.track_fusion.fuse_ci`), folded pairwise over
+   three or four members (where regions meet), most certain first. Two regions fed by
+   one sensor, with the same process noise, have errors correlated in a way neither
+   knows; CI is consistent for every such correlation, the naive product is not
+   (docs/regional.md).
+
+So an aircraft's system id survives a handover: the next region's track joins the system
+track while both regions hold the aircraft in the overlap, and the first region's track
+leaves it when it is dropped. :class:`RegionalMethod` wires the fusers back to back for
+the in-process evaluation; with one region the system picture is its fuser's picture.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from typing import Callable, Mapping, Sequence
+
+import numpy as np
+
+from .measurement.kinds import KINDS
+from .patent import TrackerConfig, uses
+from .regions import Region
+from .track_fusion import fuse_ci, fuse_naive
+from .tracking.associators import gnn
+from .tracking.config import AssociationConfig
+from .tracking.hypotheses import gate_threshold, track_distance2
+from .tracking.table import DELETED, TrackIds
+from .types import Estimate, Measurement
+
+__all__ = ["RegionalFrame", "RegionalFuser", "RegionalMethod", "SYSTEM_RULES", "SystemFuser", "SystemTrack"]
+
+SYSTEM_RULES = ("ci", "naive")  # the system fuser's rules: CI; naive only to show why not (tests, docs)
+_COMPARED = np.arange(6)  # position, velocity: what track-to-track association compares
+PLOT_SLACK_M = 15_000.0  # m: how far beyond its region and margin a plot's ground point may be, and still be used
+SCREEN_SLACK_M = 2000.0  # m: the screen's allowance for the spread's growth over an extrapolation
+
+
+def _screen(a: Sequence[Estimate], b: Sequence[Estimate], gate: float) -> np.ndarray:
+    """``(len(a), len(b))``: the pairs that may be in the gate (:meth:`SystemFuser._associate`)."""
+    def parts(es):
+        return (np.array([e.t for e in es]), np.array([e.x[:2] for e in es]), np.array([e.x[3:5] for e in es]),
+                np.array([e.P[0, 0] + e.P[1, 1] for e in es]))
+    (ta, pa, va, sa), (tb, pb, vb, sb) = parts(a), parts(b)
+    t = np.maximum(ta[:, None], tb[None, :])
+    gap = (pa[:, None] + va[:, None] * (t - ta[:, None])[..., None]) - (pb[None] + vb[None] * (t - tb[None])[..., None])
+    radius = np.sqrt(gate * (sa[:, None] + sb[None, :])) + SCREEN_SLACK_M
+    return np.sum(gap * gap, axis=-1) <= radius * radius
+
+
+@dataclass(frozen=True)
+class RegionalFrame:
+    """What one regional fuser publishes after a frame: its confirmed tracks held by the
+    region (ids ``<region>.<id>``, ``node`` the region), and the ids it published before
+    and no longer does (deleted, or dropped on leaving the region)."""
+
+    region: str
+    t: float
+    tracks: tuple[Estimate, ...]
+    dropped: tuple[str, ...] = ()
+
+
+def _ground(m: Measurement) -> tuple[float, float]:
+    """Where a plot puts its target over the ground, ``(e, n)``: a position report's
+    position; a radar plot's site plus its horizontal range (the slant range where the
+    elevation is not measured: at most 12 km off, a 12 km altitude seen from above) along
+    its azimuth; ``(nan, nan)`` for a plot with no range (an angle sensor's ray)."""
+    names = [c.name for c in KINDS[m.kind].components]
+    if "east" in names:
+        return float(m.z[names.index("east")]), float(m.z[names.index("north")])
+    if "range" not in names or m.site is None:
+        return math.nan, math.nan
+    az, r = m.z[names.index("az")], m.z[names.index("range")]
+    h = r * math.cos(m.z[names.index("el")]) if "el" in names else r
+    return float(m.site[0] + h * math.sin(az)), float(m.site[1] + h * math.cos(az))
+
+
+class RegionalFuser:
+    """One region's fuser (module docstring) around a centralised many-target method
+    (a :class:`~fusion.patent.GroupedMethod` with a ``tracker``), fed every measurement:
+    it takes those of its region's sensors."""
+
+    def __init__(self, region: Region, method):
+        if not hasattr(method, "tracker") or not hasattr(method, "_grouper"):
+            raise ValueError(f"region {region.name!r}: a regional fuser runs a centralised many-target method "
+                             f"('association' in [tracker]), not {method!r}")
+        self.region = region
+        self.method = method
+        self.sensors = frozenset(region.sensors)
+        self._published: set[str] = set()
+
+    def process(self, m: Measurement) -> list[RegionalFrame]:
+        if m.sensor not in self.sensors or not uses(self.method.name, self.method.kinds, m):
+            return []
+        return [self._frame(g) for g in self.method._grouper.push(m)]
+
+    def advance(self, t: float) -> list[RegionalFrame]:
+        return [self._frame(g) for g in self.method._grouper.advance(t)]
+
+    def finish(self) -> list[RegionalFrame]:
+        return [self._frame(g) for g in self.method._grouper.finish()]
+
+    def _frame(self, group: list[Measurement]) -> RegionalFrame:
+        ground = np.array([_ground(m) for m in group])
+        placed = ~np.isnan(ground[:, 0])
+        keep = ~placed
+        keep[placed] = self.region.holds(ground[placed], PLOT_SLACK_M)
+        mine = [m for m, k in zip(group, keep) if k]
+        estimates = self.method._group(mine) if mine else []
+        table = self.method.tracker.table
+        if table.tracks:
+            held = self.region.holds(np.array([tr.last.x[:2] for tr in table.tracks]))
+            for tr in (tr for tr, h in zip(table.tracks, held) if not h):
+                tr.logic.status = DELETED
+            table.tracks = [tr for tr, h in zip(table.tracks, held) if h]
+        name = self.region.name
+        live = {tr.id for tr in table.tracks if tr.id is not None}
+        tracks = tuple(dataclasses.replace(e, node=name, track=f"{name}.{e.track}") for e in estimates
+                       if e.track in live)
+        ids = {f"{name}.{i}" for i in live}
+        dropped = tuple(sorted(self._published - ids))
+        self._published = ids
+        return RegionalFrame(name, group[0].t, tracks, dropped)
+
+
+@dataclass
+class SystemTrack:
+    """One system track: its id, its members (region -> regional id) and its latest estimate."""
+
+    id: str
+    members: dict[str, str] = field(default_factory=dict)
+    last: Estimate | None = None
+
+
+class SystemFuser:
+    """The system picture from the regional frames (module docstring, steps 1-3).
+
+    Args:
+        name: the method's name (the estimates carry it).
+        motion: the kinematic model members are predicted with (``F(dt)``, ``Q(dt)``).
+        gate_prob: the track-to-track χ² gate probability.
+        rule: ``ci`` (covariance intersection) or ``naive`` (independent errors assumed).
+        ci_criterion: CI's ``trace`` or ``det``.
+    """
+
+    def __init__(self, name: str, motion, gate_prob: float, rule: str = "ci", ci_criterion: str = "trace"):
+        if rule not in SYSTEM_RULES:
+            raise ValueError(f"system fusion rule must be one of {SYSTEM_RULES}, got {rule!r}")
+        if not hasattr(motion, "F"):
+            raise ValueError(f"the system fuser predicts with a kinematic model, not {motion!r}")
+        self.name, self.motion, self.gate_prob = name, motion, gate_prob
+        self.rule, self.ci_criterion = rule, ci_criterion
+        self.ids = TrackIds("T")
+        self.tracks: dict[str, SystemTrack] = {}  # system id -> track, in creation order
+        self.latest: dict[str, Estimate] = {}  # regional id -> its latest estimate
+        self.owner: dict[str, SystemTrack] = {}  # regional id -> its system track
+
+    def frame(self, f: RegionalFrame) -> list[Estimate]:
+        """One regional frame; returns the estimates of the system tracks it touched."""
+        for rid in f.dropped:
+            self._leave(f.region, rid)
+            self.latest.pop(rid, None)
+        for e in f.tracks:
+            self.latest[e.track] = e
+        unowned = []
+        for e in f.tracks:
+            s = self.owner.get(e.track)
+            if s is not None and not self._agrees(e, s):
+                self._leave(f.region, e.track)
+                s = None
+            if s is None:
+                unowned.append(e)
+        self._associate(f.region, unowned)
+        out: list[Estimate] = []
+        done: set[str] = set()
+        for e in f.tracks:
+            s = self.owner[e.track]
+            if s.id not in done:
+                done.add(s.id)
+                s.last = self._fuse(s)
+                out.append(s.last)
+        return out
+
+    # -- association -----------------------------------------------------------------------
+    def _at(self, e: Estimate, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """``e`` predicted to ``t ≥ e.t``."""
+        if t == e.t:
+            return e.x, e.P
+        F, Q = self.motion.F(t - e.t), self.motion.Q(t - e.t)
+        return F @ e.x, F @ e.P @ F.T + Q
+
+    def _distance2(self, a: Estimate, b: Estimate) -> float:
+        """The track-to-track ``d²`` of two estimates at the later time; ``inf`` outside
+        the gate of its rank."""
+        t = max(a.t, b.t)
+        (xa, Pa), (xb, Pb) = self._at(a, t), self._at(b, t)
+        d2, rank = track_distance2(xa, Pa, xb, Pb, dims=_COMPARED)
+        return d2 if not rank or d2 <= gate_threshold(rank, self.gate_prob) else np.inf
+
+    def _agrees(self, e: Estimate, s: SystemTrack) -> bool:
+        """Whether ``e`` stays associated: in the gate of one of its system track's other
+        members (trivially, if it has none)."""
+        others = [self.latest[rid] for rid in s.members.values() if rid != e.track]
+        return not others or any(np.isfinite(self._distance2(e, o)) for o in others)
+
+    def _associate(self, region: str, unowned: list[Estimate]) -> None:
+        """GNN of a region's regional tracks without a system track to the system tracks
+        holding no track of that region; the rest start system tracks. The pairs are
+        screened first: only those whose horizontal positions, extrapolated to the later
+        time, lie within the gate's radius of their summed horizontal spread (plus
+        :data:`SCREEN_SLACK_M` for the growth of that spread over the extrapolation) get
+        the χ² of :meth:`_distance2`."""
+        if not unowned:
+            return
+        free = [s for s in self.tracks.values() if region not in s.members and s.last is not None]
+        pairs: list[tuple[int, int]] = []
+        if free:
+            gate = gate_threshold(len(_COMPARED), self.gate_prob)
+            d2 = np.full((len(unowned), len(free)), np.inf)
+            for i, j in zip(*np.nonzero(_screen(unowned, [s.last for s in free], gate))):
+                d2[i, j] = self._distance2(unowned[i], free[j].last)
+            pairs = gnn(d2, gate)
+        taken = dict(pairs)
+        for i, e in enumerate(unowned):
+            if i in taken:
+                s = free[taken[i]]
+            else:
+                s = SystemTrack(self.ids.next())
+                self.tracks[s.id] = s
+            s.members[region] = e.track
+            self.owner[e.track] = s
+
+    def _leave(self, region: str, rid: str) -> None:
+        """Regional track ``rid`` is no member of its system track any more; a system
+        track left without members is deleted."""
+        s = self.owner.pop(rid, None)
+        if s is None:
+            return
+        if s.members.get(region) == rid:
+            del s.members[region]
+        if not s.members:
+            del self.tracks[s.id]
+
+    # -- fusion ----------------------------------------------------------------------------
+    def _fuse(self, s: SystemTrack) -> Estimate:
+        """The members' estimates predicted to the latest of their times and fused."""
+        members = [self.latest[rid] for rid in s.members.values()]
+        t = max(e.t for e in members)
+        states = [self._at(e, t) for e in members]
+        if self.rule == "naive" and len(states) > 1:
+            x, P = fuse_naive([x for x, _ in states], [P for _, P in states])
+        else:  # CI folded pairwise, most certain first: each step's ω in closed form
+            states.sort(key=lambda s: float(np.trace(s[1][:3, :3])))
+            x, P = states[0]
+            for xi, Pi in states[1:]:
+                x, P, _ = fuse_ci([x, xi], [P, Pi], self.ci_criterion)
+        return Estimate(t, x, P, self.name, "centre", s.id)
+
+
+class RegionalMethod:
+    """The regional topology in one process: every regional fuser fed the measurement
+    stream, their frames (in time order) fed to the system fuser. Implements the
+    streaming method interface; emits the system fuser's estimates (``node =
+    "centre"``). ``clock`` (optional, e.g. ``time.process_time``): each part's time is
+    summed into :attr:`cpu` (region name, or ``"system"``)."""
+
+    def __init__(self, name: str, fusers: Sequence[RegionalFuser], system: SystemFuser,
+                 clock: Callable[[], float] | None = None):
+        self.name = name
+        self.fusers = list(fusers)
+        self.system = system
+        self.clock = clock
+        self.cpu: dict[str, float] = {**{f.region.name: 0.0 for f in self.fusers}, "system": 0.0}
+
+    @classmethod
+    def from_config(cls, name: str, regions: Mapping[str, Region], config: dict,
+                    make_method: Callable[[str, dict], object], rule: str = "ci",
+                    clock: Callable[[], float] | None = None) -> "RegionalMethod":
+        """Method ``name``'s regional fusers (``make_method(name, config)`` each) under a
+        system fuser with the method's motion model, gate and CI criterion."""
+        if not regions:
+            raise ValueError("the regional topology needs [regions] in the scenario or site")
+        association, rest = AssociationConfig.split(config)
+        if association is None:
+            raise ValueError(f"{name}: the regional topology needs a many-target method ('association' in [tracker])")
+        cfg = TrackerConfig.from_dict(rest)
+        fusers = [RegionalFuser(r, make_method(name, config)) for r in regions.values()]
+        return cls(name, fusers, SystemFuser(name, cfg.motion_model(), association.gate_prob, rule,
+                                             cfg.ci_criterion), clock)
+
+    def process(self, m: Measurement) -> list[Estimate]:
+        return self._run(lambda f: f.process(m))
+
+    def advance(self, t: float) -> list[Estimate]:
+        return self._run(lambda f: f.advance(t))
+
+    def finish(self) -> list[Estimate]:
+        return self._run(lambda f: f.finish())
+
+    def _timed(self, key: str, fn, *args):
+        if self.clock is None:
+            return fn(*args)
+        start = self.clock()
+        try:
+            return fn(*args)
+        finally:
+            self.cpu[key] += self.clock() - start
+
+    def _run(self, step) -> list[Estimate]:
+        frames: list[RegionalFrame] = []
+        for f in self.fusers:
+            frames += self._timed(f.region.name, step, f)
+        out: list[Estimate] = []
+        for fr in sorted(frames, key=lambda fr: fr.t):
+            out += self._timed("system", self.system.frame, fr)
+        return out
