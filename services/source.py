@@ -38,12 +38,13 @@ from sensors_sim import jam_events, truth_events
 from sensors_sim.emulators import sensor_batches
 
 from .errors import UserError
-from .ingest.asterix import PCAP_HEADER, pcap_record
-from .ingest.asterix_emit import datagrams, emitter
-from .ingest.gateway import local_frame
+from .lazy import lazy
 from .node import Node
 from .scenario import load
 
+
+asterix_emit = lazy("services.ingest.asterix_emit")  # only a sensor sending ASTERIX needs these
+asterix_capture = lazy("services.ingest.asterix")
 
 RECOVERY_S = 30.0  # s of a live sensor's stream its publisher keeps for a fuser cut off from it
 
@@ -100,7 +101,7 @@ class AsterixOut:
         try:
             if pcap:
                 self.file = open(pcap, "wb")
-                self.file.write(PCAP_HEADER)
+                self.file.write(asterix_capture.PCAP_HEADER)
         except OSError as e:
             self.close()
             raise UserError(f"--asterix-pcap {pcap}: {e.strerror or e}") from None
@@ -114,7 +115,7 @@ class AsterixOut:
                 except OSError:
                     self.failed += 1
             if self.file is not None:
-                self.file.write(pcap_record(t_wire, d, self.port))
+                self.file.write(asterix_capture.pcap_record(t_wire, d, self.port))
         if self.file is not None and data:
             self.file.flush()
 
@@ -147,7 +148,7 @@ def run(process_id: str, scenario_ref: str, keys: KeySpace, zopts, speed: float,
         if role != "sensor":
             raise UserError(f"--asterix: {process_id!r} is not a sensor (a radar or ADS-B station with sac_sic)")
         try:
-            emit = emitter(scenario, process_id, local_frame(scenario))
+            emit = asterix_emit.emitter(scenario, process_id)
         except ValueError as e:
             raise UserError(f"--asterix: {e}") from None
     with Node(process_id, role, keys, zopts, live=live) as node:
@@ -238,7 +239,7 @@ def _play_asterix(node: Node, scenario, pacer: Pacer, run_index: int, emit, out:
         if not pacer.wait(batch.t1 + latency):
             return batch.t1
         records = emit.records(batch.t1, batch.events, pacer.stamp)
-        out.send(pacer.stamp(batch.t1 + latency), datagrams(records))
+        out.send(pacer.stamp(batch.t1 + latency), asterix_emit.datagrams(records))
         node.count("scans", len(batch.events))
         node.count("published", sum(r.category != 34 for r in records))
         t_last = batch.t1
@@ -246,7 +247,7 @@ def _play_asterix(node: Node, scenario, pacer: Pacer, run_index: int, emit, out:
     for t, records in emit.end(pacer.stamp):
         if not pacer.wait(t + latency):
             break
-        out.send(pacer.stamp(t + latency), datagrams(records))
+        out.send(pacer.stamp(t + latency), asterix_emit.datagrams(records))
     node.count("unencodable", emit.unencodable)
     node.count("send_failed", out.failed)
     return max(t_last, scenario.duration)

@@ -39,6 +39,7 @@ from schemas import asterix as ax
 
 from . import adsb
 from .asterix import Radar, radars, stations
+from .gateway import local_frame
 
 DATAGRAM_MAX = 1400  # octets: below a 1500-octet Ethernet MTU with IP and UDP headers
 TRAILING_CROSSINGS = 2  # after the last sector: enough for a gateway with sector_lag 1 to promise it
@@ -134,9 +135,10 @@ class StationEmitter:
         return []
 
 
-def emitter(site, sensor_id: str, frame: LocalFrame) -> RadarEmitter | StationEmitter:
-    """The emitter of a site's (or scenario's) sensor, by its ``sac_sic``; ValueError
-    for a sensor without one, or of a kind ASTERIX does not carry here."""
+def emitter(site, sensor_id: str) -> RadarEmitter | StationEmitter:
+    """The emitter of a site's (or scenario's) sensor, by its ``sac_sic``, in the site's
+    frame; ValueError for a sensor without one, or of a kind ASTERIX does not carry here."""
+    frame = local_frame(site)
     spec = site.sensors[sensor_id]
     if spec.sac_sic is None:
         raise ValueError(f"sensor {sensor_id!r} has no sac_sic = [SAC, SIC]: give it one to send ASTERIX")

@@ -88,7 +88,7 @@ def reference(sc, t0: float) -> tuple[list, dict]:
     ingest = AsterixIngest(AsterixFeed(rs), gw, log, stations=gs)
     packets = []
     for sid in SENSORS:
-        em = emitter(sc, sid, frame)
+        em = emitter(sc, sid)
         for b in sensor_batches(sc, sid):
             packets += [(t0 + b.t1, d) for d in datagrams(em.records(b.t1, b.events, lambda t: t0 + t))]
         packets += [(t0 + t, d) for t, recs in em.end(lambda t: t0 + t) for d in datagrams(recs)]

@@ -235,10 +235,9 @@ ASTERIX_CAUSES = {"truncated", "malformed", "unknown-category", "missing-item", 
 def asterix_datagram() -> bytes:
     """The emitter's first datagrams of radar3d and the ground station, and a CAT062
     track: every category the gateway reads or skips, in one datagram."""
-    frame = local_frame(ASTERIX_SITE)
     recs = []
     for sid in ("radar3d", "gs"):
-        em = emitter(ASTERIX_SITE, sid, frame)
+        em = emitter(ASTERIX_SITE, sid)
         recs += next(r for b in sensor_batches(ASTERIX_SITE, sid) if (r := em.records(b.t1, b.events, lambda t: t))
                      and any(x.category != 34 for x in r))
     recs.append(ax.SystemTrack(sac=1, sic=2, track_number=7, tod=3.0, x=10.0, y=-4.0))
