@@ -121,9 +121,13 @@ def test_a_capture_of_the_emitted_datagrams_reads_back(sc):
 def test_sensor_asterix_mistakes_are_one_line_and_exit_2(tmp_path):
     no = tmp_path / "no.toml"
     no.write_text(SCENARIO.read_text().replace("sac_sic = [25, 1]\n", ""))
-    for args, says in ((["--scenario", str(SCENARIO), "--id", "radar2d", "--asterix", "udp://nowhere"], "HOST:PORT"),
-                       (["--scenario", str(SCENARIO), "--id", "truth", "--asterix", "udp://127.0.0.1:9"], "not a sensor"),
-                       (["--scenario", str(no), "--id", "radar2d", "--asterix", "udp://127.0.0.1:9"], "no sac_sic"),
+    for args, says in ((["--scenario", str(SCENARIO), "--id", "radar2d", "--live", "--asterix", "udp://nowhere"],
+                        "HOST:PORT"),
+                       (["--scenario", str(SCENARIO), "--id", "radar2d", "--asterix", "udp://127.0.0.1:9"], "--live"),
+                       (["--scenario", str(SCENARIO), "--id", "truth", "--live", "--asterix", "udp://127.0.0.1:9"],
+                        "not a sensor"),
+                       (["--scenario", str(no), "--id", "radar2d", "--live", "--asterix", "udp://127.0.0.1:9"],
+                        "no sac_sic"),
                        (["--scenario", str(SCENARIO), "--id", "radar2d", "--asterix-pcap",
                          str(tmp_path / "no" / "such" / "dir.pcap")], "--asterix-pcap")):
         p = subprocess.run([sys.executable, "-m", "services.cli", "sensor", *args], capture_output=True, text=True,
