@@ -242,14 +242,14 @@ def _play_asterix(node: Node, scenario, pacer: Pacer, run_index: int, emit, out:
         out.send(pacer.stamp(batch.t1 + latency), asterix_emit.datagrams(records))
         node.count("scans", len(batch.events))
         node.count("published", sum(r.category != 34 for r in records))
+        node.counters.update(unencodable=emit.unencodable, send_failed=out.failed)
         t_last = batch.t1
         next(status)
     for t, records in emit.end(pacer.stamp):
         if not pacer.wait(t + latency):
             break
         out.send(pacer.stamp(t + latency), asterix_emit.datagrams(records))
-    node.count("unencodable", emit.unencodable)
-    node.count("send_failed", out.failed)
+    node.counters["send_failed"] = out.failed
     return max(t_last, scenario.duration)
 
 

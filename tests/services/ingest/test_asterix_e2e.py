@@ -208,13 +208,19 @@ def live(sc, tmp_path_factory):
             published = [to_measurement(m) for m in s.cap.of("range_az") + s.cap.of("az_el_range")
                          + s.cap.of("position")]
             got = fused(s.cap)
-        yield {"t0": t0, "t_end": t_end, "meas": meas, "ref": ref, "published": published, "fused": got,
+            said = {sid: s.cap.status(sid) for sid in SENSORS}
+        yield {"said": said, "t0": t0, "t_end": t_end, "meas": meas, "ref": ref, "published": published, "fused": got,
                "cat062": list(listener.data), "pcaps": [tmp / f"{sid}.pcap" for sid in SENSORS], "tmp": tmp}
     finally:
         listener.close()
 
 
 def test_live_udp_through_asterix_equals_the_in_process_run(live, sc):
+    for sid, status in live["said"].items():  # each sensor sent every plot it has, and said so
+        assert status["state"] == "done"
+        c = status["counters"]
+        assert c["published"] == sum(m.sensor == sid for m in live["meas"]) and c["send_failed"] == 0, (sid, c)
+        assert c["unencodable"] == (1 if sid == "radar3d" else 0)  # a false plot above I048/110's 204,800 ft
     same_measurements(live["published"], live["meas"])
     assert {m.kind for m in live["meas"]} == {"range_az", "az_el_range", "position"}
     same_tracks(live["fused"], live["ref"], live["t_end"])
