@@ -120,6 +120,7 @@ def fused(cap: Capture) -> dict:
 def same_tracks(got: dict, ref: dict, t_end: float) -> None:
     assert set(got) == {k for k in ref if k[1] <= t_end}, (len(got), len(ref))
     for k, e in got.items():
+        assert e.identity == ref[k].identity  # a CAT021 address, where the track has one
         np.testing.assert_allclose(e.x, ref[k].x, rtol=0, atol=1e-9)
         np.testing.assert_allclose(e.P, ref[k].P, rtol=0, atol=1e-9)
 
@@ -225,6 +226,7 @@ def test_live_udp_through_asterix_equals_the_in_process_run(live, sc):
     assert {m.kind for m in live["meas"]} == {"range_az", "az_el_range", "position"}
     same_tracks(live["fused"], live["ref"], live["t_end"])
     assert len({k[0] for k in live["fused"]}) >= 8  # a many-target picture: 8 of the 12 tracked within 30 s
+    assert len({e.identity.address for e in live["fused"].values() if e.identity}) == 3  # the station's 3 aircraft
     assert same_cat062(live["cat062"], live["ref"], sc, live["t0"]) == len(live["ref"])  # each as CAT062
 
 
