@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import socket
 import time
 from typing import Iterator
 
@@ -37,9 +38,13 @@ from sensors_sim import jam_events, truth_events
 from sensors_sim.emulators import sensor_batches
 
 from .errors import UserError
+from .lazy import lazy
 from .node import Node
 from .scenario import load
 
+
+asterix_emit = lazy("services.ingest.asterix_emit")  # only a sensor sending ASTERIX needs these
+asterix_capture = lazy("services.ingest.asterix")
 
 RECOVERY_S = 30.0  # s of a live sensor's stream its publisher keeps for a fuser cut off from it
 
@@ -79,9 +84,53 @@ class Pacer:
             self.node.stop.wait(min(left, 0.5))
 
 
+class AsterixOut:
+    """Where a sensor's ASTERIX goes: datagrams to ``udp`` (HOST, PORT) and/or records
+    of a pcap capture written to ``pcap`` (to 127.0.0.1 at the UDP port, or 8600), each
+    stamped with its wire time; ``failed`` counts datagrams the socket refused."""
+
+    def __init__(self, udp: tuple[str, int] | None = None, pcap: str | None = None):
+        self.udp, self.port = udp, udp[1] if udp else 8600
+        self.sock = self.file = None
+        self.sent = self.failed = 0
+        try:
+            if udp:
+                self.sock = socket.socket(socket.AF_INET6 if ":" in udp[0] else socket.AF_INET, socket.SOCK_DGRAM)
+        except OSError as e:
+            raise UserError(f"--asterix: {e.strerror or e}") from None
+        try:
+            if pcap:
+                self.file = open(pcap, "wb")
+                self.file.write(asterix_capture.PCAP_HEADER)
+        except OSError as e:
+            self.close()
+            raise UserError(f"--asterix-pcap {pcap}: {e.strerror or e}") from None
+
+    def send(self, t_wire: float, data: list[bytes]) -> None:
+        for d in data:
+            if self.sock is not None:
+                try:
+                    self.sock.sendto(d, self.udp)
+                    self.sent += 1
+                except OSError:
+                    self.failed += 1
+            if self.file is not None:
+                self.file.write(asterix_capture.pcap_record(t_wire, d, self.port))
+        if self.file is not None and data:
+            self.file.flush()
+
+    def close(self) -> None:
+        for f in (self.sock, self.file):
+            if f is not None:
+                f.close()
+
+
 def run(process_id: str, scenario_ref: str, keys: KeySpace, zopts, speed: float, start_at: float | None,
         wait_for: list[str], run_index: int = 0, wait_timeout: float = 60.0,
-        seed: int | None = None, live: bool = False, duration: float | None = None) -> int:
+        seed: int | None = None, live: bool = False, duration: float | None = None,
+        asterix: AsterixOut | None = None) -> int:
+    """One source process; ``asterix``: a sensor sends ASTERIX there instead of
+    publishing on Zenoh (the caller closes it)."""
     scenario = load(scenario_ref, seed, duration)
     if live and duration is None and scenario.endless:  # a live emulation without an end: until stopped
         scenario = dataclasses.replace(scenario, duration=math.inf)
@@ -94,6 +143,14 @@ def run(process_id: str, scenario_ref: str, keys: KeySpace, zopts, speed: float,
     else:
         raise UserError(f"{process_id!r} is not a source of scenario {scenario.name} "
                          f"(sources: {', '.join(scenario.process_ids())})")
+    emit = None
+    if asterix is not None:
+        if role != "sensor":
+            raise UserError(f"--asterix: {process_id!r} is not a sensor (a radar or ADS-B station with sac_sic)")
+        try:
+            emit = asterix_emit.emitter(scenario, process_id)
+        except ValueError as e:
+            raise UserError(f"--asterix: {e}") from None
     with Node(process_id, role, keys, zopts, live=live) as node:
         node.announce()
         node.publish_status("starting")
@@ -104,8 +161,11 @@ def run(process_id: str, scenario_ref: str, keys: KeySpace, zopts, speed: float,
             node.publish_status("stopped")
             return 2
         pacer = Pacer(node, start_at if start_at is not None else time.time(), 1.0 if live else speed, live)
-        play = {"sensor": _play_sensor, "truth": _play_truth, "jammer": _play_jammer}[role]
-        t_last = play(node, scenario, pacer, run_index)
+        if emit is not None:
+            t_last = _play_asterix(node, scenario, pacer, run_index, emit, asterix)
+        else:
+            play = {"sensor": _play_sensor, "truth": _play_truth, "jammer": _play_jammer}[role]
+            t_last = play(node, scenario, pacer, run_index)
         node.publish_status("done" if not node.stop.is_set() else "stopped", pacer.stamp(t_last))
     return 0
 
@@ -167,6 +227,30 @@ def _play_sensor(node: Node, scenario, pacer: Pacer, run_index: int) -> float:
     t_end = max(t_last if t_last is not None else 0.0, scenario.duration)
     watermark(pacer.stamp(t_end), True)
     return t_end
+
+
+def _play_asterix(node: Node, scenario, pacer: Pacer, run_index: int, emit, out: AsterixOut) -> float:
+    """The sensor's batches as ASTERIX datagrams (module docstring), each sent when the
+    Zenoh stream would publish it."""
+    latency = scenario.sensor(node.id).latency
+    status = _status_every(node)
+    t_last = 0.0
+    for batch in sensor_batches(scenario, node.id, run=run_index):
+        if not pacer.wait(batch.t1 + latency):
+            return batch.t1
+        records = emit.records(batch.t1, batch.events, pacer.stamp)
+        out.send(pacer.stamp(batch.t1 + latency), asterix_emit.datagrams(records))
+        node.count("scans", len(batch.events))
+        node.count("published", sum(r.category != 34 for r in records))
+        node.counters.update(unencodable=emit.unencodable, send_failed=out.failed)
+        t_last = batch.t1
+        next(status)
+    for t, records in emit.end(pacer.stamp):
+        if not pacer.wait(t + latency):
+            break
+        out.send(pacer.stamp(t + latency), asterix_emit.datagrams(records))
+    node.counters["send_failed"] = out.failed
+    return max(t_last, scenario.duration)
 
 
 def _play_truth(node: Node, scenario, pacer: Pacer, run_index: int) -> float:

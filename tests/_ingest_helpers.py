@@ -1,5 +1,5 @@
 """Helpers of the gateway process tests: a KrakenSDR-like web server, a Zenoh capture,
-and KrakenSDR documents for a given time and bearing."""
+a set of processes dialling it, and KrakenSDR documents for a given time and bearing."""
 
 from __future__ import annotations
 
@@ -157,6 +157,50 @@ class Capture:
     def status(self, src: str) -> dict:
         st = self.of("status", src)
         return st[-1].body if st else {}
+
+
+class Processes:
+    """A :class:`Capture` hub and ``zfusion`` processes dialling it (stderr piped); on
+    exit each still running gets SIGTERM, must stop within 20 s, and (unless the block
+    raised) must have exited 0 without a traceback."""
+
+    def __init__(self, deployment: str):
+        self.cap = Capture(deployment)
+        self.procs: dict[str, subprocess.Popen] = {}
+
+    def __enter__(self):
+        self.cap.__enter__()
+        return self
+
+    def start(self, name: str, *args: str) -> subprocess.Popen:
+        self.procs[name] = subprocess.Popen(
+            [sys.executable, "-m", "services.cli", *args, "--deployment", self.cap.keys.deployment,
+             "--connect", self.cap.endpoint], stderr=subprocess.PIPE, text=True)
+        return self.procs[name]
+
+    def ready(self, ids, timeout: float = 60.0) -> None:
+        """Until each of ``ids`` has reported a status; fails if a process died first."""
+        ok = self.cap.wait(lambda: all(self.cap.of("status", i) for i in ids)
+                           or any(p.poll() is not None for p in self.procs.values()), timeout=timeout)
+        dead = {n: p.stderr.read()[-2000:] for n, p in self.procs.items() if p.poll() is not None}
+        assert ok and not dead, dead
+
+    def __exit__(self, *exc):
+        errs = {}
+        for p in self.procs.values():
+            if p.poll() is None:
+                p.send_signal(signal.SIGTERM)
+        for name, p in self.procs.items():
+            try:
+                _, errs[name] = p.communicate(timeout=20)
+            except subprocess.TimeoutExpired:
+                p.kill()
+                _, errs[name] = p.communicate()
+                raise AssertionError(f"{name} did not stop on SIGTERM")
+        self.cap.__exit__(*exc)
+        if exc[0] is None:
+            for name, p in self.procs.items():
+                assert p.returncode == 0 and "Traceback" not in errs[name], (name, errs[name][-3000:])
 
 
 def kraken_csv(t: float, bearings_deg: list[float], heading: float = 90.0, lat: float = 21.0285,

@@ -15,6 +15,8 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 
 CASES = {
+    "bench_asterix.py": (["--repeats", "1", "--seconds", "0.5"],
+                         ["## Per record", "decode", "gateway", "CAT062 encode", "## Paced"]),
     "bench_ekf.py": (["--repeats", "1", "--tracks", "50", "--loop-tracks", "5"],
                      ["FilterPy", "Stone Soup", "batch.ekf_step", "## Targets"]),
     "bench_montecarlo.py": (["--runs", "4"], ["vectorised", "run by run"]),

@@ -5,7 +5,9 @@ from __future__ import annotations
 
 import argparse
 import math
+import urllib.parse
 
+from ..errors import UserError
 from ..lazy import lazy
 from . import options
 
@@ -25,12 +27,40 @@ def register(sub) -> None:
     p.add_argument("--live", action="store_true",
                    help="live emulation: stamps on the UTC time base (scenario time 0 = --start-at), speed 1")
     options.duration_option(p)
+    p.add_argument("--asterix", metavar="udp://HOST:PORT",
+                   help="with --live, a radar or ADS-B station with sac_sic: send CAT048/CAT034 or CAT021 datagrams "
+                        "there instead of publishing on Zenoh (for zfusion ingest asterix; docs/asterix.md)")
+    p.add_argument("--asterix-pcap", metavar="FILE",
+                   help="the same, written to a pcap capture (zfusion ingest asterix --pcap replays it)")
     p.add_argument("--run", type=int, default=0, help=argparse.SUPPRESS)
     options.fabric(p)
     p.set_defaults(main=run)
 
 
+def udp_target(text: str) -> tuple[str, int]:
+    """``udp://HOST:PORT`` -> (HOST, PORT); UserError otherwise."""
+    u = urllib.parse.urlsplit(text)
+    try:
+        port = u.port
+    except ValueError:
+        port = None
+    if u.scheme != "udp" or not u.hostname or port is None:
+        raise UserError(f"--asterix {text!r}: give udp://HOST:PORT")
+    return u.hostname, port
+
+
 def run(args) -> int:
     speed = math.inf if args.speed == "max" else float(args.speed)
-    return source.run(args.id, args.scenario, values.keys(args), values.zopts(args), speed, args.start_at,
-                      args.wait_for, run_index=args.run, seed=args.seed, live=args.live, duration=args.duration_s)
+    out = None
+    if args.asterix and not args.live:
+        raise UserError("--asterix udp://... needs --live: a gateway places the times of day it reads next to its own "
+                        "clock, so the plots must be stamped in UTC (--asterix-pcap alone replays at any --speed)")
+    if args.asterix or args.asterix_pcap:
+        out = source.AsterixOut(udp_target(args.asterix) if args.asterix else None, args.asterix_pcap)
+    try:
+        return source.run(args.id, args.scenario, values.keys(args), values.zopts(args), speed, args.start_at,
+                          args.wait_for, run_index=args.run, seed=args.seed, live=args.live,
+                          duration=args.duration_s, asterix=out)
+    finally:
+        if out is not None:
+            out.close()

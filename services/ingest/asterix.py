@@ -134,6 +134,16 @@ class Radar:
             return np.array([az, rho])
         return np.array([az, math.atan2(u, math.hypot(e, n)), rho])
 
+    def plot(self, z: np.ndarray, tod: float) -> ax.TargetReport:
+        """A measurement of this radar's kind in the site's frame -> the CAT048 plot (a
+        PSR detection) that this radar sends for it at time of day ``tod``: the inverse of
+        :meth:`AsterixFeed.receive`'s reading, to the items' resolution (:meth:`from_site`;
+        a 3D plot's height in I048/110, a 2D plot without one: on the horizon).
+        ValueError for what the items cannot hold (a range beyond 256 NM)."""
+        theta, rho, height = self.from_site(z)
+        return ax.TargetReport(sac=self.sac_sic[0], sic=self.sac_sic[1], tod=tod, typ=1, rho=rho, theta=theta,
+                               height_3d=height)
+
     def from_site(self, z: np.ndarray, height: float | None = None) -> tuple[float, float, float | None]:
         """The inverse of :meth:`to_site`: ``(θ, ρ, height)``; a 2D measurement needs the
         height it was converted with (None: the horizon), a 3D one carries it."""
@@ -428,15 +438,21 @@ def _udp_payload(pkt: bytes, link: int) -> bytes | None:
     return pkt[udp + 8:udp + max(8, length)]
 
 
+PCAP_HEADER = struct.pack("<IHHiIII", 0xA1B2C3D4, 2, 4, 0, 0, 65535, 101)  # classic pcap, µs, raw IP
+
+
+def pcap_record(t: float, payload: bytes, port: int = 8600) -> bytes:
+    """One UDP datagram to 127.0.0.1:``port`` at time ``t`` as a record of a
+    :data:`PCAP_HEADER` capture (raw IPv4)."""
+    sec = math.floor(t)
+    usec = min(999_999, round((t - sec) * 1e6))
+    udp = struct.pack(">HHHH", port, port, 8 + len(payload), 0) + payload
+    ip = struct.pack(">BBHHHBBH4s4s", 0x45, 0, 20 + len(udp), 0, 0x4000, 64, 17, 0, bytes((127, 0, 0, 1)),
+                     bytes((127, 0, 0, 1))) + udp
+    return struct.pack("<IIII", sec, usec, len(ip), len(ip)) + ip
+
+
 def pcap_file(packets: Iterable[tuple[float, bytes]], port: int = 8600) -> bytes:
     """A classic pcap capture (raw IPv4, µs) of UDP datagrams to 127.0.0.1:``port`` at
     the given times: what :func:`pcap_datagrams` reads back (an emitter's recording)."""
-    out = bytearray(struct.pack("<IHHiIII", 0xA1B2C3D4, 2, 4, 0, 0, 65535, 101))
-    for t, payload in packets:
-        sec = math.floor(t)
-        usec = min(999_999, round((t - sec) * 1e6))
-        udp = struct.pack(">HHHH", port, port, 8 + len(payload), 0) + payload
-        ip = struct.pack(">BBHHHBBH4s4s", 0x45, 0, 20 + len(udp), 0, 0x4000, 64, 17, 0, bytes((127, 0, 0, 1)),
-                         bytes((127, 0, 0, 1))) + udp
-        out += struct.pack("<IIII", sec, usec, len(ip), len(ip)) + ip
-    return bytes(out)
+    return PCAP_HEADER + b"".join(pcap_record(t, payload, port) for t, payload in packets)

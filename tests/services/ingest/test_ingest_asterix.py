@@ -375,7 +375,7 @@ def test_garbage_never_raises_and_is_counted(rig):
 @pytest.mark.parametrize("name", ["air-picture", "patent-3d-radar3d"])
 def test_a_scenarios_radar_measurements_through_cat048_and_back(name):
     """Every radar measurement of a built-in scenario, written as the CAT048 plot a radar
-    at that site would send (Radar.from_site; a 3D plot's height in I048/110, a 2D plot
+    at that site would send (Radar.plot, by Radar.from_site; a 3D plot's height in I048/110, a 2D plot
     without a height: on the horizon) and read back by the gateway core, equals itself to
     the items' resolution: θ 360°/2¹⁶, ρ 1/256 NM, height 25 ft, time 1/128 s."""
     sc = load_scenario(name)
@@ -390,9 +390,8 @@ def test_a_scenarios_radar_measurements_through_cat048_and_back(name):
             m = ev.measurement
             if m is None:
                 continue
-            theta, rho, height = radar.from_site(m.z)
-            plot = ax.TargetReport(sac=radar.sac_sic[0], sic=radar.sac_sic[1], tod=m.t, rho=rho, theta=theta,
-                                   height_3d=height)
+            plot = radar.plot(m.z, m.t)
+            rho, height = plot.rho, plot.height_3d
             try:
                 (r,) = feed.receive(datagram(plot), MIDNIGHT + m.t + 1.0)
             except ValueError:  # beyond what the items hold (I048/110: ±204,800 ft)

@@ -1,0 +1,253 @@
+"""ASTERIX end to end, real processes on loopback: ``tests/data/asterix-region.toml``'s
+rotating radars (CAT048 plots, CAT034 sector crossings) and ADS-B ground station (CAT021)
+emitting live over UDP (``zfusion sensor --asterix``) → ``zfusion ingest asterix --udp``
+→ ``zfusion fuser --site`` → ``zfusion export asterix --udp`` → CAT062 read by
+libasterix (a decoder that shares no code with ours); then the pcap the emitters wrote,
+merged and replayed by ``zfusion ingest asterix --pcap --speed max``.
+
+The reference is in process, by the same code: the emitters' datagrams (the same
+records at the same times) through the gateway core (:class:`AsterixIngest`) give the
+measurements, on the items' grid, that the gateway must publish; the in-process SS
+run on them gives the tracks the live fuser must publish (to 1e-9) and the CAT062
+records must carry, to each field's resolution. Every wait is a condition with a
+deadline.
+"""
+
+from __future__ import annotations
+
+import math
+import socket
+import threading
+import time
+from pathlib import Path
+
+import asterix.generated as lib
+import numpy as np
+import pytest
+from asterix.base import Bits, RawDatablock
+
+from _ingest_helpers import Capture, Processes
+from schemas import KeySpace, decode, to_estimate, to_measurement
+from sensors_sim import load_scenario
+from sensors_sim.emulators import sensor_batches
+from services.evaluation import run_method
+from services.ingest.asterix import AsterixFeed, AsterixIngest, pcap_datagrams, pcap_file, radars, stations
+from services.ingest.asterix_emit import datagrams, emitter
+from services.ingest.gateway import Gateway, local_frame, sensor_sites
+from services.launcher import free_port
+from services.node import RejectLog
+
+pytestmark = pytest.mark.slow
+
+SCENARIO = Path(__file__).parents[2] / "data" / "asterix-region.toml"
+SENSORS = ("radar2d", "radar3d", "gs")
+LAG = "5"  # s of heartbeat lag: a loaded machine may hold a datagram that long
+FT = 0.3048
+
+
+class Cat062Listener:
+    """A UDP socket on a free loopback port collecting datagrams on a thread."""
+
+    def __init__(self):
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.bind(("127.0.0.1", 0))
+        self.sock.settimeout(0.1)
+        self.port = self.sock.getsockname()[1]
+        self.data: list[bytes] = []
+        self.stop = threading.Event()
+        self.thread = threading.Thread(target=self._run, daemon=True)
+        self.thread.start()
+
+    def _run(self):
+        while not self.stop.is_set():
+            try:
+                self.data.append(self.sock.recv(65_535))
+            except OSError:
+                pass
+
+    def close(self):
+        self.stop.set()
+        self.thread.join()
+        self.sock.close()
+
+
+@pytest.fixture(scope="module")
+def sc():
+    return load_scenario(SCENARIO)
+
+
+def reference(sc, t0: float) -> tuple[list, dict]:
+    """The measurements the gateway must publish for the emitters' datagrams stamped
+    ``t0 + t`` (the emitter and the gateway core, in process), and the in-process SS
+    tracks on them, by (track, t)."""
+    frame = local_frame(sc)
+    rs, gs = radars(sc, frame), stations(sc)
+    log = RejectLog("reference")
+    gw = Gateway(sensor_sites(sc, [r.sensor for r in rs.values()] + list(gs.values())), frame, KeySpace("ref"), log,
+                 lag=0.0)
+    ingest = AsterixIngest(AsterixFeed(rs), gw, log, stations=gs)
+    packets = []
+    for sid in SENSORS:
+        em = emitter(sc, sid)
+        for b in sensor_batches(sc, sid):
+            packets += [(t0 + b.t1, d) for d in datagrams(em.records(b.t1, b.events, lambda t: t0 + t))]
+        packets += [(t0 + t, d) for t, recs in em.end(lambda t: t0 + t) for d in datagrams(recs)]
+    packets.sort(key=lambda p: p[0])  # (stable: each sensor's own order kept)
+    msgs = [decode(data) for t, d in packets for _, data in ingest.receive(d, t)]
+    meas = [to_measurement(m) for m in msgs if m.kind != "watermark"]
+    assert not log.by_cause and meas
+    ref = {(e.track, e.t): e for e in run_method(sc, "SS", measurements=sorted(meas, key=lambda m: m.order_key))}
+    return meas, ref
+
+
+def same_measurements(got: list, want: list) -> None:
+    key = lambda m: (m.sensor, m.t)  # noqa: E731
+    got, want = sorted(got, key=key), sorted(want, key=key)
+    assert [key(m) for m in got] == [key(m) for m in want]
+    for g, w in zip(got, want):
+        assert g.kind == w.kind
+        np.testing.assert_array_equal(g.z, w.z)
+        np.testing.assert_array_equal(g.std, w.std)
+
+
+def fused(cap: Capture) -> dict:
+    out = {}
+    for e in map(to_estimate, cap.of("track", "fuser")):
+        out[(e.track, e.t)] = e  # a re-published estimate (after an OOSM) replaces the first
+    return out
+
+
+def same_tracks(got: dict, ref: dict, t_end: float) -> None:
+    assert set(got) == {k for k in ref if k[1] <= t_end}, (len(got), len(ref))
+    for k, e in got.items():
+        assert e.identity == ref[k].identity  # a CAT021 address, where the track has one
+        np.testing.assert_allclose(e.x, ref[k].x, rtol=0, atol=1e-9)
+        np.testing.assert_allclose(e.P, ref[k].P, rtol=0, atol=1e-9)
+
+
+def cat062_records(data: list[bytes]) -> list:
+    recs = []
+    for d in data:
+        for db in RawDatablock.parse(Bits.from_bytes(d)):
+            if db.get_category() == 62:
+                recs.extend(lib.Cat_062_1_21.cv_uap.parse(db.get_raw_records()))
+    return recs
+
+
+def same_cat062(data: list[bytes], ref: dict, sc, t0: float) -> int:
+    """libasterix's reading of the CAT062 records against the reference tracks, field
+    by field to the field's resolution (half its LSB); the last record of each track
+    number and time is the one that stands (an OOSM re-sends it)."""
+    frame = local_frame(sc)
+    last = {}
+    for r in cat062_records(data):
+        q = lambda item, sub, unit: r.get_item(item).variation.get_item(sub).variation.content.as_quantity(unit)  # noqa: E731
+        tod = r.get_item("070").variation.content.as_quantity("s")
+        last[(r.get_item("040").variation.content.as_uint(), tod)] = (r, q)
+    by_time: dict[float, list] = {}
+    for e in ref.values():
+        by_time.setdefault(round((e.t % 86400.0) * 128), []).append(e)
+    numbers: dict[int, str] = {}
+    for (number, tod), (r, q) in last.items():
+        x, y = q("100", "X", "m"), q("100", "Y", "m")
+        cands = by_time[round(tod * 128)]
+        e = min(cands, key=lambda e: math.hypot(e.x[0] - x, e.x[1] - y))
+        assert numbers.setdefault(number, e.track) == e.track  # one track number, one track
+        assert abs(tod - e.t % 86400.0) <= 1 / 256
+        assert abs(x - e.x[0]) <= 0.25 + 1e-6 and abs(y - e.x[1]) <= 0.25 + 1e-6
+        assert abs(q("185", "VX", "m/s") - e.x[3]) <= 0.125 + 1e-6
+        assert abs(q("185", "VY", "m/s") - e.x[4]) <= 0.125 + 1e-6
+        lat, lon, alt = (float(v) for v in frame.to_geodetic(np.asarray(e.x[:3])))
+        assert abs(q("105", "LAT", "°") - lat) <= 90 / 2**25 + 1e-12
+        assert abs(q("105", "LON", "°") - lon) <= 90 / 2**25 + 1e-12
+        assert abs(r.get_item("130").variation.content.as_quantity("ft") * FT - alt) <= 3.125 * FT + 1e-6
+        apc = r.get_item("500").variation.get_item("APC").variation
+        assert abs(apc.get_item("X").variation.content.as_quantity("m") - math.sqrt(e.P[0, 0])) <= 0.25 + 1e-6
+        assert abs(apc.get_item("Y").variation.content.as_quantity("m") - math.sqrt(e.P[1, 1])) <= 0.25 + 1e-6
+    assert len(set(numbers.values())) == len(numbers)
+    return len(last)
+
+
+def run_back_end(s: Processes, listener: Cat062Listener) -> None:
+    s.start("fuser", "fuser", "--site", str(SCENARIO), "--method", "SS")
+    s.start("export", "export", "asterix", "--site", str(SCENARIO), "--udp", f"127.0.0.1:{listener.port}",
+            "--sac", "25", "--sic", "100")
+
+
+def wait_done(s: Processes, listener: Cat062Listener, ref: dict) -> float:
+    """Until the fuser and the CAT062 stream reach the reference's last track time."""
+    t_end = max(t for _, t in ref)
+    assert s.cap.wait(lambda: max((t for _, t in fused(s.cap)), default=0.0) >= t_end, timeout=90), \
+        {n: s.cap.status(n).get("counters") for n in ("gw", "fuser")}
+    tod_end = round((t_end % 86400.0) * 128)
+    assert s.cap.wait(lambda: any(round(r.get_item("070").variation.content.as_quantity("s") * 128) >= tod_end
+                                  for r in cat062_records(list(listener.data))), timeout=30)
+    return t_end
+
+
+@pytest.fixture(scope="module")
+def live(sc, tmp_path_factory):
+    """The live run over UDP: what the gateway published, the fuser's tracks, the
+    CAT062 datagrams, the reference, and the pcaps the emitters wrote."""
+    tmp = tmp_path_factory.mktemp("asterix")
+    port = free_port()
+    listener = Cat062Listener()
+    try:
+        with Processes(f"ax{int(time.time() * 1000) % 10**9}") as s:
+            s.start("gw", "ingest", "asterix", "--id", "gw", "--site", str(SCENARIO), "--udp", f"127.0.0.1:{port}",
+                    "--watermark-lag", LAG)
+            run_back_end(s, listener)
+            s.ready(["gw", "fuser", "export-asterix"], timeout=90)
+            t0 = math.floor(time.time()) + 10.0  # scenario time 0: every sensor started by then
+            for sid in SENSORS:
+                s.start(sid, "sensor", "--scenario", str(SCENARIO), "--id", sid, "--live", "--start-at", str(t0),
+                        "--wait-for", "gw", "--asterix", f"udp://127.0.0.1:{port}", "--asterix-pcap",
+                        str(tmp / f"{sid}.pcap"))
+            meas, ref = reference(sc, t0)
+            assert s.cap.wait(lambda: all(s.procs[sid].poll() is not None for sid in SENSORS), timeout=120)
+            t_end = wait_done(s, listener, ref)
+            published = [to_measurement(m) for m in s.cap.of("range_az") + s.cap.of("az_el_range")
+                         + s.cap.of("position")]
+            got = fused(s.cap)
+            said = {sid: s.cap.status(sid) for sid in SENSORS}
+        yield {"said": said, "t0": t0, "t_end": t_end, "meas": meas, "ref": ref, "published": published, "fused": got,
+               "cat062": list(listener.data), "pcaps": [tmp / f"{sid}.pcap" for sid in SENSORS], "tmp": tmp}
+    finally:
+        listener.close()
+
+
+def test_live_udp_through_asterix_equals_the_in_process_run(live, sc):
+    for sid, status in live["said"].items():  # each sensor sent every plot it has, and said so
+        assert status["state"] == "done"
+        c = status["counters"]
+        assert c["published"] == sum(m.sensor == sid for m in live["meas"]) and c["send_failed"] == 0, (sid, c)
+        assert c["unencodable"] == (1 if sid == "radar3d" else 0)  # a false plot above I048/110's 204,800 ft
+    same_measurements(live["published"], live["meas"])
+    assert {m.kind for m in live["meas"]} == {"range_az", "az_el_range", "position"}
+    same_tracks(live["fused"], live["ref"], live["t_end"])
+    assert len({k[0] for k in live["fused"]}) >= 8  # a many-target picture: 8 of the 12 tracked within 30 s
+    assert len({e.identity.address for e in live["fused"].values() if e.identity}) == 3  # the station's 3 aircraft
+    assert same_cat062(live["cat062"], live["ref"], sc, live["t0"]) == len(live["ref"])  # each as CAT062
+
+
+def test_the_emitters_pcap_replayed_at_full_speed(live, sc):
+    packets = sorted((p for f in live["pcaps"] for p in pcap_datagrams(f.read_bytes())), key=lambda p: p[0])
+    merged = live["tmp"] / "merged.pcap"
+    merged.write_bytes(pcap_file(packets))
+    listener = Cat062Listener()
+    try:
+        with Processes(f"axp{int(time.time() * 1000) % 10**9}") as s:
+            run_back_end(s, listener)
+            s.ready(["fuser", "export-asterix"], timeout=90)
+            gw = s.start("gw", "ingest", "asterix", "--id", "gw", "--site", str(SCENARIO), "--pcap", str(merged),
+                         "--speed", "max", "--watermark-lag", LAG)
+            assert gw.wait(timeout=60) == 0
+            t_end = wait_done(s, listener, live["ref"])
+            published = [to_measurement(m) for m in s.cap.of("range_az") + s.cap.of("az_el_range")
+                         + s.cap.of("position")]
+            got = fused(s.cap)
+    finally:
+        listener.close()
+    same_measurements(published, live["meas"])
+    same_tracks(got, live["ref"], t_end)
+    assert same_cat062(listener.data, live["ref"], sc, live["t0"]) == len(live["ref"])
