@@ -35,6 +35,7 @@ the in-process evaluation; with one region the system picture is its fuser's pic
 from __future__ import annotations
 
 import dataclasses
+import heapq
 import math
 from dataclasses import dataclass, field
 from typing import Callable, Mapping, Sequence
@@ -51,7 +52,8 @@ from .tracking.hypotheses import gate_threshold, track_distance2
 from .tracking.table import DELETED, TrackIds
 from .types import Estimate, Measurement
 
-__all__ = ["RegionalFrame", "RegionalFuser", "RegionalMethod", "SYSTEM_RULES", "SystemFuser", "SystemTrack"]
+__all__ = ["RegionalFrame", "RegionalFuser", "RegionalMethod", "RegionalStage", "SYSTEM_RULES", "SystemFuser",
+           "SystemStage", "SystemTrack"]
 
 SYSTEM_RULES = ("ci", "naive")  # the system fuser's rules: CI; naive only to show why not (tests, docs)
 _COMPARED = np.arange(6)  # position, velocity: what track-to-track association compares
@@ -122,6 +124,12 @@ class RegionalFuser:
 
     def finish(self) -> list[RegionalFrame]:
         return [self._frame(g) for g in self.method._grouper.finish()]
+
+    def open_since(self) -> float:
+        """The time of the frame it holds open (its next frame's time), ``inf`` if none:
+        no frame of this fuser's will be before ``min(open_since(), next input time)``."""
+        t = self.method._grouper.held_since()
+        return math.inf if t is None else t
 
     def _frame(self, group: list[Measurement]) -> RegionalFrame:
         ground = np.array([_ground(m) for m in group])
@@ -282,8 +290,10 @@ class SystemFuser:
 
 class RegionalMethod:
     """The regional topology in one process: every regional fuser fed the measurement
-    stream, their frames (in time order) fed to the system fuser. Implements the
-    streaming method interface; emits the system fuser's estimates (``node =
+    stream, their frames fed to the system fuser in ``(t, region)`` order — each frame
+    once no fuser can still emit an earlier one (:func:`release`), the order a system
+    fuser process merges the regional fusers' streams in by their watermarks. Implements
+    the streaming method interface; emits the system fuser's estimates (``node =
     "centre"``). ``clock`` (optional, e.g. ``time.process_time``): each part's time is
     summed into :attr:`cpu` (region name, or ``"system"``)."""
 
@@ -294,6 +304,7 @@ class RegionalMethod:
         self.system = system
         self.clock = clock
         self.cpu: dict[str, float] = {**{f.region.name: 0.0 for f in self.fusers}, "system": 0.0}
+        self._held: list[tuple[float, str, RegionalFrame]] = []  # frames not fed yet, a heap by (t, region)
 
     @classmethod
     def from_config(cls, name: str, regions: Mapping[str, Region], config: dict,
@@ -303,22 +314,28 @@ class RegionalMethod:
         system fuser with the method's motion model, gate and CI criterion."""
         if not regions:
             raise ValueError("the regional topology needs [regions] in the scenario or site")
+        system = cls.system_fuser(name, config, rule)
+        return cls(name, [RegionalFuser(r, make_method(name, config)) for r in regions.values()], system, clock)
+
+    @staticmethod
+    def system_fuser(name: str, config: dict, rule: str = "ci") -> SystemFuser:
+        """Method ``name``'s system fuser: its motion model, gate and CI criterion."""
         association, rest = AssociationConfig.split(config)
         if association is None:
             raise ValueError(f"{name}: the regional topology needs a many-target method ('association' in [tracker])")
         cfg = TrackerConfig.from_dict(rest)
-        fusers = [RegionalFuser(r, make_method(name, config)) for r in regions.values()]
-        return cls(name, fusers, SystemFuser(name, cfg.motion_model(), association.gate_prob, rule,
-                                             cfg.ci_criterion), clock)
+        return SystemFuser(name, cfg.motion_model(), association.gate_prob, rule, cfg.ci_criterion)
 
     def process(self, m: Measurement) -> list[Estimate]:
-        return self._run(lambda f: f.process(m))
+        # another measurement at m.t may still open a frame at m.t: only earlier ones go
+        return self._run(lambda f: f.process(m), lambda t: t < m.t)
 
     def advance(self, t: float) -> list[Estimate]:
-        return self._run(lambda f: f.advance(t))
+        # nothing at or before t is still to come
+        return self._run(lambda f: f.advance(t), lambda ft: ft <= t)
 
     def finish(self) -> list[Estimate]:
-        return self._run(lambda f: f.finish())
+        return self._run(lambda f: f.finish(), lambda t: True)
 
     def _timed(self, key: str, fn, *args):
         if self.clock is None:
@@ -329,11 +346,58 @@ class RegionalMethod:
         finally:
             self.cpu[key] += self.clock() - start
 
-    def _run(self, step) -> list[Estimate]:
-        frames: list[RegionalFrame] = []
+    def _run(self, step, before: Callable[[float], bool]) -> list[Estimate]:
+        """``step`` every fuser, then feed the system fuser the frames that are ``before``
+        what may still come and earlier than every frame a fuser holds open."""
         for f in self.fusers:
-            frames += self._timed(f.region.name, step, f)
+            for fr in self._timed(f.region.name, step, f):
+                heapq.heappush(self._held, (fr.t, fr.region, fr))
+        open_since = min((f.open_since() for f in self.fusers), default=math.inf)
         out: list[Estimate] = []
-        for fr in sorted(frames, key=lambda fr: fr.t):
-            out += self._timed("system", self.system.frame, fr)
+        while self._held and self._held[0][0] < open_since and before(self._held[0][0]):
+            out += self._timed("system", self.system.frame, heapq.heappop(self._held)[2])
         return out
+
+
+class RegionalStage:
+    """A regional fuser as its own process runs it (``zfusion fuser --region``): fed its
+    region's measurements by time and the merged input's watermarks (``advance``), it
+    emits regional frames, and :meth:`watermark` says up to when its frames are complete
+    — below the frame it holds open, and not past the input's watermark — which the
+    system fuser merges the regions' frames by, in the ``(t, region)`` order of
+    :class:`RegionalMethod`."""
+
+    def __init__(self, fuser: RegionalFuser):
+        self.fuser = fuser
+        self._through = -math.inf  # the input's watermark: no measurement at or before it is to come
+
+    def process(self, m: Measurement) -> list[RegionalFrame]:
+        return self.fuser.process(m)
+
+    def advance(self, t: float) -> list[RegionalFrame]:
+        self._through = max(self._through, t)
+        return self.fuser.advance(t)
+
+    def finish(self) -> list[RegionalFrame]:
+        return self.fuser.finish()
+
+    def watermark(self) -> float:
+        """No frame at or before this time is still to come."""
+        return min(math.nextafter(self.fuser.open_since(), -math.inf), self._through)
+
+
+class SystemStage:
+    """The system fuser as its own process runs it (``zfusion fuser --system``): fed the
+    regional frames in ``(t, region)`` order, it emits the system tracks' estimates."""
+
+    def __init__(self, system: SystemFuser):
+        self.system = system
+
+    def process(self, f: RegionalFrame) -> list[Estimate]:
+        return self.system.frame(f)
+
+    def advance(self, t: float) -> list[Estimate]:
+        return []
+
+    def finish(self) -> list[Estimate]:
+        return []

@@ -64,6 +64,11 @@ class KeySpace:
         fusers (regional centres, a system centre) publish side by side."""
         return self._key("fused", fuser) if fuser != "*" else f"{self.prefix}/fused/*"
 
+    def regional(self, region: str) -> str:
+        """A regional fuser's frames (``regional_frame``, watermarks), for the system fuser
+        above it (:mod:`fusion.regional`): not tracks for display, so not on ``fused/``."""
+        return self._key("regional", region)
+
     def picture(self, fuser: str) -> str:
         """A fuser's queryable: its current tracks, for late joiners (services.picture);
         ``*`` every fuser's."""

@@ -17,9 +17,10 @@ from typing import Any, Callable
 
 from fusion.links import (Downlink, Drop, DropTrack, Feedback, Gaussian, Init, InitRequest, LocalReport,
                           MeasurementReport, ModelStates, ModelTerms, PredictionReport, Uplink)
+from fusion.regional import RegionalFrame
 from fusion.types import Estimate, Measurement
 
-from .messages import Message, encode, measurement_fields, measurement_of
+from .messages import Message, _estimate_payload, _plain, encode, measurement_fields, measurement_of
 
 
 def _measurement(m: Measurement, t: float) -> dict[str, Any]:
@@ -158,3 +159,19 @@ def horizon_message(src: str, seq: int, t: float) -> bytes:
 
 
 __all__ = ["encode_uplink", "uplink", "encode_downlink", "downlink", "horizon_message"]
+
+
+def encode_regional_frame(f: RegionalFrame, src: str, seq: int) -> bytes:
+    """A regional fuser's frame as a ``regional_frame`` message on ``fused/<region>``
+    (the region is its sender ``src``)."""
+    return encode("regional_frame", src, seq, f.t, tracks=[_plain({"t": e.t, **_estimate_payload(e)}) for e in f.tracks],
+                  dropped=list(f.dropped))
+
+
+def regional_frame(msg: Message) -> RegionalFrame:
+    """A ``regional_frame`` message back as the frame its region's fuser made."""
+    b = msg.body
+    tracks = tuple(Estimate(t=e["t"], x=e["x"], P=e["P"], method=e["method"], node=e["node"], track=e["track"],
+                            nis=e["nis"], nis_dof=e["nis_dof"], extra=dict(e["extra"]), existence=e["existence"],
+                            identity=e["identity"]) for e in b["tracks"])
+    return RegionalFrame(msg.src, msg.t, tracks, tuple(b["dropped"]))

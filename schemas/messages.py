@@ -37,7 +37,9 @@ MEASUREMENT_KINDS = tuple(_KINDS)
 # node -> centre on local/<node>, centre -> node on feedback/<node> (schemas/links.py)
 UP_KINDS = ("init_request", "local_report", "prediction_report", "measurement_report", "drop")
 DOWN_KINDS = ("init", "feedback", "drop_track")
-KINDS = MEASUREMENT_KINDS + ("watermark", "track", *UP_KINDS, *DOWN_KINDS, "jam_state", "truth", "status")
+KINDS = MEASUREMENT_KINDS + ("watermark", "track", "regional_frame", *UP_KINDS, *DOWN_KINDS, "jam_state", "truth",
+                              "status")
+FRAME_MAX = 2048  # tracks (and dropped ids) of one regional frame: well under MAX_BYTES
 
 
 class SchemaError(ValueError):
@@ -302,6 +304,22 @@ def _check_track(d: dict) -> dict:
 # fields; an optional one is absent, never null.
 
 
+def _check_regional_frame(d: dict) -> dict:
+    """A regional fuser's frame (:class:`fusion.regional.RegionalFrame`; the region is
+    its sender): ``tracks``, each a track's fields and its own ``t``; ``dropped``, the
+    ids it no longer publishes."""
+    tracks, dropped = d.get("tracks"), d.get("dropped", [])
+    if not isinstance(tracks, list) or len(tracks) > FRAME_MAX:
+        raise SchemaError("type", "tracks", f"expected a list of at most {FRAME_MAX} tracks")
+    if not isinstance(dropped, list) or len(dropped) > FRAME_MAX:
+        raise SchemaError("type", "dropped", f"expected a list of at most {FRAME_MAX} track ids")
+    body = {"tracks": [_nested({"tracks": e}, "tracks", lambda e: {"t": _num(e, "t"), **_check_track(e)})
+                       for e in tracks],
+            "dropped": [_str({"dropped": i}, "dropped", ident=True) for i in dropped]}
+    _no_extra(d, ENVELOPE | {"tracks", "dropped"})
+    return body
+
+
 def _no_null(d: dict) -> None:
     """In a link an optional field is absent, never null."""
     for k, v in d.items():
@@ -514,6 +532,7 @@ _CHECKERS: dict[str, Callable[[dict], dict]] = {
     **{k: (lambda d, k=k: _check_measurement(k, d)) for k in MEASUREMENT_KINDS},
     "watermark": _check_watermark,
     "track": _check_track,
+    "regional_frame": _check_regional_frame,
     **_LINK_CHECKERS,
     "truth": _check_truth,
     "jam_state": _check_jam_state,

@@ -37,11 +37,14 @@ from fusion.measurement.kinds import KINDS
 from fusion.methods import METHODS, make_method, method_config, split, track_fusion_rule
 from fusion.mtt import AssociationConfig
 from fusion.network import TrackCentre
+from fusion.regional import RegionalFuser, RegionalMethod, RegionalStage, SystemStage
 from fusion.oosm import Refiltering
 from fusion.types import Estimate
-from schemas import KeySpace, Message, SchemaError, decode, encode_estimate, to_estimate, to_measurement, tracker_id
-from schemas.links import encode_downlink, horizon_message, uplink
+from schemas import (KeySpace, Message, SchemaError, decode, encode, encode_estimate, to_estimate, to_measurement,
+                     tracker_id)
+from schemas.links import encode_downlink, encode_regional_frame, horizon_message, regional_frame, uplink
 
+from .errors import UserError
 from .intake import HORIZON_SLACK_S, Intake
 from .lazy import lazy
 from .leader import Leadership
@@ -104,6 +107,21 @@ class UplinkIntake:
         if u.node != sensor:
             return None, f"spoofed-src:uplink of node {u.node!r} sent by {key_id!r}"
         return "item", u
+
+
+class RegionalIntake:
+    """What the system fuser takes from ``regional/<region>``: the frames of the regions'
+    fusers (:func:`schemas.links.regional_frame`), one source a region."""
+
+    family = "regional"
+
+    def __init__(self, regions: Mapping[str, Any]):
+        self.nodes = dict(regions)
+
+    def item(self, key_id: str, msg: Message):
+        if key_id not in self.nodes:
+            return None, "unknown-source"
+        return "item", regional_frame(msg)
 
 
 class JoinGate:
@@ -329,27 +347,51 @@ def _delete_misses(scenario) -> int:
 
 def run(process_id: str, scenario_ref: str, method_name: str, overrides: dict, keys: KeySpace, zopts,
         timeout: float, start_grace: float, seed: int | None = None, live: LiveOptions | None = None,
-        duration: float | None = None, json_path: str | None = None, standby_for: str | None = None) -> int:
+        duration: float | None = None, json_path: str | None = None, standby_for: str | None = None,
+        region: str | None = None, system: bool = False) -> int:
     """The fuser of a scenario run (``scenario_ref``), or of a live session (``live``
     given: ``scenario_ref`` is a site or scenario file, time is UTC, it runs until stopped).
     ``standby_for``: a hot standby of that fuser (:mod:`services.leader`): the same work,
     published under that fuser's identity only once it leads.
+    ``region``: the regional fuser of that ``[regions]`` entry (its id is the region's
+    name), publishing regional frames and their watermarks on ``regional/<region>``;
+    ``system``: the system fuser over every region's fuser (:mod:`fusion.regional`).
     ``json_path``: a scenario run's summary, scored against its truth, written there when
     done (the result of a deployment started by hand; it keeps every estimate until then)."""
     scenario = load(scenario_ref, seed, duration) if live is None else load_site(scenario_ref)
+    if (region is not None or system) and not scenario.regions:
+        raise UserError(f"{scenario_ref} has no [regions.<name>] tables: no regional topology (docs/regional.md)")
+    if region is not None and region not in scenario.regions:
+        raise UserError(f"--region {region}: {scenario_ref} has regions {', '.join(scenario.regions)}")
+    if region is not None and process_id != region:
+        raise UserError(f"--region {region}: a regional fuser's --id is its region's name, not {process_id!r}")
     config = method_config(scenario.tracker, method_name, overrides)
     distributed = METHODS[method_name].split is not None
-    if distributed:  # distributed, feedback, two-stage: the centre over the local trackers
+    stage: RegionalStage | None = None
+    if region is not None:  # one region's centralised tracker, its frames for the system fuser
+        stage = method = RegionalStage(RegionalFuser(scenario.regions[region], make_method(method_name, config)))
+        sensors = {s: scenario.sensors[s] for s in scenario.regions[region].sensors}
+        intake: Any = MeasurementIntake(sensors)
+        sources = list(sensors)
+        periods = {s: sensors[s].period for s in sources}
+    elif system:  # the system picture from the regional fusers' frames
+        method = SystemStage(RegionalMethod.system_fuser(method_name, config))
+        intake = RegionalIntake(scenario.regions)
+        sources = list(scenario.regions)
+        periods = {r: min(scenario.sensors[s].period for s in scenario.regions[r].sensors) for r in sources}
+    elif distributed:  # distributed, feedback, two-stage: the centre over the local trackers
         method = split(method_name).centre(config)
         nodes = {tracker_id(s): s for s in scenario.sensors}
-        intake: Any = UplinkIntake(nodes)
+        intake = UplinkIntake(nodes)
         sources = list(nodes)
+        periods = {src: scenario.sensor(nodes[src]).period for src in sources}
     else:
         method = make_method(method_name, config)
         intake = MeasurementIntake(scenario.sensors)
         sources = list(scenario.sensors)
-    periods = {src: scenario.sensor(intake.nodes[src] if isinstance(intake, UplinkIntake) else src).period
-               for src in sources}
+        periods = {src: scenario.sensor(src).period for src in sources}
+    schedule = {s: v for s, v in _schedule(scenario).items() if s in sources} \
+        if live is None and not distributed and not system else None
     with Node(process_id, "fuser", keys, zopts, live=live is not None) as node:
         inbox = Inbox(node.stop)
         if isinstance(method, TrackCentre):
@@ -358,20 +400,26 @@ def run(process_id: str, scenario_ref: str, method_name: str, overrides: dict, k
         core = FuserCore(method, sources, keys, node.reject, timeout, start_grace,
                          horizon=scenario.duration + HORIZON_SLACK_S if live is None else math.inf, now=time.monotonic(),
                          intake=intake, max_held=max_held_for(scenario, None if live is None else timeout),
-                         live=live, refilter=not feedback, periods=periods,
-                         schedule=None if live is not None or distributed else _schedule(scenario))
+                         live=live, refilter=not feedback and stage is None and not system, periods=periods,
+                         schedule=schedule)
         utc = time.time if live is not None else lambda: None
         recovery = Recovery(node.processes_by_session()) if live is not None else None
+        # a regional fuser hears its region's sensors only; the others, every source of its family
+        heard = [keys.meas(s) for s in sources] if stage is not None else [keys.all(intake.family)]
         if recovery is not None:  # live sensors' and trackers' publishers give back what a cut-off missed
-            node.recovering_subscriber(keys.all(intake.family), inbox, recovery.on_miss)
+            for key in heard:
+                node.recovering_subscriber(key, inbox, recovery.on_miss)
             # Its own streams too: a release is at most one estimate per measurement (or uplink) taken.
             cache = sum(recovery_cache(scenario, s) for s in scenario.sensors)
             publisher = functools.partial(node.recoverable_publisher, cache=cache)
         else:
-            node.subscribe(keys.all(intake.family), inbox)
+            for key in heard:
+                node.subscribe(key, inbox)
             publisher = node.publisher
         identity = standby_for or process_id  # the fuser consumers take the fused output of
-        pub = publisher(keys.fused(identity))
+        pub = publisher(keys.regional(identity) if stage is not None else keys.fused(identity))
+        encoder = encode_regional_frame if stage is not None else encode_estimate
+        frames_through = -math.inf  # a regional fuser: the watermark of its frames published last
         picture = Picture(identity, _delete_misses(scenario))
         node.keep(picture.serve(node.session, keys))
         down = {tid: publisher(keys.feedback(tid)) for tid in (intake.nodes if distributed else ())}
@@ -395,16 +443,25 @@ def run(process_id: str, scenario_ref: str, method_name: str, overrides: dict, k
                 pass
             leader.check()
             for e in core.step(time.monotonic()):
-                data = core.encoded(encode_estimate, e, identity, seq + 1)
+                data = core.encoded(encoder, e, identity, seq + 1)
                 if data is None:
                     continue
                 seq += 1
                 if leader.leads:
                     pub.put(data)
+                t_now = e.t
+                if stage is not None:
+                    continue
                 if kept is not None:
                     kept.append(to_estimate(decode(data)))  # what a listener gets
                 picture.published(e, data)
-                t_now = e.t
+            if stage is not None:  # how far its frames are complete, for the system fuser's merge
+                through = max(stage.watermark(), t_now) if core.finished else stage.watermark()
+                if through > frames_through or core.finished:
+                    frames_through = max(frames_through, through)
+                    seq += 1
+                    if leader.leads:
+                        pub.put(encode("watermark", identity, seq, frames_through, final=core.finished))
             if down:
                 method = core.method
                 for d in method.take_downlinks():

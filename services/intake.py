@@ -61,6 +61,7 @@ ROUTES: dict[str, Route] = {r.family: r for r in (
     Route("local", frozenset(UP_KINDS) | {"watermark"}, "src"),
     Route("feedback", frozenset(DOWN_KINDS) | {"watermark"}, "receiver"),
     Route("fused", frozenset({"track"}), "src"),
+    Route("regional", frozenset({"regional_frame", "watermark"}), "src"),
     Route("truth", frozenset({"truth"}), "target"),
     Route("jam", frozenset({"jam_state"}), "src"),
     Route("status", frozenset({"status"}), "src"),
@@ -91,8 +92,9 @@ class Intake:
             (e.g. ``{"feedback": "fuser"}`` for a local tracker).
         dedup: drop repeats (the recorder, the exporters; the fuser's ordering does its own).
         only: per family, the one key id taken (e.g. ``{"fused": "fuser"}``: one fuser's
-            tracks): another id's samples are not this consumer's, passed over uncounted
-            (:attr:`passed`) — another fuser publishing beside it is no error.
+            tracks; None: no id, the family is heard but not this consumer's): another
+            id's samples are passed over uncounted (:attr:`passed`) — another fuser
+            publishing beside it is no error.
     """
 
     def __init__(self, keys: KeySpace, reject, families: Iterable[str], *, horizon: float = math.inf,

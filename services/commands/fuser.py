@@ -23,6 +23,12 @@ def register(sub) -> None:
     p.add_argument("--standby", metavar="FUSER",
                    help="a hot standby of the fuser FUSER on the same inputs: the same work, published under "
                         "FUSER's identity only once FUSER's process is gone (leadership by Zenoh liveliness)")
+    role = p.add_mutually_exclusive_group()
+    role.add_argument("--region", metavar="NAME", type=options.key_id,
+                      help="regional topology: the fuser of region NAME of the scenario's [regions] (its --id is NAME), "
+                           "publishing its frames on regional/NAME for the system fuser")
+    role.add_argument("--system", action="store_true",
+                      help="regional topology: the system fuser over every region's fuser (docs/regional.md)")
     p.add_argument("--source-timeout", type=float, default=5.0, help="seconds of silence before a source is dead")
     p.add_argument("--start-grace", type=float, default=30.0, help="seconds a never-heard source gets at start")
     options.seed_option(p)
@@ -37,7 +43,9 @@ def run(args) -> int:
     if args.json:  # written when the run is done: checked before it starts
         options.writable_file(args.json, "--json")
     method = args.method or values.defaults(args).get("method")
+    if args.region is not None and args.id == "fuser":
+        args.id = args.region  # a regional fuser is named by its region
     return fuser.run(args.id, args.site or args.scenario, method, options.overrides(args), values.keys(args),
                      values.zopts(args), args.source_timeout, args.start_grace, seed=args.seed,
                      live=values.live(args), duration=args.duration_s, json_path=args.json,
-                     standby_for=args.standby)
+                     standby_for=args.standby, region=args.region, system=args.system)

@@ -58,7 +58,7 @@ from sensors_sim.spec import DF_KINDS
 from . import draw
 from . import map as recorder_map
 from ..scoring import LiveScore, Scored, many_targets
-from ..intake import HORIZON_SLACK_S, ROUTES, Intake
+from ..intake import HORIZON_SLACK_S, Intake
 from ..listener import run_listener
 from ..live import ClockGuard
 from ..node import Node, RejectLog
@@ -156,12 +156,13 @@ class Recorder:
         if duration is not None:
             self.horizon = float(duration) + HORIZON_SLACK_S
         # everything on the deployment's keys; a row's time is never before 0 nor past the end
-        self.intake = Intake(keys, self.reject, ROUTES, horizon=self.horizon, earliest=0.0, clock=clock_guard,
-                             only={"fused": fuser}, dedup=True)
-        self.clock_events = self.intake.events  # what the clock guard says of the sources' clocks
         self._handlers = {"meas": self._on_measurement, "fused": self._on_estimate, "local": self._on_uplink,
                           "feedback": self._on_feedback, "truth": self._on_truth, "jam": self._on_jam_state,
                           "status": self._on_status}
+        # what it draws; a regional fuser's frames are its system fuser's input, drawn as that fuser's tracks
+        self.intake = Intake(keys, self.reject, list(self._handlers), horizon=self.horizon, earliest=0.0,
+                             clock=clock_guard, only={"fused": fuser, "regional": None}, dedup=True)
+        self.clock_events = self.intake.events  # what the clock guard says of the sources' clocks
         rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
         if scenario is not None:
             self._from_scenario(scenario)

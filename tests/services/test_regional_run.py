@@ -1,0 +1,68 @@
+"""The regional topology as processes: a fuser per region (``zfusion fuser --region``)
+publishing its frames on ``regional/<region>``, a system fuser (``--system``) merging
+them by their watermarks into the system picture on ``fused/fuser``. The system tracks
+equal the in-process evaluation of the topology (``zfusion eval --topology regional``)
+to 1e-9, ids included, whatever the processes' timing."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from schemas import KeySpace, decode, to_estimate
+from schemas.keys import DEFAULT_FUSER
+from services.evaluation import build_method, run_method
+from services.launcher import free_port
+from services.node import ZenohOptions
+from services.plan import source_timeout
+from services.supervisor import Children
+from sensors_sim import load_scenario
+
+from _multihost import ROUTER_HOST, Watcher, wait_listening
+
+TWO_REGIONS = Path(__file__).resolve().parents[1] / "data" / "two-regions.toml"
+
+
+@pytest.mark.slow
+def test_regional_fusers_under_a_system_fuser_equal_in_process(deployment):
+    sc = load_scenario(TWO_REGIONS)
+    ref = run_method(sc, "SS", method=build_method(sc, "SS", topology="regional"))
+    keys = KeySpace(deployment)
+    port = free_port()
+    ep = f"tcp/{ROUTER_HOST}:{port}"
+    client = ZenohOptions(connect=[ep], mode="client")
+    common = ["--scenario", str(TWO_REGIONS), "--deployment", deployment, *client.to_args()]
+    fusers = ["--method", "SS", "--source-timeout", str(source_timeout(sc, "max"))]
+    children = Children()
+    watcher = None
+    try:
+        children.start("router", ["router", "--listen", ep])
+        wait_listening(ROUTER_HOST, port, children.procs["router"])
+        watcher = Watcher(client.to_config(), keys)
+        children.start(DEFAULT_FUSER, ["fuser", *common, *fusers, "--system"])
+        for region in sc.regions:
+            children.start(region, ["fuser", *common, *fusers, "--region", region])
+        for s in sc.sensors:
+            feeds = [r for r, reg in sc.regions.items() if s in reg.sensors]
+            children.start(s, ["sensor", *common, "--id", s, "--speed", "max",
+                               "--wait-for", ",".join([*feeds, Watcher.NAME])])
+        watcher.announce()
+        for name in [*sc.sensors, *sc.regions, DEFAULT_FUSER]:
+            assert children.wait(name, 120.0) == 0, name
+        watcher.wait_fused(len(ref))
+        got = [to_estimate(m) for m in watcher.messages(keys.fused(DEFAULT_FUSER)) if m.kind == "track"]
+        frames = {r: [decode(d) for k, d in watcher.samples if k == keys.regional(r)] for r in sc.regions}
+    finally:
+        if watcher is not None:
+            watcher.close()
+        children.stop_all()
+    assert all(fr and fr[-1].kind == "watermark" and fr[-1].body["final"] for fr in frames.values()), \
+        {r: len(fr) for r, fr in frames.items()}
+    assert len(got) == len(ref) > 100
+    assert {e.track for e in got} == {e.track for e in ref}
+    for a, b in zip(ref, got):
+        assert (a.t, a.track) == (b.t, b.track)
+        np.testing.assert_allclose(b.x, a.x, rtol=0, atol=1e-9)
+        np.testing.assert_allclose(b.P, a.P, rtol=0, atol=1e-9)
