@@ -20,6 +20,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 TOPOLOGIES = ("centralised", "distributed", "feedback", "two-stage")
+# The process layouts a run may take: a method's topology, or ``regional`` — a centralised
+# many-target method as regional fusers under a system fuser (fusion.regional).
+LAYOUTS = (*TOPOLOGIES, "regional")
 # The track-to-track fusion rules of a split topology's centre (fusion.track_fusion), named
 # here so that the command line offers them without loading the estimation methods.
 FUSION_RULES = ("naive", "bar-shalom-campo", "ci", "info")

@@ -121,23 +121,31 @@ class RunPlan:
         given = ["--site", scenario_ref] if live else ["--scenario", scenario_ref, *seed, *dur]
         tuned = [a for k, v in settings for a in ("--set", f"{k}={json.dumps(v)}")]
         tuned += ["--fusion-rule", fusion_rule] if fusion_rule else []
-        trackers = {s: tracker_id(s) for s in scenario.sensors} if topology != "centralised" else {}
+        split = topology not in ("centralised", "regional")
+        trackers = {s: tracker_id(s) for s in scenario.sensors} if split else {}
+        regions = dict(scenario.regions) if topology == "regional" else {}  # region -> its fuser, of that id
         sources = list(scenario.process_ids())
         specs = [ProcessSpec(ROUTER_ID, "router", ("router", "--listen", router))] if router else []
         specs.append(ProcessSpec(FUSER_ID, "fuser", (
-            "fuser", *given, "--method", method, "--id", FUSER_ID, "--source-timeout", str(timeout), *tuned,
+            "fuser", *given, "--method", method, "--id", FUSER_ID, *(["--system"] if regions else []),
+            "--source-timeout", str(timeout), *tuned,
             *(["--max-delay", repr(live.max_delay), "--oosm-window", repr(live.oosm_window)] if live else []),
             *(["--json", json_path] if json_path else []), *fabric), restartable=True))
+        for region in regions:  # each region's fuser, the system fuser's sources
+            specs.append(ProcessSpec(region, "fuser", (
+                "fuser", *given, "--method", method, "--region", region, "--source-timeout", str(timeout), *tuned,
+                *fabric), restartable=True))
         if standby:  # the fuser's work again, published only when the fuser's process is gone
             specs.append(ProcessSpec(STANDBY_ID, "fuser", (
                 "fuser", *given, "--method", method, "--id", STANDBY_ID, "--standby", FUSER_ID,
+                *(["--system"] if regions else []),
                 "--source-timeout", str(timeout), *tuned,
                 *(["--max-delay", repr(live.max_delay), "--oosm-window", repr(live.oosm_window)] if live else []),
                 *fabric), restartable=True))
         specs.append(ProcessSpec(RECORDER_ID, "recorder", (
             "record", "--rrd", rrd, "--id", RECORDER_ID, *given, *(["--spawn"] if spawn else []),
             *(["--rotate-s", str(rotate_s)] if rotate_s else []),
-            "--expect", ",".join([FUSER_ID, *trackers.values(), *sources]), *fabric), restartable=True))
+            "--expect", ",".join([FUSER_ID, *regions, *trackers.values(), *sources]), *fabric), restartable=True))
         for pid, (name, option, value) in outputs.items():  # listeners like the recorder, up before the sources
             specs.append(ProcessSpec(pid, "exporter", (
                 "export", name, option, value, "--site" if live else "--scenario", scenario_ref, "--id", pid, *fabric),
@@ -149,7 +157,8 @@ class RunPlan:
         for sid in sources:
             # A source waits only for its consumers: the fuser may finish (and vanish)
             # before a truth or jammer process discovers it, so they must not wait for it.
-            consumers = [trackers.get(sid, FUSER_ID), RECORDER_ID] if sid in scenario.sensors else [RECORDER_ID]
+            fed = [r for r, reg in regions.items() if sid in reg.sensors] or [trackers.get(sid, FUSER_ID)]
+            consumers = [*fed, RECORDER_ID] if sid in scenario.sensors else [RECORDER_ID]
             # a live emulation plays the scenario's duration (else until stopped, if endless)
             played = ["--duration-s", repr(scenario.duration)] if dur or (live and not live.endless) else []
             specs.append(ProcessSpec(sid, "source", (

@@ -45,8 +45,22 @@ def topology_of(method: str) -> str:
 
 
 def resolve_topology(scenario, topology: str | None, method: str | None) -> tuple[str, str]:
-    """Topology and method from the command line and the scenario's defaults; they must agree."""
+    """Topology and method from the command line and the scenario's defaults; they must
+    agree (``regional``: a centralised method, in a scenario with ``[regions]``)."""
     default = scenario.defaults.get("method")
+    if topology == "regional":
+        method = method or default
+        if not scenario.regions:
+            raise UserError(f"--topology regional needs [regions.<name>] tables; {scenario.name} has none "
+                            f"(docs/regional.md)")
+        if not method or topology_of(method) != "centralised":
+            raise UserError(f"--topology regional runs a centralised many-target method as regional fusers; "
+                            f"give --method (not {method})")
+        clash = set(scenario.regions) & (set(scenario.process_ids()) | {"fuser", "recorder", "router"})
+        if clash:
+            raise UserError(f"--topology regional: region {sorted(clash)[0]!r} has the id of another process; "
+                            f"rename the region")
+        return topology, method
     if method is None and topology is not None and (default is None or topology_of(default) != topology):
         if topology == "centralised":
             raise UserError(f"scenario {scenario.name} names no centralised method; give --method")

@@ -15,7 +15,7 @@ import re
 import tomllib
 from pathlib import Path
 
-from fusion.topology import FUSION_RULES, TOPOLOGIES
+from fusion.topology import FUSION_RULES, LAYOUTS, TOPOLOGIES
 
 from ..errors import UserError
 
@@ -183,7 +183,8 @@ def fuser(p: argparse.ArgumentParser, help: str = "the fuser whose tracks to tak
 
 
 def topology(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--topology", choices=TOPOLOGIES, help="process layout (default: the method's)")
+    p.add_argument("--topology", choices=LAYOUTS, help="process layout (default: the method's; regional: a "
+                   "centralised many-target method as regional fusers under a system fuser, docs/regional.md)")
 
 
 def tracker_options(p: argparse.ArgumentParser, duration: bool = True) -> None:

@@ -10,7 +10,7 @@ import pytest
 
 from fusion.methods import METHODS, TOPOLOGIES, TRACK_FUSION_METHODS, make_method, spec, split, topology_default
 from fusion.network import MultiTrackCentre, TrackCentre, TrackNode
-from fusion.topology import TOPOLOGIES as LEAF_TOPOLOGIES
+from fusion.topology import LAYOUTS, TOPOLOGIES as LEAF_TOPOLOGIES
 from fusion.topology import SCHEMES, Scheme, scheme_of
 from services.cli import build_parser
 from services.request import topology_of
@@ -61,7 +61,8 @@ def test_the_command_line_reads_the_registry():
     parser = build_parser()
     sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
     run = {a.dest: a for a in sub.choices["run"]._actions}
-    assert tuple(run["topology"].choices) == TOPOLOGIES == LEAF_TOPOLOGIES
+    assert TOPOLOGIES == LEAF_TOPOLOGIES
+    assert tuple(run["topology"].choices) == (*TOPOLOGIES, "regional") == LAYOUTS  # and the regional layout
 
 
 def test_the_launcher_reads_the_registry():

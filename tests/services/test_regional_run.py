@@ -6,6 +6,9 @@ to 1e-9, ids included, whatever the processes' timing."""
 
 from __future__ import annotations
 
+import json
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -20,7 +23,11 @@ from services.plan import source_timeout
 from services.supervisor import Children
 from sensors_sim import load_scenario
 
+from services.scoring import truth_function
+from services.summary import method_summary
+
 from _multihost import ROUTER_HOST, Watcher, wait_listening
+from _runs import run_cmd, same_series
 
 TWO_REGIONS = Path(__file__).resolve().parents[1] / "data" / "two-regions.toml"
 
@@ -66,3 +73,28 @@ def test_regional_fusers_under_a_system_fuser_equal_in_process(deployment):
         assert (a.t, a.track) == (b.t, b.track)
         np.testing.assert_allclose(b.x, a.x, rtol=0, atol=1e-9)
         np.testing.assert_allclose(b.P, a.P, rtol=0, atol=1e-9)
+
+
+@pytest.mark.slow
+def test_zfusion_run_topology_regional_equals_in_process(tmp_path, deployment):
+    """``zfusion run --topology regional`` starts the plan's regional fusers and system
+    fuser (``zfusion plan`` prints the same commands) and its summary equals the
+    in-process evaluation's, step by step."""
+    sc = load_scenario(TWO_REGIONS)
+    ref = method_summary([run_method(sc, "SS", method=build_method(sc, "SS", topology="regional"))],
+                         truth_function(sc))
+    out = subprocess.run(run_cmd(tmp_path, str(TWO_REGIONS), deployment, "--topology", "regional", "--speed", "max"),
+                         capture_output=True, text=True, timeout=600)
+    assert out.returncode == 0, out.stderr[-3000:]
+    doc = json.loads((tmp_path / "out.json").read_text())
+    assert doc["topology"] == "regional" and set(doc["exit_codes"]) >= {"fuser", *sc.regions}
+    same_series(doc["methods"]["SS"], ref)
+
+
+def test_a_regional_run_needs_regions_and_a_centralised_method():
+    for args, says in ((["--scenario", "patent-3d", "--topology", "regional"], "needs [regions"),
+                       (["--scenario", str(TWO_REGIONS), "--topology", "regional", "--method", "HNV"],
+                        "centralised")):
+        out = subprocess.run([sys.executable, "-m", "services.cli", "run", *args], capture_output=True, text=True,
+                             timeout=60)
+        assert out.returncode == 2 and len(out.stderr.strip().splitlines()) == 1 and says in out.stderr, out.stderr
