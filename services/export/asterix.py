@@ -77,7 +77,11 @@ def system_track(e: Estimate, frame: LocalFrame, sac: int, sic: int, number: int
             acc.update(atv_x=float(sd[2]), atv_y=float(sd[3]))
     v = geo.velocity(x)
     altitude = alt if three_d and -1500 * 0.3048 <= alt < 150_000 * 0.3048 else None
+    ident = e.identity
+    # I062/380 ADR is an ICAO 24-bit address: a non-ICAO one ("~" and hex: TIS-B, anonymous) has no place there
+    icao = ident is not None and ident.address is not None and len(ident.address) == 6 and ident.address[0] != "~"
     return ax.SystemTrack(
+        callsign=ident.callsign if ident is not None else None, address=int(ident.address, 16) if icao else None,
         sac=sac, sic=sic, track_number=number, tod=float(e.t), service=service, lat=lat, lon=lon,
         x=float(x[0]), y=float(x[1]), vx=None if v is None else float(v[0]), vy=None if v is None else float(v[1]),
         status=ax.cat062.TrackStatus(mon=False, src=3 if three_d else 0, tsb=first), altitude=altitude,

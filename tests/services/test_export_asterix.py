@@ -4,6 +4,7 @@ covariance; the sink's per-update and periodic sending with CAT065."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import signal
 import socket
@@ -20,7 +21,7 @@ from asterix.base import Bits, RawDatablock
 from conftest import zfusion
 
 from fusion.geodetic import LocalFrame
-from fusion.types import Estimate
+from fusion.types import Estimate, Identity
 from schemas import KeySpace, encode_estimate
 from schemas import asterix as ax
 from services.export.asterix import AsterixSink, TrackNumbers, system_track
@@ -76,6 +77,21 @@ def test_a_3d_track_as_libasterix_reads_it():
     apw = acc.get_item("APW").variation
     assert apw.get_item("LAT").variation.content.as_quantity("°") == pytest.approx(
         math.degrees(math.sqrt(P[1, 1]) / m), abs=180 / 2**26)
+
+
+def test_a_track_with_an_identity_carries_its_address_and_callsign():
+    """I062/380 ADR (the 24-bit address) and I062/245 (the callsign), as libasterix reads
+    them; a non-ICAO address (``~``: TIS-B, anonymous) is no 24-bit address and is left out."""
+    x, P = np.array([1000.0, 2000.0, 9000.0, 200.0, 0.0, 0.0]), np.eye(6) * 100.0
+    e = Estimate(t=10.0, x=x, P=P, method="SS", track="T1", identity=Identity("4ca1f2", "EIN21"))
+    (_, r), = lib_records(ax.encode([system_track(e, FRAME, 1, 2, 3)])[0])
+    assert r.get_item("380").variation.get_item("ADR").variation.content.as_uint() == 0x4CA1F2
+    assert r.get_item("245").variation.get_item("CHR").variation.content.as_string().strip() == "EIN21"
+    tisb = dataclasses.replace(e, identity=Identity("~1a2b3c", None))
+    back = ax.decode(ax.encode([system_track(tisb, FRAME, 1, 2, 3)])[0])[0]
+    assert (back.address, back.callsign) == (None, None)
+    plain = ax.decode(ax.encode([system_track(dataclasses.replace(e, identity=None), FRAME, 1, 2, 3)])[0])[0]
+    assert (plain.address, plain.callsign) == (None, None)
 
 
 def test_an_emitter_fix_has_no_height_and_no_velocity():
