@@ -400,6 +400,8 @@ class Node:
         self._declared: list[Any] = []
         self.session: zenoh.Session | None = None
         self._status_line_at = time.monotonic()
+        self._link_lock = threading.Lock()
+        self._link_told = False  # whether the link's line was printed (or is no more to be)
 
     # -- lifetime ---------------------------------------------------------------------
 
@@ -422,20 +424,36 @@ class Node:
         deadline = time.monotonic() + LINK_WARN_S
         warned = False
         while not self.stop.wait(0.1):
-            try:
-                if self.session is not session:
-                    return
-                linked = any(True for _ in session.info.routers_zid()) or any(True for _ in session.info.peers_zid())
-            except Exception:  # closed meanwhile: nothing left to watch
-                return
-            if linked:
-                if warned or chatty():
-                    log.log(logging.WARNING if warned else logging.INFO, "%s: connected to %s", self.id, where)
+            linked = self._tell_link(session, where, warned)
+            if linked is None or linked:
                 return
             if not warned and time.monotonic() >= deadline:
                 log.warning("%s: cannot reach %s: nothing answered in %.0f s (is a zfusion session or a Zenoh "
                             "router listening there?); still trying", self.id, where, LINK_WARN_S)
                 warned = True
+
+    def _tell_link(self, session: zenoh.Session, where: str, warned: bool = False) -> bool | None:
+        """Print the link's line once it is up (True), not yet (False); None: no more to tell."""
+        with self._link_lock:
+            if self._link_told or self.session is not session:
+                return None
+            try:
+                linked = any(True for _ in session.info.routers_zid()) or any(True for _ in session.info.peers_zid())
+            except Exception:  # closed meanwhile: nothing left to watch
+                return None
+            if linked:
+                self._link_told = True
+                if warned or chatty():
+                    log.log(logging.WARNING if warned else logging.INFO, "%s: connected to %s", self.id, where)
+            return linked
+
+    def settle_link(self) -> None:
+        """Before a process's last words: its link's line now if it is up, else never —
+        never after them."""
+        if self.session is not None:
+            self._tell_link(self.session, ", ".join(_endpoints(self.zopts.to_config())))
+        with self._link_lock:
+            self._link_told = True
 
     def __exit__(self, *exc: object) -> None:
         self.close()

@@ -729,6 +729,7 @@ def _jsonl(node: Node, gateway: Gateway, source: tuple[str, tuple[str, int] | No
     finally:
         reader.close()
     if source[0] in ("stdin", "file"):
+        node.settle_link()  # its "connected" line, if any, comes before the summary
         log.info("%s: %s", node.id, summary(state, where, counts["lines"], gateway.counters, node.reject.by_cause))
     return 0
 
