@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import signal
 import subprocess
 import sys
 import time
@@ -48,8 +49,8 @@ def same_series(got: dict, ref: dict) -> None:
 
 def child(launcher: psutil.Process, command: str, ident: str, timeout: float = 120,
           exclude: tuple[int, ...] = ()) -> psutil.Process:
-    """The launcher's child ``zfusion COMMAND`` for process ``ident`` (``--id``, or a
-    tracker's ``--sensor``); ``exclude`` skips pids (a killed incarnation). A loaded
+    """The launcher's child ``zfusion COMMAND`` for process ``ident`` (``--id``, a
+    tracker's ``--sensor``, a regional fuser's ``--region``); ``exclude`` skips pids (a killed incarnation). A loaded
     machine can take over 30 s to bring a run's processes up (the launcher starts the
     recorder and the fuser before the sources)."""
     deadline = time.monotonic() + timeout
@@ -61,10 +62,37 @@ def child(launcher: psutil.Process, command: str, ident: str, timeout: float = 1
                 continue
             if c.pid in exclude or "services.cli" not in cmd or cmd[cmd.index("services.cli") + 1] != command:
                 continue
-            if any(cmd[i + 1] == ident for i, a in enumerate(cmd[:-1]) if a in ("--id", "--sensor")):
+            if any(cmd[i + 1] == ident for i, a in enumerate(cmd[:-1]) if a in ("--id", "--sensor", "--region")):
                 return c
         time.sleep(0.1)
     raise AssertionError(f"no {command} {ident} process")
+
+
+def disturb(tmp_path, scenario, deployment, speed, kills, *extra, timeout=120, killed_at=None):
+    """Run the scenario; once the fused output reaches each scenario time of ``kills``
+    (t, command, id), kill -9 that process (its monotonic time appended to ``killed_at``).
+    Returns the summary and the launcher's stderr."""
+    watch = FusedWatch(deployment)
+    proc = subprocess.Popen(run_cmd(tmp_path, scenario, deployment, "--speed", str(speed),
+                                    "--connect", watch.endpoint, *extra),
+                            stdout=subprocess.DEVNULL, stderr=(tmp_path / "run.log").open("w"))
+    try:
+        launcher = psutil.Process(proc.pid)
+        for t, command, ident in kills:
+            victim = child(launcher, command, ident)
+            watch.wait_until(t - 1.0, proc)  # the fused output lags the sensors by about a scan
+            victim.kill()
+            if killed_at is not None:
+                killed_at.append(time.monotonic())
+        proc.wait(timeout)
+    finally:
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGINT)
+            proc.wait(30)
+        watch.close()
+    err = (tmp_path / "run.log").read_text()
+    assert proc.returncode == 0, err[-3000:]
+    return json.loads((tmp_path / "out.json").read_text()), err
 
 
 class FusedWatch:

@@ -25,7 +25,7 @@ from _ingest_helpers import site_toml
 from conftest import CROSSING
 from schemas import decode
 from sensors_sim import load_scenario
-from _runs import FusedWatch, child, in_process, run_cmd
+from _runs import FusedWatch, child, disturb, in_process, run_cmd
 from services.evaluation import merged_measurements, run_method
 from services.launcher import free_port
 from services.plan import source_timeout
@@ -33,33 +33,6 @@ from services.scoring import GOSPA_CUTOFF, score_tracks_of, truth_function
 from services.summary import method_summary, tracks_summary
 
 pytestmark = pytest.mark.slow
-
-
-def _disturb(tmp_path, scenario, deployment, speed, kills, *extra, timeout=120, killed_at=None):
-    """Run the scenario; once the fused output reaches each scenario time of ``kills``
-    (t, command, id), kill -9 that process (its monotonic time appended to ``killed_at``).
-    Returns the summary and the launcher's stderr."""
-    watch = FusedWatch(deployment)
-    proc = subprocess.Popen(run_cmd(tmp_path, scenario, deployment, "--speed", str(speed),
-                                    "--connect", watch.endpoint, *extra),
-                            stdout=subprocess.DEVNULL, stderr=(tmp_path / "run.log").open("w"))
-    try:
-        launcher = psutil.Process(proc.pid)
-        for t, command, ident in kills:
-            victim = child(launcher, command, ident)
-            watch.wait_until(t - 1.0, proc)  # the fused output lags the sensors by about a scan
-            victim.kill()
-            if killed_at is not None:
-                killed_at.append(time.monotonic())
-        proc.wait(timeout)
-    finally:
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGINT)
-            proc.wait(30)
-        watch.close()
-    err = (tmp_path / "run.log").read_text()
-    assert proc.returncode == 0, err[-3000:]
-    return json.loads((tmp_path / "out.json").read_text()), err
 
 
 def _outage(doc: dict, name: str, t_kill: float) -> dict:
@@ -83,7 +56,7 @@ def test_tracker_then_fuser_killed_in_the_feedback_topology(tmp_path, deployment
     fuser carries on with the radar's node while the tracker is away; the restarted
     tracker joins from the latest fused state; the restarted fuser knows nothing and both
     trackers re-run the initialisation handshake. After each, accuracy is back."""
-    doc, err = _disturb(tmp_path, "patent-3d-60", deployment, 3.0,
+    doc, err = disturb(tmp_path, "patent-3d-60", deployment, 3.0,
                         [(8.0, "tracker", "angle"), (34.0, "fuser", "fuser")], "--topology", "feedback")
     trk = _outage(doc, "trk-angle", 8.0)
     fuser = _outage(doc, "fuser", 34.0)
@@ -108,7 +81,7 @@ def test_fuser_killed_with_many_targets_in_the_feedback_topology(tmp_path, deplo
     over the window below, against 108 m undisturbed."""
 
     path = CROSSING
-    doc, err = _disturb(tmp_path, str(path), deployment, 3.0, [(25.0, "fuser", "fuser")], "--topology", "feedback")
+    doc, err = disturb(tmp_path, str(path), deployment, 3.0, [(25.0, "fuser", "fuser")], "--topology", "feedback")
     fuser = _outage(doc, "fuser", 25.0)
     assert err.count("fuser restarted: tracks dropped, asking it for initial states again") == 2
     got = doc["methods"]["PHHNV"]
@@ -133,7 +106,7 @@ def test_no_restart_ends_the_run_after_the_sources(tmp_path, deployment):
 
     killed: list[float] = []
     duration = 16.0  # the sources go on for 6 s of scenario time after the kill
-    doc, err = _disturb(tmp_path, "patent-3d", deployment, 3.0, [(10.0, "fuser", "fuser")], "--no-restart",
+    doc, err = disturb(tmp_path, "patent-3d", deployment, 3.0, [(10.0, "fuser", "fuser")], "--no-restart",
                         "--duration-s", str(duration), killed_at=killed)
     # from the kill: the sources' last 6 scenario s (2 s), the grace, the stop; timed from the kill, not
     # the start, which a loaded machine can stretch past 30 s
@@ -161,7 +134,7 @@ def test_recorder_then_fuser_killed_centralised(tmp_path, deployment):
     elevation, e.g. 31.6 m RMSE from t = 37 s against 17.7 m undisturbed.)"""
     from _recording import read_rrd, verify
 
-    doc, err = _disturb(tmp_path, "patent-3d-60", deployment, 4.0,
+    doc, err = disturb(tmp_path, "patent-3d-60", deployment, 4.0,
                         [(6.0, "record", "recorder"), (15.0, "fuser", "fuser")])
     rec = _outage(doc, "recorder", 6.0)
     fuser = _outage(doc, "fuser", 15.0)

@@ -27,7 +27,7 @@ from services.scoring import truth_function
 from services.summary import method_summary
 
 from _multihost import ROUTER_HOST, Watcher, wait_listening
-from _runs import run_cmd, same_series
+from _runs import disturb, run_cmd, same_series
 
 TWO_REGIONS = Path(__file__).resolve().parents[1] / "data" / "two-regions.toml"
 
@@ -98,3 +98,18 @@ def test_a_regional_run_needs_regions_and_a_centralised_method():
         out = subprocess.run([sys.executable, "-m", "services.cli", "run", *args], capture_output=True, text=True,
                              timeout=60)
         assert out.returncode == 2 and len(out.stderr.strip().splitlines()) == 1 and says in out.stderr, out.stderr
+
+
+@pytest.mark.slow
+def test_a_killed_regional_fuser_leaves_no_gap_in_the_system_picture(tmp_path, deployment):
+    """kill -9 of the west region's fuser while the aircraft crosses the overlap (t =
+    140 s, 3 km east of the boundary, in both regions' margins): the launcher restarts
+    it, the east region holds the aircraft meanwhile, and the system track (one id)
+    never misses more than two of the radars' 1 s periods; the outage is in the summary."""
+    doc, err = disturb(tmp_path, str(TWO_REGIONS), deployment, 5.0, [(140.0, "fuser", "west")],
+                       "--topology", "regional", timeout=300)
+    (out,) = doc["outages"]["west"]
+    assert out["exit_code"] == -9 and out["t_up"] is not None and doc["exit_codes"]["west"] == -9
+    t = np.array(doc["methods"]["SS"]["series"]["t"])
+    assert t[-1] == 250.0 and np.max(np.diff(t[t > 10.0])) <= 2.0, np.max(np.diff(t))
+    assert "west killed (signal 9): restarting it" in err
