@@ -7,13 +7,17 @@ from __future__ import annotations
 import socket
 import threading
 import time
+from contextlib import contextmanager
 from pathlib import Path
 
 import zenoh
 
 from schemas import KeySpace, decode, to_estimate, tracker_id
 from schemas.keys import DEFAULT_FUSER
+from services.launcher import free_port
+from services.node import ZenohOptions
 from services.scoring import truth_function
+from services.supervisor import Children
 from services.summary import method_summary
 
 
@@ -99,3 +103,25 @@ def site(scenario, method: str, topology: str, watcher: str = Watcher.NAME) -> d
     for s in scenario.sensors:
         procs[s] = ["sensor", *common, "--id", s, "--speed", "max", "--wait-for", f"{consumer[s]},{watcher}"]
     return procs
+
+
+@contextmanager
+def behind_a_router(deployment: str, scenario_ref: str):
+    """A router on a free loopback port, the test's :class:`Watcher` as its client, and
+    the processes the test starts (``Children``; stopped at the end, the watcher
+    closed): yields ``(children, watcher, common)``, ``common`` the options every
+    process is given (the scenario, the deployment, the router as a client)."""
+    port = free_port()
+    ep = f"tcp/{ROUTER_HOST}:{port}"
+    client = ZenohOptions(connect=[ep], mode="client")
+    children = Children()
+    watcher = None
+    try:
+        children.start("router", ["router", "--listen", ep])
+        wait_listening(ROUTER_HOST, port, children.procs["router"])
+        watcher = Watcher(client.to_config(), KeySpace(deployment))
+        yield children, watcher, ["--scenario", scenario_ref, "--deployment", deployment, *client.to_args()]
+    finally:
+        if watcher is not None:
+            watcher.close()
+        children.stop_all()

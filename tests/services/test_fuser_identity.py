@@ -18,10 +18,9 @@ from fusion.types import Estimate
 from schemas import KeySpace, encode, encode_estimate
 from services.launcher import free_port
 from services.node import ZenohOptions
-from services.supervisor import Children
 from sensors_sim import load_scenario
 
-from _multihost import ROUTER_HOST, Watcher, wait_listening
+from _multihost import Watcher, behind_a_router
 from _runs import in_process, same_series
 
 FUSERS = {"north": "SS", "south": "LCDD"}
@@ -31,16 +30,7 @@ FUSERS = {"north": "SS", "south": "LCDD"}
 def test_two_fusers_side_by_side_each_equal_in_process(deployment):
     scenario = load_scenario("patent-3d")
     keys = KeySpace(deployment)
-    port = free_port()
-    ep = f"tcp/{ROUTER_HOST}:{port}"
-    client = ZenohOptions(connect=[ep], mode="client")
-    common = ["--scenario", scenario.name, "--deployment", deployment, *client.to_args()]
-    children = Children()
-    watcher = None
-    try:
-        children.start("router", ["router", "--listen", ep])
-        wait_listening(ROUTER_HOST, port, children.procs["router"])
-        watcher = Watcher(client.to_config(), keys)
+    with behind_a_router(deployment, scenario.name) as (children, watcher, common):
         for fuser, method in FUSERS.items():
             children.start(fuser, ["fuser", *common, "--method", method, "--id", fuser])
         for s in scenario.sensors:
@@ -54,10 +44,6 @@ def test_two_fusers_side_by_side_each_equal_in_process(deployment):
             watcher.wait_fused(refs[fuser]["n_updates"], fuser=fuser)
         got = {f: watcher.summary(scenario, fuser=f) for f in FUSERS}
         senders = {(k, m.src) for k, data in watcher.samples if "/fused" in k for m in [watcher.decode(data)]}
-    finally:
-        if watcher is not None:
-            watcher.close()
-        children.stop_all()
     assert senders == {(keys.fused(f), f) for f in FUSERS}  # each on its own key, nothing on another
     for fuser in FUSERS:
         same_series(got[fuser], refs[fuser])

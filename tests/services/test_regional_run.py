@@ -17,16 +17,13 @@ import pytest
 from schemas import KeySpace, decode, to_estimate
 from schemas.keys import DEFAULT_FUSER
 from services.evaluation import build_method, run_method
-from services.launcher import free_port
-from services.node import ZenohOptions
 from services.plan import source_timeout
-from services.supervisor import Children
 from sensors_sim import load_scenario
 
 from services.scoring import truth_function
 from services.summary import method_summary
 
-from _multihost import ROUTER_HOST, Watcher, wait_listening
+from _multihost import Watcher, behind_a_router
 from _runs import disturb, run_cmd, same_series
 
 TWO_REGIONS = Path(__file__).resolve().parents[1] / "data" / "two-regions.toml"
@@ -37,17 +34,8 @@ def test_regional_fusers_under_a_system_fuser_equal_in_process(deployment):
     sc = load_scenario(TWO_REGIONS)
     ref = run_method(sc, "SS", method=build_method(sc, "SS", topology="regional"))
     keys = KeySpace(deployment)
-    port = free_port()
-    ep = f"tcp/{ROUTER_HOST}:{port}"
-    client = ZenohOptions(connect=[ep], mode="client")
-    common = ["--scenario", str(TWO_REGIONS), "--deployment", deployment, *client.to_args()]
     fusers = ["--method", "SS", "--source-timeout", str(source_timeout(sc, "max"))]
-    children = Children()
-    watcher = None
-    try:
-        children.start("router", ["router", "--listen", ep])
-        wait_listening(ROUTER_HOST, port, children.procs["router"])
-        watcher = Watcher(client.to_config(), keys)
+    with behind_a_router(deployment, str(TWO_REGIONS)) as (children, watcher, common):
         children.start(DEFAULT_FUSER, ["fuser", *common, *fusers, "--system"])
         for region in sc.regions:
             children.start(region, ["fuser", *common, *fusers, "--region", region])
@@ -61,10 +49,6 @@ def test_regional_fusers_under_a_system_fuser_equal_in_process(deployment):
         watcher.wait_fused(len(ref))
         got = [to_estimate(m) for m in watcher.messages(keys.fused(DEFAULT_FUSER)) if m.kind == "track"]
         frames = {r: [decode(d) for k, d in watcher.samples if k == keys.regional(r)] for r in sc.regions}
-    finally:
-        if watcher is not None:
-            watcher.close()
-        children.stop_all()
     assert all(fr and fr[-1].kind == "watermark" and fr[-1].body["final"] for fr in frames.values()), \
         {r: len(fr) for r, fr in frames.items()}
     assert len(got) == len(ref) > 100
