@@ -20,19 +20,21 @@ changes (switched on by ``revisit_s`` in ``[tracker]``):
    it did not update. ``revisit_s`` is the longest time between two looks at a target
    (the slowest sensor's period). A tentative track is confirmed at its ``confirm_m``-th
    hit once two sensors have seen it (clutter feeds a track from one radar at most; an
-   aircraft is seen by three or four) and one that measures elevation has (two 2D
-   radars' ranges and azimuths fit a ghost kilometres off in height and position). It
-   is deleted if it is not confirmed within ``revisit_s`` of its birth (and
+   aircraft is seen by three or four), one that measures elevation has (two 2D
+   radars' ranges and azimuths fit a ghost kilometres off in height and position), and
+   one has seen it on two of its looks (false plots do not repeat where a track
+   predicts them, an aircraft's do). It is deleted if it is not confirmed within ``revisit_s`` of its birth (and
    ``REVISIT_SLACK_S``: a beam crosses a moving target a little later or earlier each
    turn): by then every sensor that sees its target has looked at it, while a
    tentative track kept alive by each hit gathers false plots in a gate its unknown
-   velocity keeps growing (region-400, 90 s: 151 false tracks, each three false plots
-   of three sensors over 12-19 s). A confirmed track is deleted
+   velocity keeps growing (docs/results/region-400.md). A confirmed track is deleted
    once ``delete_misses · revisit_s`` passes without a hit (``K`` missed looks of the
    slowest sensor), or when its position σ passes ``max_pos_std``.
 
 A frame reports the confirmed tracks it updated or confirmed (the others' estimates have
-not changed). No duplicate review: two tracks' latest estimates are of different times.
+not changed). No duplicate review: few false tracks are near an aircraft another track
+holds, and a review of the updated tracks against their neighbours at a common time
+deleted tracks of aircraft (docs/results/region-400.md).
 """
 
 from __future__ import annotations
@@ -71,6 +73,7 @@ class SweepLogic:
     elevation: bool = True
     status: str = TENTATIVE
     hits: int = 1
+    repeated: bool = False  # whether a sensor has hit it on two of its looks
     born: float | None = None  # its birth's time (``last_hit`` at birth if None)
     #: no existence probability (the protocol of a track's logic, fusion.tracking.table.Track)
     existence = None
@@ -85,7 +88,7 @@ class SweepLogic:
 
     def _confirm(self) -> None:
         if (self.status == TENTATIVE and self.hits >= self.rule.confirm_m and len(self.sensors) >= 2
-                and self.elevation):
+                and self.elevation and self.repeated):
             self.status = CONFIRMED
 
     def record(self, hit: bool, P_pos: np.ndarray | None = None, t: float | None = None,
@@ -97,6 +100,7 @@ class SweepLogic:
             self.status = DELETED  # not confirmed within a revisit of its birth
             return self.status
         if hit:
+            self.repeated = self.repeated or bool(self.sensors & frozenset(sensors))
             self.hits += 1
             self.last_hit = max(self.last_hit, t)
             self.sensors = self.sensors | frozenset(sensors)

@@ -26,7 +26,8 @@ RULE = ManagementRule(confirm_m=3, confirm_n=4, delete_misses=3, max_pos_std=200
 
 def test_a_tentative_track_lives_one_revisit_from_its_birth_a_confirmed_one_k_without_a_hit():
     """Born at 0 with revisit 4 s: confirmed at its third hit (birth counts) once two
-    sensors have seen it, one measuring elevation; a tentative track dies once 4 s (and
+    sensors have seen it, one measuring elevation, and one of them has seen it twice
+    (false plots do not repeat); a tentative track dies once 4 s (and
     the slack of a beam's crossing) pass after its birth, however many hits it took (a
     track left waiting gathers false plots), a confirmed one once 3 x 4 = 12 s pass
     without a hit."""
@@ -48,6 +49,10 @@ def test_a_tentative_track_lives_one_revisit_from_its_birth_a_confirmed_one_k_wi
     young = SweepLogic(RULE, 4.0, 10.0, frozenset({"a", "b"}))
     assert young.record(False, None, 10.0 + late) == TENTATIVE
     assert young.record(False, None, 10.0 + late + 0.001) == DELETED
+    three = SweepLogic(RULE, 4.0, 0.0, frozenset({"a"}))
+    assert three.record(True, None, 1.0, {"b"}) == TENTATIVE
+    assert three.record(True, None, 2.0, {"c"}) == TENTATIVE and three.hits == 3  # three sensors once each
+    assert three.record(True, None, 3.0, {"b"}) == CONFIRMED  # b's second look
     just = SweepLogic(RULE, 4.0, 0.0, frozenset({"a"}))
     assert just.record(True, None, 2.0, {"b"}) == TENTATIVE
     assert just.record(True, None, late, {"a"}) == CONFIRMED  # a's next turn crossed it a little late
