@@ -20,14 +20,21 @@ changes (switched on by ``revisit_s`` in ``[tracker]``):
    it did not update. ``revisit_s`` is the longest time between two looks at a target
    (the slowest sensor's period). A tentative track is confirmed at its ``confirm_m``-th
    hit once two sensors have seen it (clutter feeds a track from one radar at most; an
-   aircraft is seen by three or four) and one that measures elevation has (two 2D
-   radars' ranges and azimuths fit a ghost kilometres off in height and position), and is
-   deleted once ``revisit_s`` passes without a hit; a confirmed track is deleted
+   aircraft is seen by three or four), one that measures elevation has (two 2D
+   radars' ranges and azimuths fit a ghost kilometres off in height and position), and
+   one has seen it on two of its looks (false plots do not repeat where a track
+   predicts them, an aircraft's do). It is deleted if it is not confirmed within ``revisit_s`` of its birth (and
+   ``REVISIT_SLACK_S``: a beam crosses a moving target a little later or earlier each
+   turn): by then every sensor that sees its target has looked at it, while a
+   tentative track kept alive by each hit gathers false plots in a gate its unknown
+   velocity keeps growing (docs/results/region-400.md). A confirmed track is deleted
    once ``delete_misses · revisit_s`` passes without a hit (``K`` missed looks of the
    slowest sensor), or when its position σ passes ``max_pos_std``.
 
 A frame reports the confirmed tracks it updated or confirmed (the others' estimates have
-not changed). No duplicate review: two tracks' latest estimates are of different times.
+not changed). No duplicate review: few false tracks are near an aircraft another track
+holds, and a review of the updated tracks against their neighbours at a common time
+deleted tracks of aircraft (docs/results/region-400.md).
 """
 
 from __future__ import annotations
@@ -48,6 +55,9 @@ from .table import CONFIRMED, DELETED, TENTATIVE, ManagementRule, Track, scores_
 
 SCREEN_SIGMAS = 6.0  # the screen's width in σ of the track and of the plot
 MAX_ACC = 20.0  # m/s²: what a track's velocity may be off by, per second, beyond its σ
+# s: how much later than a period on a beam may cross a moving target, v·T²/(2π·r) (260 m/s,
+# a 12 s turn, 10 km away: 0.6 s)
+REVISIT_SLACK_S = 1.0
 
 
 @dataclass
@@ -63,10 +73,14 @@ class SweepLogic:
     elevation: bool = True
     status: str = TENTATIVE
     hits: int = 1
+    repeated: bool = False  # whether a sensor has hit it on two of its looks
+    born: float | None = None  # its birth's time (``last_hit`` at birth if None)
     #: no existence probability (the protocol of a track's logic, fusion.tracking.table.Track)
     existence = None
 
     def __post_init__(self):
+        if self.born is None:
+            self.born = self.last_hit
         self._confirm()
 
     def survive(self, t: float) -> None:
@@ -74,7 +88,7 @@ class SweepLogic:
 
     def _confirm(self) -> None:
         if (self.status == TENTATIVE and self.hits >= self.rule.confirm_m and len(self.sensors) >= 2
-                and self.elevation):
+                and self.elevation and self.repeated):
             self.status = CONFIRMED
 
     def record(self, hit: bool, P_pos: np.ndarray | None = None, t: float | None = None,
@@ -82,14 +96,17 @@ class SweepLogic:
         if self.status == DELETED:
             raise ValueError("a deleted track records no more frames")
         t = self.last_hit if t is None else t
+        if self.status == TENTATIVE and t - self.born > self.revisit_s + REVISIT_SLACK_S:
+            self.status = DELETED  # not confirmed within a revisit of its birth
+            return self.status
         if hit:
+            self.repeated = self.repeated or bool(self.sensors & frozenset(sensors))
             self.hits += 1
             self.last_hit = max(self.last_hit, t)
             self.sensors = self.sensors | frozenset(sensors)
             self.elevation = self.elevation or elevation
             self._confirm()
-        limit = self.revisit_s * (self.rule.delete_misses if self.status == CONFIRMED else 1)
-        if t - self.last_hit > limit:
+        if self.status == CONFIRMED and t - self.last_hit > self.revisit_s * self.rule.delete_misses:
             self.status = DELETED
         elif P_pos is not None and math.sqrt(float(np.trace(P_pos))) > self.rule.max_pos_std:
             self.status = DELETED

@@ -13,7 +13,7 @@ from fusion.ekf import TrackEKF
 from fusion.measurement.kinds import model_of
 from fusion.motion import ConstantAcceleration
 from fusion.tracking.hypotheses import gate_threshold, mahalanobis2
-from fusion.tracking.sweep import SweepLogic, near
+from fusion.tracking.sweep import REVISIT_SLACK_S, SweepLogic, near
 from fusion.tracking.table import CONFIRMED, DELETED, TENTATIVE, ManagementRule, Track
 from fusion.types import Estimate, Measurement
 from sensors_sim import load_scenario
@@ -24,24 +24,38 @@ ROTATING = Path(__file__).parents[1] / "data" / "rotating.toml"
 RULE = ManagementRule(confirm_m=3, confirm_n=4, delete_misses=3, max_pos_std=2000.0)
 
 
-def test_a_tentative_track_lives_one_revisit_without_a_hit_a_confirmed_one_k():
+def test_a_tentative_track_lives_one_revisit_from_its_birth_a_confirmed_one_k_without_a_hit():
     """Born at 0 with revisit 4 s: confirmed at its third hit (birth counts) once two
-    sensors have seen it, one measuring elevation; a tentative track dies once 4 s pass
-    without a hit, a confirmed one once 3 x 4 = 12 s pass."""
+    sensors have seen it, one measuring elevation, and one of them has seen it twice
+    (false plots do not repeat); a tentative track dies once 4 s (and
+    the slack of a beam's crossing) pass after its birth, however many hits it took (a
+    track left waiting gathers false plots), a confirmed one once 3 x 4 = 12 s pass
+    without a hit."""
     flat = SweepLogic(RULE, 4.0, 0.0, frozenset({"a"}), elevation=False)
     for t in (1.0, 2.0, 3.0):
         assert flat.record(True, None, t, {"b"}) == TENTATIVE  # two 2D radars: no height
     assert flat.record(True, None, 3.5, {"c"}, elevation=True) == CONFIRMED
     logic = SweepLogic(RULE, 4.0, 0.0, frozenset({"a"}))
-    assert logic.record(False, None, 3.9) == TENTATIVE
-    assert logic.record(True, None, 3.95, {"a"}) == TENTATIVE and logic.hits == 2
-    assert logic.record(True, None, 5.0, {"a"}) == TENTATIVE and logic.hits == 3  # one sensor: clutter's signature
-    assert logic.record(True, None, 5.5, {"b"}) == CONFIRMED
-    assert logic.record(False, None, 17.5) == CONFIRMED  # 12 s after the last hit: not more
-    assert logic.record(False, None, 17.51) == DELETED
+    assert logic.record(False, None, 1.9) == TENTATIVE
+    assert logic.record(True, None, 1.95, {"a"}) == TENTATIVE and logic.hits == 2
+    assert logic.record(True, None, 3.0, {"a"}) == TENTATIVE and logic.hits == 3  # one sensor: clutter's signature
+    assert logic.record(True, None, 3.5, {"b"}) == CONFIRMED
+    assert logic.record(False, None, 15.5) == CONFIRMED  # 12 s after the last hit: not more
+    assert logic.record(False, None, 15.51) == DELETED
+    late = 4.0 + REVISIT_SLACK_S
+    slow = SweepLogic(RULE, 4.0, 0.0, frozenset({"a"}))
+    assert slow.record(True, None, 3.9, {"b"}) == TENTATIVE
+    assert slow.record(True, None, late + 0.01, {"c"}) == DELETED  # its third hit came too late
     young = SweepLogic(RULE, 4.0, 10.0, frozenset({"a", "b"}))
-    assert young.record(False, None, 14.0) == TENTATIVE
-    assert young.record(False, None, 14.001) == DELETED
+    assert young.record(False, None, 10.0 + late) == TENTATIVE
+    assert young.record(False, None, 10.0 + late + 0.001) == DELETED
+    three = SweepLogic(RULE, 4.0, 0.0, frozenset({"a"}))
+    assert three.record(True, None, 1.0, {"b"}) == TENTATIVE
+    assert three.record(True, None, 2.0, {"c"}) == TENTATIVE and three.hits == 3  # three sensors once each
+    assert three.record(True, None, 3.0, {"b"}) == CONFIRMED  # b's second look
+    just = SweepLogic(RULE, 4.0, 0.0, frozenset({"a"}))
+    assert just.record(True, None, 2.0, {"b"}) == TENTATIVE
+    assert just.record(True, None, late, {"a"}) == CONFIRMED  # a's next turn crossed it a little late
     wide = SweepLogic(RULE, 4.0, 0.0, frozenset({"a"}))
     assert wide.record(True, np.eye(3) * 2000.0**2, 1.0) == DELETED  # σ = 2000 √3 > max_pos_std
 
