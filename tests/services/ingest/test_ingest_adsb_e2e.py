@@ -4,7 +4,8 @@
 ``zfusion fuser --site`` tracks what it publishes. Within 60 s ``zfusion picture`` must
 hold a confirmed track within 200 m of every aircraft the server has listed for at least
 30 s, against the recording's smoothed trajectory (sensors_sim/recorded.py) at the
-track's time.
+track's time. The same through ``--sbs``: a BaseStation feed on loopback sending each
+new position as a ``MSG,3`` line (after a ``MSG,1`` with the callsign) as it is heard.
 
 The server lists each airborne aircraft with its latest new position at or before the
 replayed time (``seen_pos`` its age), its barometric altitude and callsign, as readsb
@@ -18,15 +19,17 @@ from __future__ import annotations
 
 import json
 import signal
+import socket
 import subprocess
 import sys
 import threading
 import time
+from datetime import datetime, timezone
 
 import numpy as np
 import pytest
 
-from _ingest_helpers import Capture, DocServer
+from _ingest_helpers import Capture, DocServer, TcpServer
 from fusion.geodetic import LocalFrame
 from sensors_sim.recorded import FT, RecordedTraffic, Recording, read_traffic_json, traffic_sample
 
@@ -98,6 +101,20 @@ class Replay:
                         "alt_baro": round(alt / FT), "seen_pos": round(tau - t, 3), "nac_p": 7})
         return json.dumps({"now": now, "messages": 0, "aircraft": out}).encode()
 
+    def sbs(self, wall0: float, after: float, tau: float) -> str:
+        """The BaseStation lines of the positions heard in ``(after, tau]``, stamped with
+        their wall time (UTC), each aircraft's callsign first."""
+        out = []
+        for a, rows in self.rows.items():
+            for t, lat, lon, alt, callsign in rows:
+                if after < t <= tau:
+                    stamp = datetime.fromtimestamp(wall0 + t, timezone.utc)
+                    d, c = stamp.strftime("%Y/%m/%d"), stamp.strftime("%H:%M:%S.%f")[:12]
+                    if callsign:
+                        out.append(f"MSG,1,1,1,{a.upper()},1,{d},{c},{d},{c},{callsign},,,,,,,,,,,0\r\n")
+                    out.append(f"MSG,3,1,1,{a.upper()},1,{d},{c},{d},{c},,{round(alt / FT)},,,{lat},{lon},,,0,0,0,0\r\n")
+        return "".join(out)
+
     def listed(self, tau: float, since: float) -> list[str]:
         """The aircraft listed from ``since`` or earlier and still heard within 5 s of ``tau``."""
         return [a for a, t in self.times.items() if t[0] <= since and 0 <= self.heard(a, tau)
@@ -111,7 +128,23 @@ def picture(cap: Capture) -> dict:
     return json.loads(got.stdout)
 
 
-def test_a_replayed_recording_is_tracked_through_ingest_and_a_live_fuser(tmp_path, deployment):
+class Feed(TcpServer):
+    """A receiver's BaseStation port replaying the recording: each client gets the
+    positions heard since it connected, as they are heard."""
+
+    replay: Replay
+    wall0: float
+
+    def handle(self, conn: socket.socket, n: int) -> None:
+        after = time.time() - self.wall0
+        while not self.closing.wait(0.2):
+            tau = time.time() - self.wall0
+            conn.sendall(self.replay.sbs(self.wall0, after, tau).encode())
+            after = tau
+
+
+@pytest.mark.parametrize("source", ["url", "sbs"])
+def test_a_replayed_recording_is_tracked_through_ingest_and_a_live_fuser(tmp_path, deployment, source):
     try:
         records = read_traffic_json(traffic_sample())
     except FileNotFoundError:
@@ -124,8 +157,9 @@ def test_a_replayed_recording_is_tracked_through_ingest_and_a_live_fuser(tmp_pat
     site.write_text(SITE)
     stop = threading.Event()
     procs: list[subprocess.Popen] = []
-    with DocServer() as srv, Capture(deployment) as cap:
-        wall0 = time.time()
+    with DocServer() as srv, Feed() as feed, Capture(deployment) as cap:
+        wall0 = feed.wall0 = time.time()
+        feed.replay = replay
 
         def serve():
             while not stop.is_set():
@@ -138,8 +172,9 @@ def test_a_replayed_recording_is_tracked_through_ingest_and_a_live_fuser(tmp_pat
         fabric = ["--deployment", deployment, "--connect", cap.endpoint]
         try:
             for args in (["fuser", "--site", str(site)],
-                         ["ingest", "adsb", "--id", "rx", "--site", str(site), "--url",
-                          f"{srv.url}/data/aircraft.json", "--poll-s", "0.5"]):
+                         ["ingest", "adsb", "--id", "rx", "--site", str(site),
+                          *(["--url", f"{srv.url}/data/aircraft.json", "--poll-s", "0.5"] if source == "url" else
+                            ["--sbs", f"127.0.0.1:{feed.port}", "--sbs-timezone", "UTC"])]):
                 procs.append(subprocess.Popen([sys.executable, "-m", "services.cli", *args, *fabric],
                                               stderr=subprocess.PIPE, text=True))
             missing, tracks, tau = None, [], 0.0
