@@ -17,7 +17,12 @@ centre takes local tracks, and keeps the system tracks ``T<n>``:
    velocity, both predicted to the later time (:func:`fusion.tracking.hypotheses.track_distance2`);
 2. a regional track that has none is assigned by GNN (:func:`fusion.tracking.associators.gnn`)
    to the system tracks that hold no track of its region, against their latest fused
-   estimate, or starts a new system track;
+   estimate; one left over starts a new system track if it is over its region's polygon
+   (or over none) and in the gate of no system track holding another region's track,
+   and otherwise waits unpublished, tried again each frame: a margin is for handing
+   over (a young track there, its velocity still poor, would start a duplicate of the
+   neighbour's), and a second track of one region on an aircraft two regions hold is a
+   duplicate;
 3. each system track is the covariance intersection of its members, predicted to the
    latest of their times: ``P⁻¹ = ωP₁⁻¹ + (1−ω)P₂⁻¹``, ``P⁻¹x = ωP₁⁻¹x₁ + (1−ω)P₂⁻¹x₂``,
    ω minimising ``tr P`` (:func:`fusion.track_fusion.fuse_ci`), folded pairwise over
@@ -172,14 +177,17 @@ class SystemFuser:
         gate_prob: the track-to-track χ² gate probability.
         rule: ``ci`` (covariance intersection) or ``naive`` (independent errors assumed).
         ci_criterion: CI's ``trace`` or ``det``.
+        regions: the regions by name (None: every regional track may start a system track).
     """
 
-    def __init__(self, name: str, motion, gate_prob: float, rule: str = "ci", ci_criterion: str = "trace"):
+    def __init__(self, name: str, motion, gate_prob: float, rule: str = "ci", ci_criterion: str = "trace",
+                 regions: Mapping[str, Region] | None = None):
         if rule not in SYSTEM_RULES:
             raise ValueError(f"system fusion rule must be one of {SYSTEM_RULES}, got {rule!r}")
         if not hasattr(motion, "F"):
             raise ValueError(f"the system fuser predicts with a kinematic model, not {motion!r}")
         self.name, self.motion, self.gate_prob = name, motion, gate_prob
+        self.regions = dict(regions) if regions is not None else None
         self.rule, self.ci_criterion = rule, ci_criterion
         self.ids = TrackIds("T")
         self.tracks: dict[str, SystemTrack] = {}  # system id -> track, in creation order
@@ -205,8 +213,8 @@ class SystemFuser:
         out: list[Estimate] = []
         done: set[str] = set()
         for e in f.tracks:
-            s = self.owner[e.track]
-            if s.id not in done:
+            s = self.owner.get(e.track)
+            if s is not None and s.id not in done:
                 done.add(s.id)
                 s.last = self._fuse(s)
                 out.append(s.last)
@@ -236,30 +244,43 @@ class SystemFuser:
 
     def _associate(self, region: str, unowned: list[Estimate]) -> None:
         """GNN of a region's regional tracks without a system track to the system tracks
-        holding no track of that region; the rest start system tracks. The pairs are
+        holding no track of that region; one left over starts a system track if its
+        region is responsible for it (:meth:`_responsible`) and no system track holding
+        another region's track is in its gate (else it is a duplicate of that one's
+        aircraft, its region's second track there), and otherwise waits. The pairs are
         screened first: only those whose horizontal positions, extrapolated to the later
         time, lie within the gate's radius of their summed horizontal spread (plus
         :data:`SCREEN_SLACK_M` for the growth of that spread over the extrapolation) get
         the χ² of :meth:`_distance2`."""
         if not unowned:
             return
-        free = [s for s in self.tracks.values() if region not in s.members and s.last is not None]
-        pairs: list[tuple[int, int]] = []
-        if free:
-            gate = gate_threshold(len(_COMPARED), self.gate_prob)
-            d2 = np.full((len(unowned), len(free)), np.inf)
-            for i, j in zip(*np.nonzero(_screen(unowned, [s.last for s in free], gate))):
-                d2[i, j] = self._distance2(unowned[i], free[j].last)
-            pairs = gnn(d2, gate)
-        taken = dict(pairs)
+        near = [s for s in self.tracks.values() if s.last is not None and set(s.members) - {region}]
+        free = [j for j, s in enumerate(near) if region not in s.members]
+        gate = gate_threshold(len(_COMPARED), self.gate_prob)
+        d2 = np.full((len(unowned), len(near)), np.inf)
+        if near:
+            for i, j in zip(*np.nonzero(_screen(unowned, [s.last for s in near], gate))):
+                d2[i, j] = self._distance2(unowned[i], near[j].last)
+        taken = {i: free[j] for i, j in gnn(d2[:, free], gate)} if free else {}
         for i, e in enumerate(unowned):
             if i in taken:
-                s = free[taken[i]]
-            else:
+                s = near[taken[i]]
+            elif self._responsible(region, e) and not np.isfinite(d2[i]).any():
                 s = SystemTrack(self.ids.next())
                 self.tracks[s.id] = s
+            else:
+                continue  # it waits to join (tried again each frame)
             s.members[region] = e.track
             self.owner[e.track] = s
+
+    def _responsible(self, region: str, e: Estimate) -> bool:
+        """Whether ``region``'s track ``e`` may start a system track: it is over the
+        region's polygon, or over no region's (the margins are for handing over: a track
+        in a neighbour's polygon only joins that neighbour's tracks)."""
+        if self.regions is None:
+            return True
+        p = e.x[:2][None, :]
+        return bool(self.regions[region].inside(p)[0]) or not any(r.inside(p)[0] for r in self.regions.values())
 
     def _leave(self, region: str, rid: str) -> None:
         """Regional track ``rid`` is no member of its system track any more; a system
@@ -314,17 +335,19 @@ class RegionalMethod:
         system fuser with the method's motion model, gate and CI criterion."""
         if not regions:
             raise ValueError("the regional topology needs [regions] in the scenario or site")
-        system = cls.system_fuser(name, config, rule)
+        system = cls.system_fuser(name, config, rule, regions)
         return cls(name, [RegionalFuser(r, make_method(name, config)) for r in regions.values()], system, clock)
 
     @staticmethod
-    def system_fuser(name: str, config: dict, rule: str = "ci") -> SystemFuser:
-        """Method ``name``'s system fuser: its motion model, gate and CI criterion."""
+    def system_fuser(name: str, config: dict, rule: str = "ci",
+                     regions: Mapping[str, Region] | None = None) -> SystemFuser:
+        """Method ``name``'s system fuser: its motion model, gate and CI criterion, and the
+        regions (which region may start a system track: :meth:`SystemFuser._responsible`)."""
         association, rest = AssociationConfig.split(config)
         if association is None:
             raise ValueError(f"{name}: the regional topology needs a many-target method ('association' in [tracker])")
         cfg = TrackerConfig.from_dict(rest)
-        return SystemFuser(name, cfg.motion_model(), association.gate_prob, rule, cfg.ci_criterion)
+        return SystemFuser(name, cfg.motion_model(), association.gate_prob, rule, cfg.ci_criterion, regions)
 
     def process(self, m: Measurement) -> list[Estimate]:
         # another measurement at m.t may still open a frame at m.t: only earlier ones go

@@ -135,3 +135,25 @@ def test_one_region_covering_everything_is_the_centralised_tracker():
         assert (a.t, a.track) == (b.t, b.track)
         np.testing.assert_allclose(b.x, a.x, rtol=0, atol=1e-9)
         np.testing.assert_allclose(b.P, a.P, rtol=0, atol=1e-9)
+
+
+def test_a_margin_track_waits_to_join_and_an_overlap_duplicate_waits():
+    """A track in its region's margin (over the neighbour's polygon) starts no system track:
+    it waits, and joins the neighbour's once that exists; a second west track on an
+    aircraft that both regions hold waits too; a west track over west alone starts one."""
+    regions = {"west": Region("west", box_polygon(-60e3, -60e3, 0.0, 60e3), 8e3, ("w",)),
+               "east": Region("east", box_polygon(0.0, -60e3, 60e3, 60e3), 8e3, ("e",))}
+    system = SystemFuser("SS", ConstantVelocity(1.0), 0.999, "ci", regions=regions)
+    P = np.diag([100.0, 100.0, 100.0, 10.0, 10.0, 10.0]) ** 2
+
+    def est(region, track, e, t=0.0):
+        return Estimate(t, np.array([e, 0.0, 6000.0, 200.0, 0.0, 0.0]), P, "SS", region, f"{region}.{track}")
+
+    assert system.frame(RegionalFrame("east", 0.0, (est("east", "T1", -3000.0),))) == []  # over west: waits
+    assert not system.tracks
+    out = system.frame(RegionalFrame("west", 0.0, (est("west", "T1", -3050.0), est("west", "T2", -40e3))))
+    assert [e.track for e in out] == ["T1", "T2"]
+    out = system.frame(RegionalFrame("east", 1.0, (est("east", "T1", -2800.0, 1.0),)))
+    assert [e.track for e in out] == ["T1"] and system.tracks["T1"].members == {"west": "west.T1", "east": "east.T1"}
+    out = system.frame(RegionalFrame("west", 1.0, (est("west", "T1", -2850.0, 1.0), est("west", "T3", -2700.0, 1.0))))
+    assert [e.track for e in out] == ["T1"] and "west.T3" not in system.owner and len(system.tracks) == 2
