@@ -335,12 +335,11 @@ class RegionalMethod:
         system fuser with the method's motion model, gate and CI criterion."""
         if not regions:
             raise ValueError("the regional topology needs [regions] in the scenario or site")
-        system = cls.system_fuser(name, config, rule, regions)
+        system = cls.system_fuser(name, config, regions, rule)
         return cls(name, [RegionalFuser(r, make_method(name, config)) for r in regions.values()], system, clock)
 
     @staticmethod
-    def system_fuser(name: str, config: dict, rule: str = "ci",
-                     regions: Mapping[str, Region] | None = None) -> SystemFuser:
+    def system_fuser(name: str, config: dict, regions: Mapping[str, Region], rule: str = "ci") -> SystemFuser:
         """Method ``name``'s system fuser: its motion model, gate and CI criterion, and the
         regions (which region may start a system track: :meth:`SystemFuser._responsible`)."""
         association, rest = AssociationConfig.split(config)

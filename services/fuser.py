@@ -375,7 +375,7 @@ def run(process_id: str, scenario_ref: str, method_name: str, overrides: dict, k
         sources = list(sensors)
         periods = {s: sensors[s].period for s in sources}
     elif system:  # the system picture from the regional fusers' frames
-        method = SystemStage(RegionalMethod.system_fuser(method_name, config))
+        method = SystemStage(RegionalMethod.system_fuser(method_name, config, scenario.regions))
         intake = RegionalIntake(scenario.regions)
         sources = list(scenario.regions)
         periods = {r: min(scenario.sensors[s].period for s in scenario.regions[r].sensors) for r in sources}
