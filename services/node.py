@@ -402,6 +402,7 @@ class Node:
         self._status_line_at = time.monotonic()
         self._link_lock = threading.Lock()
         self._link_told = False  # whether the link's line was printed (or is no more to be)
+        self._link_where: str | None = None  # the endpoints it dials or listens on, if any
 
     # -- lifetime ---------------------------------------------------------------------
 
@@ -412,15 +413,15 @@ class Node:
         self._status_pub = self.publisher(self.keys.status(self.id), reliable=False)
         endpoints = _endpoints(config)
         if endpoints:
-            threading.Thread(target=self._watch_link, args=(self.session, endpoints), daemon=True,
+            self._link_where = ", ".join(endpoints)
+            threading.Thread(target=self._watch_link, args=(self.session, self._link_where), daemon=True,
                              name=f"link-{self.id}").start()
         return self
 
-    def _watch_link(self, session: zenoh.Session, endpoints: list[str]) -> None:
+    def _watch_link(self, session: zenoh.Session, where: str) -> None:
         """One line once the session reaches a peer or router (on a terminal or with
         ``-v``), a warning if none has answered after ``LINK_WARN_S``; Zenoh keeps
         dialling meanwhile, so the process goes on and says when it connects."""
-        where = ", ".join(endpoints)
         deadline = time.monotonic() + LINK_WARN_S
         warned = False
         while not self.stop.wait(0.1):
@@ -450,8 +451,8 @@ class Node:
     def settle_link(self) -> None:
         """Before a process's last words: its link's line now if it is up, else never —
         never after them."""
-        if self.session is not None:
-            self._tell_link(self.session, ", ".join(_endpoints(self.zopts.to_config())))
+        if self.session is not None and self._link_where is not None:
+            self._tell_link(self.session, self._link_where)
         with self._link_lock:
             self._link_told = True
 
