@@ -421,7 +421,8 @@ def run(process_id: str, scenario_ref: str, method_name: str, overrides: dict, k
         encoder = encode_regional_frame if stage is not None else encode_estimate
         frames_through = -math.inf  # a regional fuser: the watermark of its frames published last
         picture = Picture(identity, _delete_misses(scenario))
-        node.keep(picture.serve(node.session, keys))
+        if stage is None:  # a regional fuser's frames are no picture: it answers no `zfusion picture`
+            node.keep(picture.serve(node.session, keys))
         down = {tid: publisher(keys.feedback(tid)) for tid in (intake.nodes if distributed else ())}
         leader = Leadership(node.session, keys, identity, standby_for is not None, start_grace, node.event, node.stop)
         node.keep(leader)
