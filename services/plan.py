@@ -157,7 +157,9 @@ class RunPlan:
         for sid in sources:
             # A source waits only for its consumers: the fuser may finish (and vanish)
             # before a truth or jammer process discovers it, so they must not wait for it.
-            fed = [r for r, reg in regions.items() if sid in reg.sensors] or [trackers.get(sid, FUSER_ID)]
+            # regional: the regions it feeds, and the system fuser their frames go to, are up first
+            fed = [*(r for r, reg in regions.items() if sid in reg.sensors), FUSER_ID] if regions \
+                else [trackers.get(sid, FUSER_ID)]
             consumers = [*fed, RECORDER_ID] if sid in scenario.sensors else [RECORDER_ID]
             # a live emulation plays the scenario's duration (else until stopped, if endless)
             played = ["--duration-s", repr(scenario.duration)] if dur or (live and not live.endless) else []

@@ -42,7 +42,7 @@ def test_regional_fusers_under_a_system_fuser_equal_in_process(deployment):
         for s in sc.sensors:
             feeds = [r for r, reg in sc.regions.items() if s in reg.sensors]
             children.start(s, ["sensor", *common, "--id", s, "--speed", "max",
-                               "--wait-for", ",".join([*feeds, Watcher.NAME])])
+                               "--wait-for", ",".join([*feeds, DEFAULT_FUSER, Watcher.NAME])])
         watcher.announce()
         for name in [*sc.sensors, *sc.regions, DEFAULT_FUSER]:
             assert children.wait(name, 120.0) == 0, name
