@@ -127,18 +127,38 @@ class RegionalIntake:
 class JoinGate:
     """A track centre (HNV, PHHNV, DDHNV) behind a gate: a report from a node the centre
     has not given an initial state is dropped (the node of a restarted fuser, before it
-    has re-run the handshake; module docstring). Everything else passes through."""
+    has re-run the handshake; module docstring). Everything else passes through. Each
+    node's join is an event naming the scan of the request it joined with: the nodes of
+    a restarted fuser may rejoin at different scans, and the output from there is the
+    in-process run on each node's data from its join on."""
 
-    def __init__(self, centre: TrackCentre, reject: RejectLog):
+    def __init__(self, centre: TrackCentre, reject: RejectLog, event: Callable[[str], None]):
         self.centre = centre
         self.reject = reject
+        self.event = event
+        self._asked: dict[str, float] = {}  # node -> the time of its first pending request
 
     def process(self, u) -> list[Estimate]:
-        if isinstance(u, InitRequest) or u.node in self.centre.nodes:
-            return self.centre.process(u)
-        self.reject(tracker_id(u.node), "not-joined", f"report at t = {u.t:g} s from {u.node}, which has "
-                    f"no initial state from this fuser yet")
-        return []
+        if isinstance(u, InitRequest):
+            self._asked.setdefault(u.node, u.t)
+        elif u.node not in self.centre.nodes and u.node not in self._asked:  # (asked: joins with its group)
+            self.reject(tracker_id(u.node), "not-joined", f"report at t = {u.t:g} s from {u.node}, which has "
+                        f"no initial state from this fuser yet")
+            return []
+        return self._joins(self.centre.process, u)
+
+    def advance(self, t: float) -> list[Estimate]:
+        return self._joins(self.centre.advance, t)
+
+    def finish(self) -> list[Estimate]:
+        return self._joins(self.centre.finish)
+
+    def _joins(self, step: Callable[..., list[Estimate]], *args: Any) -> list[Estimate]:
+        members = set(self.centre.nodes)
+        out = step(*args)
+        for node in sorted(self.centre.nodes - members):
+            self.event(f"{tracker_id(node)} joined with its request at t = {self._asked.pop(node):g} s")
+        return out
 
     def __getattr__(self, name: str) -> Any:
         if name.startswith("__"):  # copy/pickle protocol lookups, before ``centre`` exists
@@ -395,7 +415,7 @@ def run(process_id: str, scenario_ref: str, method_name: str, overrides: dict, k
     with Node(process_id, "fuser", keys, zopts, live=live is not None) as node:
         inbox = Inbox(node.stop)
         if isinstance(method, TrackCentre):
-            method = JoinGate(method, node.reject)
+            method = JoinGate(method, node.reject, node.event)
         feedback = METHODS[method_name].topology in ("feedback", "two-stage")  # its centre's feedback is final
         core = FuserCore(method, sources, keys, node.reject, timeout, start_grace,
                          horizon=scenario.duration + HORIZON_SLACK_S if live is None else math.inf, now=time.monotonic(),

@@ -9,14 +9,19 @@ import msgpack
 import numpy as np
 import pytest
 
+from fusion.links import InitRequest
 from fusion.methods import make_method, method_config
+from fusion.network import TrackCentre, TrackNode
+from fusion.patent import TrackerConfig
+from fusion.topology import SCHEMES
 from fusion.types import Estimate
 from schemas import encode, encode_estimate, encode_measurement
 from sensors_sim import load_scenario, sensor_events
 from services.evaluation import merged_measurements, run_method
-from services.fuser import FuserCore, MeasurementIntake
+from services.fuser import FuserCore, JoinGate, MeasurementIntake
 from services.node import RejectLog
 
+from sim3d import RADAR2D, simulate
 from _wire import CASES, KEYS, good, wire_stream, with_field
 
 def _garbage(sid: str) -> list[bytes]:
@@ -220,3 +225,27 @@ def test_a_core_that_heard_every_scan_does_not_join_mid_stream(case):
 
 def _schedule(sc) -> dict[str, tuple[float, float]]:
     return {sid: (s.start, s.period) for sid, s in sc.sensors.items()}
+
+
+def test_a_node_that_runs_alone_while_its_join_is_pending_is_fused_once_joined():
+    """A restarted fuser's centre holds a node's request until its scan closes; the node,
+    with no answer for its feedback timeout, runs alone meanwhile. Its reports sent while
+    the request was pending are fused once the scan closed and the node joined (they
+    were refused as "not joined", and the fused output stopped), and the join is one
+    event naming the request's time."""
+    cfg = TrackerConfig.from_dict({})
+    node = TrackNode("radar2d", cfg, "PHHNV", SCHEMES["feedback"])
+    events: list[str] = []
+    reject = RejectLog("fuser")
+    gate = JoinGate(TrackCentre("PHHNV", cfg, SCHEMES["feedback"]), reject, events.append)
+    r = [m for m in simulate(1, seed=11, duration=6.0, sensors=(RADAR2D,)).measurements[0] if m.sensor == "radar2d"]
+    node.offer(r[0])
+    (request,) = node.step()
+    assert isinstance(request, InitRequest) and gate.process(request) == []  # its scan is still open
+    for m in r[1:4]:
+        node.offer(m)
+    reports = node.step(alone=True)  # starts from its own r[1]; reports r[2] and r[3]
+    assert [u.t for u in reports] == [r[2].t, r[3].t]
+    out = [e for u in reports for e in gate.process(u)] + gate.finish()
+    assert [e.t for e in out] == [r[0].t, r[2].t, r[3].t] and not reject.by_cause
+    assert events == [f"trk-radar2d joined with its request at t = {r[0].t:g} s"]

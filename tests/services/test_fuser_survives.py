@@ -212,7 +212,7 @@ class Harness:
             intake = UplinkIntake({tracker_id(s): s for s in sensors})
             sources = list(intake.nodes)
             if isinstance(method, TrackCentre):
-                method = JoinGate(method, self.reject)
+                method = JoinGate(method, self.reject, lambda event: None)
         feedback = spec.topology in ("feedback", "two-stage")
         self.core = FuserCore(method, sources, KEYS, self.reject, timeout=3.0, start_grace=3.0, now=now,
                               intake=intake, live=LIVE, refilter=not feedback,
