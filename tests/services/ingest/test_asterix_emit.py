@@ -18,11 +18,15 @@ import pytest
 from schemas import asterix as ax
 from sensors_sim import load_scenario
 from sensors_sim.emulators import sensor_batches
-from services.ingest.asterix import AsterixFeed, ScanMark, StationReport, pcap_datagrams, pcap_file, radars
+from schemas import KeySpace, decode
+from services.ingest.asterix import (
+    AsterixFeed, AsterixIngest, ScanMark, StationReport, pcap_datagrams, pcap_file, radars, with_sac_sic)
 from services.ingest.asterix_emit import RadarEmitter, StationEmitter, datagrams, emitter
-from services.ingest.gateway import Reading, local_frame
+from services.ingest.gateway import Gateway, Reading, local_frame, sensor_sites
+from services.node import RejectLog
 
 SCENARIO = Path(__file__).parents[2] / "data" / "asterix-region.toml"
+AIR_PICTURE = Path(__file__).parents[3] / "sensors_sim" / "scenarios" / "air-picture.toml"
 NM, FT = 1852.0, 0.3048
 
 
@@ -66,6 +70,51 @@ def test_a_rotating_radar_reads_back_as_its_measurements_and_never_late(sc, sid)
     turns = (sc.duration - sc.sensor(sid).start) / sc.sensor(sid).period
     assert marks >= turns * sc.sensor(sid).sectors - 2 and readings >= 0.9 * sent > 50
     assert em.unencodable <= 2  # 3D clutter above I048/110's 204,800 ft
+
+
+@pytest.fixture(scope="module")
+def snapshot(tmp_path_factory):
+    """air-picture with SAC/SIC 0/1 and 0/2 for its two snapshot 2D radars."""
+    text, assigned = with_sac_sic(AIR_PICTURE.read_text(), load_scenario(AIR_PICTURE))
+    assert assigned == {"radar1": (0, 1), "radar2": (0, 2)}  # the angle sensors have no ASTERIX category
+    p = tmp_path_factory.mktemp("snapshot") / "air-picture.toml"
+    p.write_text(text)
+    return load_scenario(p)
+
+
+def test_a_snapshot_radar_sends_a_north_marker_per_scan_and_the_direct_streams_watermarks(snapshot):
+    sc = snapshot
+    frame = local_frame(sc)
+    log = RejectLog("t")
+    gw = Gateway(sensor_sites(sc, ["radar1", "radar2"]), frame, KeySpace("t"), log, lag=0.0)
+    ingest = AsterixIngest(AsterixFeed(radars(sc, frame), sector_lag=1), gw, log)  # a snapshot radar: no lag
+    em = emitter(sc, "radar1")
+    assert isinstance(em, RadarEmitter) and em.sectors == 0
+    batches = list(sensor_batches(sc, "radar1"))
+    promised, marks, readings = -math.inf, [], 0
+    for b in batches:
+        records = em.records(b.t1, b.events, lambda t: t)
+        marker, *plots = records  # the scan's north marker first, then its plots
+        assert (marker.category, marker.message_type, marker.tod, marker.rotation_period) == (
+            34, ax.NORTH_MARKER, b.t1, 1.0)
+        assert [r.category for r in plots] == [48] * sum(ev.measurement is not None for ev in b.events)
+        for d in datagrams(records):
+            for _, data in ingest.receive(d, b.t1 + 0.5):
+                m = decode(data)
+                if m.kind == "watermark":
+                    marks.append(m.t)
+                    promised = m.t
+                else:
+                    assert m.t > promised  # sent after its scan's marker: never behind a promise
+                    readings += 1
+    for t, recs in em.end(lambda t: t):
+        assert t == batches[-1].t1 + 1.0 and [r.message_type for r in recs] == [ax.NORTH_MARKER]
+        marks += [decode(data).t for d in datagrams(recs) for _, data in ingest.receive(d, t)]
+    # the direct stream's watermarks (services/source.py): after scan k, just before scan k + 1
+    direct = [math.nextafter(nxt.t0, -math.inf) for nxt in batches[1:]]
+    assert marks == [math.nextafter(batches[0].t1, -math.inf), *direct,
+                     math.nextafter(batches[-1].t1 + 1.0, -math.inf)]
+    assert marks[-1] >= sc.duration and not log.by_cause and readings > 0.9 * len(batches) * 12
 
 
 def test_an_adsb_station_sends_cat021(sc):

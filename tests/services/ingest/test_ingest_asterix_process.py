@@ -35,7 +35,7 @@ method = "EKF"
 [sensors.r2d]
 kind = "radar2d"
 pos_km = [60, 0, 0.05]
-period_s = 4.0
+rotation_period_s = 4.0
 std_az_deg = 0.1
 std_range_m = 50
 sac_sic = [25, 1]
@@ -43,7 +43,7 @@ sac_sic = [25, 1]
 [sensors.r3d]
 kind = "radar3d"
 pos_km = [-30, 60, 0.02]
-period_s = 6.0
+rotation_period_s = 6.0
 std_az_deg = 0.2
 std_el_deg = 0.3
 std_range_m = 80
