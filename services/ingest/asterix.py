@@ -44,10 +44,12 @@ import re
 import struct
 from collections import deque
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Callable, Iterable, Iterator, Mapping
 
 import numpy as np
 
+import sensors_sim
 from fusion.geodetic import LocalFrame
 from fusion.measurement.kinds import KINDS
 from schemas import asterix as ax
@@ -228,6 +230,22 @@ def with_sac_sic(text: str, site, sac: int = 0) -> tuple[str, dict[str, tuple[in
         text = f"{text[:m.end()]}sac_sic = [{sac}, {sic}]\n{text[m.end():]}"
         out[sid] = (sac, sic)
     return text, out
+
+
+def write_site(scenario_ref: str, scenario, path: Path) -> tuple[str, ...]:
+    """Writes to ``path`` the scenario (a file, or a built-in's name) with a SAC/SIC for
+    each of its radars and ADS-B stations (:func:`with_sac_sic`): the file a run's ASTERIX
+    sensors and gateway read (``zfusion run --asterix``); returns those sensors' ids.
+    ValueError if it has none, OSError if the file cannot be written."""
+    source = Path(scenario_ref)
+    if not source.is_file():
+        source = Path(sensors_sim.__file__).parent / "scenarios" / f"{scenario_ref}.toml"
+    text, assigned = with_sac_sic(source.read_text(encoding="utf-8"), scenario)
+    if not assigned:
+        raise ValueError(f"scenario {scenario.name} has no radar (radar2d, radar3d at a fixed site) or ADS-B "
+                         f"ground station (adsb) to send ASTERIX")
+    path.write_text(text, encoding="utf-8")
+    return tuple(assigned)
 
 
 @dataclass(frozen=True)

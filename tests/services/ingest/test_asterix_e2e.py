@@ -21,8 +21,11 @@ Every wait is a condition with a deadline.
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
 import socket
+import subprocess
+import sys
 import threading
 import time
 from dataclasses import dataclass, field
@@ -42,8 +45,10 @@ from services.ingest.asterix import (
     AsterixFeed, AsterixIngest, pcap_datagrams, pcap_file, radars, stations, with_sac_sic)
 from services.ingest.asterix_emit import datagrams, emitter
 from services.ingest.gateway import Gateway, local_frame, sensor_sites
-from services.launcher import free_port
+from services.launcher import SETTLE_MARGIN, free_port
+from services.live import LiveOptions
 from services.node import RejectLog
+from services.summary import RunScorer
 
 pytestmark = pytest.mark.slow
 
@@ -326,3 +331,44 @@ def test_the_emitters_pcap_replayed_at_full_speed(live, case):
     same_measurements(published, live["meas"])
     same_tracks(got, live["ref"], t_end)
     assert same_cat062(listener.data, live["ref"], sc, live["t0"]) == len(live["ref"])
+
+
+def same_numbers(got, want, where: str = "") -> None:
+    """Two JSON documents equal, numbers to 1e-9 relative (the tracks are equal to 1e-9)."""
+    if isinstance(want, dict):
+        assert set(got) == set(want), where
+        for k in want:
+            same_numbers(got[k], want[k], f"{where}.{k}")
+    elif isinstance(want, list):
+        assert len(got) == len(want), where
+        for i, (g, w) in enumerate(zip(got, want)):
+            same_numbers(g, w, f"{where}[{i}]")
+    elif isinstance(want, float) and want is not None:
+        assert got == pytest.approx(want, rel=1e-9, abs=1e-9), where
+    else:
+        assert got == want, where
+
+
+def test_run_asterix_in_gives_the_in_process_summary(tmp_path):
+    """``zfusion run --asterix-in --live``: the plan's gateway and ASTERIX sensors; its
+    summary is the in-process run's on the same quantised plots, scored the same way (a
+    live run's: as the estimates settle), from the run's own scenario time 0."""
+    c = CASES["asterix-region"]
+    out = tmp_path / "run.json"
+    p = subprocess.run([sys.executable, "-m", "services.cli", "run", "--scenario", str(c.scenario), "--asterix-in",
+                        "--live", "--json", str(out), "--rrd", str(tmp_path / "run.rrd"),
+                        "--deployment", f"axr{int(time.time() * 1000) % 10**9}"],
+                       capture_output=True, text=True, timeout=300)
+    assert p.returncode == 0, p.stderr[-3000:]
+    assert (tmp_path / "run.asterix.toml").is_file()  # the site file the gateway and ASTERIX sensors read
+    doc = json.loads(out.read_text())
+    assert doc["exit_codes"] == {sid: 0 for sid in (*c.asterix, "asterix-in", "fuser", "recorder", "truth")}
+    sc = load_scenario(c.scenario)
+    t0 = doc["epoch_utc"]
+    _, ref = reference(c, sc, t0)
+    live = LiveOptions()  # the run's defaults: its fuser's maximum delay and OOSM window
+    scorer = RunScorer(sc, t0, live.oosm_window + live.max_delay + SETTLE_MARGIN)
+    for e in sorted(ref.values(), key=lambda e: (e.t, e.track)):
+        scorer.add(e)
+    want = scorer.method_summary(dataclasses.replace(sc, duration=min(sc.duration, scorer.played())))
+    same_numbers(doc["methods"]["SS"], json.loads(json.dumps(want)), "SS")

@@ -24,6 +24,7 @@ from services.ingest.asterix import (
 from services.ingest.asterix_emit import RadarEmitter, StationEmitter, datagrams, emitter
 from services.ingest.gateway import Gateway, Reading, local_frame, sensor_sites
 from services.node import RejectLog
+from services.plan import ASTERIX_ID, Asterix, Live, RunPlan
 
 SCENARIO = Path(__file__).parents[2] / "data" / "asterix-region.toml"
 AIR_PICTURE = Path(__file__).parents[3] / "sensors_sim" / "scenarios" / "air-picture.toml"
@@ -181,5 +182,43 @@ def test_sensor_asterix_mistakes_are_one_line_and_exit_2(tmp_path):
                          str(tmp_path / "no" / "such" / "dir.pcap")], "--asterix-pcap")):
         p = subprocess.run([sys.executable, "-m", "services.cli", "sensor", *args], capture_output=True, text=True,
                            timeout=60)
+        assert p.returncode == 2, (args, p.stderr)
+        assert says in p.stderr and "Traceback" not in p.stderr and len(p.stderr.strip().splitlines()) == 1
+
+
+def test_a_plan_routes_the_radars_and_stations_through_one_gateway(snapshot, tmp_path):
+    """``zfusion plan --asterix-in``: air-picture's radars send ASTERIX to the gateway on
+    the given port, in the site file with their SAC/SIC; its angle sensors publish on
+    Zenoh as ever; the gateway is up before the radars start."""
+    p = subprocess.run([sys.executable, "-m", "services.cli", "plan", "--scenario", "air-picture", "--asterix-in",
+                        "127.0.0.1:8611", "--rrd", str(tmp_path / "site.rrd")], capture_output=True, text=True,
+                       timeout=60)
+    assert p.returncode == 0, p.stderr
+    site = tmp_path / "site.asterix.toml"
+    assert {sid: s.sac_sic for sid, s in load_scenario(site).sensors.items()} == {
+        sid: s.sac_sic for sid, s in snapshot.sensors.items()}
+    lines = [ln for ln in p.stdout.splitlines() if not ln.startswith("#")]
+    (gw,) = [ln for ln in lines if " ingest asterix " in ln]
+    assert f"--id {ASTERIX_ID} --site {site} --udp 127.0.0.1:8611" in gw
+    assert lines.index(gw) < min(i for i, ln in enumerate(lines) if " sensor " in ln)
+    for sid in ("radar1", "radar2"):
+        (ln,) = [ln for ln in lines if f" --id {sid} " in ln]
+        assert f"--scenario {site} " in ln and "--live --asterix udp://127.0.0.1:8611" in ln
+        assert f"--wait-for fuser,recorder,{ASTERIX_ID} " in ln
+    for sid in ("angle1", "angle2"):
+        (ln,) = [ln for ln in lines if f" --id {sid} " in ln]
+        assert "--scenario air-picture " in ln and "--asterix" not in ln
+    with pytest.raises(ValueError, match="live"):  # times of day on UTC: a live run only
+        RunPlan.build("air-picture", snapshot, "centralised", "SS", fabric=[],
+                      asterix=Asterix(str(site), "127.0.0.1:8611", ("radar1", "radar2")))
+    assert RunPlan.build("air-picture", snapshot, "centralised", "SS", fabric=[], live=Live(),
+                         asterix=Asterix(str(site), "127.0.0.1:8611", ("radar1",)))[ASTERIX_ID].role == "gateway"
+
+
+def test_run_asterix_in_mistakes_are_one_line_and_exit_2(tmp_path):
+    for args, says in ((["--scenario", str(SCENARIO), "--asterix-in"], "--live"),
+                       (["--scenario", "df-multi", "--asterix-in", "--live"], "no radar")):
+        p = subprocess.run([sys.executable, "-m", "services.cli", "run", *args, "--rrd", str(tmp_path / "r.rrd")],
+                           capture_output=True, text=True, timeout=60)
         assert p.returncode == 2, (args, p.stderr)
         assert says in p.stderr and "Traceback" not in p.stderr and len(p.stderr.strip().splitlines()) == 1
