@@ -15,11 +15,12 @@ processes it waits for and whether it is restarted when killed. In start order:
    consumers, so that nothing it publishes is lost before they listen; ``zfusion run``
    starts them together with a common ``--start-at``.
 
-With ``--asterix-in`` (:class:`Asterix`, a live run) the scenario's radars and ADS-B ground
-stations send ASTERIX (``zfusion sensor --asterix``) to one ``zfusion ingest asterix``
-on a loopback UDP port, started with the consumers, which publishes their measurements
-under their own ids; both read a copy of the scenario that gives each a SAC/SIC. The
-other sensors publish on Zenoh as ever (docs/asterix.md).
+With ``--asterix-in`` (:class:`Asterix`) the scenario's radars and ADS-B ground stations
+send ASTERIX (``zfusion sensor --asterix``) to one ``zfusion ingest asterix`` on a
+loopback UDP port, started with the consumers, which publishes their measurements under
+their own ids (in a scenario run, ``--scenario-run``: on scenario time, ending their
+streams once they are done); both read a copy of the scenario that gives each a SAC/SIC.
+The other sensors publish on Zenoh as ever (docs/asterix.md).
 
 Started by hand in that order, they give the numbers ``zfusion run`` gives with the same
 scenario, method and seed: the order of the measurements is fixed by their stamps and
@@ -131,10 +132,8 @@ class RunPlan:
             outputs: exporters, process id -> (name, option, value) of
                 :data:`services.export.outputs.OUTPUTS`.
             standby: a hot standby of the fuser, :data:`STANDBY_ID` (:mod:`services.leader`).
-            asterix: sensors that send ASTERIX to a gateway, :data:`ASTERIX_ID` (live only).
+            asterix: sensors that send ASTERIX to a gateway, :data:`ASTERIX_ID`.
         """
-        if asterix is not None and live is None:
-            raise ValueError("ASTERIX carries times of day on UTC: a run with --asterix-in is live")
         timeout = source_timeout(scenario, speed)
         seed = ["--seed", str(scenario.seed)]
         dur = ["--duration-s", repr(scenario.duration)] if duration is not None else []
@@ -166,14 +165,16 @@ class RunPlan:
         specs.append(ProcessSpec(RECORDER_ID, "recorder", (
             "record", "--rrd", rrd, "--id", RECORDER_ID, *given, *(["--spawn"] if spawn else []),
             *(["--rotate-s", str(rotate_s)] if rotate_s else []),
-            "--expect", ",".join([FUSER_ID, *regions, *trackers.values(), *sources]), *fabric), restartable=True))
+            "--expect", ",".join([FUSER_ID, *regions, *trackers.values(), *sources,
+                                  *([ASTERIX_ID] if asterix and not live else [])]), *fabric), restartable=True))
         for pid, (name, option, value) in outputs.items():  # listeners like the recorder, up before the sources
             specs.append(ProcessSpec(pid, "exporter", (
                 "export", name, option, value, "--site" if live else "--scenario", scenario_ref, "--id", pid, *fabric),
                 restartable=True))
         if asterix is not None:  # a gateway for the scenario's radars and stations, up before they send
             specs.append(ProcessSpec(ASTERIX_ID, "gateway", (
-                "ingest", "asterix", "--id", ASTERIX_ID, "--site", asterix.site, "--udp", asterix.udp, *fabric)))
+                "ingest", "asterix", "--id", ASTERIX_ID, "--site", asterix.site, "--udp", asterix.udp,
+                *([] if live else ["--scenario-run", ",".join(asterix.sensors)]), *fabric)))
         for sensor, tid in trackers.items():
             specs.append(ProcessSpec(tid, "tracker", (
                 "tracker", *given, "--sensor", sensor, "--method", method, "--fuser", FUSER_ID,

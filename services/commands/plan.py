@@ -25,9 +25,8 @@ def register(sub) -> None:
     p.add_argument("--rrd", default="site.rrd", help="the recorder's file (default %(default)s)")
     p.add_argument("--json", default="result.json", help="the fuser's summary (default %(default)s)")
     p.add_argument("--asterix-in", nargs="?", const="127.0.0.1:8600", metavar="HOST:PORT",
-                   help="a live session whose radars and ADS-B stations send ASTERIX to a zfusion ingest asterix "
-                        "on HOST:PORT (default %(const)s); writes the scenario with their SAC/SIC beside --rrd "
-                        "(docs/asterix.md)")
+                   help="the radars and ADS-B stations send ASTERIX to a zfusion ingest asterix on HOST:PORT "
+                        "(default %(const)s); writes the scenario with their SAC/SIC beside --rrd (docs/asterix.md)")
     p.set_defaults(main=run)
 
 
@@ -39,6 +38,5 @@ def run(args) -> int:
     asterix = launcher.asterix_route(args.scenario, scenario, Path(args.rrd), args.asterix_in) \
         if args.asterix_in else None
     print(plan.RunPlan.build(args.scenario, scenario, topology, method, fabric=fabric, speed=args.speed,
-                             rrd=args.rrd, json_path=args.json, router=args.connect,
-                             live=plan.Live() if asterix else None, asterix=asterix).format())
+                             rrd=args.rrd, json_path=args.json, router=args.connect, asterix=asterix).format())
     return 0

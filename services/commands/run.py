@@ -34,14 +34,14 @@ def register(sub) -> None:
                    help="restart the fuser, local trackers and recorder if they are killed (default: on)")
     for output in OUTPUTS:  # --geojson PATH, --cot URL: an exporter beside the recorder
         p.add_argument(f"--{output.name}", metavar=output.metavar, help=output.run_help)
+    p.add_argument("--asterix-in", action="store_true",
+                   help="the scenario's radars and ADS-B stations send ASTERIX (CAT048, CAT034, CAT021) over "
+                        "loopback UDP to a zfusion ingest asterix, the rest publish on Zenoh (docs/asterix.md)")
     options.tracker_options(p)
     g = p.add_argument_group("live emulation (docs/live.md)")
     g.add_argument("--live", action="store_true",
                    help="run the scenario's processes as a live session on UTC time (scenario time 0 = start), "
                         "until Ctrl-C, --for, or the sources' end")
-    g.add_argument("--asterix-in", action="store_true",
-                   help="live: the scenario's radars and ADS-B stations send ASTERIX (CAT048, CAT034, CAT021) over "
-                        "loopback UDP to a zfusion ingest asterix, the rest publish on Zenoh (docs/asterix.md)")
     g.add_argument("--standby", action="store_true",
                    help="live: a hot standby fuser beside the fuser, which takes over within a second if the "
                         "fuser's process dies (docs/reliability.md)")
@@ -64,10 +64,6 @@ def run(args) -> int:
         raise UserError("--for is for live runs: add --live, or use --duration-s")
     if not args.live and args.standby:
         raise UserError("--standby is for live runs: add --live")
-    if not args.live and args.asterix_in:
-        raise UserError("--asterix-in needs --live: ASTERIX carries times of day, which the gateway places on UTC next "
-                        "to its own clock, so a scenario run in scenario seconds (or at --speed max) cannot go "
-                        "through it")
     names.check_scenario(args.scenario)
     names.check_method(args.method)
     names.check_settings(args.settings)

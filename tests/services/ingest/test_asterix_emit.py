@@ -173,7 +173,6 @@ def test_sensor_asterix_mistakes_are_one_line_and_exit_2(tmp_path):
     no.write_text(SCENARIO.read_text().replace("sac_sic = [25, 1]\n", ""))
     for args, says in ((["--scenario", str(SCENARIO), "--id", "radar2d", "--live", "--asterix", "udp://nowhere"],
                         "HOST:PORT"),
-                       (["--scenario", str(SCENARIO), "--id", "radar2d", "--asterix", "udp://127.0.0.1:9"], "--live"),
                        (["--scenario", str(SCENARIO), "--id", "truth", "--live", "--asterix", "udp://127.0.0.1:9"],
                         "not a sensor"),
                        (["--scenario", str(no), "--id", "radar2d", "--live", "--asterix", "udp://127.0.0.1:9"],
@@ -189,7 +188,7 @@ def test_sensor_asterix_mistakes_are_one_line_and_exit_2(tmp_path):
 def test_a_plan_routes_the_radars_and_stations_through_one_gateway(snapshot, tmp_path):
     """``zfusion plan --asterix-in``: air-picture's radars send ASTERIX to the gateway on
     the given port, in the site file with their SAC/SIC; its angle sensors publish on
-    Zenoh as ever; the gateway is up before the radars start."""
+    Zenoh as ever; the gateway is up before the radars start, and waited for."""
     p = subprocess.run([sys.executable, "-m", "services.cli", "plan", "--scenario", "air-picture", "--asterix-in",
                         "127.0.0.1:8611", "--rrd", str(tmp_path / "site.rrd")], capture_output=True, text=True,
                        timeout=60)
@@ -199,25 +198,30 @@ def test_a_plan_routes_the_radars_and_stations_through_one_gateway(snapshot, tmp
         sid: s.sac_sic for sid, s in snapshot.sensors.items()}
     lines = [ln for ln in p.stdout.splitlines() if not ln.startswith("#")]
     (gw,) = [ln for ln in lines if " ingest asterix " in ln]
-    assert f"--id {ASTERIX_ID} --site {site} --udp 127.0.0.1:8611" in gw
+    assert f"--id {ASTERIX_ID} --site {site} --udp 127.0.0.1:8611 --scenario-run radar1,radar2" in gw
     assert lines.index(gw) < min(i for i, ln in enumerate(lines) if " sensor " in ln)
     for sid in ("radar1", "radar2"):
         (ln,) = [ln for ln in lines if f" --id {sid} " in ln]
-        assert f"--scenario {site} " in ln and "--live --asterix udp://127.0.0.1:8611" in ln
+        assert f"--scenario {site} " in ln and "--asterix udp://127.0.0.1:8611" in ln
         assert f"--wait-for fuser,recorder,{ASTERIX_ID} " in ln
     for sid in ("angle1", "angle2"):
         (ln,) = [ln for ln in lines if f" --id {sid} " in ln]
         assert "--scenario air-picture " in ln and "--asterix" not in ln
-    with pytest.raises(ValueError, match="live"):  # times of day on UTC: a live run only
-        RunPlan.build("air-picture", snapshot, "centralised", "SS", fabric=[],
-                      asterix=Asterix(str(site), "127.0.0.1:8611", ("radar1", "radar2")))
-    assert RunPlan.build("air-picture", snapshot, "centralised", "SS", fabric=[], live=Live(),
-                         asterix=Asterix(str(site), "127.0.0.1:8611", ("radar1",)))[ASTERIX_ID].role == "gateway"
+    # a scenario run's gateway reads scenario seconds and ends when its senders are done,
+    # and the recorder waits for it; a live one reads UTC, and runs until stopped
+    route = Asterix(str(site), "127.0.0.1:8611", ("radar1", "radar2"))
+    run = RunPlan.build("air-picture", snapshot, "centralised", "SS", fabric=[], asterix=route)
+    assert run[ASTERIX_ID].role == "gateway" and run[ASTERIX_ID].argv[-2:] == ("--scenario-run", "radar1,radar2")
+    assert ASTERIX_ID in run["recorder"].argv[run["recorder"].argv.index("--expect") + 1].split(",")
+    live = RunPlan.build("air-picture", snapshot, "centralised", "SS", fabric=[], live=Live(), asterix=route)
+    assert "--scenario-run" not in live[ASTERIX_ID].argv
+    assert ASTERIX_ID not in live["recorder"].argv[live["recorder"].argv.index("--expect") + 1].split(",")
+    assert "--live" in live["radar1"].argv and "--live" not in run["radar1"].argv
 
 
 def test_run_asterix_in_mistakes_are_one_line_and_exit_2(tmp_path):
-    for args, says in ((["--scenario", str(SCENARIO), "--asterix-in"], "--live"),
-                       (["--scenario", "df-multi", "--asterix-in", "--live"], "no radar")):
+    for args, says in ((["--scenario", "df-multi", "--asterix-in", "--live"], "no radar"),
+                       (["--scenario", "df-multi", "--asterix-in"], "no radar")):
         p = subprocess.run([sys.executable, "-m", "services.cli", "run", *args, "--rrd", str(tmp_path / "r.rrd")],
                            capture_output=True, text=True, timeout=60)
         assert p.returncode == 2, (args, p.stderr)

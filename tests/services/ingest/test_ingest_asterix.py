@@ -362,6 +362,22 @@ def test_datagrams_become_checked_measurements_and_watermarks(rig):
     assert c["published"] == 2 and c["records.cat048"] == 3 and c["records.cat021"] == 3
 
 
+def test_a_scenario_runs_end_is_a_final_watermark_per_sensor(rig):
+    """``Gateway.end``: each stream ends at the given time, or later where the sensor
+    already sent or was promised later (a radar's trailing crossings)."""
+    ingest, _, _, _ = rig
+    gw = ingest.gateway
+    rho, theta = on_grid(30e3, 2.0)
+    ingest.receive(datagram(ax.TargetReport(sac=25, sic=1, tod=100.0, rho=rho, theta=theta),
+                            *(ax.ServiceMessage(sac=25, sic=2, message_type=ax.SECTOR_CROSSING, tod=tod)
+                              for tod in (110.0, 120.0))), MIDNIGHT + 100.0)
+    ends = {m.src: m for m in (decode(b) for _, b in gw.end(MIDNIGHT + 105.0))}
+    assert all(m.kind == "watermark" and m.body["final"] for m in ends.values())
+    assert {s: m.t for s, m in ends.items()} == {"r2d": MIDNIGHT + 105.0, "r3d": math.nextafter(MIDNIGHT + 110.0,
+                                                                                               -math.inf),
+                                                 "gs": MIDNIGHT + 105.0}
+
+
 def test_garbage_never_raises_and_is_counted(rig):
     ingest, _, _, log = rig
     good = datagram(ax.TargetReport(sac=25, sic=1, tod=35_999.0, rho=30e3, theta=2.0, flight_level=90.0,

@@ -139,7 +139,9 @@ def test_mistakes_are_one_line_and_exit_2(tmp_path, site):
     for args, says in ((["--site", str(no_radar), "--udp", "127.0.0.1:1"], "sac_sic"),
                        (["--site", str(site), "--pcap", str(not_pcap)], "not a pcap"),
                        (["--site", str(site), "--pcap", str(not_pcap), "--speed", "0"], "--speed"),
-                       (["--site", str(site), "--udp", "127.0.0.1"], "HOST:PORT")):
+                       (["--site", str(site), "--udp", "127.0.0.1"], "HOST:PORT"),
+                       (["--site", str(site), "--pcap", str(not_pcap), "--scenario-run", "r2d"], "--scenario-run"),
+                       (["--site", str(site), "--udp", "127.0.0.1:1", "--scenario-run", ","], "--scenario-run")):
         p = subprocess.run([sys.executable, "-m", "services.cli", "ingest", "asterix", "--id", "gw", *args],
                            capture_output=True, text=True, timeout=60)
         assert p.returncode == 2, (args, p.stderr)
