@@ -42,8 +42,9 @@ from .commands import options
 from .errors import FAILURE, UserError, zenoh_reason
 from .export.outputs import OUTPUTS
 from .intake import Intake
+from .lazy import lazy
 from .node import Inbox, Node, ZenohOptions
-from .plan import FUSER_ID, RECORDER_ID, Live, RunPlan, source_timeout
+from .plan import FUSER_ID, RECORDER_ID, Asterix, Live, RunPlan, source_timeout
 from .request import check_methods, resolve_topology, scenario_of
 from .resources import ProcessUsage, own_usage
 from .rotation import rotated_files
@@ -51,6 +52,7 @@ from .summary import RunScorer, format_table, run_summary
 from .supervisor import Children, Supervisor
 
 log = logging.getLogger("zfusion")
+asterix_site = lazy("services.ingest.asterix")  # only a run with --asterix needs it
 
 LAUNCHER_ID = "launcher"
 END_GRACE = 10.0  # s after the last source ends, when no fuser is left to say it is done
@@ -81,6 +83,27 @@ def free_port() -> int:
     with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
+
+
+def free_udp_port() -> int:
+    """A loopback UDP port free now (the kernel's pick), for a gateway that binds it a
+    moment later."""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def asterix_route(scenario_ref: str, scenario, rrd: Path, udp: str) -> Asterix:
+    """``--asterix-in``: the scenario with a SAC/SIC for each radar and ADS-B station,
+    written beside the recording (``<rrd stem>.asterix.toml``), and the gateway's UDP
+    ``HOST:PORT`` they send to; a :class:`UserError` if it cannot be."""
+    site = rrd.with_name(f"{rrd.stem}.asterix.toml")
+    try:
+        return Asterix(str(site), udp, asterix_site.write_site(scenario_ref, scenario, site))
+    except ValueError as e:
+        raise UserError(f"--asterix-in: {e}") from None
+    except OSError as e:
+        raise UserError(f"--asterix-in: cannot write {site}: {e.strerror or e}") from None
 
 
 def _ephemeral_low() -> int:
@@ -326,6 +349,8 @@ def run(args) -> int:
     outputs = {o.process_id: (o.name, o.option, o.prepare(getattr(args, o.name))) for o in OUTPUTS
                if getattr(args, o.name, None) is not None}
     Path(rrd).parent.mkdir(parents=True, exist_ok=True)
+    asterix = asterix_route(args.scenario, scenario, Path(rrd), f"127.0.0.1:{free_udp_port()}") \
+        if getattr(args, "asterix_in", False) else None
     fabric = Fabric.of(args)
     live_opts = Live(args.max_delay, args.oosm_window, endless) if live else None
     plan = RunPlan.build(
@@ -334,7 +359,7 @@ def run(args) -> int:
         speed=args.speed, rrd=rrd, supervisor=LAUNCHER_ID, settings=getattr(args, "settings", []),
         fusion_rule=args.fusion_rule, duration=args.duration_s, live=live_opts,
         spawn=getattr(args, "spawn", False), rotate_s=getattr(args, "rotate_s", None), outputs=outputs,
-        standby=getattr(args, "standby", False))
+        standby=getattr(args, "standby", False), asterix=asterix)
 
     node = Node(LAUNCHER_ID, "launcher", KeySpace(args.deployment), fabric.mine, live=live)
     try:

@@ -15,6 +15,13 @@ processes it waits for and whether it is restarted when killed. In start order:
    consumers, so that nothing it publishes is lost before they listen; ``zfusion run``
    starts them together with a common ``--start-at``.
 
+With ``--asterix-in`` (:class:`Asterix`) the scenario's radars and ADS-B ground stations
+send ASTERIX (``zfusion sensor --asterix``) to one ``zfusion ingest asterix`` on a
+loopback UDP port, started with the consumers, which publishes their measurements under
+their own ids (in a scenario run, ``--scenario-run``: on scenario time, ending their
+streams once they are done); both read a copy of the scenario that gives each a SAC/SIC.
+The other sensors publish on Zenoh as ever (docs/asterix.md).
+
 Started by hand in that order, they give the numbers ``zfusion run`` gives with the same
 scenario, method and seed: the order of the measurements is fixed by their stamps and
 watermarks, not by when each process started (docs/deploy.md).
@@ -33,9 +40,10 @@ from schemas.keys import DEFAULT_FUSER
 
 FUSER_ID = DEFAULT_FUSER
 RECORDER_ID = "recorder"
+ASTERIX_ID = "asterix-in"  # the ASTERIX gateway of a run with --asterix-in
 STANDBY_ID = "fuser-standby"
 ROUTER_ID = "router"
-ROLES = ("router", "fuser", "recorder", "exporter", "tracker", "source")
+ROLES = ("router", "fuser", "recorder", "exporter", "gateway", "tracker", "source")
 # s of silence after which a source is dead at --speed max: nothing is paced there, so a
 # source that is silent is far more often starved of CPU (many processes, two cores) than
 # dead, and taking it for dead changes what is fused
@@ -81,6 +89,17 @@ class Live:
 
 
 @dataclass(frozen=True)
+class Asterix:
+    """A run's sensors that send ASTERIX: ``site`` the scenario file that gives each a
+    SAC/SIC (:func:`services.ingest.asterix.with_sac_sic`), ``udp`` the gateway's
+    ``HOST:PORT``, ``sensors`` their ids."""
+
+    site: str
+    udp: str
+    sensors: tuple[str, ...]
+
+
+@dataclass(frozen=True)
 class RunPlan:
     """The processes of one run, in start order (module docstring)."""
 
@@ -97,7 +116,7 @@ class RunPlan:
               fusion_rule: str | None = None,
               duration: float | None = None, live: Live | None = None, spawn: bool = False,
               rotate_s: float | None = None, outputs: Mapping[str, tuple[str, str, list[str]]] = {},
-              standby: bool = False) -> "RunPlan":
+              standby: bool = False, asterix: Asterix | None = None) -> "RunPlan":
         """The run of ``scenario`` (loaded from ``scenario_ref``) by ``method`` in ``topology``.
 
         Args:
@@ -113,6 +132,7 @@ class RunPlan:
             outputs: exporters, process id -> (name, option, value) of
                 :data:`services.export.outputs.OUTPUTS`.
             standby: a hot standby of the fuser, :data:`STANDBY_ID` (:mod:`services.leader`).
+            asterix: sensors that send ASTERIX to a gateway, :data:`ASTERIX_ID`.
         """
         timeout = source_timeout(scenario, speed)
         seed = ["--seed", str(scenario.seed)]
@@ -145,11 +165,16 @@ class RunPlan:
         specs.append(ProcessSpec(RECORDER_ID, "recorder", (
             "record", "--rrd", rrd, "--id", RECORDER_ID, *given, *(["--spawn"] if spawn else []),
             *(["--rotate-s", str(rotate_s)] if rotate_s else []),
-            "--expect", ",".join([FUSER_ID, *regions, *trackers.values(), *sources]), *fabric), restartable=True))
+            "--expect", ",".join([FUSER_ID, *regions, *trackers.values(), *sources,
+                                  *([ASTERIX_ID] if asterix and not live else [])]), *fabric), restartable=True))
         for pid, (name, option, value) in outputs.items():  # listeners like the recorder, up before the sources
             specs.append(ProcessSpec(pid, "exporter", (
                 "export", name, option, value, "--site" if live else "--scenario", scenario_ref, "--id", pid, *fabric),
                 restartable=True))
+        if asterix is not None:  # a gateway for the scenario's radars and stations, up before they send
+            specs.append(ProcessSpec(ASTERIX_ID, "gateway", (
+                "ingest", "asterix", "--id", ASTERIX_ID, "--site", asterix.site, "--udp", asterix.udp,
+                *([] if live else ["--scenario-run", ",".join(asterix.sensors)]), *fabric)))
         for sensor, tid in trackers.items():
             specs.append(ProcessSpec(tid, "tracker", (
                 "tracker", *given, "--sensor", sensor, "--method", method, "--fuser", FUSER_ID,
@@ -161,11 +186,14 @@ class RunPlan:
             fed = [*(r for r, reg in regions.items() if sid in reg.sensors), FUSER_ID] if regions \
                 else [trackers.get(sid, FUSER_ID)]
             consumers = [*fed, RECORDER_ID] if sid in scenario.sensors else [RECORDER_ID]
+            sends = asterix is not None and sid in asterix.sensors  # ASTERIX to the gateway, not on Zenoh
+            consumers += [ASTERIX_ID] if sends else []
             # a live emulation plays the scenario's duration (else until stopped, if endless)
             played = ["--duration-s", repr(scenario.duration)] if dur or (live and not live.endless) else []
             specs.append(ProcessSpec(sid, "source", (
-                "sensor", "--scenario", scenario_ref, *seed, *played, "--id", sid, "--speed", str(speed),
-                *(["--live"] if live else []),
+                "sensor", "--scenario", asterix.site if sends else scenario_ref, *seed, *played, "--id", sid,
+                "--speed", str(speed), *(["--live"] if live else []),
+                *(["--asterix", f"udp://{asterix.udp}"] if sends else []),
                 "--wait-for", ",".join([*consumers, *([supervisor] if supervisor else [])]), *fabric),
                 waits_for=tuple(consumers)))
         return cls(scenario.name, topology, method, scenario.seed, tuple(specs))

@@ -49,6 +49,10 @@ def register(sub) -> None:
     a.add_argument("--sector-lag", type=int, default=1,
                    help="a CAT034 crossing promises the plots older than this many crossings back (default "
                         "%(default)s: radars send a sector's plots after its crossing)")
+    a.add_argument("--scenario-run", metavar="SENDERS",
+                   help="with --udp, a scenario run's gateway (zfusion run --asterix-in): the times of day are "
+                        "scenario seconds (no clock checks, no heartbeats), and once each of these processes "
+                        "(comma-separated) has reported done, their streams end, and so does this gateway")
     _common(a, "this gateway's process id (its radars: the site file's sensors with sac_sic)")
 
     b = gw.add_parser("adsb", help="an ADS-B receiver: readsb/dump1090-fa/tar1090 aircraft.json, or its BaseStation "

@@ -3,9 +3,12 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 from ..lazy import lazy
 from . import options
 
+launcher = lazy("services.launcher")
 plan = lazy("services.plan")
 request = lazy("services.request")
 
@@ -21,6 +24,9 @@ def register(sub) -> None:
     p.add_argument("--speed", type=options.speed, default="1", help="the sources' speed (default 1)")
     p.add_argument("--rrd", default="site.rrd", help="the recorder's file (default %(default)s)")
     p.add_argument("--json", default="result.json", help="the fuser's summary (default %(default)s)")
+    p.add_argument("--asterix-in", nargs="?", const="127.0.0.1:8600", metavar="HOST:PORT",
+                   help="the radars and ADS-B stations send ASTERIX to a zfusion ingest asterix on HOST:PORT "
+                        "(default %(const)s); writes the scenario with their SAC/SIC beside --rrd (docs/asterix.md)")
     p.set_defaults(main=run)
 
 
@@ -29,6 +35,8 @@ def run(args) -> int:
     topology, method = request.resolve_topology(scenario, args.topology, args.method)
     request.check_methods(scenario, [method], {})
     fabric = ["--zenoh-mode", "client", "--connect", args.connect]
+    asterix = launcher.asterix_route(args.scenario, scenario, Path(args.rrd), args.asterix_in) \
+        if args.asterix_in else None
     print(plan.RunPlan.build(args.scenario, scenario, topology, method, fabric=fabric, speed=args.speed,
-                             rrd=args.rrd, json_path=args.json, router=args.connect).format())
+                             rrd=args.rrd, json_path=args.json, router=args.connect, asterix=asterix).format())
     return 0

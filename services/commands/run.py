@@ -34,6 +34,9 @@ def register(sub) -> None:
                    help="restart the fuser, local trackers and recorder if they are killed (default: on)")
     for output in OUTPUTS:  # --geojson PATH, --cot URL: an exporter beside the recorder
         p.add_argument(f"--{output.name}", metavar=output.metavar, help=output.run_help)
+    p.add_argument("--asterix-in", action="store_true",
+                   help="the scenario's radars and ADS-B stations send ASTERIX (CAT048, CAT034, CAT021) over "
+                        "loopback UDP to a zfusion ingest asterix, the rest publish on Zenoh (docs/asterix.md)")
     options.tracker_options(p)
     g = p.add_argument_group("live emulation (docs/live.md)")
     g.add_argument("--live", action="store_true",

@@ -28,8 +28,9 @@ def register(sub) -> None:
                    help="live emulation: stamps on the UTC time base (scenario time 0 = --start-at), speed 1")
     options.duration_option(p)
     p.add_argument("--asterix", metavar="udp://HOST:PORT",
-                   help="with --live, a radar or ADS-B station with sac_sic: send CAT048/CAT034 or CAT021 datagrams "
-                        "there instead of publishing on Zenoh (for zfusion ingest asterix; docs/asterix.md)")
+                   help="a radar or ADS-B station with sac_sic: send CAT048/CAT034 or CAT021 datagrams there instead "
+                        "of publishing on Zenoh, for zfusion ingest asterix (with --live: times of day in UTC; "
+                        "else in scenario seconds, for its --scenario-run; docs/asterix.md)")
     p.add_argument("--asterix-pcap", metavar="FILE",
                    help="the same, written to a pcap capture (zfusion ingest asterix --pcap replays it)")
     p.add_argument("--run", type=int, default=0, help=argparse.SUPPRESS)
@@ -52,9 +53,6 @@ def udp_target(text: str) -> tuple[str, int]:
 def run(args) -> int:
     speed = math.inf if args.speed == "max" else float(args.speed)
     out = None
-    if args.asterix and not args.live:
-        raise UserError("--asterix udp://... needs --live: a gateway places the times of day it reads next to its own "
-                        "clock, so the plots must be stamped in UTC (--asterix-pcap alone replays at any --speed)")
     if args.asterix or args.asterix_pcap:
         out = source.AsterixOut(udp_target(args.asterix) if args.asterix else None, args.asterix_pcap)
     try:

@@ -7,7 +7,9 @@ and radars) into events: a CAT048 plot of a radar the site file names by ``sac_s
 becomes a :class:`~services.ingest.gateway.Reading` of that sensor; a CAT034 north
 marker or sector crossing becomes a :class:`ScanMark`, a promise that the radar's plots
 older than the crossing ``sector_lag`` crossings ago have all been sent (radars send a
-sector's plots after its crossing message, so one sector of slack by default); a CAT021
+sector's plots after its crossing message, so one sector of slack by default; a snapshot
+radar's north marker, one per scan at the scan's time with its plots after it, promises
+the plots before its own time: the direct stream's watermark after the scan before); a CAT021
 ADS-B report becomes a :class:`StationReport`: the ADS-B gateways' position report
 (:class:`services.ingest.adsb.PositionReport`) and the ground station's SAC/SIC. Times
 of day are placed on the UTC time line next to the receiver's clock
@@ -38,13 +40,16 @@ version 0 reports.
 from __future__ import annotations
 
 import math
+import re
 import struct
 from collections import deque
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Callable, Iterable, Iterator, Mapping
 
 import numpy as np
 
+import sensors_sim
 from fusion.geodetic import LocalFrame
 from fusion.measurement.kinds import KINDS
 from schemas import asterix as ax
@@ -79,7 +84,8 @@ def gaussian_radius(lat_deg: float) -> float:
 class Radar:
     """A site-file radar fed by ASTERIX and the geometry of its plots in the site's frame
     (module docstring): ``rotation`` its ENU axes -> the site's, ``gamma`` the azimuth of
-    its north there, ``radius`` and ``height`` its Earth radius and height above it."""
+    its north there, ``radius`` and ``height`` its Earth radius and height above it;
+    ``snapshot``: a whole scan at one time (no rotation: CAT034 north markers only)."""
 
     sensor: str
     sac_sic: tuple[int, int]
@@ -89,13 +95,15 @@ class Radar:
     gamma: float
     radius: float
     height: float
+    snapshot: bool = False
     _rows: tuple = field(init=False, repr=False)
 
     def __post_init__(self):
         object.__setattr__(self, "_rows", tuple(tuple(float(x) for x in row) for row in self.rotation))
 
     @classmethod
-    def at(cls, sensor: str, sac_sic: tuple[int, int], kind: str, site: np.ndarray, frame: LocalFrame) -> "Radar":
+    def at(cls, sensor: str, sac_sic: tuple[int, int], kind: str, site: np.ndarray, frame: LocalFrame,
+           snapshot: bool = False) -> "Radar":
         if kind not in RADAR_KINDS:
             raise ValueError(f"sensor {sensor!r} measures {kind}: ASTERIX plots are {' or '.join(RADAR_KINDS)} "
                              f"(a radar2d or radar3d sensor)")
@@ -105,7 +113,7 @@ class Radar:
         lat0, lon0 = (frame.lat0, frame.lon0) if frame.deg else (math.degrees(frame.lat0), math.degrees(frame.lon0))
         rot = enu_rotation(lat0, lon0) @ enu_rotation(lat, lon).T
         return cls(sensor, tuple(sac_sic), kind, np.asarray(site, dtype=float), rot,
-                   math.atan2(rot[0, 1], rot[1, 1]), gaussian_radius(lat), h)
+                   math.atan2(rot[0, 1], rot[1, 1]), gaussian_radius(lat), h, snapshot)
 
     def elevation(self, rho: float, height: float) -> float:
         """The elevation at the radar of a point at slant range ``rho`` and ``height``."""
@@ -179,7 +187,8 @@ def radars(site, frame: LocalFrame) -> dict[tuple[int, int], Radar]:
                              f"{list(spec.sac_sic)}: each radar needs its own")
         if spec.site is None or not spec.site.fixed:
             raise ValueError(f"sensor {sid!r} has sac_sic but no fixed position: a radar's plots are relative to it")
-        out[spec.sac_sic] = Radar.at(sid, spec.sac_sic, spec.measurement_kind, spec.site.points[0], frame)
+        out[spec.sac_sic] = Radar.at(sid, spec.sac_sic, spec.measurement_kind, spec.site.points[0], frame,
+                                     snapshot=not spec.sectors)
     if not out and not stations(site):
         raise ValueError("no sensor of the site file has sac_sic = [SAC, SIC]: nothing to publish")
     return out
@@ -190,6 +199,53 @@ def stations(site) -> dict[tuple[int, int], str]:
     with a ``sac_sic``: SAC/SIC -> sensor id, whose CAT021 reports it publishes."""
     return {spec.sac_sic: sid for sid, spec in site.sensors.items()
             if spec.sac_sic is not None and not KINDS[spec.measurement_kind].sited}
+
+
+def with_sac_sic(text: str, site, sac: int = 0) -> tuple[str, dict[str, tuple[int, int]]]:
+    """A scenario's (or site file's) TOML ``text`` with ``sac_sic = [sac, n]`` added to
+    each fixed radar (``radar2d``, ``radar3d``) and ADS-B ground station (``adsb``) of
+    ``site`` (the same file, loaded) that has none, ``n`` = 1, 2, ... in the sensors'
+    order, past those taken; and every such sensor's SAC/SIC. ValueError where a
+    sensor's table is not a ``[sensors.<id>]`` header of its own."""
+    taken = {spec.sac_sic for spec in site.sensors.values() if spec.sac_sic is not None}
+    out: dict[str, tuple[int, int]] = {}
+    sic = 0
+    for sid, spec in site.sensors.items():
+        radar = spec.measurement_kind in RADAR_KINDS and spec.site is not None and spec.site.fixed
+        if not (radar or spec.kind == "adsb"):
+            continue
+        if spec.sac_sic is not None:
+            out[sid] = spec.sac_sic
+            continue
+        sic += 1
+        while (sac, sic) in taken:
+            sic += 1
+        if sic > 255:
+            raise ValueError(f"no SIC of SAC {sac} left for sensor {sid!r}")
+        name = "|".join(q + re.escape(sid) + q for q in ("", '"', "'"))
+        header = re.compile(rf"^[ \t]*\[[ \t]*sensors[ \t]*\.[ \t]*(?:{name})[ \t]*\][^\n]*\n", re.MULTILINE)
+        m = header.search(text)
+        if m is None:
+            raise ValueError(f"sensor {sid!r} has no [sensors.{sid}] header line to add sac_sic under")
+        text = f"{text[:m.end()]}sac_sic = [{sac}, {sic}]\n{text[m.end():]}"
+        out[sid] = (sac, sic)
+    return text, out
+
+
+def write_site(scenario_ref: str, scenario, path: Path) -> tuple[str, ...]:
+    """Writes to ``path`` the scenario (a file, or a built-in's name) with a SAC/SIC for
+    each of its radars and ADS-B stations (:func:`with_sac_sic`): the file a run's ASTERIX
+    sensors and gateway read (``zfusion run --asterix``); returns those sensors' ids.
+    ValueError if it has none, OSError if the file cannot be written."""
+    source = Path(scenario_ref)
+    if not source.is_file():
+        source = Path(sensors_sim.__file__).parent / "scenarios" / f"{scenario_ref}.toml"
+    text, assigned = with_sac_sic(source.read_text(encoding="utf-8"), scenario)
+    if not assigned:
+        raise ValueError(f"scenario {scenario.name} has no radar (radar2d, radar3d at a fixed site) or ADS-B "
+                         f"ground station (adsb) to send ASTERIX")
+    path.write_text(text, encoding="utf-8")
+    return tuple(assigned)
 
 
 @dataclass(frozen=True)
@@ -223,14 +279,15 @@ def horizontal_std(q: ax.Quality | None, mops: int | None) -> float | None:
 
 class AsterixFeed:
     """Datagrams -> events (module docstring). State: per radar, the times of its last
-    ``sector_lag + 1`` crossings."""
+    ``lag + 1`` crossings (``lag``: ``sector_lag``, 0 for a snapshot radar)."""
 
     def __init__(self, radars: Mapping[tuple[int, int], Radar], sector_lag: int = 1):
         if sector_lag < 0:
             raise ValueError(f"sector lag must be 0 or more crossings, not {sector_lag}")
         self.radars = dict(radars)
         self.sector_lag = sector_lag
-        self._crossings: dict[str, deque] = {r.sensor: deque(maxlen=sector_lag + 1) for r in self.radars.values()}
+        self._lag = {r.sensor: 0 if r.snapshot else sector_lag for r in self.radars.values()}
+        self._crossings: dict[str, deque] = {s: deque(maxlen=lag + 1) for s, lag in self._lag.items()}
         self.counters = {"datagrams": 0, "records.cat048": 0, "records.cat034": 0, "records.cat021": 0}
 
     def receive(self, data: bytes, now: float) -> list:
@@ -300,7 +357,7 @@ class AsterixFeed:
                 marks.append(t)
             return None
         marks.append(t)
-        if len(marks) <= self.sector_lag:
+        if len(marks) <= self._lag[radar.sensor]:
             return None
         return ScanMark(radar.sensor, math.nextafter(marks[0], -math.inf))
 

@@ -13,7 +13,10 @@ as the radar sends it: the CAT034 sector crossing at ``t1`` (and the north marke
 plots of the sector it closes, and promises, ``sector_lag`` = 1 crossing later, only
 plots already sent. After the last sector two more crossings go out (the antenna keeps
 turning; nothing more was seen), so the gateway can promise the last plots too. A
-snapshot radar sends its scans' plots and no CAT034 (it has no scan timing to tell).
+snapshot radar (a whole scan at one time) sends per scan one CAT034 north marker at the
+scan's time (with the scan period in I034/041), then the scan's plots; the marker of
+scan ``k`` promises everything before it, and one more marker a period after the last
+scan promises the last plots.
 
 An ADS-B ground station's ``position`` measurement (the site-frame ENU point) becomes a
 CAT021 report: WGS-84 position (I021/131), geometric height (I021/140), the NACp and GVA
@@ -56,22 +59,30 @@ class RadarEmitter:
         self._boundary: int | None = None  # the last crossing sent
 
     def _crossings(self, k: int, tod: float) -> list[ax.ServiceMessage]:
+        """Crossing ``k`` (a snapshot radar: scan ``k``) at ``tod``: a rotating radar's
+        sector crossing, and the north marker when it is north; a snapshot radar's
+        north marker."""
         sac, sic = self.radar.sac_sic
         out = [ax.ServiceMessage(sac, sic, ax.SECTOR_CROSSING, tod=tod,
-                                 sector=2 * math.pi * (k % self.sectors) / self.sectors)]
-        if k % self.sectors == 0:
+                                 sector=2 * math.pi * (k % self.sectors) / self.sectors)] if self.sectors else []
+        if not self.sectors or k % self.sectors == 0:
             out.append(ax.ServiceMessage(sac, sic, ax.NORTH_MARKER, tod=tod, sector=0.0,
                                          rotation_period=self.period))
         self._boundary = k
         return out
 
+    def _boundary_at(self, t1: float) -> int | None:
+        """The crossing (or scan) at ``t1``, None inside a sector (the scenario's end)."""
+        per = self.period / (self.sectors or 1)
+        k = round((t1 - self.start) / per)
+        return k if math.isclose(self.start + k * per, t1, rel_tol=0.0, abs_tol=1e-9) else None
+
     def records(self, t1: float, events: Iterable, stamp: Callable[[float], float]) -> list:
         """One batch (a sector closed at ``t1``, or a scan) -> its records."""
         out: list = []
-        if self.sectors:
-            k = round((t1 - self.start) * self.sectors / self.period)
-            if math.isclose(self.start + k * self.period / self.sectors, t1, rel_tol=0.0, abs_tol=1e-9):
-                out.extend(self._crossings(k, stamp(t1)))  # (the scenario's end inside a sector: none)
+        k = self._boundary_at(t1)
+        if k is not None:
+            out.extend(self._crossings(k, stamp(t1)))
         for ev in events:
             m = ev.measurement
             if m is None:
@@ -86,12 +97,13 @@ class RadarEmitter:
         return out
 
     def end(self, stamp: Callable[[float], float]) -> list[tuple[float, list]]:
-        """``(scenario time, records)`` of the crossings after the last sector."""
-        if not self.sectors or self._boundary is None:
+        """``(scenario time, records)`` of the crossings after the last sector (the
+        marker after a snapshot radar's last scan)."""
+        if self._boundary is None:
             return []
         out = []
-        for k in range(self._boundary + 1, self._boundary + 1 + TRAILING_CROSSINGS):
-            t = self.start + k * self.period / self.sectors
+        for k in range(self._boundary + 1, self._boundary + 1 + (TRAILING_CROSSINGS if self.sectors else 1)):
+            t = self.start + k * self.period / (self.sectors or 1)
             out.append((t, self._crossings(k, stamp(t))))
         return out
 

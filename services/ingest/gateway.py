@@ -228,14 +228,20 @@ class Gateway:
         an input)."""
         return [kv for s, st in self.streams.items() for kv in self._watermark(s, st.last_t)]
 
-    def _watermark(self, sensor: str, t: float) -> list[tuple[str, bytes]]:
+    def end(self, t: float) -> list[tuple[str, bytes]]:
+        """Final watermarks: every sensor's stream has ended (a scenario run's senders are
+        done), each at ``t`` or what it already sent or promised, if later."""
+        return [kv for s, st in self.streams.items()
+                for kv in self._watermark(s, max(t, st.last_t, st.watermark), final=True)]
+
+    def _watermark(self, sensor: str, t: float, final: bool = False) -> list[tuple[str, bytes]]:
         st = self.streams[sensor]
-        if not t > st.watermark:
+        if not (t > st.watermark or final and t == st.watermark):
             return []
         st.watermark = t
         st.wm_seq += 1
         self.counters["watermarks"] += 1
-        return [(self.keys.meas(sensor), encode("watermark", sensor, st.wm_seq, t, final=False))]
+        return [(self.keys.meas(sensor), encode("watermark", sensor, st.wm_seq, t, final=final))]
 
     def _position(self, r: Reading, std: np.ndarray, corr: np.ndarray | None):
         """A position report's ``(z, std, corr)`` in the site's frame: as given (ENU), or

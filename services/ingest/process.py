@@ -36,7 +36,7 @@ from dataclasses import dataclass
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from typing import Callable
 
-from schemas import KeySpace
+from schemas import KeySpace, SchemaError, decode
 from sensors_sim import ScenarioError
 from sensors_sim import load_site as load_site_file
 
@@ -758,6 +758,9 @@ def run_asterix(args, keys: KeySpace, zopts) -> int:
         raise UserError(str(e)) from None
     adsb_stations = stations(site)
     _, sensors = _site_sensors(args, [r.sensor for r in rs.values()] + list(adsb_stations.values()))
+    senders = [s for s in (args.scenario_run or "").split(",") if s]
+    if args.scenario_run is not None and (args.pcap or not senders):
+        raise UserError("--scenario-run SENDERS: the process ids of the scenario's senders, with --udp")
     if args.pcap:
         speed = _speed(args.speed)
         try:
@@ -767,18 +770,61 @@ def run_asterix(args, keys: KeySpace, zopts) -> int:
             raise UserError(f"--pcap {args.pcap}: {getattr(e, 'strerror', None) or e}") from None
     else:
         sock = _udp_socket(args.udp)
-    with Node(args.id, "ingest", keys, zopts, live=True) as node:
-        ingest = AsterixIngest(feed, _gateway(node, args, frame, sensors), node.reject, src=args.id,
-                               stations=adsb_stations)
+    with Node(args.id, "ingest", keys, zopts, live=not senders) as node:
+        gateway = Gateway(sensors, frame, node.keys, node.reject, max_skew=math.inf, max_age=math.inf, lag=0.0) \
+            if senders else _gateway(node, args, frame, sensors)
+        ingest = AsterixIngest(feed, gateway, node.reject, src=args.id, stations=adsb_stations)
         outlet = Outlet(node, ingest.gateway, ingest.counters)
+        done = _done_of(node, senders)
         node.announce()
         outlet.status("ready", force=True)
         if args.pcap:
             return _replay(node, ingest, outlet, packets, speed)
         try:
-            return _receive(node, ingest, outlet, sock)
+            return _scenario_run(node, ingest, outlet, sock, done) if senders else _receive(node, ingest, outlet, sock)
         finally:
             sock.close()
+
+
+def _done_of(node: Node, senders: list[str]) -> Callable[[], bool]:
+    """Whether each of ``senders`` has reported its state done (its status on Zenoh)."""
+    said: set[str] = set()
+
+    def heard(sample) -> None:
+        try:
+            msg = decode(sample.payload.to_bytes())
+        except SchemaError:  # not a status this process can read: not a done one
+            return
+        if msg.kind == "status" and msg.body.get("state") == "done":
+            said.add(msg.src)
+
+    for sid in senders:
+        node.subscribe(node.keys.status(sid), heard)
+    return lambda: said >= set(senders)
+
+
+def _scenario_run(node: Node, ingest, outlet: Outlet, sock: socket.socket, done: Callable[[], bool]) -> int:
+    """A scenario run's datagrams: their times of day are scenario seconds, placed next
+    to the latest time read (so a run may pass midnight of day 0). Once every sender has
+    said it is done (after its last datagram was queued on this loopback socket), what is
+    queued is read, and every stream ends with a final watermark."""
+    state = "stopped"
+    while not node.stop.is_set():
+        ending = done()
+        try:
+            data = sock.recv(65_535)
+        except (TimeoutError, socket.timeout):
+            data = None
+        if data is not None:
+            outlet.put(ingest.receive(data, ingest.t_last))
+            outlet.t_last = ingest.t_last
+        elif ending:  # nothing left on the socket
+            outlet.put(ingest.gateway.end(ingest.t_last))
+            state = "done"
+            break
+        outlet.status()
+    outlet.status(state, force=True)
+    return 0
 
 
 def _speed(text: str) -> float:

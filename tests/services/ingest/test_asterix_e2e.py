@@ -1,24 +1,34 @@
-"""ASTERIX end to end, real processes on loopback: ``tests/data/asterix-region.toml``'s
-rotating radars (CAT048 plots, CAT034 sector crossings) and ADS-B ground station (CAT021)
-emitting live over UDP (``zfusion sensor --asterix``) → ``zfusion ingest asterix --udp``
-→ ``zfusion fuser --site`` → ``zfusion export asterix --udp`` → CAT062 read by
-libasterix (a decoder that shares no code with ours); then the pcap the emitters wrote,
-merged and replayed by ``zfusion ingest asterix --pcap --speed max``.
+"""ASTERIX end to end, real processes on loopback, for two scenarios (:data:`CASES`):
+``tests/data/asterix-region.toml``'s rotating radars (CAT048 plots, CAT034 sector
+crossings) and ADS-B ground station (CAT021), and air-picture's snapshot radars (CAT048,
+a CAT034 north marker per scan; the SAC/SIC ``with_sac_sic`` gives them), the first 30 s,
+its angle sensors publishing on Zenoh as ever (ASTERIX has no category for them: the
+fuser hears both, as an operator's would). The ASTERIX sensors emit live over UDP
+(``zfusion sensor --asterix``) → ``zfusion ingest asterix --udp`` → ``zfusion fuser
+--site`` → ``zfusion export asterix --udp`` → CAT062 read by libasterix (a decoder that
+shares no code with ours); then the pcap the emitters wrote, merged and replayed by
+``zfusion ingest asterix --pcap --speed max`` (the angle sensors' streams as the live run
+heard them, re-published).
 
 The reference is in process, by the same code: the emitters' datagrams (the same
 records at the same times) through the gateway core (:class:`AsterixIngest`) give the
 measurements, on the items' grid, that the gateway must publish; the in-process SS
-run on them gives the tracks the live fuser must publish (to 1e-9) and the CAT062
-records must carry, to each field's resolution. Every wait is a condition with a
-deadline.
+run on them (and on the direct sensors' measurements) gives the tracks the live fuser
+must publish (to 1e-9) and the CAT062 records must carry, to each field's resolution.
+Every wait is a condition with a deadline.
 """
 
 from __future__ import annotations
 
+import dataclasses
+import json
 import math
 import socket
+import subprocess
+import sys
 import threading
 import time
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import asterix.generated as lib
@@ -29,20 +39,55 @@ from asterix.base import Bits, RawDatablock
 from _ingest_helpers import Capture, Processes
 from schemas import KeySpace, decode, to_estimate, to_measurement
 from sensors_sim import load_scenario
-from sensors_sim.emulators import sensor_batches
+from sensors_sim.emulators import sensor_batches, sensor_events
 from services.evaluation import run_method
-from services.ingest.asterix import AsterixFeed, AsterixIngest, pcap_datagrams, pcap_file, radars, stations
+from services.ingest.asterix import (
+    AsterixFeed, AsterixIngest, pcap_datagrams, pcap_file, radars, stations, with_sac_sic)
 from services.ingest.asterix_emit import datagrams, emitter
 from services.ingest.gateway import Gateway, local_frame, sensor_sites
-from services.launcher import free_port
+from services.launcher import SETTLE_MARGIN, free_port
+from services.live import LiveOptions
 from services.node import RejectLog
+from services.summary import RunScorer
 
 pytestmark = pytest.mark.slow
 
-SCENARIO = Path(__file__).parents[2] / "data" / "asterix-region.toml"
-SENSORS = ("radar2d", "radar3d", "gs")
+DATA = Path(__file__).parents[2] / "data"
+SCENARIOS = Path(__file__).parents[3] / "sensors_sim" / "scenarios"
 LAG = "5"  # s of heartbeat lag: a loaded machine may hold a datagram that long
+REPLAY_MAX_DELAY = "3600"  # s: a replay's fuser waits for every source (the streams arrive in any order)
 FT = 0.3048
+
+
+@dataclass(frozen=True)
+class Case:
+    """A scenario through ASTERIX: ``asterix`` its sensors that send it, ``direct`` those
+    that publish on Zenoh (no ASTERIX category), ``duration`` the sources' shorter run
+    (``--duration-s``); what the live run must show: ``unencodable`` plots per sensor,
+    the measurement ``kinds`` of the ASTERIX sensors, at least ``min_tracks`` tracks,
+    ``addresses`` CAT021 identities among them."""
+
+    scenario: Path
+    asterix: tuple[str, ...]
+    direct: tuple[str, ...] = ()
+    duration: float | None = None
+    unencodable: dict = field(default_factory=dict)
+    kinds: frozenset = frozenset()
+    min_tracks: int = 1
+    addresses: int = 0
+
+
+CASES = {
+    # 12 aircraft, 30 s: a 3D false plot above I048/110's 204,800 ft cannot be sent; 8 of
+    # the 12 tracked within 30 s, 3 with the ground station's addresses
+    "asterix-region": Case(DATA / "asterix-region.toml", ("radar2d", "radar3d", "gs"),
+                           unencodable={"radar3d": 1}, kinds=frozenset({"range_az", "az_el_range", "position"}),
+                           min_tracks=8, addresses=3),
+    # the acceptance's scenario: 24 aircraft, two snapshot 2D radars over ASTERIX, two
+    # angle sensors on Zenoh; 30 of its 180 s (the live run is paced)
+    "air-picture": Case(SCENARIOS / "air-picture.toml", ("radar1", "radar2"), ("angle1", "angle2"), duration=30.0,
+                        kinds=frozenset({"range_az"}), min_tracks=20),
+}
 
 
 class Cat062Listener:
@@ -71,15 +116,26 @@ class Cat062Listener:
         self.sock.close()
 
 
-@pytest.fixture(scope="module")
-def sc():
-    return load_scenario(SCENARIO)
+@pytest.fixture(scope="module", params=list(CASES))
+def case(request, tmp_path_factory):
+    """The case, with its scenario written where the processes read it: with a SAC/SIC
+    for each radar and ADS-B station (air-picture's have none), and the scenario as run."""
+    c = CASES[request.param]
+    text, assigned = with_sac_sic(c.scenario.read_text(), load_scenario(c.scenario))
+    assert set(assigned) == set(c.asterix)
+    path = tmp_path_factory.mktemp(request.param) / c.scenario.name
+    path.write_text(text)
+    sc = load_scenario(path)
+    if c.duration is not None:
+        sc = dataclasses.replace(sc, duration=c.duration)
+    return c, path, sc
 
 
-def reference(sc, t0: float) -> tuple[list, dict]:
+def reference(case: Case, sc, t0: float) -> tuple[list, dict, list]:
     """The measurements the gateway must publish for the emitters' datagrams stamped
     ``t0 + t`` (the emitter and the gateway core, in process), and the in-process SS
-    tracks on them, by (track, t)."""
+    tracks on them and on the direct sensors' measurements (stamped alike): by (track, t)
+    (the last of each), and all in the order the run gives them."""
     frame = local_frame(sc)
     rs, gs = radars(sc, frame), stations(sc)
     log = RejectLog("reference")
@@ -87,7 +143,7 @@ def reference(sc, t0: float) -> tuple[list, dict]:
                  lag=0.0)
     ingest = AsterixIngest(AsterixFeed(rs), gw, log, stations=gs)
     packets = []
-    for sid in SENSORS:
+    for sid in case.asterix:
         em = emitter(sc, sid)
         for b in sensor_batches(sc, sid):
             packets += [(t0 + b.t1, d) for d in datagrams(em.records(b.t1, b.events, lambda t: t0 + t))]
@@ -96,8 +152,10 @@ def reference(sc, t0: float) -> tuple[list, dict]:
     msgs = [decode(data) for t, d in packets for _, data in ingest.receive(d, t)]
     meas = [to_measurement(m) for m in msgs if m.kind != "watermark"]
     assert not log.by_cause and meas
-    ref = {(e.track, e.t): e for e in run_method(sc, "SS", measurements=sorted(meas, key=lambda m: m.order_key))}
-    return meas, ref
+    direct = [dataclasses.replace(ev.measurement, t=t0 + ev.measurement.t) for sid in case.direct
+              for ev in sensor_events(sc, sid) if ev.measurement is not None]
+    ests = run_method(sc, "SS", measurements=sorted(meas + direct, key=lambda m: m.order_key))
+    return meas, {(e.track, e.t): e for e in ests}, ests
 
 
 def same_measurements(got: list, want: list) -> None:
@@ -168,10 +226,17 @@ def same_cat062(data: list[bytes], ref: dict, sc, t0: float) -> int:
     return len(last)
 
 
-def run_back_end(s: Processes, listener: Cat062Listener) -> None:
-    s.start("fuser", "fuser", "--site", str(SCENARIO), "--method", "SS")
-    s.start("export", "export", "asterix", "--site", str(SCENARIO), "--udp", f"127.0.0.1:{listener.port}",
+def run_back_end(s: Processes, listener: Cat062Listener, site: Path, *fuser: str) -> None:
+    s.start("fuser", "fuser", "--site", str(site), "--method", "SS", *fuser)
+    s.start("export", "export", "asterix", "--site", str(site), "--udp", f"127.0.0.1:{listener.port}",
             "--sac", "25", "--sic", "100")
+
+
+def gateway_published(cap: Capture, case: Case) -> list:
+    """The measurements the gateway published (those of the ASTERIX sensors)."""
+    keys = {cap.keys.meas(sid) for sid in case.asterix}
+    with cap._lock:
+        return [to_measurement(m) for k, m in cap.samples if k in keys and m.kind != "watermark"]
 
 
 def wait_done(s: Processes, listener: Cat062Listener, ref: dict) -> float:
@@ -186,68 +251,130 @@ def wait_done(s: Processes, listener: Cat062Listener, ref: dict) -> float:
 
 
 @pytest.fixture(scope="module")
-def live(sc, tmp_path_factory):
+def live(case, tmp_path_factory):
     """The live run over UDP: what the gateway published, the fuser's tracks, the
-    CAT062 datagrams, the reference, and the pcaps the emitters wrote."""
+    CAT062 datagrams, the reference, the pcaps the emitters wrote, and the direct
+    sensors' streams as heard (``(sensor, payload)``)."""
+    c, site, sc = case
     tmp = tmp_path_factory.mktemp("asterix")
     port = free_port()
     listener = Cat062Listener()
+    heard: list[tuple[str, bytes]] = []  # (sensor, payload)
+    duration = ["--duration-s", repr(c.duration)] if c.duration is not None else []
     try:
         with Processes(f"ax{int(time.time() * 1000) % 10**9}") as s:
-            s.start("gw", "ingest", "asterix", "--id", "gw", "--site", str(SCENARIO), "--udp", f"127.0.0.1:{port}",
+            subs = [s.cap.session.declare_subscriber(s.cap.keys.meas(sid), lambda sample, sid=sid: heard.append(
+                (sid, sample.payload.to_bytes()))) for sid in c.direct]
+            s.start("gw", "ingest", "asterix", "--id", "gw", "--site", str(site), "--udp", f"127.0.0.1:{port}",
                     "--watermark-lag", LAG)
-            run_back_end(s, listener)
+            run_back_end(s, listener, site)
             s.ready(["gw", "fuser", "export-asterix"], timeout=90)
             t0 = math.floor(time.time()) + 10.0  # scenario time 0: every sensor started by then
-            for sid in SENSORS:
-                s.start(sid, "sensor", "--scenario", str(SCENARIO), "--id", sid, "--live", "--start-at", str(t0),
+            for sid in c.asterix:
+                s.start(sid, "sensor", "--scenario", str(site), "--id", sid, *duration, "--live", "--start-at", str(t0),
                         "--wait-for", "gw", "--asterix", f"udp://127.0.0.1:{port}", "--asterix-pcap",
                         str(tmp / f"{sid}.pcap"))
-            meas, ref = reference(sc, t0)
-            assert s.cap.wait(lambda: all(s.procs[sid].poll() is not None for sid in SENSORS), timeout=120)
+            for sid in c.direct:  # on Zenoh, as ever
+                s.start(sid, "sensor", "--scenario", str(site), "--id", sid, *duration, "--live", "--start-at", str(t0),
+                        "--wait-for", "fuser")
+            meas, ref, _ = reference(c, sc, t0)
+            sensors = [*c.asterix, *c.direct]
+            assert s.cap.wait(lambda: all(s.procs[sid].poll() is not None for sid in sensors), timeout=120)
             t_end = wait_done(s, listener, ref)
-            published = [to_measurement(m) for m in s.cap.of("range_az") + s.cap.of("az_el_range")
-                         + s.cap.of("position")]
+            published = gateway_published(s.cap, c)
             got = fused(s.cap)
-            said = {sid: s.cap.status(sid) for sid in SENSORS}
+            said = {sid: s.cap.status(sid) for sid in c.asterix}
+            for sub in subs:
+                sub.undeclare()
         yield {"said": said, "t0": t0, "t_end": t_end, "meas": meas, "ref": ref, "published": published, "fused": got,
-               "cat062": list(listener.data), "pcaps": [tmp / f"{sid}.pcap" for sid in SENSORS], "tmp": tmp}
+               "cat062": list(listener.data), "pcaps": [tmp / f"{sid}.pcap" for sid in c.asterix], "tmp": tmp,
+               "heard": list(heard)}
     finally:
         listener.close()
 
 
-def test_live_udp_through_asterix_equals_the_in_process_run(live, sc):
+def test_live_udp_through_asterix_equals_the_in_process_run(live, case):
+    c, _, sc = case
     for sid, status in live["said"].items():  # each sensor sent every plot it has, and said so
         assert status["state"] == "done"
-        c = status["counters"]
-        assert c["published"] == sum(m.sensor == sid for m in live["meas"]) and c["send_failed"] == 0, (sid, c)
-        assert c["unencodable"] == (1 if sid == "radar3d" else 0)  # a false plot above I048/110's 204,800 ft
+        n = status["counters"]
+        assert n["published"] == sum(m.sensor == sid for m in live["meas"]) and n["send_failed"] == 0, (sid, n)
+        assert n["unencodable"] == c.unencodable.get(sid, 0)
     same_measurements(live["published"], live["meas"])
-    assert {m.kind for m in live["meas"]} == {"range_az", "az_el_range", "position"}
+    assert {m.kind for m in live["meas"]} == c.kinds
     same_tracks(live["fused"], live["ref"], live["t_end"])
-    assert len({k[0] for k in live["fused"]}) >= 8  # a many-target picture: 8 of the 12 tracked within 30 s
-    assert len({e.identity.address for e in live["fused"].values() if e.identity}) == 3  # the station's 3 aircraft
+    assert len({k[0] for k in live["fused"]}) >= c.min_tracks  # a many-target picture
+    assert len({e.identity.address for e in live["fused"].values() if e.identity}) == c.addresses
     assert same_cat062(live["cat062"], live["ref"], sc, live["t0"]) == len(live["ref"])  # each as CAT062
 
 
-def test_the_emitters_pcap_replayed_at_full_speed(live, sc):
+def test_the_emitters_pcap_replayed_at_full_speed(live, case):
+    c, site, sc = case
     packets = sorted((p for f in live["pcaps"] for p in pcap_datagrams(f.read_bytes())), key=lambda p: p[0])
     merged = live["tmp"] / "merged.pcap"
     merged.write_bytes(pcap_file(packets))
     listener = Cat062Listener()
     try:
         with Processes(f"axp{int(time.time() * 1000) % 10**9}") as s:
-            run_back_end(s, listener)
+            run_back_end(s, listener, site, "--max-delay", REPLAY_MAX_DELAY)
             s.ready(["fuser", "export-asterix"], timeout=90)
-            gw = s.start("gw", "ingest", "asterix", "--id", "gw", "--site", str(SCENARIO), "--pcap", str(merged),
+            for sid, payload in live["heard"]:  # the direct sensors' streams, before the replay: the fuser waits
+                s.cap.session.put(s.cap.keys.meas(sid), payload)
+            gw = s.start("gw", "ingest", "asterix", "--id", "gw", "--site", str(site), "--pcap", str(merged),
                          "--speed", "max", "--watermark-lag", LAG)
             assert gw.wait(timeout=60) == 0
             t_end = wait_done(s, listener, live["ref"])
-            published = [to_measurement(m) for m in s.cap.of("range_az") + s.cap.of("az_el_range")
-                         + s.cap.of("position")]
+            published = gateway_published(s.cap, c)
             got = fused(s.cap)
     finally:
         listener.close()
     same_measurements(published, live["meas"])
     same_tracks(got, live["ref"], t_end)
     assert same_cat062(listener.data, live["ref"], sc, live["t0"]) == len(live["ref"])
+
+
+def same_numbers(got, want, where: str = "") -> None:
+    """Two JSON documents equal, numbers to 1e-9 relative (the tracks are equal to 1e-9)."""
+    if isinstance(want, dict):
+        assert set(got) == set(want), where
+        for k in want:
+            same_numbers(got[k], want[k], f"{where}.{k}")
+    elif isinstance(want, list):
+        assert len(got) == len(want), where
+        for i, (g, w) in enumerate(zip(got, want)):
+            same_numbers(g, w, f"{where}[{i}]")
+    elif isinstance(want, float) and want is not None:
+        assert got == pytest.approx(want, rel=1e-9, abs=1e-9), where
+    else:
+        assert got == want, where
+
+
+@pytest.mark.parametrize("mode", [["--speed", "max"], ["--live"]], ids=["speed-max", "live"])
+def test_run_asterix_in_gives_the_in_process_summary(tmp_path, mode):
+    """``zfusion run --asterix-in``: the plan's gateway and ASTERIX sensors; its summary is
+    the in-process run's on the same quantised plots, scored the same way: at ``--speed
+    max`` on scenario time, live from the run's own scenario time 0 (``epoch_utc``) as the
+    estimates settle."""
+    c = CASES["asterix-region"]
+    out = tmp_path / "run.json"
+    p = subprocess.run([sys.executable, "-m", "services.cli", "run", "--scenario", str(c.scenario), "--asterix-in",
+                        *mode, "--json", str(out), "--rrd", str(tmp_path / "run.rrd"),
+                        "--deployment", f"axr{int(time.time() * 1000) % 10**9}"],
+                       capture_output=True, text=True, timeout=300)
+    assert p.returncode == 0, p.stderr[-3000:]
+    assert (tmp_path / "run.asterix.toml").is_file()  # the site file the gateway and ASTERIX sensors read
+    doc = json.loads(out.read_text())
+    assert doc["exit_codes"] == {sid: 0 for sid in (*c.asterix, "asterix-in", "fuser", "recorder", "truth")}
+    sc = load_scenario(c.scenario)
+    t0 = doc.get("epoch_utc", 0.0)
+    _, _, ests = reference(c, sc, t0)
+    if "--live" in mode:  # scored as the estimates settle, over the time played
+        live = LiveOptions()  # the run's defaults: its fuser's maximum delay and OOSM window
+        scorer = RunScorer(sc, t0, live.oosm_window + live.max_delay + SETTLE_MARGIN)
+    else:
+        scorer = RunScorer(sc)
+    for e in ests:
+        scorer.add(e)
+    want = scorer.method_summary(dataclasses.replace(sc, duration=min(sc.duration, scorer.played()))
+                                 if "--live" in mode else sc)
+    same_numbers(doc["methods"]["SS"], json.loads(json.dumps(want)), "SS")

@@ -18,11 +18,16 @@ import pytest
 from schemas import asterix as ax
 from sensors_sim import load_scenario
 from sensors_sim.emulators import sensor_batches
-from services.ingest.asterix import AsterixFeed, ScanMark, StationReport, pcap_datagrams, pcap_file, radars
+from schemas import KeySpace, decode
+from services.ingest.asterix import (
+    AsterixFeed, AsterixIngest, ScanMark, StationReport, pcap_datagrams, pcap_file, radars, with_sac_sic)
 from services.ingest.asterix_emit import RadarEmitter, StationEmitter, datagrams, emitter
-from services.ingest.gateway import Reading, local_frame
+from services.ingest.gateway import Gateway, Reading, local_frame, sensor_sites
+from services.node import RejectLog
+from services.plan import ASTERIX_ID, Asterix, Live, RunPlan
 
 SCENARIO = Path(__file__).parents[2] / "data" / "asterix-region.toml"
+AIR_PICTURE = Path(__file__).parents[3] / "sensors_sim" / "scenarios" / "air-picture.toml"
 NM, FT = 1852.0, 0.3048
 
 
@@ -66,6 +71,51 @@ def test_a_rotating_radar_reads_back_as_its_measurements_and_never_late(sc, sid)
     turns = (sc.duration - sc.sensor(sid).start) / sc.sensor(sid).period
     assert marks >= turns * sc.sensor(sid).sectors - 2 and readings >= 0.9 * sent > 50
     assert em.unencodable <= 2  # 3D clutter above I048/110's 204,800 ft
+
+
+@pytest.fixture(scope="module")
+def snapshot(tmp_path_factory):
+    """air-picture with SAC/SIC 0/1 and 0/2 for its two snapshot 2D radars."""
+    text, assigned = with_sac_sic(AIR_PICTURE.read_text(), load_scenario(AIR_PICTURE))
+    assert assigned == {"radar1": (0, 1), "radar2": (0, 2)}  # the angle sensors have no ASTERIX category
+    p = tmp_path_factory.mktemp("snapshot") / "air-picture.toml"
+    p.write_text(text)
+    return load_scenario(p)
+
+
+def test_a_snapshot_radar_sends_a_north_marker_per_scan_and_the_direct_streams_watermarks(snapshot):
+    sc = snapshot
+    frame = local_frame(sc)
+    log = RejectLog("t")
+    gw = Gateway(sensor_sites(sc, ["radar1", "radar2"]), frame, KeySpace("t"), log, lag=0.0)
+    ingest = AsterixIngest(AsterixFeed(radars(sc, frame), sector_lag=1), gw, log)  # a snapshot radar: no lag
+    em = emitter(sc, "radar1")
+    assert isinstance(em, RadarEmitter) and em.sectors == 0
+    batches = list(sensor_batches(sc, "radar1"))
+    promised, marks, readings = -math.inf, [], 0
+    for b in batches:
+        records = em.records(b.t1, b.events, lambda t: t)
+        marker, *plots = records  # the scan's north marker first, then its plots
+        assert (marker.category, marker.message_type, marker.tod, marker.rotation_period) == (
+            34, ax.NORTH_MARKER, b.t1, 1.0)
+        assert [r.category for r in plots] == [48] * sum(ev.measurement is not None for ev in b.events)
+        for d in datagrams(records):
+            for _, data in ingest.receive(d, b.t1 + 0.5):
+                m = decode(data)
+                if m.kind == "watermark":
+                    marks.append(m.t)
+                    promised = m.t
+                else:
+                    assert m.t > promised  # sent after its scan's marker: never behind a promise
+                    readings += 1
+    for t, recs in em.end(lambda t: t):
+        assert t == batches[-1].t1 + 1.0 and [r.message_type for r in recs] == [ax.NORTH_MARKER]
+        marks += [decode(data).t for d in datagrams(recs) for _, data in ingest.receive(d, t)]
+    # the direct stream's watermarks (services/source.py): after scan k, just before scan k + 1
+    direct = [math.nextafter(nxt.t0, -math.inf) for nxt in batches[1:]]
+    assert marks == [math.nextafter(batches[0].t1, -math.inf), *direct,
+                     math.nextafter(batches[-1].t1 + 1.0, -math.inf)]
+    assert marks[-1] >= sc.duration and not log.by_cause and readings > 0.9 * len(batches) * 12
 
 
 def test_an_adsb_station_sends_cat021(sc):
@@ -123,7 +173,6 @@ def test_sensor_asterix_mistakes_are_one_line_and_exit_2(tmp_path):
     no.write_text(SCENARIO.read_text().replace("sac_sic = [25, 1]\n", ""))
     for args, says in ((["--scenario", str(SCENARIO), "--id", "radar2d", "--live", "--asterix", "udp://nowhere"],
                         "HOST:PORT"),
-                       (["--scenario", str(SCENARIO), "--id", "radar2d", "--asterix", "udp://127.0.0.1:9"], "--live"),
                        (["--scenario", str(SCENARIO), "--id", "truth", "--live", "--asterix", "udp://127.0.0.1:9"],
                         "not a sensor"),
                        (["--scenario", str(no), "--id", "radar2d", "--live", "--asterix", "udp://127.0.0.1:9"],
@@ -132,5 +181,48 @@ def test_sensor_asterix_mistakes_are_one_line_and_exit_2(tmp_path):
                          str(tmp_path / "no" / "such" / "dir.pcap")], "--asterix-pcap")):
         p = subprocess.run([sys.executable, "-m", "services.cli", "sensor", *args], capture_output=True, text=True,
                            timeout=60)
+        assert p.returncode == 2, (args, p.stderr)
+        assert says in p.stderr and "Traceback" not in p.stderr and len(p.stderr.strip().splitlines()) == 1
+
+
+def test_a_plan_routes_the_radars_and_stations_through_one_gateway(snapshot, tmp_path):
+    """``zfusion plan --asterix-in``: air-picture's radars send ASTERIX to the gateway on
+    the given port, in the site file with their SAC/SIC; its angle sensors publish on
+    Zenoh as ever; the gateway is up before the radars start, and waited for."""
+    p = subprocess.run([sys.executable, "-m", "services.cli", "plan", "--scenario", "air-picture", "--asterix-in",
+                        "127.0.0.1:8611", "--rrd", str(tmp_path / "site.rrd")], capture_output=True, text=True,
+                       timeout=60)
+    assert p.returncode == 0, p.stderr
+    site = tmp_path / "site.asterix.toml"
+    assert {sid: s.sac_sic for sid, s in load_scenario(site).sensors.items()} == {
+        sid: s.sac_sic for sid, s in snapshot.sensors.items()}
+    lines = [ln for ln in p.stdout.splitlines() if not ln.startswith("#")]
+    (gw,) = [ln for ln in lines if " ingest asterix " in ln]
+    assert f"--id {ASTERIX_ID} --site {site} --udp 127.0.0.1:8611 --scenario-run radar1,radar2" in gw
+    assert lines.index(gw) < min(i for i, ln in enumerate(lines) if " sensor " in ln)
+    for sid in ("radar1", "radar2"):
+        (ln,) = [ln for ln in lines if f" --id {sid} " in ln]
+        assert f"--scenario {site} " in ln and "--asterix udp://127.0.0.1:8611" in ln
+        assert f"--wait-for fuser,recorder,{ASTERIX_ID} " in ln
+    for sid in ("angle1", "angle2"):
+        (ln,) = [ln for ln in lines if f" --id {sid} " in ln]
+        assert "--scenario air-picture " in ln and "--asterix" not in ln
+    # a scenario run's gateway reads scenario seconds and ends when its senders are done,
+    # and the recorder waits for it; a live one reads UTC, and runs until stopped
+    route = Asterix(str(site), "127.0.0.1:8611", ("radar1", "radar2"))
+    run = RunPlan.build("air-picture", snapshot, "centralised", "SS", fabric=[], asterix=route)
+    assert run[ASTERIX_ID].role == "gateway" and run[ASTERIX_ID].argv[-2:] == ("--scenario-run", "radar1,radar2")
+    assert ASTERIX_ID in run["recorder"].argv[run["recorder"].argv.index("--expect") + 1].split(",")
+    live = RunPlan.build("air-picture", snapshot, "centralised", "SS", fabric=[], live=Live(), asterix=route)
+    assert "--scenario-run" not in live[ASTERIX_ID].argv
+    assert ASTERIX_ID not in live["recorder"].argv[live["recorder"].argv.index("--expect") + 1].split(",")
+    assert "--live" in live["radar1"].argv and "--live" not in run["radar1"].argv
+
+
+def test_run_asterix_in_mistakes_are_one_line_and_exit_2(tmp_path):
+    for args, says in ((["--scenario", "df-multi", "--asterix-in", "--live"], "no radar"),
+                       (["--scenario", "df-multi", "--asterix-in"], "no radar")):
+        p = subprocess.run([sys.executable, "-m", "services.cli", "run", *args, "--rrd", str(tmp_path / "r.rrd")],
+                           capture_output=True, text=True, timeout=60)
         assert p.returncode == 2, (args, p.stderr)
         assert says in p.stderr and "Traceback" not in p.stderr and len(p.stderr.strip().splitlines()) == 1

@@ -22,7 +22,7 @@ from services.ingest.adsb import CPR_CELL_M, K95_2D, vertical_std
 from services.ingest.adsb import horizontal_std as adsb_horizontal_std
 from services.ingest.asterix import (
     AsterixFeed, AsterixIngest, CaptureError, Radar, ScanMark, StationReport, horizontal_std, pcap_datagrams, radars,
-    stations,
+    stations, with_sac_sic,
 )
 from services.ingest.gateway import Gateway, Reading, Rejected, local_frame, sensor_sites
 from services.ingest.krakensdr import Skipped
@@ -47,7 +47,7 @@ method = "EKF"
 [sensors.r2d]
 kind = "radar2d"
 pos_km = [100, 0, 0.05]
-period_s = 4.0
+rotation_period_s = 4.0
 std_az_deg = 0.1
 std_range_m = 50
 sac_sic = [25, 1]
@@ -55,7 +55,7 @@ sac_sic = [25, 1]
 [sensors.r3d]
 kind = "radar3d"
 pos_km = [-30, 60, 0.02]
-period_s = 6.0
+rotation_period_s = 6.0
 std_az_deg = 0.2
 std_el_deg = 0.3
 std_range_m = 80
@@ -118,6 +118,21 @@ def test_the_site_file_names_radars_by_sac_sic(site, tmp_path):
     bad.write_text(SITE.replace("sac_sic = [25, 2]", "sac_sic = [25, 300]"))
     with pytest.raises(ScenarioError, match="sac_sic"):
         load_site(bad)
+
+
+def test_sac_sic_is_given_to_the_radars_and_stations_without_one(site, tmp_path):
+    text = SITE.replace("sac_sic = [25, 2]\n", "").replace("sac_sic = [30, 4]\n", "").replace(
+        "[sensors.r3d]", "[ sensors . 'r3d' ]  # quoted").replace("sac_sic = [25, 1]", "sac_sic = [0, 1]")
+    (tmp_path / "in.toml").write_text(text)
+    out, assigned = with_sac_sic(text, load_site(tmp_path / "in.toml"))
+    assert assigned == {"r2d": (0, 1), "r3d": (0, 2), "gs": (0, 3)}  # 0/1 is taken; the DF sensor has no category
+    (tmp_path / "out.toml").write_text(out)
+    got = load_site(tmp_path / "out.toml")
+    assert {sid: s.sac_sic for sid, s in got.sensors.items()} == {**assigned, "df": None}
+    assert {k: r.sensor for k, r in radars(got, local_frame(got)).items()} == {(0, 1): "r2d", (0, 2): "r3d"}
+    assert stations(got) == {(0, 3): "gs"}
+    with pytest.raises(ValueError, match="header"):
+        with_sac_sic(text.replace("[sensors.gs]", "[sensors]\ngs = {}\n[sensors.gs2]"), load_site(tmp_path / "in.toml"))
 
 
 def _reference_aer(radar: Radar, frame, theta, el, rho):
@@ -345,6 +360,22 @@ def test_datagrams_become_checked_measurements_and_watermarks(rig):
     c = ingest.counters()
     assert c["skipped.no-altitude"] == 1 and log.by_cause["unknown-source"] == 2
     assert c["published"] == 2 and c["records.cat048"] == 3 and c["records.cat021"] == 3
+
+
+def test_a_scenario_runs_end_is_a_final_watermark_per_sensor(rig):
+    """``Gateway.end``: each stream ends at the given time, or later where the sensor
+    already sent or was promised later (a radar's trailing crossings)."""
+    ingest, _, _, _ = rig
+    gw = ingest.gateway
+    rho, theta = on_grid(30e3, 2.0)
+    ingest.receive(datagram(ax.TargetReport(sac=25, sic=1, tod=100.0, rho=rho, theta=theta),
+                            *(ax.ServiceMessage(sac=25, sic=2, message_type=ax.SECTOR_CROSSING, tod=tod)
+                              for tod in (110.0, 120.0))), MIDNIGHT + 100.0)
+    ends = {m.src: m for m in (decode(b) for _, b in gw.end(MIDNIGHT + 105.0))}
+    assert all(m.kind == "watermark" and m.body["final"] for m in ends.values())
+    assert {s: m.t for s, m in ends.items()} == {"r2d": MIDNIGHT + 105.0, "r3d": math.nextafter(MIDNIGHT + 110.0,
+                                                                                               -math.inf),
+                                                 "gs": MIDNIGHT + 105.0}
 
 
 def test_garbage_never_raises_and_is_counted(rig):

@@ -35,7 +35,7 @@ method = "EKF"
 [sensors.r2d]
 kind = "radar2d"
 pos_km = [60, 0, 0.05]
-period_s = 4.0
+rotation_period_s = 4.0
 std_az_deg = 0.1
 std_range_m = 50
 sac_sic = [25, 1]
@@ -43,7 +43,7 @@ sac_sic = [25, 1]
 [sensors.r3d]
 kind = "radar3d"
 pos_km = [-30, 60, 0.02]
-period_s = 6.0
+rotation_period_s = 6.0
 std_az_deg = 0.2
 std_el_deg = 0.3
 std_range_m = 80
@@ -139,7 +139,9 @@ def test_mistakes_are_one_line_and_exit_2(tmp_path, site):
     for args, says in ((["--site", str(no_radar), "--udp", "127.0.0.1:1"], "sac_sic"),
                        (["--site", str(site), "--pcap", str(not_pcap)], "not a pcap"),
                        (["--site", str(site), "--pcap", str(not_pcap), "--speed", "0"], "--speed"),
-                       (["--site", str(site), "--udp", "127.0.0.1"], "HOST:PORT")):
+                       (["--site", str(site), "--udp", "127.0.0.1"], "HOST:PORT"),
+                       (["--site", str(site), "--pcap", str(not_pcap), "--scenario-run", "r2d"], "--scenario-run"),
+                       (["--site", str(site), "--udp", "127.0.0.1:1", "--scenario-run", ","], "--scenario-run")):
         p = subprocess.run([sys.executable, "-m", "services.cli", "ingest", "asterix", "--id", "gw", *args],
                            capture_output=True, text=True, timeout=60)
         assert p.returncode == 2, (args, p.stderr)
