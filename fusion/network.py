@@ -125,6 +125,14 @@ class LocalNode:
         self.horizon = -math.inf
         return False
 
+    @property
+    def ran_alone(self) -> bool:
+        """Whether this node holds a track it started alone that no centre has answered
+        (its request lost, e.g. late at a restarted centre): the centre refuses its
+        reports, so it must start again (:meth:`centre_restarted`) once the centre is
+        heard again."""
+        return False
+
     def _next_seq(self) -> int:
         """The number of the node's next message up."""
         self._seq += 1
@@ -150,6 +158,8 @@ class TrackNode(LocalNode):
         motion = config.motion_model()
         self.tracker = LocalTracker(sensor, motion, method, track, config.new_filter(motion))
         self._requested = False
+        self._joined = False  # the centre has answered this node's track (an init)
+        self._asked_at: float | None = None  # the time of its latest request
 
     def centre_restarted(self) -> bool:
         super().centre_restarted()
@@ -160,12 +170,16 @@ class TrackNode(LocalNode):
         """Drop the track: the next measurement asks the centre for an initial state."""
         old = self.tracker
         self.tracker = LocalTracker(self.node, old.motion, old.method, old.track, old.new_filter)
-        self._requested = False
+        self._requested = self._joined = False
+        self._asked_at = None
+
+    @property
+    def ran_alone(self) -> bool:
+        # unanswered: the centre's horizon has passed its request, or it never asked
+        return self.tracker.initialised and not self._joined and \
+            (self._asked_at is None or self.horizon >= self._asked_at)
 
     def receive(self, d: Downlink) -> None:
-        if isinstance(d, DropTrack) or (isinstance(d, Feedback) and not self.scheme.feeds_back):
-            return
-        e = d.estimate
         if isinstance(d, DropTrack):  # the centre dropped the track (fusion.guards), unless this node has already
             if self.tracker.initialised:
                 self._start_afresh()
@@ -173,6 +187,7 @@ class TrackNode(LocalNode):
         if isinstance(d, Feedback) and not (self.scheme.feeds_back and self.tracker.initialised):
             return  # no feedback scheme, or feedback for the track this node dropped (fusion.guards): it waits for an init
         e = d.estimate
+        self._joined |= isinstance(d, Init)
         if self.tracker.initialised and e.t < self.tracker.t:
             return  # older than where this node already is (it ran alone meanwhile)
         if isinstance(d, Init):
@@ -198,7 +213,7 @@ class TrackNode(LocalNode):
                 x, P = initial_state([m], self.tracker.motion.n_x, self.config.priors())
                 self.tracker.initialise(x, P, m.t)
                 return []
-            self._requested = True
+            self._requested, self._asked_at = True, m.t
             return [InitRequest(m.t, self.node, self._next_seq(), m)]
         if self.scheme.predicts:
             return [self.tracker.predict(m, self._next_seq())]

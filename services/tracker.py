@@ -132,6 +132,10 @@ def run(sensor: str, scenario_ref: str, method_name: str, overrides: dict, keys:
             if alone:
                 alone = False
                 node.event("downlink from the fuser restored")
+            if local.ran_alone:  # its request was lost: the fuser refuses its reports
+                local.centre_restarted()
+                node.event(f"no init from {fuser_id} for the track it started alone: "
+                           f"dropped, asking to join again")
             return msg
 
         fuser_incarnation: str | None = None  # the one this node's track comes from

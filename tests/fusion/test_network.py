@@ -210,3 +210,34 @@ def test_a_node_is_named_apart_from_its_sensor(crossing, name):
     for e, g in zip(a, b):
         assert g.node == (e.node if e.node == "centre" else "trk-" + e.node)
         _same(dataclasses.replace(g, node=e.node), e)
+
+
+def test_a_dropped_track_and_a_lost_request(stream):
+    """The centre's ``DropTrack`` drops the node's track: its next measurement asks for an
+    initial state again (the typed links once ignored it, so the node kept reporting a
+    track the centre no longer counted as a member's). A node whose request went
+    unanswered starts a track alone; it counts as having run alone once the centre's
+    horizon has passed the request, not before, and not once an init has come."""
+    cfg = TrackerConfig.from_dict({})
+    node = TrackNode("angle", cfg, "PHHNV", SCHEMES["feedback"])
+    a = _of(stream, "angle")
+    node.offer(a[0])
+    (req,) = node.step()
+    node.receive(Init("angle", Estimate(a[0].t, np.r_[1000.0, 0, 0, 0, 0, 0, 1000, 0, 0], np.eye(9) * 1e4,
+                                        "PHHNV", "centre", "T1")))
+    assert node.tracker.initialised and not node.ran_alone
+    node.receive(DropTrack("angle", a[0].t, "T1"))
+    assert not node.tracker.initialised
+    node.offer(a[1])
+    (again,) = node.step()
+    assert isinstance(again, InitRequest) and again.t == a[1].t
+    for m in a[2:4]:
+        node.offer(m)
+    node.step(alone=True)  # no answer: a track of its own from a[2]
+    assert node.tracker.initialised and not node.ran_alone  # the centre may still answer
+    node.set_horizon(a[1].t)  # the centre is complete past the request, and did not answer
+    assert node.ran_alone
+    node.centre_restarted()
+    node.offer(a[4])
+    (third,) = node.step()
+    assert isinstance(third, InitRequest) and not node.ran_alone
