@@ -232,6 +232,17 @@ def kraken_json(t: float, bearing_deg: float, heading: float = 90.0, lat: float 
                        "freq": 433920000, "antType": "UCA", "latency": 100}).encode()
 
 
+def adsb_site_toml(origin, sensor: dict[str, object], tracker: dict[str, object] | None = None,
+                   description: str = "an ADS-B receiver") -> str:
+    """A site file with one receiver ``rx`` (``sensor``: its keys, ``kind`` included) at
+    ``origin`` (lat, lon in degrees, alt in m), SS centralised, ``[tracker]`` keys as given."""
+    def table(keys):
+        return [f"{k} = {v!r}" if not isinstance(v, str) else f'{k} = "{v}"' for k, v in keys.items()]
+    return "\n".join([f'description = "{description}"', "[origin]", f"lat_deg = {origin[0]}", f"lon_deg = {origin[1]}",
+                      f"alt_m = {origin[2]}", "[defaults]", 'topology = "centralised"', 'method = "SS"',
+                      "[tracker]", *table(tracker or {}), "[sensors.rx]", *table(sensor), ""])
+
+
 def site_toml(sensors: dict[str, dict], origin=(21.0285, 105.8542, 0.0), sigma_deg: float = 1.0) -> str:
     """A site file with DF stations ``{id: {"pos_m": [...]}}``, or ``{id: {}}``: a mobile
     station whose site is in its messages."""

@@ -83,17 +83,7 @@ class RadarEmitter:
         k = self._boundary_at(t1)
         if k is not None:
             out.extend(self._crossings(k, stamp(t1)))
-        for ev in events:
-            m = ev.measurement
-            if m is None:
-                continue
-            try:
-                plot = self.radar.plot(m.z, stamp(m.t))
-                ax.cat048.encode(plot)  # (a value beyond its item: counted here, not when packed)
-            except ValueError:
-                self.unencodable += 1
-                continue
-            out.append(plot)
+        out.extend(_encodable(self, events, ax.cat048, lambda ev, m: self.radar.plot(m.z, stamp(m.t))))
         return out
 
     def end(self, stamp: Callable[[float], float]) -> list[tuple[float, list]]:
@@ -106,6 +96,24 @@ class RadarEmitter:
             t = self.start + k * self.period / (self.sectors or 1)
             out.append((t, self._crossings(k, stamp(t))))
         return out
+
+
+def _encodable(emitter, events: Iterable, category, record: Callable) -> list:
+    """``record(event, measurement)`` of each event with a measurement that ``category``
+    can encode; the others (a value beyond its item: counted here, not when packed) are
+    counted in ``emitter.unencodable``."""
+    out = []
+    for ev in events:
+        if ev.measurement is None:
+            continue
+        try:
+            rec = record(ev, ev.measurement)
+            category.encode(rec)
+        except ValueError:
+            emitter.unencodable += 1
+            continue
+        out.append(rec)
+    return out
 
 
 def _nearest(table: dict[int, float], std: float) -> int:
@@ -125,23 +133,12 @@ class StationEmitter:
         self.unencodable = 0
 
     def records(self, t1: float, events: Iterable, stamp: Callable[[float], float]) -> list:
-        out: list = []
-        for ev in events:
-            m = ev.measurement
-            if m is None:
-                continue
+        def report(ev, m) -> ax.AdsbReport:
             lat, lon, h = (float(v) for v in self.frame.to_geodetic(np.asarray(m.z, dtype=float)))
-            address = zlib.crc32(ev.target.encode()) & 0xFFFFFF
-            try:
-                report = ax.AdsbReport(sac=self.sac_sic[0], sic=self.sac_sic[1], tod_position=stamp(m.t), atp=0,
-                                       lat=lat, lon=lon, high_resolution=True, address=address, geometric_height=h, mops=2,
-                                       quality=ax.Quality(nacp=self.nacp, gva=self.gva))
-                ax.cat021.encode(report)  # (a value beyond its item: counted here, not when packed)
-            except ValueError:
-                self.unencodable += 1
-                continue
-            out.append(report)
-        return out
+            return ax.AdsbReport(sac=self.sac_sic[0], sic=self.sac_sic[1], tod_position=stamp(m.t), atp=0,
+                                 lat=lat, lon=lon, high_resolution=True, address=zlib.crc32(ev.target.encode()) & 0xFFFFFF,
+                                 geometric_height=h, mops=2, quality=ax.Quality(nacp=self.nacp, gva=self.gva))
+        return _encodable(self, events, ax.cat021, report)
 
     def end(self, stamp: Callable[[float], float]) -> list[tuple[float, list]]:
         return []

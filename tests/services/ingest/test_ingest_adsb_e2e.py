@@ -29,7 +29,7 @@ from datetime import datetime, timezone
 import numpy as np
 import pytest
 
-from _ingest_helpers import Capture, DocServer, TcpServer
+from _ingest_helpers import Capture, DocServer, TcpServer, adsb_site_toml
 from fusion.geodetic import LocalFrame
 from sensors_sim.recorded import FT, RecordedTraffic, Recording, read_traffic_json, traffic_sample
 
@@ -40,34 +40,11 @@ OFFSET = 3600.0  # s into the recording
 REPLAY = 75.0  # s replayed
 DEADLINE, LISTED, NEAR = 60.0, 30.0, 200.0
 
-SITE = f"""description = "an ADS-B receiver near Paris"
-[origin]
-lat_deg = {ORIGIN[0]}
-lon_deg = {ORIGIN[1]}
-alt_m = {ORIGIN[2]}
-[defaults]
-topology = "centralised"
-method = "SS"
-[tracker]
-motion = "ca"
-q = 0.5
-association = "gnn"
-gate_prob = 0.999
-confirm_m = 3
-confirm_n = 4
-delete_misses = 3
-max_pos_std = 2000.0
-pair_tol = 0.9
-init_vel_std = 300.0
-init_vel_std_up = 30.0
-init_acc_std = 10.0
-init_acc_std_up = 1.0
-[sensors.rx]
-kind = "adsb"
-period_s = 1.0
-std_pos_m = 76.0
-std_alt_m = 40.0
-"""
+SITE = adsb_site_toml(ORIGIN, {"kind": "adsb", "period_s": 1.0, "std_pos_m": 76.0, "std_alt_m": 40.0},
+                      {"motion": "ca", "q": 0.5, "association": "gnn", "gate_prob": 0.999, "confirm_m": 3, "confirm_n": 4,
+                       "delete_misses": 3, "max_pos_std": 2000.0, "pair_tol": 0.9, "init_vel_std": 300.0,
+                       "init_vel_std_up": 30.0, "init_acc_std": 10.0, "init_acc_std_up": 1.0},
+                      "an ADS-B receiver near Paris")
 
 
 class Replay:

@@ -11,7 +11,7 @@ from datetime import datetime, timezone
 import numpy as np
 import pytest
 
-from _ingest_helpers import Capture, DocServer, TcpServer, gateway, stop
+from _ingest_helpers import Capture, DocServer, TcpServer, adsb_site_toml, gateway, stop
 from fusion.geodetic import LocalFrame
 from fusion.types import Identity
 from schemas import to_measurement
@@ -21,22 +21,8 @@ pytestmark = pytest.mark.slow
 
 ORIGIN = (48.85, 2.35, 35.0)
 FRAME = LocalFrame(*ORIGIN, deg=True)
-SITE = f"""
-description = "an ADS-B receiver"
-[origin]
-lat_deg = {ORIGIN[0]}
-lon_deg = {ORIGIN[1]}
-alt_m = {ORIGIN[2]}
-[defaults]
-topology = "centralised"
-method = "SS"
-[tracker]
-[sensors.rx]
-kind = "adsb"
-period_s = 1.0
-std_pos_m = 30.0
-std_alt_m = 45.0
-"""
+RX = {"kind": "adsb", "period_s": 1.0, "std_pos_m": 30.0, "std_alt_m": 45.0}
+SITE = adsb_site_toml(ORIGIN, RX)
 
 
 @pytest.fixture
@@ -125,8 +111,7 @@ def test_a_site_sensor_that_is_no_adsb_receiver_is_one_line(tmp_path):
     import sys
 
     path = tmp_path / "site.toml"
-    path.write_text(SITE.replace('kind = "adsb"\nperiod_s = 1.0\nstd_pos_m = 30.0\nstd_alt_m = 45.0',
-                                 'kind = "df"\nperiod_s = 1.0\nstd_az_deg = 1.0\npos_m = [0, 0, 0]'))
+    path.write_text(adsb_site_toml(ORIGIN, {"kind": "df", "period_s": 1.0, "std_az_deg": 1.0, "pos_m": [0, 0, 0]}))
     r = subprocess.run([sys.executable, "-m", "services.cli", "ingest", "adsb", "--id", "rx", "--site", str(path),
                         "--url", "http://127.0.0.1:1/aircraft.json"], capture_output=True, text=True, timeout=60)
     assert r.returncode == 2 and "Traceback" not in r.stderr and len(r.stderr.strip().splitlines()) == 1, r.stderr
