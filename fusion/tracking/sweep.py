@@ -193,7 +193,7 @@ def near(tracks, t: float, plots: Sequence) -> np.ndarray:
     sited sensor with azimuth, elevation or range components (``tracks``: a
     :class:`Spread` or the tracks); a pair it drops is at least ``SCREEN_SIGMAS`` σ away
     in one component, so outside any gate up to χ² of that many σ. Every pair for other
-    kinds."""
+    kinds. With azimuth, only the pairs :func:`_by_azimuth` finds are tested."""
     spread = tracks if isinstance(tracks, Spread) else Spread.of(tracks)
     n = len(spread.t)
     kind = KINDS[plots[0].kind]
@@ -211,21 +211,55 @@ def near(tracks, t: float, plots: Sequence) -> np.ndarray:
     rng = np.hypot(ground, pos[:, 2])
     Z = np.array([p.z for p in plots], float)
     S = np.array([p.std for p in plots], float)
-    ok = np.ones((n, len(plots)), dtype=bool)
+    if AZ in comps:
+        k = comps.index(AZ)
+        az = np.arctan2(pos[:, 0], pos[:, 1])
+        with np.errstate(divide="ignore", invalid="ignore"):  # over the site: every plot
+            width = SCREEN_SIGMAS * (sig_h + rng * S[:, k].max()) / ground
+        r, j = _by_azimuth(az, width, Z[:, k])
+    else:
+        r, j = (a.ravel() for a in np.indices((n, len(plots))))
+    ok = np.ones(len(r), dtype=bool)
     for k, c in enumerate(comps):
         if c is AZ:  # an azimuth's gradient in metres is horizontal
-            miss = np.abs(wrap_pi(np.arctan2(pos[:, 0], pos[:, 1])[:, None] - Z[None, :, k])) * ground[:, None]
-            bound = sig_h[:, None] + rng[:, None] * S[None, :, k]
+            miss = np.abs(wrap_pi(az[r] - Z[j, k])) * ground[r]
+            bound = sig_h[r] + rng[r] * S[j, k]
         elif c is EL:
-            miss = np.abs(np.arctan2(pos[:, 2], ground)[:, None] - Z[None, :, k]) * rng[:, None]
-            bound = sig[:, None] + rng[:, None] * S[None, :, k]
+            miss = np.abs(np.arctan2(pos[:, 2], ground)[r] - Z[j, k]) * rng[r]
+            bound = sig[r] + rng[r] * S[j, k]
         elif c is RANGE:
-            miss = np.abs(rng[:, None] - Z[None, :, k])
-            bound = sig[:, None] + S[None, :, k]
+            miss = np.abs(rng[r] - Z[j, k])
+            bound = sig[r] + S[j, k]
         else:
             continue
         ok &= miss <= SCREEN_SIGMAS * bound
-    return ok
+    keep = np.zeros((n, len(plots)), dtype=bool)
+    keep[r[ok], j[ok]] = True
+    return keep
+
+
+def _by_azimuth(az: np.ndarray, width: np.ndarray, Z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(rows, cols)``: the pairs of tracks at azimuth ``az (n,)`` (seen from the
+    sensor) and plots at ``Z (m,)`` within ``width (n,)`` radians of each other (a
+    little wider, for round-off), found by bisection in the plots' sorted azimuths
+    (each repeated 2π below and above, for the wrap) rather than tried all against all:
+    a pair :func:`near` keeps misses by at most ``6 (σ_h + r·σ_az)`` metres across, so
+    by at most its track's ``width`` in azimuth."""
+    m = len(Z)
+    width = np.where(np.isfinite(width), width * (1.0 + 1e-9) + 1e-12, np.inf)
+    wide = ~(width < math.pi)  # the whole turn (and any NaN): every plot
+    ext = np.concatenate([Z - 2.0 * math.pi, Z, Z + 2.0 * math.pi])
+    order = np.argsort(ext, kind="stable")
+    ext = ext[order]
+    w = np.where(wide, 0.0, width)
+    lo = np.searchsorted(ext, az - w, side="left")
+    hi = np.searchsorted(ext, az + w, side="right")
+    count = np.where(wide, m, hi - lo)
+    start = np.where(wide, 0, lo)
+    rows = np.repeat(np.arange(len(az)), count)
+    at = np.arange(len(rows)) - np.repeat(np.cumsum(count) - count, count) + np.repeat(start, count)
+    cols = np.where(np.repeat(wide, count), at, order[np.minimum(at, 3 * m - 1)] % max(m, 1))
+    return rows, cols
 
 
 class SweepTracker(MultiTargetTracker):

@@ -13,6 +13,7 @@ from fusion.ekf import TrackEKF
 from fusion.measurement.kinds import model_of
 from fusion.motion import ConstantAcceleration, ConstantVelocity
 from fusion.tracking.hypotheses import gate_threshold, mahalanobis2
+from fusion.tracking import sweep
 from fusion.tracking.sweep import REVISIT_SLACK_S, Spread, SweepLogic, near, pair_d2, position_row
 from fusion.tracking.table import CONFIRMED, DELETED, TENTATIVE, ManagementRule, Track
 from fusion.types import Estimate, Measurement
@@ -117,6 +118,35 @@ def test_the_screen_keeps_every_pair_in_the_gate(kind):
                 inside += 1
                 assert keep[r, j], (r, j, d2)
     assert inside >= 30 and keep.mean() < 0.5
+
+
+@pytest.mark.parametrize("kind", ["range_az", "az_el_range", "azel"])
+@pytest.mark.parametrize("north", [False, True])
+def test_the_azimuth_index_keeps_the_pairs_all_against_all_keeps(kind, north, monkeypatch):
+    """The screen's pairs found through the plots' sorted azimuths are those it keeps
+    trying every track against every plot, also for plots on both sides of north (the
+    wrap of azimuth), tracks wider than the whole turn and a track over the site."""
+    rng = np.random.default_rng(5)
+    site = np.array([5e3, -3e3, 0.0])
+    tracks = [_track(rng, 10.0 - rng.uniform(0, 5)) for _ in range(150)]
+    if north:  # every track and plot within 20 km of the line north of the site
+        for tr in tracks:
+            tr.filter.x = tr.filter.x.copy()
+            tr.filter.x[0] = site[0] + rng.uniform(-20e3, 20e3)
+            tr.filter.x[1] = site[1] + abs(tr.filter.x[1])
+    tracks[1].filter.P = np.diag([3e5**2] * 3 + [100.0**2] * 3 + [4.0] * 3)  # σ 300 km: the whole turn
+    over = tracks[2].filter
+    over.x = over.x.copy()
+    over.x[:2] = site[:2]
+    over.x[3:] = 0.0
+    plots = _plots(rng, kind, tracks, site, 10.0, 60, 40)
+    if north:
+        assert any(p.z[0] < 0.3 for p in plots) and any(p.z[0] > 2 * math.pi - 0.3 for p in plots)
+    keep = near(tracks, plots[0].t, plots)
+    monkeypatch.setattr(sweep, "_by_azimuth", lambda az, w, Z: tuple(a.ravel() for a in np.indices((len(az), len(Z)))))
+    every = near(tracks, plots[0].t, plots)
+    np.testing.assert_array_equal(keep, every)
+    assert keep[:, :40].diagonal().all() and keep[1].all() and keep.mean() < 0.5
 
 
 @pytest.mark.parametrize("motion", [ConstantAcceleration(q=0.5), ConstantVelocity(q=2.0),
