@@ -57,8 +57,8 @@ STAGES = {  # stage -> (module, attribute path) of the calls timed for it, on to
                    ("fusion.tracking.sweep", "SweepTracker.start")],
     "update": [("fusion.mtt", "ScanUpdater.update"), ("fusion.mtt", "ScanUpdater.scan")],
     "management": [("fusion.tracking.table", "TrackLogic.record"), ("fusion.tracking.table", "DuplicateWatch.review"),
-                   ("fusion.tracking.table", "TrackTable.close_frame"), ("fusion.tracking.sweep", "SweepLogic.record")],
-}
+                   ("fusion.tracking.table", "TrackTable.close_frame")],
+}  # not SweepLogic.record: its clock would cost more than it does (every track, every frame)
 SYNC_PERIOD = 8.0
 
 
