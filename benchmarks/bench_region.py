@@ -296,7 +296,8 @@ def main() -> None:
                 a, b = evaluation(o, key), evaluation(r, key)
                 cells += [f"{a:.3f}", f"{b:.3f}", f"{a / b:.2f}"]
             for key in ("held", "held_after_init", "false_tracks", "break_rate"):
-                cells.append(f"{o.get(key, '—')} / {r.get(key, '—')}")
+                cells.append(" / ".join(f"{v:.4f}" if isinstance(v, float) else str(v)
+                                        for v in (o.get(key, "—"), r.get(key, "—"))))
             table.append(cells)
         print(C.table(["aircraft", "layout", "simulated s", "tracking, other", "tracking, this", "÷", "eval, other",
                        "eval, this", "÷", "held", "held after init", "false tracks", "break rate"], table))
