@@ -12,11 +12,13 @@ changes (switched on by ``revisit_s`` in ``[tracker]``):
    (:func:`near`, all tracks at once): the track's position moved along its velocity to
    the scan's time against the plot's azimuth, elevation and range, each within ``6σ``
    (the track's σ bounded by its covariance's largest eigenvalue, plus the plot's) and
-   what the track can move besides; only the pairs it keeps get ``d²``, all of a scan
-   at once (:func:`pair_d2`): a spherical plot's ``h`` reads position only, so a pair
-   needs the position block of the prediction, ``p = Σₐ fₐ xₐ`` and ``P_pp = G P Gᵀ +
-   Q₁[0,0] I₃`` with ``G = f ⊗ I₃`` and ``f = [1, dt, dt²/2]`` (CV: ``[1, dt]``) the
-   first row of ``F₁(dt)`` (:func:`position_row`), then ``d²`` from a stacked Cholesky.
+   what the track can move besides, tried only on the plots within that width of the
+   track in azimuth (:func:`_by_azimuth`, by bisection in the plots' sorted azimuths);
+   only the pairs it keeps get ``d²``, all of a scan at once (:func:`pair_d2`): a
+   spherical plot's ``h`` reads position only, so a pair needs the position block of
+   the prediction, ``p = Σₐ fₐ xₐ`` and ``P_pp = G P Gᵀ + Q₁[0,0] I₃`` with ``G = f ⊗
+   I₃`` and ``f = [1, dt, dt²/2]`` (CV: ``[1, dt]``) the first row of ``F₁(dt)``
+   (:func:`position_row`), then ``d²`` from a stacked Cholesky.
 2. **updates at each plot's time**: a track's plots of the frame in time order, the
    filter predicted to each one's time and updated (plots at one time: one scan).
 3. **track management in time** (:class:`SweepLogic`): a track is looked at whenever a
