@@ -2,7 +2,7 @@
 second against the number of aircraft, stage by stage, with every point's CPU capped.
 
     python benchmarks/bench_region.py [--aircraft 20 50 100 200 400 1000 2000 4000]
-        [--duration 60] [--cap 600] [--layout sync rotating] [--json PATH]
+        [--duration 60] [--cap 600] [--layout sync rotating] [--against CHECKOUT] [--json PATH]
 
 Each point is ``region-4000`` (``sensors_sim/scenarios``) with its traffic scaled to N
 aircraft (birth rate and ``max_alive`` times N/4,000), evaluated as ``zfusion eval
@@ -16,15 +16,20 @@ of its own. Two layouts:
 
 Stages, in thread CPU time, of the many-target tracker (``fusion/tracking``, configured by
 ``fusion.mtt``): stream generation (``merged_measurements``); gating (the hypothesiser:
-predicted states, χ² distances, the sequential gating update), assignment (GNN),
-initiation (the initiator's pairing and the start of new tracks, with the distances it
-computes), update (the filters' scan updates and coasts), track management (the table:
-hits and misses, duplicates, closing the frame) and the frame loop's own Python (the
-rest); scoring (GOSPA, breaks, held after initiation);
-and the wire a distributed run would add (encode, decode and ``to_measurement`` per plot,
+predicted states, χ² distances, the sequential gating update; the sweep tracker's
+screen and pair costs), assignment (GNN), initiation (the initiator's pairing and the
+start of new tracks, with the distances it computes), update (the filters' scan updates
+and coasts), track management (the table: hits and misses, duplicates, closing the
+frame) and the frame loop's own Python (the rest); scoring (GOSPA, breaks, held after
+initiation); and the wire a distributed run would add (encode, decode and ``to_measurement`` per plot,
 ``encode_estimate`` per estimate, timed on a sample). A stage is the outermost timed call
 it is in (the initiator's distances are initiation). A point stops when its CPU passes
 ``--cap``: its figures are then per simulated second reached, and it says so.
+
+``--against CHECKOUT`` runs every point a second time with another checkout's code (its
+own ``benchmarks/bench_region.py``, in a process of its own, just before this one's),
+and prints the two side by side with their ratio: a before and after measured in the
+same run, under the same load.
 """
 
 from __future__ import annotations
@@ -33,21 +38,27 @@ import argparse
 import dataclasses
 import json
 import multiprocessing
+import os
+import subprocess
+import sys
+import tempfile
 import time
 from contextlib import contextmanager
 
 import _common as C
 
-STAGES = {  # stage -> (module, attribute path) of the calls timed for it, on today's tracker
+STAGES = {  # stage -> (module, attribute path) of the calls timed for it, on today's trackers
     "gating": [("fusion.tracking.hypotheses", "PlotHypothesiser.predict"),
                ("fusion.tracking.hypotheses", "PlotHypothesiser.hypothesise"),
-               ("fusion.tracking.hypotheses", "PlotHypothesiser.condition")],
+               ("fusion.tracking.hypotheses", "PlotHypothesiser.condition"),
+               ("fusion.tracking.sweep", "near"), ("fusion.tracking.sweep", "pair_d2")],
     "assignment": [("fusion.tracking.associators", "GNN.associate")],
-    "initiation": [("fusion.tracking.initiators", "Initiator.initiate"), ("fusion.mtt", "ScanUpdater.start")],
-    "update": [("fusion.mtt", "ScanUpdater.update")],
+    "initiation": [("fusion.tracking.initiators", "Initiator.initiate"), ("fusion.mtt", "ScanUpdater.start"),
+                   ("fusion.tracking.sweep", "SweepTracker.start")],
+    "update": [("fusion.mtt", "ScanUpdater.update"), ("fusion.mtt", "ScanUpdater.scan")],
     "management": [("fusion.tracking.table", "TrackLogic.record"), ("fusion.tracking.table", "DuplicateWatch.review"),
                    ("fusion.tracking.table", "TrackTable.close_frame")],
-}
+}  # not SweepLogic.record: its clock would cost more than it does (every track, every frame)
 SYNC_PERIOD = 8.0
 
 
@@ -202,8 +213,27 @@ def run_point(n: int, layout: str, duration: float, cap: float) -> dict:
     return row
 
 
+def other_point(checkout: str, n: int, layout: str, duration: float, cap: float) -> dict:
+    """:func:`run_point` of another checkout (``--against``): its own script, in a process of its own."""
+    with tempfile.TemporaryDirectory() as tmp:
+        path = os.path.join(tmp, "rows.json")
+        subprocess.run([sys.executable, os.path.join(checkout, "benchmarks", "bench_region.py"), "--aircraft", str(n),
+                        "--layout", layout, "--duration", str(duration), "--cap", str(cap), "--json", path],
+                       check=True, stdout=subprocess.DEVNULL, cwd=checkout)
+        with open(path) as f:
+            return json.load(f)["rows"][0]
+
+
 def per_second(row: dict, key: str) -> float:
     return row[key] / row["simulated_s"] if row.get("simulated_s") else float("nan")
+
+
+def evaluation(row: dict, key: str) -> float:
+    """CPU s per simulated s of the tracking (``key = "tracking"``) or of the whole
+    evaluation (``"eval"``: generation, tracking and scoring)."""
+    if key == "tracking":
+        return per_second(row, "tracking_s")
+    return sum(per_second(row, k) for k in ("generation_s", "tracking_s", "scoring_s") if k in row)
 
 
 def main() -> None:
@@ -212,6 +242,7 @@ def main() -> None:
     ap.add_argument("--duration", type=float, default=60.0, help="simulated seconds per point")
     ap.add_argument("--cap", type=float, default=600.0, help="CPU seconds of tracking per point")
     ap.add_argument("--layout", nargs="+", default=["sync", "rotating"], choices=["sync", "rotating"])
+    ap.add_argument("--against", metavar="CHECKOUT", help="also run every point with this checkout's code")
     ap.add_argument("--json", help="write the rows here")
     args = ap.parse_args()
     print(f"# Today's tracker at region scale — {C.machine_line()}")
@@ -220,11 +251,17 @@ def main() -> None:
     rows = []
     for layout in args.layout:
         for n in args.aircraft:
+            if args.against:
+                other = other_point(args.against, n, layout, args.duration, args.cap)
+                other["checkout"] = args.against
+                print(f"  {layout} {n} ({args.against}): {json.dumps(other)}", flush=True)
             t0 = time.monotonic()
             row = run_point(n, layout, args.duration, args.cap)
             row["wall_s"] = time.monotonic() - t0
             rows.append(row)
             print(f"  {layout} {n}: {json.dumps(row)}", flush=True)
+            if args.against:
+                row["against"] = other
     stage_names = [*STAGES, "frame loop (the rest)"]
     for layout in args.layout:
         mine = [r for r in rows if r["layout"] == layout and r.get("simulated_s")]
@@ -233,8 +270,7 @@ def main() -> None:
         base = None
         table = []
         for r in mine:
-            evald = per_second(r, "generation_s") + per_second(r, "tracking_s") + (
-                per_second(r, "scoring_s") if "scoring_s" in r else 0.0)
+            evald = evaluation(r, "eval")
             base = base or evald
             table.append([r["aircraft"], f"{r['simulated_s']:.0f}" + (" (capped)" if r["capped"] else ""),
                           f"{r['plots'] / r['simulated_s']:,.0f}", f"{evald:.3f}", f"{evald / base:.1f}",
@@ -250,6 +286,21 @@ def main() -> None:
                       [[r["aircraft"], *(f"{100 * r['stages_s'][s] / max(r['tracking_s'], 1e-12):.1f} %"
                                          for s in stage_names), f"{per_second(r, 'tracking_s'):.3f}"]
                        for r in mine]))
+    if args.against:
+        print(f"\n## Against {args.against}: CPU seconds per simulated second, the other checkout's ÷ this one's\n")
+        table = []
+        for r in rows:
+            o = r["against"]
+            cells = [r["aircraft"], r["layout"], f"{o.get('simulated_s', 0):.0f} / {r.get('simulated_s', 0):.0f}"]
+            for key in ("tracking", "eval"):
+                a, b = evaluation(o, key), evaluation(r, key)
+                cells += [f"{a:.3f}", f"{b:.3f}", f"{a / b:.2f}"]
+            for key in ("held", "held_after_init", "false_tracks", "break_rate"):
+                cells.append(" / ".join(f"{v:.4f}" if isinstance(v, float) else str(v)
+                                        for v in (o.get(key, "—"), r.get(key, "—"))))
+            table.append(cells)
+        print(C.table(["aircraft", "layout", "simulated s", "tracking, other", "tracking, this", "÷", "eval, other",
+                       "eval, this", "÷", "held", "held after init", "false tracks", "break rate"], table))
     if args.json:
         with open(args.json, "w") as f:
             json.dump({"machine": C.machine_line(), "rows": rows}, f, indent=1)

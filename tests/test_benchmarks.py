@@ -21,6 +21,8 @@ CASES = {
                      ["FilterPy", "Stone Soup", "batch.ekf_step", "## Targets"]),
     "bench_montecarlo.py": (["--runs", "4"], ["vectorised", "run by run"]),
     "profile_fuser.py": (["--measurements", "400", "--repeats", "1", "--top", "5"], ["encode_estimate"]),
+    "bench_region.py": (["--aircraft", "20", "--duration", "3", "--layout", "rotating", "--against", str(ROOT)],
+                        ["## rotating: CPU seconds", "## Against"]),
 }
 
 

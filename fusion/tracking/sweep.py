@@ -12,7 +12,13 @@ changes (switched on by ``revisit_s`` in ``[tracker]``):
    (:func:`near`, all tracks at once): the track's position moved along its velocity to
    the scan's time against the plot's azimuth, elevation and range, each within ``6σ``
    (the track's σ bounded by its covariance's largest eigenvalue, plus the plot's) and
-   what the track can move besides; only the pairs it keeps get ``d²``.
+   what the track can move besides, tried only on the plots within that width of the
+   track in azimuth (:func:`_by_azimuth`, by bisection in the plots' sorted azimuths);
+   only the pairs it keeps get ``d²``, all of a scan at once (:func:`pair_d2`): a
+   spherical plot's ``h`` reads position only, so a pair needs the position block of
+   the prediction, ``p = Σₐ fₐ xₐ`` and ``P_pp = G P Gᵀ + Q₁[0,0] I₃`` with ``G = f ⊗
+   I₃`` and ``f = [1, dt, dt²/2]`` (CV: ``[1, dt]``) the first row of ``F₁(dt)``
+   (:func:`position_row`), then ``d²`` from a stacked Cholesky.
 2. **updates at each plot's time**: a track's plots of the frame in time order, the
    filter predicted to each one's time and updated (plots at one time: one scan).
 3. **track management in time** (:class:`SweepLogic`): a track is looked at whenever a
@@ -45,9 +51,13 @@ from typing import Sequence
 
 import numpy as np
 
+from .. import batch
 from ..angles import wrap_pi
+from ..ekf import TrackEKF
 from ..measurement.components import AZ, EL, RANGE
 from ..measurement.kinds import KINDS, model_of
+from ..measurement.models import SphericalModel
+from ..motion import ConstantAcceleration, ConstantVelocity
 from ..types import Estimate
 from .hypotheses import Hypotheses, by_sensor, gate_threshold, mahalanobis2
 from .manager import Frame, MultiTargetTracker, Taken, initial_plots
@@ -115,10 +125,13 @@ class SweepLogic:
 
 @dataclass(frozen=True)
 class Spread:
-    """The tracks as the screen reads them, once per frame: position and velocity ``X
-    (n, 6)`` at the filters' times ``t (n,)``, and the square roots of the largest
-    eigenvalues of the horizontal and 3D position (and velocity) covariances, which
-    bound the σ of any linear function of unit gradient (module docstring, 1.)."""
+    """The tracks as the screen and the costs read them, once per frame: position and
+    velocity ``X (n, 6)`` at the filters' times ``t (n,)``, and the square roots of the
+    largest eigenvalues of the horizontal and 3D position (and velocity) covariances,
+    which bound the σ of any linear function of unit gradient (module docstring, 1.);
+    the states ``x (n, n_x)``, ``P (n, n_x, n_x)``, and ``motion``: the one linear
+    motion model (:func:`position_row`) of the tracks ``linear`` marks, whose pairs are
+    scored in a stack (:func:`pair_d2`; the others one by one)."""
 
     X: np.ndarray
     t: np.ndarray
@@ -126,14 +139,55 @@ class Spread:
     pos: np.ndarray
     vel_h: np.ndarray
     vel: np.ndarray
+    x: np.ndarray | None = None
+    P: np.ndarray | None = None
+    linear: np.ndarray | None = None
+    motion: object = None
 
     @classmethod
     def of(cls, tracks: Sequence[Track]) -> "Spread":
         n = len(tracks)
-        P = np.array([tr.filter.P[:6, :6] for tr in tracks]).reshape(n, 6, 6)
+        n_x = tracks[0].filter.x.size if n else 6
+        x = np.array([tr.filter.x for tr in tracks], dtype=float).reshape(n, n_x)
+        P = np.array([tr.filter.P for tr in tracks], dtype=float).reshape(n, n_x, n_x)
+        motion = next((tr.filter.motion for tr in tracks if _linear(tr.filter)), None)
+        linear = np.array([_linear(tr.filter) and _same(tr.filter.motion, motion) for tr in tracks], dtype=bool)
         lam = lambda B: np.sqrt(np.clip(np.linalg.eigvalsh(B)[..., -1], 0.0, None))  # noqa: E731
-        return cls(np.array([tr.filter.x[:6] for tr in tracks]).reshape(n, 6), np.array([tr.filter.t for tr in tracks]),
-                   lam(P[:, :2, :2]), lam(P[:, :3, :3]), lam(P[:, 3:5, 3:5]), lam(P[:, 3:6, 3:6]))
+        return cls(x[:, :6].copy(), np.array([tr.filter.t for tr in tracks], dtype=float).reshape(n),
+                   lam(P[:, :2, :2]), lam(P[:, :3, :3]), lam(P[:, 3:5, 3:5]), lam(P[:, 3:6, 3:6]),
+                   x, P, linear, motion)
+
+
+def _linear(f) -> bool:
+    """Whether a track's filter predicts as :func:`position_row` says: an EKF of a
+    constant-velocity or constant-acceleration model (exactly those classes)."""
+    return type(f) is TrackEKF and type(f.motion) in (ConstantVelocity, ConstantAcceleration)
+
+
+def _same(a, b) -> bool:
+    return a is b or (type(a) is type(b) and a.q == b.q and a.noise == b.noise)
+
+
+def position_row(motion, dt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(f (k, m), q₀₀ (k,))``: the first row of the per-axis transition ``F₁(dt)``,
+    ``fₐ = dtᵃ/a!``, and the position entry of ``Q₁(dt)`` of a
+    :class:`~fusion.motion.ConstantVelocity` or :class:`~fusion.motion.ConstantAcceleration`
+    model, for every interval of ``dt (k,)`` at once (:mod:`fusion.motion`'s closed
+    forms): continuous white noise of PSD ``q`` on derivative ``m − 1``, ``q dt²ᵐ⁻¹ /
+    ((2m − 1)·((m − 1)!)²)`` (CV ``q dt³/3``, CA ``q dt⁵/20``); discrete, ``q (dt²/2)²``."""
+    dt = np.asarray(dt, dtype=float)
+    m = motion.order
+    f = np.empty((dt.size, m))
+    f[:, 0] = 1.0
+    f[:, 1] = dt
+    if m == 3:
+        f[:, 2] = 0.5 * dt * dt
+    if motion.noise == "discrete":
+        q00 = motion.q * (0.5 * dt * dt) ** 2
+    else:
+        s = 2 * m - 1
+        q00 = motion.q * dt**s / (s * math.factorial(m - 1) ** 2)
+    return f, q00
 
 
 def near(tracks, t: float, plots: Sequence) -> np.ndarray:
@@ -141,7 +195,7 @@ def near(tracks, t: float, plots: Sequence) -> np.ndarray:
     sited sensor with azimuth, elevation or range components (``tracks``: a
     :class:`Spread` or the tracks); a pair it drops is at least ``SCREEN_SIGMAS`` σ away
     in one component, so outside any gate up to χ² of that many σ. Every pair for other
-    kinds."""
+    kinds. With azimuth, only the pairs :func:`_by_azimuth` finds are tested."""
     spread = tracks if isinstance(tracks, Spread) else Spread.of(tracks)
     n = len(spread.t)
     kind = KINDS[plots[0].kind]
@@ -159,21 +213,55 @@ def near(tracks, t: float, plots: Sequence) -> np.ndarray:
     rng = np.hypot(ground, pos[:, 2])
     Z = np.array([p.z for p in plots], float)
     S = np.array([p.std for p in plots], float)
-    ok = np.ones((n, len(plots)), dtype=bool)
+    if AZ in comps:
+        k = comps.index(AZ)
+        az = np.arctan2(pos[:, 0], pos[:, 1])
+        with np.errstate(divide="ignore", invalid="ignore"):  # over the site: every plot
+            width = SCREEN_SIGMAS * (sig_h + rng * S[:, k].max()) / ground
+        r, j = _by_azimuth(az, width, Z[:, k])
+    else:
+        r, j = (a.ravel() for a in np.indices((n, len(plots))))
+    ok = np.ones(len(r), dtype=bool)
     for k, c in enumerate(comps):
         if c is AZ:  # an azimuth's gradient in metres is horizontal
-            miss = np.abs(wrap_pi(np.arctan2(pos[:, 0], pos[:, 1])[:, None] - Z[None, :, k])) * ground[:, None]
-            bound = sig_h[:, None] + rng[:, None] * S[None, :, k]
+            miss = np.abs(wrap_pi(az[r] - Z[j, k])) * ground[r]
+            bound = sig_h[r] + rng[r] * S[j, k]
         elif c is EL:
-            miss = np.abs(np.arctan2(pos[:, 2], ground)[:, None] - Z[None, :, k]) * rng[:, None]
-            bound = sig[:, None] + rng[:, None] * S[None, :, k]
+            miss = np.abs(np.arctan2(pos[:, 2], ground)[r] - Z[j, k]) * rng[r]
+            bound = sig[r] + rng[r] * S[j, k]
         elif c is RANGE:
-            miss = np.abs(rng[:, None] - Z[None, :, k])
-            bound = sig[:, None] + S[None, :, k]
+            miss = np.abs(rng[r] - Z[j, k])
+            bound = sig[r] + S[j, k]
         else:
             continue
         ok &= miss <= SCREEN_SIGMAS * bound
-    return ok
+    keep = np.zeros((n, len(plots)), dtype=bool)
+    keep[r[ok], j[ok]] = True
+    return keep
+
+
+def _by_azimuth(az: np.ndarray, width: np.ndarray, Z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(rows, cols)``: the pairs of tracks at azimuth ``az (n,)`` (seen from the
+    sensor) and plots at ``Z (m,)`` within ``width (n,)`` radians of each other (a
+    little wider, for round-off), found by bisection in the plots' sorted azimuths
+    (each repeated 2π below and above, for the wrap) rather than tried all against all:
+    a pair :func:`near` keeps misses by at most ``6 (σ_h + r·σ_az)`` metres across, so
+    by at most its track's ``width`` in azimuth."""
+    m = len(Z)
+    width = np.where(np.isfinite(width), width * (1.0 + 1e-9) + 1e-12, np.inf)
+    wide = ~(width < math.pi)  # the whole turn (and any NaN): every plot
+    ext = np.concatenate([Z - 2.0 * math.pi, Z, Z + 2.0 * math.pi])
+    order = np.argsort(ext, kind="stable")
+    ext = ext[order]
+    w = np.where(wide, 0.0, width)
+    lo = np.searchsorted(ext, az - w, side="left")
+    hi = np.searchsorted(ext, az + w, side="right")
+    count = np.where(wide, m, hi - lo)
+    start = np.where(wide, 0, lo)
+    rows = np.repeat(np.arange(len(az)), count)
+    at = np.arange(len(rows)) - np.repeat(np.cumsum(count) - count, count) + np.repeat(start, count)
+    cols = np.where(np.repeat(wide, count), at, order[np.minimum(at, 3 * m - 1)] % max(m, 1))
+    return rows, cols
 
 
 class SweepTracker(MultiTargetTracker):
@@ -236,9 +324,8 @@ class SweepTracker(MultiTargetTracker):
             model = model_of(scan[0], tracks[0].filter.x.size)
             gate = gate_threshold(model.n_z, self.gate_prob)
             d2 = np.full((len(rows), len(scan)), np.inf)
-            for r, j in zip(*np.nonzero(keep[rows])):
-                x, P = tracks[rows[r]].filter.predicted(scan[j].t)
-                d2[r, j] = mahalanobis2(model, x, P, scan[j].z)[0]
+            r, j = np.nonzero(keep[rows])
+            d2[r, j] = pair_d2(tracks, spread, rows[r], scan, j, model)
             hyp = Hypotheses(scan, rows, d2, np.full(len(rows), gate), confirmed[rows], model)
             association = self.associator.associate(hyp)
             for r, cols, beta, miss in association.per_row():
@@ -268,6 +355,49 @@ class SweepTracker(MultiTargetTracker):
         if later:
             self.update(track, later)
         return track
+
+
+def pair_d2(tracks: Sequence[Track], spread: Spread, rows: np.ndarray, plots: Sequence, cols: np.ndarray,
+            model) -> np.ndarray:
+    """``d² (k,)`` of the pairs ``(tracks[rows[i]], plots[cols[i]])``, each track
+    predicted to its plot's time, the plots of one sensor ``model`` (:func:`mahalanobis2`;
+    ``inf`` where the geometry is undefined). The pairs of a :class:`Spread`'s linear
+    tracks and a spherical model in one stack (module docstring, 1.); any other pair,
+    and a stack with a pair over a site, one by one."""
+    rows, cols = np.asarray(rows, dtype=int), np.asarray(cols, dtype=int)
+    times = np.array([plots[c].t for c in cols.tolist()], dtype=float).reshape(len(cols))
+    out = np.empty(len(rows))
+    stacked = np.zeros(len(rows), dtype=bool)
+    if isinstance(model, SphericalModel) and spread.linear is not None:
+        stacked = spread.linear[rows] & (times >= spread.t[rows])
+    if stacked.any():
+        Z = np.array([plots[c].z for c in cols[stacked].tolist()], dtype=float)
+        try:
+            out[stacked] = _stacked_d2(spread, rows[stacked], times[stacked], Z, model)
+        except ValueError:  # a pair over a site: its d² is inf, found one by one
+            stacked[:] = False
+    for i in np.flatnonzero(~stacked).tolist():
+        x, P = tracks[rows[i]].filter.predicted(plots[cols[i]].t)
+        out[i] = mahalanobis2(model, x, P, plots[cols[i]].z)[0]
+    return out
+
+
+def _stacked_d2(spread: Spread, rows: np.ndarray, times: np.ndarray, Z: np.ndarray,
+                model: SphericalModel) -> np.ndarray:
+    """:func:`pair_d2` of linear tracks and a spherical model, in one stack."""
+    k = len(rows)
+    f, q00 = position_row(spread.motion, times - spread.t[rows])
+    m = f.shape[1]
+    x = np.zeros((k, model.n_x))
+    x[:, :3] = np.einsum("ka,kai->ki", f, spread.x[rows, :3 * m].reshape(k, m, 3))
+    G = (f[:, None, :, None] * np.eye(3)[None, :, None, :]).reshape(k, 3, 3 * m)  # f ⊗ I₃
+    P = G @ spread.P[rows, :3 * m, :3 * m] @ G.transpose(0, 2, 1)
+    P[:, range(3), range(3)] += q00[:, None]
+    zp, Hp = batch.spherical(model, x)
+    nu = batch.innovation(model, Z, zp)
+    S = Hp @ P @ Hp.transpose(0, 2, 1) + model.R
+    S = batch._spd_inverse(0.5 * (S + S.transpose(0, 2, 1)))
+    return np.einsum("ki,kij,kj->k", nu, S, nu)
 
 
 def _measures_el(m) -> bool:

@@ -14,7 +14,7 @@ from scipy.linalg import expm
 from scipy.optimize import brentq
 
 from fusion.init3d import FAR, NEAR, InitPriors, initial_state, spherical_to_position
-from fusion.motion import ConstantAcceleration, ConstantVelocity, make_motion
+from fusion.motion import ConstantAcceleration, ConstantTurn, ConstantVelocity, PaddedConstantVelocity, make_motion
 from fusion.ekf import TrackEKF
 from fusion.measurement.kinds import KINDS, model_for, model_of
 from fusion.measurement.models import SphericalModel
@@ -468,3 +468,15 @@ def test_iterated_update_is_the_map_estimate_and_one_iteration_is_the_ekf():
     ekf = TrackEKF(make_motion("ca", 0.01), x_bar, P, 0.0, iterations=20)
     ekf.update(m, z)
     np.testing.assert_allclose(ekf.x, it.x, rtol=0, atol=1e-9)
+
+
+@pytest.mark.parametrize("motion", [ConstantVelocity(2.0), ConstantAcceleration(0.5, "discrete"),
+                                    PaddedConstantVelocity(1.0), ConstantTurn(0.5, 0.05)], ids=repr)
+def test_F_and_Q_are_the_kronecker_products_of_the_axis_blocks(motion):
+    """``F(dt)`` and ``Q(dt)`` are ``np.kron(F₁, I₃)`` and ``np.kron(Q₁, I₃)`` bit for bit
+    (the sign of every zero too: a turn's ``F₁`` has negative entries)."""
+    for dt in (0.0, 1e-3, 0.37, 4.0, 11.9):
+        for got, axis in ((motion.F(dt), motion.F_axis(dt)), (motion.Q(dt), motion.Q_axis(dt))):
+            ref = np.kron(axis, np.eye(3))
+            assert got.shape == ref.shape and np.array_equal(got, ref)
+            assert np.array_equal(np.signbit(got), np.signbit(ref))

@@ -11,9 +11,10 @@ import pytest
 
 from fusion.ekf import TrackEKF
 from fusion.measurement.kinds import model_of
-from fusion.motion import ConstantAcceleration
+from fusion.motion import ConstantAcceleration, ConstantVelocity
 from fusion.tracking.hypotheses import gate_threshold, mahalanobis2
-from fusion.tracking.sweep import REVISIT_SLACK_S, SweepLogic, near
+from fusion.tracking import sweep
+from fusion.tracking.sweep import REVISIT_SLACK_S, Spread, SweepLogic, near, pair_d2, position_row
 from fusion.tracking.table import CONFIRMED, DELETED, TENTATIVE, ManagementRule, Track
 from fusion.types import Estimate, Measurement
 from sensors_sim import load_scenario
@@ -60,16 +61,40 @@ def test_a_tentative_track_lives_one_revisit_from_its_birth_a_confirmed_one_k_wi
     assert wide.record(True, np.eye(3) * 2000.0**2, 1.0) == DELETED  # σ = 2000 √3 > max_pos_std
 
 
-def _track(rng, t0):
-    motion = ConstantAcceleration(q=0.5)
+def _track(rng, t0, motion=None, correlated=False):
+    motion = motion or ConstantAcceleration(q=0.5)
     x = np.zeros(9)
     x[:3] = rng.uniform([-60e3, -60e3, 1e3], [60e3, 60e3, 12e3])
     x[3:5] = rng.normal(0.0, 150.0, 2)
     x[6:8] = rng.normal(0.0, 3.0, 2)
     sd = rng.choice([30.0, 300.0, 3000.0])
     P = np.diag(np.r_[[sd**2] * 3, [(sd / 3) ** 2] * 3, [4.0] * 3])
-    f = TrackEKF(motion, x, P, t0)
-    return Track(f, Estimate(t0, x, P, "SS", "centre"))
+    if correlated:  # position with velocity and acceleration (any covariance: not what the screen assumes)
+        A = rng.normal(0.0, 0.3, (9, 9))
+        P = (np.eye(9) + A) @ P @ (np.eye(9) + A).T
+    n_x = motion.n_x
+    f = TrackEKF(motion, x[:n_x], P[:n_x, :n_x], t0)
+    return Track(f, Estimate(t0, x[:n_x], P[:n_x, :n_x], "SS", "centre"))
+
+
+def _plots(rng, kind, tracks, site, t0, n, made):
+    """``n`` plots of one sensor at ``site`` over 0.3 s from ``t0``, the first ``made`` of
+    them at the predicted positions of the first tracks, the others anywhere."""
+    a = math.radians(0.2)
+    std = {"range_az": np.array([a, 100.0]), "az_el_range": np.array([a, a, 100.0]), "azel": np.radians([0.05, 0.05])}[kind]
+    plots = []
+    for j in range(n):
+        t = t0 + 0.3 * j / n
+        src = tracks[j] if j < made else None
+        p = src.filter.predicted(t)[0][:3] if src else rng.uniform([-80e3, -80e3, 0], [80e3, 80e3, 15e3])
+        d = p - site
+        z = {"range_az": [math.atan2(d[0], d[1]) % (2 * math.pi), np.linalg.norm(d)],
+             "az_el_range": [math.atan2(d[0], d[1]) % (2 * math.pi), math.atan2(d[2], math.hypot(d[0], d[1])),
+                             np.linalg.norm(d)],
+             "azel": [math.atan2(d[0], d[1]) % (2 * math.pi), math.atan2(d[2], math.hypot(d[0], d[1]))]}[kind]
+        z = np.array(z) + rng.normal(0.0, std)
+        plots.append(Measurement(t, "s1", kind, z, std, site, seq=j))
+    return plots
 
 
 @pytest.mark.parametrize("kind", ["range_az", "az_el_range", "azel"])
@@ -81,20 +106,7 @@ def test_the_screen_keeps_every_pair_in_the_gate(kind):
     rng = np.random.default_rng(7)
     site = np.array([5e3, -3e3, 0.0])
     tracks = [_track(rng, 10.0 - rng.uniform(0, 5)) for _ in range(80)]
-    a = math.radians(0.2)
-    std = {"range_az": np.array([a, 100.0]), "az_el_range": np.array([a, a, 100.0]), "azel": np.radians([0.05, 0.05])}[kind]
-    plots = []
-    for j in range(60):
-        t = 10.0 + 0.3 * j / 60
-        src = tracks[j] if j < 30 else None
-        p = src.filter.predicted(t)[0][:3] if src else rng.uniform([-80e3, -80e3, 0], [80e3, 80e3, 15e3])
-        d = p - site
-        z = {"range_az": [math.atan2(d[0], d[1]) % (2 * math.pi), np.linalg.norm(d)],
-             "az_el_range": [math.atan2(d[0], d[1]) % (2 * math.pi), math.atan2(d[2], math.hypot(d[0], d[1])),
-                         np.linalg.norm(d)],
-             "azel": [math.atan2(d[0], d[1]) % (2 * math.pi), math.atan2(d[2], math.hypot(d[0], d[1]))]}[kind]
-        z = np.array(z) + rng.normal(0.0, std)
-        plots.append(Measurement(t, "s1", kind, z, std, site, seq=j))
+    plots = _plots(rng, kind, tracks, site, 10.0, 60, 30)
     keep = near(tracks, plots[0].t, plots)
     model = model_of(plots[0], 9)
     wide = 2 * gate_threshold(3, 0.999)
@@ -106,6 +118,83 @@ def test_the_screen_keeps_every_pair_in_the_gate(kind):
                 inside += 1
                 assert keep[r, j], (r, j, d2)
     assert inside >= 30 and keep.mean() < 0.5
+
+
+@pytest.mark.parametrize("kind", ["range_az", "az_el_range", "azel"])
+@pytest.mark.parametrize("north", [False, True])
+def test_the_azimuth_index_keeps_the_pairs_all_against_all_keeps(kind, north, monkeypatch):
+    """The screen's pairs found through the plots' sorted azimuths are those it keeps
+    trying every track against every plot, also for plots on both sides of north (the
+    wrap of azimuth), tracks wider than the whole turn and a track over the site."""
+    rng = np.random.default_rng(5)
+    site = np.array([5e3, -3e3, 0.0])
+    tracks = [_track(rng, 10.0 - rng.uniform(0, 5)) for _ in range(150)]
+    if north:  # every track and plot within 20 km of the line north of the site
+        for tr in tracks:
+            tr.filter.x = tr.filter.x.copy()
+            tr.filter.x[0] = site[0] + rng.uniform(-20e3, 20e3)
+            tr.filter.x[1] = site[1] + abs(tr.filter.x[1])
+    tracks[1].filter.P = np.diag([3e5**2] * 3 + [100.0**2] * 3 + [4.0] * 3)  # σ 300 km: the whole turn
+    over = tracks[2].filter
+    over.x = over.x.copy()
+    over.x[:2] = site[:2]
+    over.x[3:] = 0.0
+    plots = _plots(rng, kind, tracks, site, 10.0, 60, 40)
+    if north:
+        assert any(p.z[0] < 0.3 for p in plots) and any(p.z[0] > 2 * math.pi - 0.3 for p in plots)
+    keep = near(tracks, plots[0].t, plots)
+    monkeypatch.setattr(sweep, "_by_azimuth", lambda az, w, Z: tuple(a.ravel() for a in np.indices((len(az), len(Z)))))
+    every = near(tracks, plots[0].t, plots)
+    np.testing.assert_array_equal(keep, every)
+    assert keep[:, :40].diagonal().all() and keep[1].all() and keep.mean() < 0.5
+
+
+@pytest.mark.parametrize("motion", [ConstantAcceleration(q=0.5), ConstantVelocity(q=2.0),
+                                    ConstantAcceleration(q=0.3, noise="discrete"), ConstantVelocity(q=1.0, noise="discrete")],
+                         ids=repr)
+def test_the_closed_form_prediction_row_is_the_motion_models(motion):
+    """:func:`position_row`'s ``f`` and ``q₀₀`` for many intervals at once are the first
+    row of the model's ``F₁(dt)`` and ``Q₁(dt)[0, 0]``, interval by interval."""
+    dt = np.r_[0.0, np.random.default_rng(3).uniform(0.0, 15.0, 40)]
+    f, q00 = position_row(motion, dt)
+    for i, d in enumerate(dt):
+        np.testing.assert_allclose(f[i], motion.F_axis(d)[0], rtol=1e-14, atol=0)
+        np.testing.assert_allclose(q00[i], motion.Q_axis(d)[0, 0], rtol=1e-13, atol=0)
+
+
+@pytest.mark.parametrize("motion", [ConstantAcceleration(q=0.5), ConstantVelocity(q=2.0, noise="discrete")], ids=repr)
+@pytest.mark.parametrize("kind", ["range_az", "az_el_range", "azel"])
+def test_the_stacked_costs_are_the_per_pair_ones(kind, motion):
+    """Random correlated tracks (σ 30 m to 3 km, 0 to 5 s old) against plots of one sensor,
+    some of them the tracks': the ``d²`` of every pair in one stack
+    (:func:`pair_d2`) is each track predicted to its plot's time by its filter and
+    scored by :func:`mahalanobis2`, pair by pair, to 1e-10; a track over the site (its
+    azimuth undefined) costs ``inf`` and leaves the other pairs as they were."""
+    rng = np.random.default_rng(11)
+    site = np.array([5e3, -3e3, 0.0])
+    tracks = [_track(rng, 10.0 - rng.uniform(0, 5), motion, correlated=True) for _ in range(60)]
+    tracks[0].filter.t = 10.0  # a pair at dt = 0 (the plot at the filter's time)
+    over = tracks[-1].filter
+    over.x = over.x.copy()
+    over.x[:2] = site[:2]
+    over.x[3:] = 0.0  # over the site until the plots' time
+    plots = _plots(rng, kind, tracks, site, 10.0, 40, 20)
+    model = model_of(plots[0], motion.n_x)
+    spread = Spread.of(tracks)
+    assert spread.linear.all()
+    rows, cols = np.meshgrid(np.arange(len(tracks)), np.arange(len(plots)), indexing="ij")
+    rows, cols = rows.ravel(), cols.ravel()
+    d2 = pair_d2(tracks, spread, rows, plots, cols, model)
+    ref = np.array([mahalanobis2(model, *tracks[r].filter.predicted(plots[c].t), plots[c].z)[0]
+                    for r, c in zip(rows, cols)])
+    assert np.isinf(ref[rows == len(tracks) - 1]).all()
+    finite = np.isfinite(ref)
+    np.testing.assert_array_equal(np.isfinite(d2), finite)
+    np.testing.assert_allclose(d2[finite], ref[finite], rtol=1e-10, atol=0)
+    assert (d2 < gate_threshold(model.n_z, 0.999)).sum() >= 20  # the tracks' own plots
+    clean = rows != len(tracks) - 1  # without the track over the site: all in the stack
+    np.testing.assert_allclose(pair_d2(tracks, spread, rows[clean], plots, cols[clean], model), ref[clean],
+                               rtol=1e-10, atol=0)
 
 
 def _method(scenario, **keys):
