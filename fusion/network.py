@@ -176,8 +176,7 @@ class TrackNode(LocalNode):
     @property
     def ran_alone(self) -> bool:
         # unanswered: the centre's horizon has passed its request, or it never asked
-        return self.tracker.initialised and not self._joined and \
-            (self._asked_at is None or self.horizon >= self._asked_at)
+        return self.tracker.initialised and not self._joined and (self._asked_at is None or self._unanswered)
 
     def receive(self, d: Downlink) -> None:
         if isinstance(d, DropTrack):  # the centre dropped the track (fusion.guards), unless this node has already
@@ -196,9 +195,16 @@ class TrackNode(LocalNode):
             self.tracker.accept_prior(e.x, e.P, e.t, d.models)
         self._requested = False
 
+    @property
+    def _unanswered(self) -> bool:
+        """Its request was passed over: the centre's horizon is past it and no init came
+        (the centre sends a scan's inits before the horizon that passes the scan), so the
+        request was refused (late at a restarted centre) or lost, and nothing will answer it."""
+        return self._asked_at is not None and self.horizon >= self._asked_at
+
     def _blocked(self, m):
-        if not self.tracker.initialised:
-            return "init" if self._requested else None
+        if not self.tracker.initialised:  # a request passed over is made again with this measurement
+            return "init" if self._requested and not self._unanswered else None
         if self.scheme.waits_for_horizon and m.t - self.horizon > self.pair_tol:
             return "feedback"
         return None
@@ -848,18 +854,20 @@ class NetworkMethod:
         anything moved."""
         moved = False
         while True:
-            downs = self.centre.take_downlinks()
-            for d in downs:
-                self.nodes[d.node].receive(d)
-            sent = False
+            delivered = sent = False
             for node in self.nodes.values():
+                # a scan's downlinks before the horizon that passes it, as the fuser sends them
+                downs = self.centre.take_downlinks()
+                for d in downs:
+                    self.nodes[d.node].receive(d)
+                delivered |= bool(downs)
                 node.set_horizon(self.centre.horizon)
                 for u in node.step():
                     sent = True
                     if isinstance(u, (LocalReport, PredictionReport)):
                         self._out.append(u.estimate)
                     self._out += self.centre.process(u)
-            if not downs and not sent:
+            if not delivered and not sent:
                 return moved
             moved = True
 

@@ -491,8 +491,11 @@ def run(process_id: str, scenario_ref: str, method_name: str, overrides: dict, k
                         down_seq += 1
                         if leader.leads:
                             down[tracker_id(d.node)].put(data)
-                # Fed-back nodes, and every many-target node, wait for the horizon.
-                if method.horizon > horizon and math.isfinite(method.horizon):
+                # Fed-back nodes, and every many-target node, wait for the horizon; said again
+                # each second for a node that missed it (stopped, or restarting its handshake)
+                # and would wait for its feedback timeout, holding the merge back meanwhile.
+                again = time.monotonic() - last_status >= 1.0
+                if math.isfinite(method.horizon) and (method.horizon > horizon or again):
                     horizon = method.horizon
                     down_seq += 1
                     for p in down.values() if leader.leads else ():

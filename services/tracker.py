@@ -148,16 +148,25 @@ def run(sensor: str, scenario_ref: str, method_name: str, overrides: dict, keys:
             alone, waiting_since = False, None
             sent_wm = -math.inf  # the new fuser has heard no watermark from us yet
 
-        while not node.stop.is_set():
+        def heard_fuser() -> None:
+            """The incarnations of the fuser that appeared: a new one restarts the handshake.
+            Before each downlink, so that the new fuser's first horizon is not forgotten by
+            a handshake that comes after it (the node, which then knows no horizon, would
+            wait for its init until its feedback timeout, holding the fuser's merge back)."""
+            nonlocal fuser_incarnation
             while not fuser_token.empty():
                 incarnation = fuser_token.get()
                 if fuser_incarnation is not None and incarnation != fuser_incarnation:
                     restart_handshake()
                 fuser_incarnation = incarnation
+
+        while not node.stop.is_set():
+            heard_fuser()
             try:
                 key, data = inbox.get(timeout=0.05)
                 while True:
                     if key == down_key:
+                        heard_fuser()
                         msg = on_downlink(data)
                     else:
                         msg = core.offer(key, data, time.monotonic(), utc())

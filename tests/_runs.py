@@ -68,9 +68,11 @@ def child(launcher: psutil.Process, command: str, ident: str, timeout: float = 1
     raise AssertionError(f"no {command} {ident} process")
 
 
-def disturb(tmp_path, scenario, deployment, speed, kills, *extra, timeout=120, killed_at=None):
+def disturb(tmp_path, scenario, deployment, speed, kills, *extra, timeout=120, killed_at=None, hold=None):
     """Run the scenario; once the fused output reaches each scenario time of ``kills``
     (t, command, id), kill -9 that process (its monotonic time appended to ``killed_at``).
+    ``hold`` (command, id, t): right after the last kill, stop that process (SIGSTOP)
+    until the fused output reaches ``t``, then let it go on (SIGCONT).
     Returns the summary and the launcher's stderr."""
     watch = FusedWatch(deployment)
     proc = subprocess.Popen(run_cmd(tmp_path, scenario, deployment, "--speed", str(speed),
@@ -84,6 +86,14 @@ def disturb(tmp_path, scenario, deployment, speed, kills, *extra, timeout=120, k
             victim.kill()
             if killed_at is not None:
                 killed_at.append(time.monotonic())
+        if hold is not None:
+            command, ident, t = hold
+            held = child(launcher, command, ident)
+            held.suspend()
+            try:
+                watch.wait_until(t, proc)
+            finally:
+                held.resume()
         proc.wait(timeout)
     finally:
         if proc.poll() is None:

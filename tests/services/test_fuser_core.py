@@ -4,6 +4,7 @@ scenario's stream, is counted by cause and changes nothing in the fused output."
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import msgpack
 import numpy as np
@@ -21,7 +22,7 @@ from services.evaluation import merged_measurements, run_method
 from services.fuser import FuserCore, JoinGate, MeasurementIntake
 from services.node import RejectLog
 
-from sim3d import RADAR2D, simulate
+from sim3d import ANGLE, RADAR2D, simulate
 from _wire import CASES, KEYS, good, wire_stream, with_field
 
 def _garbage(sid: str) -> list[bytes]:
@@ -249,3 +250,65 @@ def test_a_node_that_runs_alone_while_its_join_is_pending_is_fused_once_joined()
     out = [e for u in reports for e in gate.process(u)] + gate.finish()
     assert [e.t for e in out] == [r[0].t, r[2].t, r[3].t] and not reject.by_cause
     assert events == [f"trk-radar2d joined with its request at t = {r[0].t:g} s"]
+
+
+def test_a_request_refused_as_late_is_made_again_until_one_joins():
+    """A node stopped across a fuser restart comes back behind the new centre: its
+    request, older than the merged stream, is refused as late and never reaches the
+    centre. Once the centre's horizon has passed the request with no init, the node asks
+    again with its next measurement (it used to wait for the init for its whole feedback
+    timeout, its watermark pinned before the request, stalling the fuser's merge, and
+    then ran alone); its first request newer than the centre's stream joins, and its
+    reports are fused from that scan on."""
+    cfg = TrackerConfig.from_dict({})
+    sc = simulate(1, seed=11, duration=12.0, sensors=(ANGLE, RADAR2D)).measurements[0]
+    a, r = ([m for m in sc if m.sensor == s] for s in ("angle", "radar2d"))
+    radar, angle = (TrackNode(s, cfg, "PHHNV", SCHEMES["feedback"]) for s in ("radar2d", "angle"))
+    nodes = {"radar2d": radar, "angle": angle}
+    events: list[str] = []
+    gate = JoinGate(TrackCentre("PHHNV", cfg, SCHEMES["feedback"]), RejectLog("fuser"), events.append)
+    fused: list[Estimate] = []
+
+    def down(t):
+        """The centre complete up to ``t``; its downlinks, then (after them, as the fuser
+        sends them) its horizon, to every node."""
+        fused.extend(gate.advance(t))
+        for d in gate.take_downlinks():
+            nodes[d.node].receive(d)
+        for n in nodes.values():
+            n.set_horizon(gate.horizon)
+
+    def scan(ms):
+        """Each node's measurement of one scan, and what the nodes send up."""
+        down(math.nextafter(ms[0].t, -math.inf))
+        for m in ms:
+            nodes[m.sensor].offer(m)
+        ups = sorted((u for n in nodes.values() for u in n.step()), key=lambda u: (u.t, u.node))
+        for u in ups:
+            fused.extend(gate.process(u))
+        return ups
+
+    for m in r[:5]:  # the restarted centre with the radar alone: its merged stream passes 4.5 s
+        scan([m])
+    down(4.5)
+    assert events == ["trk-radar2d joined with its request at t = 0 s"]
+    angle.centre_restarted()  # resumed, it hears of the new fuser: knows no horizon of it yet
+    angle.offer(a[1])
+    angle.offer(a[2])
+    (late,) = angle.step()  # refused by the merger (older than its stream): never reaches the centre
+    assert isinstance(late, InitRequest) and late.t == 1.0 and angle.waiting_for == "init"
+    angle.set_horizon(gate.horizon)  # the horizon comes down: past the request, and no init
+    (again,) = angle.step()
+    assert isinstance(again, InitRequest) and again.t == 2.0
+    for m in a[3:5]:  # each a request again (refused too), at once: the node catches up
+        angle.offer(m)
+        (again,) = angle.step()
+        assert isinstance(again, InitRequest) and again.t == m.t
+    ups = scan([a[5], r[5]])  # its first request newer than the centre's stream: joined
+    assert [type(u).__name__ for u in ups] == ["InitRequest", "LocalReport"]
+    for i in range(6, 12):
+        ups = scan([a[i], r[i]])
+        assert sorted(u.node for u in ups) == ["angle", "radar2d"]
+    assert events[-1] == "trk-angle joined with its request at t = 5 s"
+    assert gate.centre.nodes == {"angle", "radar2d"} and not angle.ran_alone
+    assert [e.t for e in fused] == [float(t) for t in range(12)]
