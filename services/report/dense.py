@@ -10,7 +10,9 @@ and the longest *formation merge* of each pair (:func:`formation_merges`).
 from __future__ import annotations
 
 import dataclasses
+import multiprocessing
 import time
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 
 import numpy as np
@@ -91,39 +93,59 @@ def gospa_parts(scores, c: float = GOSPA_CUTOFF, startup_s: float = STARTUP_S) -
     return out
 
 
-def _runs(scenario, runs: int, progress=None) -> dict:
-    """Per association: the scores, CPU seconds and merges of runs ``0..runs-1``."""
+def _one_run(scenario, r: int) -> dict:
+    """Run ``r`` with each association on the same plots: its score, the tracker's CPU
+    seconds and the formation merges, per association."""
     pairs = formation_pairs(scenario)
-    got = {a: {"scores": [], "cpu_s": [], "merges": []} for a in ASSOCIATIONS}
-    for r in range(runs):
-        plots = merged_measurements(scenario, r)
-        for a in ASSOCIATIONS:
-            t0 = time.process_time()
-            estimates = run_method(scenario, METHOD, {"association": a}, r, plots)
-            got[a]["cpu_s"].append(time.process_time() - t0)
-            steps = track_steps(scenario, estimates, r)
-            got[a]["scores"].append(score_tracks(steps, GOSPA_CUTOFF))
-            got[a]["merges"].append(formation_merges(steps, pairs))
-        if progress:
-            progress(r + 1, runs)
+    plots = merged_measurements(scenario, r)
+    out = {}
+    for a in ASSOCIATIONS:
+        t0 = time.process_time()
+        estimates = run_method(scenario, METHOD, {"association": a}, r, plots)
+        cpu = time.process_time() - t0
+        steps = track_steps(scenario, estimates, r)
+        out[a] = (score_tracks(steps, GOSPA_CUTOFF), cpu, formation_merges(steps, pairs))
+    return out
+
+
+def _runs(scenario, runs: int, jobs: int = 1, progress=None) -> dict:
+    """Per association: the scores, CPU seconds and merges of runs ``0..runs-1``
+    (``jobs`` processes, one run a task; the result does not depend on ``jobs``)."""
+    jobs = max(1, min(int(jobs), runs))
+    per_run: dict[int, dict] = {}
+    if jobs == 1:
+        for r in range(runs):
+            per_run[r] = _one_run(scenario, r)
+            if progress:
+                progress(r + 1, runs)
+    else:
+        ctx = multiprocessing.get_context("fork" if "fork" in multiprocessing.get_all_start_methods() else "spawn")
+        with ProcessPoolExecutor(jobs, mp_context=ctx) as pool:
+            futures = {pool.submit(_one_run, scenario, r): r for r in range(runs)}
+            for fut in as_completed(futures):
+                per_run[futures[fut]] = fut.result()
+                if progress:
+                    progress(len(per_run), runs)
     methods = {}
-    for a, g in got.items():
-        m = tracks_summary(g["scores"])
-        m.update(variant={"method": METHOD, "overrides": {"association": a}}, cpu_s_per_run=g["cpu_s"],
-                 merges_per_run=g["merges"], gospa_parts=gospa_parts(g["scores"]))
+    for a in ASSOCIATIONS:
+        scores, cpu, merges = zip(*(per_run[r][a] for r in range(runs)))
+        m = tracks_summary(scores)
+        m.update(variant={"method": METHOD, "overrides": {"association": a}}, cpu_s_per_run=list(cpu),
+                 merges_per_run=list(merges), gospa_per_run=[s.mean_gospa for s in scores],
+                 false_tracks_per_run=[s.false_tracks for s in scores], gospa_parts=gospa_parts(scores))
         methods[f"{METHOD}-{a}"] = m
     return summary(scenario, "in-process", None, scenario.seed, runs, methods) | {"gospa_cutoff": GOSPA_CUTOFF}
 
 
 def build_dense(runs: int, jobs: int = 1, progress=None, duration_s: float | None = None) -> dict:
-    """Both scenarios, ``runs`` runs each (``duration_s``: shortened, for a first look).
-    ``jobs`` is accepted for the command line's sake; the runs are sequential."""
+    """Both scenarios, ``runs`` runs each (``duration_s``: shortened, for a first look),
+    in ``jobs`` processes."""
     docs = {}
     for name in (DENSE, "air-picture"):
         sc = load_scenario(name)
         if duration_s is not None:
             sc = dataclasses.replace(sc, duration=float(duration_s))
-        docs[name] = _runs(sc, runs, progress if name == DENSE else None)  # air-picture's runs take seconds
+        docs[name] = _runs(sc, runs, jobs, progress if name == DENSE else None)  # air-picture's runs take seconds
     command = f"python -m services.report {DENSE} --runs {runs}" + (f" --duration-s {duration_s:g}" if duration_s else "")
     return {"report": DENSE, "runs": runs, "duration_s": duration_s, "command": command, "criteria": CRITERIA,
             "evaluation": docs}
