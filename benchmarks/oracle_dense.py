@@ -95,7 +95,8 @@ def main(argv=None) -> int:
             merges.append(formation_merges(steps, pairs))
             cpu.append(c)
         m = tracks_summary(scores)
-        m.update(overrides=overrides, cpu_s_per_run=cpu, merges_per_run=merges, gospa_parts=gospa_parts(scores))
+        m.update(overrides=overrides, cpu_s_per_run=cpu, merges_per_run=merges, gospa_parts=gospa_parts(scores),
+                 gospa_per_run=[s.mean_gospa for s in scores], false_tracks_per_run=[s.false_tracks for s in scores])
         m.pop("series")
         out["rules"][rule] = m
         p = m["gospa_parts"]
