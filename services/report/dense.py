@@ -238,8 +238,9 @@ def write_dense_report(bundle: dict, out_dir: Path) -> Path:
         "",
         *dense_verdicts(bundle),
         "",
-        "The comparison with the Stone Soup JPDA tracker (`benchmarks/stonesoup_jpda.py`) is not part of this "
-        "command; see docs/algorithms.md, \"JIPDA: association with track existence\".",
+        "The comparisons with the true-association reference (`benchmarks/oracle_dense.py`: each aircraft's own "
+        "plots through its own tracker) and with the Stone Soup JPDA tracker (`benchmarks/stonesoup_jpda.py`) are "
+        "not part of this command; see docs/algorithms.md, \"JIPDA: association with track existence\".",
         "",
         "## GOSPA against time",
         "",
