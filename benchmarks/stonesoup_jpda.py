@@ -4,9 +4,11 @@ zfusion's trackers.
 
 Same plots: run ``r``'s stream is :func:`services.evaluation.merged_measurements`, the
 one ``zfusion eval`` feeds every method. Same score: the confirmed tracks after each frame
-become :class:`fusion.types.Estimate` s scored by :func:`services.scoring.score_tracks_of`
-(GOSPA c = 1000 m, p = 2, track breaks, false tracks). CPU: ``time.process_time`` of the
-tracking loop alone (plots made and scored outside it).
+become :class:`fusion.types.Estimate` s scored as ``zfusion eval`` scores a run
+(:func:`services.scoring.track_steps`, GOSPA c = 1000 m, p = 2, track breaks, false
+tracks), with the dense report's GOSPA parts and formation merges
+(:mod:`services.report.dense`). CPU: ``time.process_time`` of the tracking loop alone
+(plots made and scored outside it).
 
 The tracker is Stone Soup's own components, configured as its documentation and
 tutorials use them:
@@ -78,8 +80,9 @@ from stonesoup.updater.kalman import ExtendedKalmanUpdater
 
 from fusion.types import Estimate
 from services.evaluation import merged_measurements
-from services.scoring import score_tracks_of
-from fusion.mtt_metrics import TrackScore
+from services.report.dense import formation_merges, formation_pairs, gospa_parts
+from services.scoring import GOSPA_CUTOFF, track_steps
+from fusion.mtt_metrics import TrackScore, score_tracks
 from sensors_sim import load_scenario
 from sensors_sim.geometry import coverage_span
 
@@ -286,7 +289,7 @@ def _scans(scenario, plots):
         yield scan
 
 
-def run_once(scenario, run: int, min_points: int) -> tuple[TrackScore, float, int]:
+def run_once(scenario, run: int, min_points: int) -> tuple[TrackScore, float, dict]:
     plots = merged_measurements(scenario, run)
     scans = list(_scans(scenario, plots))
     detector = ((scan[0].timestamp, set(scan)) for scan in scans)
@@ -305,7 +308,8 @@ def run_once(scenario, run: int, min_points: int) -> tuple[TrackScore, float, in
             P = np.asarray(st.covar, dtype=float)[np.ix_(PERM, PERM)]
             estimates.append(Estimate(t=secs, x=x, P=P, method="stonesoup-jpda", track=tid))
     cpu = time.process_time() - cpu0
-    return score_tracks_of(scenario, estimates, run), cpu, len(ids)
+    steps = track_steps(scenario, estimates, run)
+    return score_tracks(steps, GOSPA_CUTOFF), cpu, formation_merges(steps, formation_pairs(scenario))
 
 
 def main(argv=None) -> int:
@@ -324,24 +328,26 @@ def main(argv=None) -> int:
     print(f"# Stone Soup JPDA on {args.scenario}, runs {args.first_run}–{args.first_run + args.runs - 1}, "
           f"min_points {args.min_points}")
     print(f"{machine_line()}\n")
-    print("| run | mean GOSPA (m) | held | tracks | false | breaks | CPU (s) |")
-    print("|---|---|---|---|---|---|---|")
+    print("| run | mean GOSPA (m) | held | tracks | false | breaks | longest merge | CPU (s) |")
+    print("|---|---|---|---|---|---|---|---|")
     scores, rows = [], []
     for run in range(args.first_run, args.first_run + args.runs):
-        score, cpu, _ = run_once(scenario, run, args.min_points)
+        score, cpu, merges = run_once(scenario, run, args.min_points)
         scores.append(score)
         s = score.summary()
-        rows.append({"run": run, "cpu_s": cpu, **s})
+        rows.append({"run": run, "cpu_s": cpu, "merges": merges, **s})
         print(f"| {run} | {s['mean_gospa']:.1f} | {s['held']:.3f} | {s['tracks']} | {s['false_tracks']} | "
-              f"{s['breaks']} | {cpu:.1f} |", flush=True)
+              f"{s['breaks']} | {max(merges.values(), default=0)} | {cpu:.1f} |", flush=True)
     total = TrackScore.merged(scores).summary()
     cpu = float(np.mean([r["cpu_s"] for r in rows]))
+    parts = gospa_parts(scores)
     print(f"| all | {total['mean_gospa']:.1f} | {total['held']:.3f} | {total['tracks']} | {total['false_tracks']} | "
-          f"{total['breaks']} | {cpu:.1f} (mean) |")
+          f"{total['breaks']} | {max(max(r['merges'].values(), default=0) for r in rows)} | {cpu:.1f} (mean) |")
+    print("GOSPA parts: " + json.dumps(parts))
     if args.json:
         with open(args.json, "w") as f:
             json.dump({"scenario": args.scenario, "min_points": args.min_points, "runs": rows, "all": total,
-                       "cpu_s_mean": cpu}, f, indent=1)
+                       "cpu_s_mean": cpu, "gospa_parts": parts}, f, indent=1)
     return 0
 
 

@@ -8,9 +8,10 @@ import json
 
 import numpy as np
 
-from fusion.mtt_metrics import Step
+from fusion.metrics import gospa
+from fusion.mtt_metrics import Step, score_tracks
 from services.report.cli import main
-from services.report.dense import formation_merges
+from services.report.dense import formation_merges, gospa_parts
 
 
 def _steps(track_sets):
@@ -30,6 +31,31 @@ def test_formation_merges_count_one_track_on_two_aircraft():
     assert formation_merges(steps, [("A", "AW")], radius=100.0) == {"A/AW": 1}  # T1 between them is near neither
     far = _steps([{"T1": [5000.0, 0.0, 0.0]}] * 10)
     assert formation_merges(far, [("A", "AW")], grace=0) == {"A/AW": 0}
+
+
+def test_gospa_parts_add_up_to_each_steps_gospa():
+    """The parts of the mean squared GOSPA against fusion.metrics.gospa's own split of
+    each step (localisation, missed, false), the windows split at startup_s."""
+    rng = np.random.default_rng(3)
+    truths = {f"A{i}": rng.uniform(0, 5000, 3) for i in range(4)}
+    steps, want = [], []
+    for k in range(12):
+        tracks = {f"T{i}": x + rng.normal(0, 300, 3) for i, x in enumerate(truths.values()) if rng.random() < 0.7}
+        if k % 3 == 0:
+            tracks["F"] = rng.uniform(20000, 30000, 3)  # a false track, far from every aircraft
+        steps.append(Step(float(k), truths, tracks))
+        g = gospa(list(tracks.values()), list(truths.values()), 1000.0)
+        want.append((float(k), g.distance, g.localisation, g.missed, g.false, g.n_missed, g.n_false))
+    parts = gospa_parts([score_tracks(steps, 1000.0)], 1000.0, startup_s=4.0)
+    want = np.array(want)
+    for window, keep in (("all", want[:, 0] >= 0), ("startup", want[:, 0] < 4), ("steady", want[:, 0] >= 4)):
+        w = want[keep]
+        got = parts[window]
+        assert got["steps"] == len(w)
+        np.testing.assert_allclose([got["gospa"], got["loc"], got["missed"], got["false"], got["n_missed"],
+                                    got["n_false"]], w[:, 1:].mean(axis=0), rtol=1e-9, atol=1e-6)
+        np.testing.assert_allclose(got["gospa_no_false"], np.mean(np.sqrt(w[:, 2] + w[:, 3])), rtol=1e-9)
+    assert parts["all"]["n_false"] > 0 and parts["all"]["n_missed"] > 0
 
 
 def test_report_regenerates_with_verdicts_from_its_numbers(tmp_path):
