@@ -36,6 +36,11 @@ changes (switched on by ``revisit_s`` in ``[tracker]``):
    velocity keeps growing (docs/results/region-400.md). A confirmed track is deleted
    once ``delete_misses · revisit_s`` passes without a hit (``K`` missed looks of the
    slowest sensor), or when its position σ passes ``max_pos_std``.
+4. **no track from a lone 2D radar plot** (:func:`starts_alone`): it starts one here only
+   paired with an angle plot; alone, its height prior is kilometres wide
+   (``init_el_std``), its gate gathers the other sensors' false plots, and it could not
+   be confirmed before a plot measuring elevation hits it anyway. The aircraft's track
+   starts from that plot instead (a 3D radar's, an angle sensor's, or a pair).
 
 A frame reports the confirmed tracks it updated or confirmed (the others' estimates have
 not changed). No duplicate review: few false tracks are near an aircraft another track
@@ -55,7 +60,7 @@ from .. import batch
 from ..angles import wrap_pi
 from ..ekf import TrackEKF
 from ..measurement.components import AZ, EL, RANGE
-from ..measurement.kinds import KINDS, model_of
+from ..measurement.kinds import KINDS, SPHERE, model_of
 from ..measurement.models import SphericalModel
 from ..motion import ConstantAcceleration, ConstantVelocity
 from ..types import Estimate
@@ -284,6 +289,7 @@ class SweepTracker(MultiTargetTracker):
         tracks = list(self.table.tracks)
         taken, left = self.associate(tracks, frame)
         continued, births = self.initiator.initiate(left, tracks, frame)
+        births = [g for g in births if starts_alone(g)]
         changed = set()
         for i, track in enumerate(tracks):
             was = track.confirmed
@@ -398,6 +404,13 @@ def _stacked_d2(spread: Spread, rows: np.ndarray, times: np.ndarray, Z: np.ndarr
     S = Hp @ P @ Hp.transpose(0, 2, 1) + model.R
     S = batch._spd_inverse(0.5 * (S + S.transpose(0, 2, 1)))
     return np.einsum("ki,kij,kj->k", nu, S, nu)
+
+
+def starts_alone(group) -> bool:
+    """Whether an initiation group ``(first, more, x, P)`` starts a track here (module
+    docstring, 4.): a pair, or a plot that is not a 2D radar's range sphere."""
+    first = group[0]
+    return len(first) > 1 or KINDS[first[0].kind].start != SPHERE
 
 
 def _measures_el(m) -> bool:

@@ -14,6 +14,7 @@ from fusion.measurement.kinds import model_of
 from fusion.motion import ConstantAcceleration, ConstantVelocity
 from fusion.tracking.hypotheses import gate_threshold, mahalanobis2
 from fusion.tracking import sweep
+from fusion.methods import make_method, method_config
 from fusion.tracking.sweep import REVISIT_SLACK_S, Spread, SweepLogic, near, pair_d2, position_row
 from fusion.tracking.table import CONFIRMED, DELETED, TENTATIVE, ManagementRule, Track
 from fusion.types import Estimate, Measurement
@@ -221,3 +222,34 @@ def test_a_rotating_scenario_with_clutter_is_tracked_sweep_by_sweep():
     truth = truth_function(sc)
     err = [np.linalg.norm(e.x[:3] - truth(0, "T1", e.t)[:3]) for e in out]
     assert max(err) < 300.0, max(err)
+
+
+def test_a_lone_2d_radar_plot_starts_no_track_a_3d_radar_or_angle_plot_does():
+    """A frame's lone 2D radar plot (its height open by kilometres) leaves the table
+    empty; a lone 3D radar plot, or a lone angle plot, starts one tentative track; a
+    2D radar plot paired with an angle plot on the same aircraft starts one track from
+    both."""
+    sc = load_scenario(str(ROTATING))
+    method = make_method("SS", method_config(_method(sc, revisit_s=6.0, pair_tol=0.25).tracker, "SS"))
+    tracker = method.tracker
+    aircraft = np.array([20000.0, 5000.0, 4000.0])
+
+    def plot(kind, site, t, seq):
+        d = aircraft - np.asarray(site, float)
+        az, el, r = math.atan2(d[0], d[1]) % (2 * math.pi), math.atan2(d[2], math.hypot(d[0], d[1])), np.linalg.norm(d)
+        z, std = {"range_az": ([az, r], [math.radians(1.0), 20.0]),
+                  "az_el_range": ([az, el, r], [math.radians(0.3), math.radians(0.3), 100.0]),
+                  "azel": ([az, el], [math.radians(0.05)] * 2)}[kind]
+        return Measurement(t, kind, kind, np.array(z), np.array(std), tuple(site), seq=seq)
+
+    assert tracker.frame([plot("range_az", (0.0, 0.0, 0.0), 1.0, 0)]) == [] and not tracker.table.tracks
+    tracker.frame([plot("az_el_range", (30000.0, 0.0, 0.0), 2.0, 1)])
+    assert len(tracker.table.tracks) == 1
+    tracker.table.tracks.clear()
+    tracker.frame([plot("azel", (15000.0, -5000.0, 0.0), 3.0, 2)])
+    assert len(tracker.table.tracks) == 1
+    tracker.table.tracks.clear()
+    pair = [plot("range_az", (0.0, 0.0, 0.0), 4.0, 3), plot("azel", (15000.0, -5000.0, 0.0), 4.1, 4)]
+    tracker.frame(pair)
+    assert len(tracker.table.tracks) == 1
+    assert tracker.table.tracks[0].logic.sensors == {"range_az", "azel"}
