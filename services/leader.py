@@ -14,20 +14,31 @@ already holds the token (a restarted fuser while its standby leads: it becomes t
 standby). A standby watches the token and takes it when it goes (a DELETE), or when
 none has appeared within ``grace`` seconds of its start (no fuser to stand by for).
 
-What a standby that *starts* late cannot have: the tracks of the data it never heard.
-It joins mid-stream like a restarted fuser (:mod:`services.fuser`), so until its tracks
-and the leader's have the same history (a track confirmed after both joined), a
-takeover gives new ids for the older tracks. docs/reliability.md says what was measured.
+A standby that joins a running leader (started late, or a killed fuser restarted) has
+not heard the data the leader's tracks come from. It rebuilds them (:func:`rebuild`)
+from the leader's picture (:mod:`services.picture`: each track's last estimate, its
+``x``, ``P``, time and seq, and the picture's time ``t_p``): a one-target method's
+track filter starts from that estimate, the core drops every measurement up to the
+scan of ``t_p`` (:meth:`services.ordering.WatermarkMerger.join`), and the subscriber
+takes the sources' recovery caches first, which hold what was sent after ``t_p``
+before it subscribed. A Kalman filter's future depends on its ``(x, P, t)`` and the
+measurements after ``t`` alone, so from then on the standby's estimates are the
+leader's, bit for bit, seq numbers included. A method whose state is more than its
+published tracks (many targets, DF filters, track-fusion centres) joins as before,
+from the first scan it hears whole; docs/reliability.md says what converges and how fast.
 """
 
 from __future__ import annotations
 
 import threading
 import time
-from typing import Callable
+from dataclasses import dataclass
+from typing import Any, Callable
 
+import numpy as np
 import zenoh
 
+from fusion.patent import CentralisedMethod
 from schemas import KeySpace
 
 
@@ -55,6 +66,7 @@ class Leadership:
         self.leads = False
         self.takeovers = 0
         held = any(r.ok is not None for r in session.liveliness().get(self._key, timeout=1.0))
+        self.joins = held  # a leader ran already: this process stands by, joining its stream mid-way
         if not standby and not held:
             self._take("leading")
         elif not standby:
@@ -86,3 +98,26 @@ class Leadership:
         self._sub.undeclare()
         if self._token is not None:
             self._token.undeclare()
+
+
+@dataclass(frozen=True)
+class Rebuilt:
+    """What a joining standby took from its leader's picture (:func:`rebuild`)."""
+
+    t: float  # the picture's time: every measurement up to its scan is in the state taken
+    seq: int  # the seq of the leader's latest estimate: the standby numbers on from it
+    tracks: tuple[str, ...]
+
+
+def rebuild(method: Any, picture: dict | None) -> Rebuilt | None:
+    """Start ``method`` from the leader's ``picture`` (:func:`services.picture.pictures`),
+    if it is a one-target method whose state is its one published track; None (and
+    ``method`` untouched) otherwise, or if the picture has no track yet."""
+    if picture is None or not picture["tracks"] or not isinstance(method, CentralisedMethod):
+        return None
+    tracks = picture["tracks"]
+    if len(tracks) != 1 or tracks[0]["id"] != method.track or method.filter is not None:
+        return None
+    track = tracks[0]
+    method.start(np.asarray(track["x"], dtype=float), np.asarray(track["P"], dtype=float), track["t"])
+    return Rebuilt(picture["t"] + method.config.pair_tol, track["seq"], (track["id"],))
