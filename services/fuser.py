@@ -56,7 +56,7 @@ from .picture import Picture, pictures
 from .scenario import load, load_site
 from .source import recovery_cache
 
-JOIN_PATIENCE_S = 5.0  # how long a standby joining a leader waits for its picture
+JOIN_PATIENCE_S = 2.0  # how long a standby joining a leader waits for its picture (it answers in ms)
 
 # --json only: the scorer (scipy.stats, the scenario's truth) loads when a summary is written
 summary = lazy("services.summary")
