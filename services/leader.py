@@ -38,7 +38,11 @@ from typing import Any, Callable
 import numpy as np
 import zenoh
 
+from fusion.mtt import MultiTargetMethod
 from fusion.patent import CentralisedMethod
+from fusion.tracking.manager import MultiTargetTracker
+from fusion.tracking.table import CONFIRMED, Track
+from fusion.types import Estimate
 from schemas import KeySpace
 
 
@@ -110,14 +114,36 @@ class Rebuilt:
 
 
 def rebuild(method: Any, picture: dict | None) -> Rebuilt | None:
-    """Start ``method`` from the leader's ``picture`` (:func:`services.picture.pictures`),
-    if it is a one-target method whose state is its one published track; None (and
-    ``method`` untouched) otherwise, or if the picture has no track yet."""
-    if picture is None or not picture["tracks"] or not isinstance(method, CentralisedMethod):
+    """Start ``method`` from the leader's ``picture`` (:func:`services.picture.pictures`):
+    a one-target method's track filter from its one track; a many-target method's table
+    (GNN, frame by frame) from the tracks the picture's latest frame reports, confirmed,
+    under their ids, the id counter after them. None (and ``method`` untouched) for any
+    other method, a method that holds a track already, or a picture without tracks."""
+    if picture is None or not picture["tracks"]:
         return None
-    tracks = picture["tracks"]
-    if len(tracks) != 1 or tracks[0]["id"] != method.track or method.filter is not None:
+    latest = [tr for tr in picture["tracks"] if tr["t"] == picture["t"]]  # (the others were no longer reported)
+    if isinstance(method, CentralisedMethod):
+        if len(latest) != 1 or latest[0]["id"] != method.track or method.filter is not None:
+            return None
+        track = latest[0]
+        method.start(np.asarray(track["x"], dtype=float), np.asarray(track["P"], dtype=float), track["t"])
+    elif not (isinstance(method, MultiTargetMethod) and _seed_table(method, latest)):
         return None
-    track = tracks[0]
-    method.start(np.asarray(track["x"], dtype=float), np.asarray(track["P"], dtype=float), track["t"])
-    return Rebuilt(picture["t"] + method.config.pair_tol, track["seq"], (track["id"],))
+    return Rebuilt(picture["t"] + method.group_tol, max(tr["seq"] for tr in latest), tuple(tr["id"] for tr in latest))
+
+
+def _seed_table(method: MultiTargetMethod, tracks: list[dict]) -> bool:
+    """A GNN frame-by-frame tracker's empty table filled with ``tracks``, confirmed."""
+    tracker = method.tracker
+    if not isinstance(tracker, MultiTargetTracker) or method.config.association != "gnn" or len(method.table):
+        return False
+    table = tracker.table
+    numbers = {tr["id"]: table.ids.number(tr["id"]) for tr in tracks}
+    for tr in sorted(tracks, key=lambda tr: numbers[tr["id"]]):
+        x, P = np.asarray(tr["x"], dtype=float), np.asarray(tr["P"], dtype=float)
+        track = table.add(Track(tracker.updater.new_filter(x, P, tr["t"]), Estimate(tr["t"], x, P, method.name,
+                                                                                      "centre")))
+        track.logic.status, track.logic.hits = CONFIRMED, track.logic.rule.confirm_m
+        track.id = tr["id"]
+    table.ids.issued = max(numbers.values())
+    return True
