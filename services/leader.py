@@ -18,14 +18,16 @@ A standby that joins a running leader (started late, or a killed fuser restarted
 not heard the data the leader's tracks come from. It rebuilds them (:func:`rebuild`)
 from the leader's picture (:mod:`services.picture`: each track's last estimate, its
 ``x``, ``P``, time and seq, and the picture's time ``t_p``): a one-target method's
-track filter starts from that estimate, the core drops every measurement up to the
-scan of ``t_p`` (:meth:`services.ordering.WatermarkMerger.join`), and the subscriber
-takes the sources' recovery caches first, which hold what was sent after ``t_p``
-before it subscribed. A Kalman filter's future depends on its ``(x, P, t)`` and the
-measurements after ``t`` alone, so from then on the standby's estimates are the
-leader's, bit for bit, seq numbers included. A method whose state is more than its
-published tracks (many targets, DF filters, track-fusion centres) joins as before,
-from the first scan it hears whole; docs/reliability.md says what converges and how fast.
+track filter starts from that estimate, a GNN many-target tracker's table from the
+confirmed tracks of the latest frame; the core drops every measurement up to the scan
+of ``t_p`` (:meth:`services.ordering.WatermarkMerger.join`), and the subscriber takes
+the sources' recovery caches first, which hold what was sent after ``t_p`` before it
+subscribed. A Kalman filter's future depends on its ``(x, P, t)`` and the measurements
+after ``t`` alone, so from then on the standby's estimates are the leader's, bit for
+bit (many targets: those of the tracks confirmed at the join; a tentative one starts
+again and converges). A method whose state is more than its published tracks (JIPDA,
+DF filters, track-fusion centres) joins as before, from the first scan it hears
+whole; docs/reliability.md says what is equal, what converges and how fast.
 """
 
 from __future__ import annotations
