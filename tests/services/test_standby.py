@@ -173,3 +173,50 @@ def test_a_restarted_fuser_rebuilds_the_track_and_takes_over_in_turn(tmp_path, d
     for killed_at in kills:
         _continuous([m for a, m in watch.got if a < killed_at], [m for a, m in watch.got if a > killed_at + 0.5],
                     period)
+
+
+def test_many_targets_a_restarted_fuser_rebuilds_the_table_and_takes_over(tmp_path, deployment):
+    """Live air-picture-live (SS, GNN, up to 20 aircraft crossing, clutter) with
+    ``--standby``: the leader killed once the run is past the sources' caches, the
+    restarted fuser rebuilds the table from the standby's picture, then the standby is
+    killed: the restarted fuser leads with the ids of the frame before the kill (those of
+    its tracks confirmed at its join; one still tentative then may be numbered anew),
+    each within 3σ of where the last frame before the kill, moved along its velocity, put
+    it, and no gap in ``fused`` longer than one update period plus 1 s."""
+    watch = Fused(deployment)
+    proc = subprocess.Popen(run_cmd(tmp_path, "air-picture-live", deployment, "--live", "--for", "300", "--standby",
+                                    "--connect", watch.endpoint), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True)
+    try:
+        launcher = psutil.Process(proc.pid)
+        first = child(launcher, "fuser", "fuser")
+        standby = child(launcher, "fuser", "fuser-standby")
+        frames = lambda: len({m.t for _, m in watch.got})  # noqa: E731
+        watch.wait(lambda: frames() >= 70, proc, timeout=200)
+        first.kill()
+        child(launcher, "fuser", "fuser", exclude=(first.pid,))
+        at = frames()
+        watch.wait(lambda: frames() >= at + 15, proc, timeout=90)  # the restarted fuser has joined, and confirmed
+        kill = time.monotonic()
+        standby.kill()
+        watch.wait(lambda: len({m.t for a, m in watch.got if a > kill + 0.5}) >= 5, proc, timeout=90)
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGINT)
+            proc.wait(30)
+        watch.close()
+    assert proc.returncode == 0, err[-3000:]
+    assert "fuser: rebuilt T" in err, err[-3000:]
+    arrivals = np.array([a for a, _ in watch.got])
+    assert np.max(np.diff(arrivals)) <= 2.0, np.diff(arrivals)
+    before = [m for a, m in watch.got if a < kill]
+    after = [m for a, m in watch.got if a > kill + 0.5]
+    last = {m.body["track"]: m for m in before if m.t == before[-1].t}
+    t_next = min(m.t for m in after)
+    nxt = {m.body["track"]: m for m in after if m.t == t_next}
+    common = set(last) & set(nxt)
+    assert len(common) >= len(last) - 1 and len(common) >= 3, (sorted(last), sorted(nxt))
+    for tid in common:
+        _continuous([last[tid]], [nxt[tid]], 1.0)
