@@ -56,7 +56,7 @@ from .picture import Picture, pictures
 from .scenario import load, load_site
 from .source import recovery_cache
 
-JOIN_PATIENCE_S = 2.0  # how long a standby joining a leader waits for its picture (it answers in ms)
+JOIN_PATIENCE_S = 5.0  # how long a standby joining a leader waits for its picture (a new session finds its route by gossip: seconds under load)
 
 # --json only: the scorer (scipy.stats, the scenario's truth) loads when a summary is written
 summary = lazy("services.summary")
@@ -419,15 +419,13 @@ def run(process_id: str, scenario_ref: str, method_name: str, overrides: dict, k
         if isinstance(method, TrackCentre):
             method = JoinGate(method, node.reject, node.event)
         identity = standby_for or process_id  # the fuser consumers take the fused output of
-        leader = Leadership(node.session, keys, identity, standby_for is not None, start_grace, node.event, node.stop)
-        node.keep(leader)
         utc = time.time if live is not None else lambda: None
         recovery = Recovery(node.processes_by_session()) if live is not None else None
         # a regional fuser hears its region's sensors only; the others, every source of its family
         heard = [keys.meas(s) for s in sources] if stage is not None else [keys.all(intake.family)]
         if recovery is not None:  # live sensors' and trackers' publishers give back what a cut-off missed
-            for key in heard:  # (joining a leader: what they sent before, too, for the rebuild below)
-                node.recovering_subscriber(key, inbox, recovery.on_miss, history=leader.joins)
+            for key in heard:  # (a standby: what they sent before, too, for a rebuild below)
+                node.recovering_subscriber(key, inbox, recovery.on_miss, history=standby_for is not None)
             # Its own streams too: a release is at most one estimate per measurement (or uplink) taken.
             cache = sum(recovery_cache(scenario, s) for s in scenario.sensors)
             publisher = functools.partial(node.recoverable_publisher, cache=cache)
@@ -435,6 +433,10 @@ def run(process_id: str, scenario_ref: str, method_name: str, overrides: dict, k
             for key in heard:
                 node.subscribe(key, inbox)
             publisher = node.publisher
+        # The election once the session has had the time its declarations took to find its peers: its
+        # liveliness query, right after the session opened, may miss a leader's token (two leaders).
+        leader = Leadership(node.session, keys, identity, standby_for is not None, start_grace, node.event, node.stop)
+        node.keep(leader)
         # Joining a running leader: its tracks from its picture, asked before this process serves its own.
         found = pictures(node.session, keys, identity, JOIN_PATIENCE_S) if leader.joins and stage is None else []
         rebuilt = rebuild(method, found[0]) if found else None

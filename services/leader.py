@@ -48,6 +48,9 @@ from fusion.types import Estimate
 from schemas import KeySpace
 
 
+LINK_WAIT_S = 5.0  # how long the election waits for the session's first link (none: a process alone)
+
+
 def leader_key(keys: KeySpace, fuser: str) -> str:
     """The liveliness token of the leader of ``fuser``'s output."""
     return f"{keys.prefix}/leader/{fuser}"
@@ -71,6 +74,10 @@ class Leadership:
         self._deadline = time.monotonic() + grace if standby else None
         self.leads = False
         self.takeovers = 0
+        linked = time.monotonic() + LINK_WAIT_S  # a query before the session reaches its peers sees no token
+        while not (any(True for _ in session.info.peers_zid()) or any(True for _ in session.info.routers_zid())) \
+                and time.monotonic() < linked and not stopping.is_set():
+            time.sleep(0.02)
         held = any(r.ok is not None for r in session.liveliness().get(self._key, timeout=1.0))
         self.joins = held  # a leader ran already: this process stands by, joining its stream mid-way
         if not standby and not held:
