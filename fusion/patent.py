@@ -206,6 +206,11 @@ class GroupedMethod:
     def finish(self) -> list[Estimate]:
         return self._run(self._grouper.finish())
 
+    @property
+    def group_tol(self) -> float:
+        """The time window of a group (``pair_tol``): a group at ``t`` holds what is up to ``t`` + this."""
+        return self._grouper.tol
+
     def _run(self, groups: list[list[Measurement]]) -> list[Estimate]:
         out: list[Estimate] = []
         for group in groups:

@@ -47,14 +47,16 @@ from schemas.links import encode_downlink, encode_regional_frame, horizon_messag
 from .errors import UserError
 from .intake import HORIZON_SLACK_S, Intake
 from .lazy import lazy
-from .leader import Leadership
+from .leader import Leadership, rebuild
 from .live import ClockGuard, LiveOptions
 from .logs import utc_text
 from .node import Inbox, Node, Recovery, RejectLog
 from .ordering import DEFAULT_MAX_HELD, WatermarkMerger, hold_cap
-from .picture import Picture
+from .picture import Picture, pictures
 from .scenario import load, load_site
 from .source import recovery_cache
+
+JOIN_PATIENCE_S = 5.0  # how long a standby joining a leader waits for its picture (a new session finds its route by gossip: seconds under load)
 
 # --json only: the scorer (scipy.stats, the scenario's truth) loads when a summary is written
 summary = lazy("services.summary")
@@ -416,19 +418,14 @@ def run(process_id: str, scenario_ref: str, method_name: str, overrides: dict, k
         inbox = Inbox(node.stop)
         if isinstance(method, TrackCentre):
             method = JoinGate(method, node.reject, node.event)
-        feedback = METHODS[method_name].topology in ("feedback", "two-stage")  # its centre's feedback is final
-        core = FuserCore(method, sources, keys, node.reject, timeout, start_grace,
-                         horizon=scenario.duration + HORIZON_SLACK_S if live is None else math.inf, now=time.monotonic(),
-                         intake=intake, max_held=max_held_for(scenario, None if live is None else timeout),
-                         live=live, refilter=not feedback and stage is None and not system, periods=periods,
-                         schedule=schedule)
+        identity = standby_for or process_id  # the fuser consumers take the fused output of
         utc = time.time if live is not None else lambda: None
         recovery = Recovery(node.processes_by_session()) if live is not None else None
         # a regional fuser hears its region's sensors only; the others, every source of its family
         heard = [keys.meas(s) for s in sources] if stage is not None else [keys.all(intake.family)]
         if recovery is not None:  # live sensors' and trackers' publishers give back what a cut-off missed
-            for key in heard:
-                node.recovering_subscriber(key, inbox, recovery.on_miss)
+            for key in heard:  # (a standby: what they sent before, too, for a rebuild below)
+                node.recovering_subscriber(key, inbox, recovery.on_miss, history=standby_for is not None)
             # Its own streams too: a release is at most one estimate per measurement (or uplink) taken.
             cache = sum(recovery_cache(scenario, s) for s in scenario.sensors)
             publisher = functools.partial(node.recoverable_publisher, cache=cache)
@@ -436,7 +433,28 @@ def run(process_id: str, scenario_ref: str, method_name: str, overrides: dict, k
             for key in heard:
                 node.subscribe(key, inbox)
             publisher = node.publisher
-        identity = standby_for or process_id  # the fuser consumers take the fused output of
+        # The election once the session has had the time its declarations took to find its peers: its
+        # liveliness query, right after the session opened, may miss a leader's token (two leaders).
+        leader = Leadership(node.session, keys, identity, standby_for is not None, start_grace, node.event, node.stop)
+        node.keep(leader)
+        # Joining a running leader: its tracks from its picture, asked before this process serves its own.
+        found = pictures(node.session, keys, identity, JOIN_PATIENCE_S) if leader.joins and stage is None else []
+        rebuilt = rebuild(method, found[0]) if found else None
+        feedback = METHODS[method_name].topology in ("feedback", "two-stage")  # its centre's feedback is final
+        core = FuserCore(method, sources, keys, node.reject, timeout, start_grace,
+                         horizon=scenario.duration + HORIZON_SLACK_S if live is None else math.inf, now=time.monotonic(),
+                         intake=intake, max_held=max_held_for(scenario, None if live is None else timeout),
+                         live=live, refilter=not feedback and stage is None and not system, periods=periods,
+                         schedule=schedule)
+        seq = down_seq = 0
+        if rebuilt is not None:
+            core.merger.join(rebuilt.t)
+            seq = rebuilt.seq
+            node.event(f"rebuilt {', '.join(rebuilt.tracks)} from the leader's picture (seq {rebuilt.seq}); fusing "
+                       f"what comes after {utc_text(rebuilt.t) if live is not None else f't = {rebuilt.t:g} s'}")
+        elif found and found[0]["tracks"]:
+            node.event(f"{method_name}'s tracks cannot be rebuilt from the leader's picture: starting from the "
+                       f"first scan heard")
         pub = publisher(keys.regional(identity) if stage is not None else keys.fused(identity))
         encoder = encode_regional_frame if stage is not None else encode_estimate
         frames_through = -math.inf  # a regional fuser: the watermark of its frames published last
@@ -444,11 +462,8 @@ def run(process_id: str, scenario_ref: str, method_name: str, overrides: dict, k
         if stage is None:  # a regional fuser's frames are no picture: it answers no `zfusion picture`
             node.keep(picture.serve(node.session, keys))
         down = {tid: publisher(keys.feedback(tid)) for tid in (intake.nodes if distributed else ())}
-        leader = Leadership(node.session, keys, identity, standby_for is not None, start_grace, node.event, node.stop)
-        node.keep(leader)
         node.announce()
         node.publish_status("ready")
-        seq = down_seq = 0
         kept: list[Estimate] | None = [] if json_path and live is None else None
         horizon = -math.inf
         last_status = 0.0

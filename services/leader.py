@@ -14,21 +14,41 @@ already holds the token (a restarted fuser while its standby leads: it becomes t
 standby). A standby watches the token and takes it when it goes (a DELETE), or when
 none has appeared within ``grace`` seconds of its start (no fuser to stand by for).
 
-What a standby that *starts* late cannot have: the tracks of the data it never heard.
-It joins mid-stream like a restarted fuser (:mod:`services.fuser`), so until its tracks
-and the leader's have the same history (a track confirmed after both joined), a
-takeover gives new ids for the older tracks. docs/reliability.md says what was measured.
+A standby that joins a running leader (started late, or a killed fuser restarted) has
+not heard the data the leader's tracks come from. It rebuilds them (:func:`rebuild`)
+from the leader's picture (:mod:`services.picture`: each track's last estimate, its
+``x``, ``P``, time and seq, and the picture's time ``t_p``): a one-target method's
+track filter starts from that estimate, a GNN many-target tracker's table from the
+confirmed tracks of the latest frame; the core drops every measurement up to the scan
+of ``t_p`` (:meth:`services.ordering.WatermarkMerger.join`), and the subscriber takes
+the sources' recovery caches first, which hold what was sent after ``t_p`` before it
+subscribed. A Kalman filter's future depends on its ``(x, P, t)`` and the measurements
+after ``t`` alone, so from then on the standby's estimates are the leader's, bit for
+bit (many targets: those of the tracks confirmed at the join; a tentative one starts
+again and converges). A method whose state is more than its published tracks (JIPDA,
+DF filters, track-fusion centres) joins as before, from the first scan it hears
+whole; docs/reliability.md says what is equal, what converges and how fast.
 """
 
 from __future__ import annotations
 
 import threading
 import time
-from typing import Callable
+from dataclasses import dataclass
+from typing import Any, Callable
 
+import numpy as np
 import zenoh
 
+from fusion.mtt import MultiTargetMethod
+from fusion.patent import CentralisedMethod
+from fusion.tracking.manager import MultiTargetTracker
+from fusion.tracking.table import CONFIRMED, Track
+from fusion.types import Estimate
 from schemas import KeySpace
+
+
+LINK_WAIT_S = 5.0  # how long the election waits for the session's first link (none: a process alone)
 
 
 def leader_key(keys: KeySpace, fuser: str) -> str:
@@ -54,7 +74,12 @@ class Leadership:
         self._deadline = time.monotonic() + grace if standby else None
         self.leads = False
         self.takeovers = 0
+        linked = time.monotonic() + LINK_WAIT_S  # a query before the session reaches its peers sees no token
+        while not (any(True for _ in session.info.peers_zid()) or any(True for _ in session.info.routers_zid())) \
+                and time.monotonic() < linked and not stopping.is_set():
+            time.sleep(0.02)
         held = any(r.ok is not None for r in session.liveliness().get(self._key, timeout=1.0))
+        self.joins = held  # a leader ran already: this process stands by, joining its stream mid-way
         if not standby and not held:
             self._take("leading")
         elif not standby:
@@ -86,3 +111,48 @@ class Leadership:
         self._sub.undeclare()
         if self._token is not None:
             self._token.undeclare()
+
+
+@dataclass(frozen=True)
+class Rebuilt:
+    """What a joining standby took from its leader's picture (:func:`rebuild`)."""
+
+    t: float  # the picture's time: every measurement up to its scan is in the state taken
+    seq: int  # the seq of the leader's latest estimate: the standby numbers on from it
+    tracks: tuple[str, ...]
+
+
+def rebuild(method: Any, picture: dict | None) -> Rebuilt | None:
+    """Start ``method`` from the leader's ``picture`` (:func:`services.picture.pictures`):
+    a one-target method's track filter from its one track; a many-target method's table
+    (GNN, frame by frame) from the tracks the picture's latest frame reports, confirmed,
+    under their ids, the id counter after them. None (and ``method`` untouched) for any
+    other method, a method that holds a track already, or a picture without tracks."""
+    if picture is None or not picture["tracks"]:
+        return None
+    latest = [tr for tr in picture["tracks"] if tr["t"] == picture["t"]]  # (the others were no longer reported)
+    if isinstance(method, CentralisedMethod):
+        if len(latest) != 1 or latest[0]["id"] != method.track or method.filter is not None:
+            return None
+        track = latest[0]
+        method.start(np.asarray(track["x"], dtype=float), np.asarray(track["P"], dtype=float), track["t"])
+    elif not (isinstance(method, MultiTargetMethod) and _seed_table(method, latest)):
+        return None
+    return Rebuilt(picture["t"] + method.group_tol, max(tr["seq"] for tr in latest), tuple(tr["id"] for tr in latest))
+
+
+def _seed_table(method: MultiTargetMethod, tracks: list[dict]) -> bool:
+    """A GNN frame-by-frame tracker's empty table filled with ``tracks``, confirmed."""
+    tracker = method.tracker
+    if not isinstance(tracker, MultiTargetTracker) or method.config.association != "gnn" or len(method.table):
+        return False
+    table = tracker.table
+    numbers = {tr["id"]: table.ids.number(tr["id"]) for tr in tracks}
+    for tr in sorted(tracks, key=lambda tr: numbers[tr["id"]]):
+        x, P = np.asarray(tr["x"], dtype=float), np.asarray(tr["P"], dtype=float)
+        track = table.add(Track(tracker.updater.new_filter(x, P, tr["t"]), Estimate(tr["t"], x, P, method.name,
+                                                                                      "centre")))
+        track.logic.status, track.logic.hits = CONFIRMED, track.logic.rule.confirm_m
+        track.id = tr["id"]
+    table.ids.issued = max(numbers.values())
+    return True

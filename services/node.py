@@ -510,12 +510,15 @@ class Node:
         return pub
 
     def recovering_subscriber(self, key: str, callback: Callable[[zenoh.Sample], None],
-                              on_miss: Callable[[str, int], None]) -> Any:
+                              on_miss: Callable[[str, int], None], history: bool = False) -> Any:
         """A subscriber that recovers what a :meth:`recoverable_publisher` sent while the
         two were cut off (delivered in order, through ``callback``), and calls
         ``on_miss(zid, n)`` on Zenoh's thread for ``n`` samples of the publisher of
-        session ``zid`` that its cache no longer held."""
+        session ``zid`` that its cache no longer held. ``history``: first get what the
+        publishers' caches hold now (a process joining a stream mid-way, which needs what
+        was sent just before it subscribed)."""
         sub = zx.declare_advanced_subscriber(self.session, key, callback,
+                                             history=zx.HistoryConfig() if history else None,
                                              recovery=zx.RecoveryConfig(periodic_queries=None, heartbeat=True))
         self._declared.append(sub)
         self._declared.append(sub.sample_miss_listener(lambda m: on_miss(str(m.source.zid), int(m.nb))))

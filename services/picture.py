@@ -21,7 +21,7 @@ import math
 import sys
 import threading
 import time
-from typing import Callable
+from typing import Callable, Iterable
 
 import zenoh
 
@@ -160,24 +160,32 @@ def pictures(session: zenoh.Session, keys: KeySpace, fuser: str, timeout: float 
         left = deadline - time.monotonic()
         if left <= 0:
             return []
-        answers: dict[str, dict] = {}
-        for reply in session.get(keys.picture(fuser), timeout=min(left, 0.25),
-                                 consolidation=zenoh.ConsolidationMode.NONE):
-            msg = _track_or_none(reply.ok.payload.to_bytes()) if reply.ok is not None else None
-            if msg is None:
-                continue
-            doc = answers.setdefault(msg.src, {"t": None, "fuser": msg.src, "tracks": []})
-            if msg.kind == "watermark":
-                doc["t"] = msg.t
-            elif msg.kind == "track":
-                e = to_estimate(msg)
-                doc["tracks"].append({"id": e.track, "t": e.t, "x": e.x.tolist(), "P": e.P.tolist(),
-                                      "method": e.method, "node": e.node, "nis": e.nis, "nis_dof": e.nis_dof,
-                                      "existence": e.existence, "seq": msg.seq})
+        answers = documents(reply.ok.payload.to_bytes() for reply in session.get(
+            keys.picture(fuser), timeout=min(left, 0.25), consolidation=zenoh.ConsolidationMode.NONE)
+            if reply.ok is not None)
         complete = [answers[f] for f in sorted(answers) if answers[f]["t"] is not None]
         if complete:
             return complete
         time.sleep(min(0.05, max(0.0, deadline - time.monotonic())))
+
+
+def documents(replies: Iterable[bytes]) -> dict[str, dict]:
+    """Replies to a picture query, as one dict per answering fuser (by id): ``t`` (None
+    until its watermark has come) and its ``tracks``, each as JSON-ready values."""
+    answers: dict[str, dict] = {}
+    for data in replies:
+        msg = _track_or_none(data)
+        if msg is None:
+            continue
+        doc = answers.setdefault(msg.src, {"t": None, "fuser": msg.src, "tracks": []})
+        if msg.kind == "watermark":
+            doc["t"] = msg.t
+        elif msg.kind == "track":
+            e = to_estimate(msg)
+            doc["tracks"].append({"id": e.track, "t": e.t, "x": e.x.tolist(), "P": e.P.tolist(),
+                                  "method": e.method, "node": e.node, "nis": e.nis, "nis_dof": e.nis_dof,
+                                  "existence": e.existence, "seq": msg.seq})
+    return answers
 
 
 def main(keys: KeySpace, zopts, fuser: str, timeout: float) -> int:

@@ -17,6 +17,8 @@ ROOT = Path(__file__).resolve().parents[1]
 CASES = {
     "bench_asterix.py": (["--repeats", "1", "--seconds", "0.5"],
                          ["## Per record", "decode", "gateway", "CAT062 encode", "## Paced"]),
+    "bench_gateway.py": (["--lines", "2000", "--rates", "500", "--seconds", "0.5"],
+                         ["## TCP", "sans-I/O path", "Python sink", "## UDP", "Sustained"]),
     "bench_ekf.py": (["--repeats", "1", "--tracks", "50", "--loop-tracks", "5"],
                      ["FilterPy", "Stone Soup", "batch.ekf_step", "## Targets"]),
     "bench_montecarlo.py": (["--runs", "4"], ["vectorised", "run by run"]),

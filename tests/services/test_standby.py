@@ -1,6 +1,7 @@
 """The hot standby fuser (services/leader.py): a live run with ``--standby``, kill -9 of
 the leading fuser, and the fused output goes on from the standby under the same
-identity, the same track ids, without a gap or a jump."""
+identity, the same track ids, without a gap or a jump; the killed fuser, restarted,
+rebuilds the leader's track from its picture and takes over in turn."""
 
 from __future__ import annotations
 
@@ -28,6 +29,7 @@ class Fused:
     """Every fused estimate as it arrives, with its arrival time (monotonic)."""
 
     def __init__(self, deployment: str):
+        self.deployment = deployment
         self.endpoint = f"tcp/127.0.0.1:{free_port()}"
         self.session = zenoh.open(ZenohOptions(listen=[self.endpoint]).to_config())
         self.got: list[tuple[float, object]] = []
@@ -45,6 +47,15 @@ class Fused:
             assert proc.poll() is None, "the run ended early"
             assert time.monotonic() < deadline, "timed out"
             time.sleep(0.02)
+
+    def pictures(self, fuser: str = "fuser") -> dict:
+        """Each answering process's picture of ``fuser`` (by Zenoh id): its replies' bytes."""
+        out: dict[str, list[bytes]] = {}
+        for reply in self.session.get(KeySpace(self.deployment).picture(fuser), timeout=1.0,
+                                      consolidation=zenoh.ConsolidationMode.NONE):
+            if reply.ok is not None:
+                out.setdefault(str(reply.replier_id), []).append(reply.ok.payload.to_bytes())
+        return out
 
     def close(self) -> None:
         self._sub.undeclare()
@@ -95,3 +106,117 @@ def test_kill_of_the_leading_fuser_is_no_gap_same_ids_no_jump(tmp_path, deployme
     predicted = last.x[:3] + dt * last.x[3:6]
     d2 = (first.x[:3] - predicted) @ np.linalg.solve(first.P[:3, :3] + last.P[:3, :3], first.x[:3] - predicted)
     assert d2 <= chi2.ppf(0.9973, 3), d2  # within 3σ (the 3-D equivalent)
+
+
+def _continuous(before, after, period: float) -> None:
+    """The first estimate of ``after`` is where the last of ``before``, moved along its
+    velocity, says, within 3σ (the 3-D equivalent)."""
+    last, first = to_estimate(before[-1]), to_estimate(after[0])
+    dt = first.t - last.t
+    assert 0.0 < dt <= period + 1.0 + 1e-6
+    predicted = last.x[:3] + dt * last.x[3:6]
+    d2 = (first.x[:3] - predicted) @ np.linalg.solve(first.P[:3, :3] + last.P[:3, :3], first.x[:3] - predicted)
+    assert d2 <= chi2.ppf(0.9973, 3), d2
+
+
+def test_a_restarted_fuser_rebuilds_the_track_and_takes_over_in_turn(tmp_path, deployment):
+    """Live patent-3d-orbit (SS) with ``--standby``: kill -9 of the leader; the standby
+    leads; the launcher restarts the killed fuser, which joins mid-stream, rebuilds T1
+    from the leader's picture and then holds the leader's very track: both processes'
+    pictures, at the same time, are the same bytes (state, covariance, seq). Kill -9 of
+    the new leader: the restarted fuser leads, under one identity, with the same track
+    id, seq numbers going on, no gap in ``fused`` longer than one update period plus
+    1 s, and each takeover within 3σ of the estimate before it. Without the rebuild the
+    restarted fuser's picture differs (its track started afresh from the 60 s its
+    sources' caches give back) and the test fails."""
+    watch = Fused(deployment)
+    proc = subprocess.Popen(run_cmd(tmp_path, "patent-3d-orbit", deployment, "--live", "--for", "240", "--standby",
+                                    "--connect", watch.endpoint), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True)
+    try:
+        launcher = psutil.Process(proc.pid)
+        first = child(launcher, "fuser", "fuser")
+        standby = child(launcher, "fuser", "fuser-standby")
+        # Past the sensors' recovery caches (60 s of stream): the restarted fuser cannot
+        # get the track's whole history back from them, only rebuild it from the picture.
+        watch.wait(lambda: len(watch.got) >= 70, proc, timeout=150)
+        kills = [time.monotonic()]
+        first.kill()
+        child(launcher, "fuser", "fuser", exclude=(first.pid,))  # restarted by the launcher
+        watch.wait(lambda: sum(a > kills[0] + 0.5 for a, _ in watch.got) >= 6, proc, timeout=60)
+
+        def same_pictures() -> bool:  # the leader's and the restarted fuser's, at one time
+            answers = [sorted(r) for r in watch.pictures().values()]
+            return len(answers) >= 2 and len(answers[0]) == 2 and all(a == answers[0] for a in answers)
+        watch.wait(same_pictures, proc, timeout=60)
+        kills.append(time.monotonic())
+        standby.kill()
+        watch.wait(lambda: sum(a > kills[1] + 0.5 for a, _ in watch.got) >= 6, proc, timeout=60)
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGINT)
+            proc.wait(30)
+        watch.close()
+    assert proc.returncode == 0, err[-3000:]
+    doc = json.loads((tmp_path / "out.json").read_text())
+    assert doc["exit_codes"]["fuser"] == -9 and doc["exit_codes"]["fuser-standby"] == -9, doc["exit_codes"]
+    assert "fuser: rebuilt T1 from the leader's picture" in err, err[-3000:]
+    arrivals = np.array([a for a, _ in watch.got])
+    msgs = [m for _, m in watch.got]
+    assert {m.src for m in msgs} == {"fuser"} and {m.body["track"] for m in msgs} == {"T1"}
+    period = 1.0
+    assert np.max(np.diff(arrivals)) <= period + 1.0, np.diff(arrivals)
+    seqs = [m.seq for m in msgs]
+    assert all(b > a for a, b in zip(seqs, seqs[1:])), seqs  # one numbering across both takeovers
+    for killed_at in kills:
+        _continuous([m for a, m in watch.got if a < killed_at], [m for a, m in watch.got if a > killed_at + 0.5],
+                    period)
+
+
+def test_many_targets_a_restarted_fuser_rebuilds_the_table_and_takes_over(tmp_path, deployment):
+    """Live air-picture-live (SS, GNN, up to 20 aircraft crossing, clutter) with
+    ``--standby``: the leader killed once the run is past the sources' caches, the
+    restarted fuser rebuilds the table from the standby's picture, then the standby is
+    killed: the restarted fuser leads with the ids of the frame before the kill (those of
+    its tracks confirmed at its join; one still tentative then may be numbered anew),
+    each within 3σ of where the last frame before the kill, moved along its velocity, put
+    it, and no gap in ``fused`` longer than one update period plus 1 s."""
+    watch = Fused(deployment)
+    proc = subprocess.Popen(run_cmd(tmp_path, "air-picture-live", deployment, "--live", "--for", "300", "--standby",
+                                    "--connect", watch.endpoint), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True)
+    try:
+        launcher = psutil.Process(proc.pid)
+        first = child(launcher, "fuser", "fuser")
+        standby = child(launcher, "fuser", "fuser-standby")
+        frames = lambda: len({m.t for _, m in watch.got})  # noqa: E731
+        watch.wait(lambda: frames() >= 70, proc, timeout=200)
+        first.kill()
+        child(launcher, "fuser", "fuser", exclude=(first.pid,))
+        at = frames()
+        watch.wait(lambda: frames() >= at + 15, proc, timeout=90)  # the restarted fuser has joined, and confirmed
+        kill = time.monotonic()
+        standby.kill()
+        watch.wait(lambda: len({m.t for a, m in watch.got if a > kill + 0.5}) >= 5, proc, timeout=90)
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGINT)
+            proc.wait(30)
+        watch.close()
+    assert proc.returncode == 0, err[-3000:]
+    assert "fuser: rebuilt T" in err, err[-3000:]
+    arrivals = np.array([a for a, _ in watch.got])
+    assert np.max(np.diff(arrivals)) <= 2.0, np.diff(arrivals)
+    before = [m for a, m in watch.got if a < kill]
+    after = [m for a, m in watch.got if a > kill + 0.5]
+    last = {m.body["track"]: m for m in before if m.t == before[-1].t}
+    t_next = min(m.t for m in after)
+    nxt = {m.body["track"]: m for m in after if m.t == t_next}
+    common = set(last) & set(nxt)
+    assert len(common) >= len(last) - 1 and len(common) >= 3, (sorted(last), sorted(nxt))
+    for tid in common:
+        _continuous([last[tid]], [nxt[tid]], 1.0)
