@@ -10,6 +10,8 @@ import signal
 import subprocess
 import threading
 import time
+from contextlib import contextmanager
+from types import SimpleNamespace
 
 import numpy as np
 import psutil
@@ -119,6 +121,32 @@ def _continuous(before, after, period: float) -> None:
     assert d2 <= chi2.ppf(0.9973, 3), d2
 
 
+@contextmanager
+def _standby_run(tmp_path, deployment: str, scenario: str, seconds: float):
+    """A live run of ``scenario`` with ``--standby`` that a :class:`Fused` watch follows:
+    yields ``run`` (``watch``, ``proc``: the launcher, ``launcher``: it as psutil sees it,
+    ``first`` and ``standby``: its two fusers); on leaving, the run is stopped (SIGINT),
+    must exit 0, and its stderr is ``run.err``."""
+    watch = Fused(deployment)
+    proc = subprocess.Popen(run_cmd(tmp_path, scenario, deployment, "--live", "--for", str(seconds), "--standby",
+                                    "--connect", watch.endpoint), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True)
+    run = SimpleNamespace(watch=watch, proc=proc, err="")
+    try:
+        run.launcher = psutil.Process(proc.pid)
+        run.first = child(run.launcher, "fuser", "fuser")
+        run.standby = child(run.launcher, "fuser", "fuser-standby")
+        yield run
+        proc.send_signal(signal.SIGINT)
+        _, run.err = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGINT)
+            proc.wait(30)
+        watch.close()
+    assert proc.returncode == 0, run.err[-3000:]
+
+
 def test_a_restarted_fuser_rebuilds_the_track_and_takes_over_in_turn(tmp_path, deployment):
     """Live patent-3d-orbit (SS) with ``--standby``: kill -9 of the leader; the standby
     leads; the launcher restarts the killed fuser, which joins mid-stream, rebuilds T1
@@ -129,20 +157,14 @@ def test_a_restarted_fuser_rebuilds_the_track_and_takes_over_in_turn(tmp_path, d
     1 s, and each takeover within 3σ of the estimate before it. Without the rebuild the
     restarted fuser's picture differs (its track started afresh from the 60 s its
     sources' caches give back) and the test fails."""
-    watch = Fused(deployment)
-    proc = subprocess.Popen(run_cmd(tmp_path, "patent-3d-orbit", deployment, "--live", "--for", "240", "--standby",
-                                    "--connect", watch.endpoint), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True)
-    try:
-        launcher = psutil.Process(proc.pid)
-        first = child(launcher, "fuser", "fuser")
-        standby = child(launcher, "fuser", "fuser-standby")
+    with _standby_run(tmp_path, deployment, "patent-3d-orbit", 240) as run:
+        watch, proc = run.watch, run.proc
         # Past the sensors' recovery caches (60 s of stream): the restarted fuser cannot
         # get the track's whole history back from them, only rebuild it from the picture.
         watch.wait(lambda: len(watch.got) >= 70, proc, timeout=150)
         kills = [time.monotonic()]
-        first.kill()
-        child(launcher, "fuser", "fuser", exclude=(first.pid,))  # restarted by the launcher
+        run.first.kill()
+        child(run.launcher, "fuser", "fuser", exclude=(run.first.pid,))  # restarted by the launcher
         watch.wait(lambda: sum(a > kills[0] + 0.5 for a, _ in watch.got) >= 6, proc, timeout=60)
 
         def same_pictures() -> bool:  # the leader's and the restarted fuser's, at one time
@@ -150,16 +172,9 @@ def test_a_restarted_fuser_rebuilds_the_track_and_takes_over_in_turn(tmp_path, d
             return len(answers) >= 2 and len(answers[0]) == 2 and all(a == answers[0] for a in answers)
         watch.wait(same_pictures, proc, timeout=60)
         kills.append(time.monotonic())
-        standby.kill()
+        run.standby.kill()
         watch.wait(lambda: sum(a > kills[1] + 0.5 for a, _ in watch.got) >= 6, proc, timeout=60)
-        proc.send_signal(signal.SIGINT)
-        _, err = proc.communicate(timeout=120)
-    finally:
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGINT)
-            proc.wait(30)
-        watch.close()
-    assert proc.returncode == 0, err[-3000:]
+    err = run.err
     doc = json.loads((tmp_path / "out.json").read_text())
     assert doc["exit_codes"]["fuser"] == -9 and doc["exit_codes"]["fuser-standby"] == -9, doc["exit_codes"]
     assert "fuser: rebuilt T1 from the leader's picture" in err, err[-3000:]
@@ -183,31 +198,18 @@ def test_many_targets_a_restarted_fuser_rebuilds_the_table_and_takes_over(tmp_pa
     its tracks confirmed at its join; one still tentative then may be numbered anew),
     each within 3σ of where the last frame before the kill, moved along its velocity, put
     it, and no gap in ``fused`` longer than one update period plus 1 s."""
-    watch = Fused(deployment)
-    proc = subprocess.Popen(run_cmd(tmp_path, "air-picture-live", deployment, "--live", "--for", "300", "--standby",
-                                    "--connect", watch.endpoint), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True)
-    try:
-        launcher = psutil.Process(proc.pid)
-        first = child(launcher, "fuser", "fuser")
-        standby = child(launcher, "fuser", "fuser-standby")
+    with _standby_run(tmp_path, deployment, "air-picture-live", 300) as run:
+        watch, proc = run.watch, run.proc
         frames = lambda: len({m.t for _, m in watch.got})  # noqa: E731
         watch.wait(lambda: frames() >= 70, proc, timeout=200)
-        first.kill()
-        child(launcher, "fuser", "fuser", exclude=(first.pid,))
+        run.first.kill()
+        child(run.launcher, "fuser", "fuser", exclude=(run.first.pid,))
         at = frames()
         watch.wait(lambda: frames() >= at + 15, proc, timeout=90)  # the restarted fuser has joined, and confirmed
         kill = time.monotonic()
-        standby.kill()
+        run.standby.kill()
         watch.wait(lambda: len({m.t for a, m in watch.got if a > kill + 0.5}) >= 5, proc, timeout=90)
-        proc.send_signal(signal.SIGINT)
-        _, err = proc.communicate(timeout=120)
-    finally:
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGINT)
-            proc.wait(30)
-        watch.close()
-    assert proc.returncode == 0, err[-3000:]
+    err = run.err
     assert "fuser: rebuilt T" in err, err[-3000:]
     arrivals = np.array([a for a, _ in watch.got])
     assert np.max(np.diff(arrivals)) <= 2.0, np.diff(arrivals)
