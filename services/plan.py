@@ -171,10 +171,18 @@ class RunPlan:
             specs.append(ProcessSpec(pid, "exporter", (
                 "export", name, option, value, "--site" if live else "--scenario", scenario_ref, "--id", pid, *fabric),
                 restartable=True))
+        def fed(sid: str) -> list[str]:
+            """Who takes ``sid``'s measurements: the regions it feeds and the system fuser
+            their frames go to (regional), its tracker, or the fuser."""
+            return [*(r for r, reg in regions.items() if sid in reg.sensors), FUSER_ID] if regions \
+                else [trackers.get(sid, FUSER_ID)]
+
         if asterix is not None:  # a gateway for the scenario's radars and stations, up before they send
+            takers = dict.fromkeys([*(p for sid in asterix.sensors for p in fed(sid)), RECORDER_ID])
             specs.append(ProcessSpec(ASTERIX_ID, "gateway", (
                 "ingest", "asterix", "--id", ASTERIX_ID, "--site", asterix.site, "--udp", asterix.udp,
-                *([] if live else ["--scenario-run", ",".join(asterix.sensors)]), *fabric)))
+                *([] if live else ["--scenario-run", ",".join(asterix.sensors)]), "--wait-for", ",".join(takers),
+                *fabric), waits_for=tuple(takers)))
         for sensor, tid in trackers.items():
             specs.append(ProcessSpec(tid, "tracker", (
                 "tracker", *given, "--sensor", sensor, "--method", method, "--fuser", FUSER_ID,
@@ -182,10 +190,7 @@ class RunPlan:
         for sid in sources:
             # A source waits only for its consumers: the fuser may finish (and vanish)
             # before a truth or jammer process discovers it, so they must not wait for it.
-            # regional: the regions it feeds, and the system fuser their frames go to, are up first
-            fed = [*(r for r, reg in regions.items() if sid in reg.sensors), FUSER_ID] if regions \
-                else [trackers.get(sid, FUSER_ID)]
-            consumers = [*fed, RECORDER_ID] if sid in scenario.sensors else [RECORDER_ID]
+            consumers = [*fed(sid), RECORDER_ID] if sid in scenario.sensors else [RECORDER_ID]
             sends = asterix is not None and sid in asterix.sensors  # ASTERIX to the gateway, not on Zenoh
             consumers += [ASTERIX_ID] if sends else []
             # a live emulation plays the scenario's duration (else until stopped, if endless)

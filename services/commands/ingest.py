@@ -90,6 +90,9 @@ def _common(q: argparse.ArgumentParser, id_help: str = "the sensor id (a [sensor
                    help="heartbeat watermarks promise everything older than now minus this (default "
                         "%(default)s s); a reading that arrives later is dropped as late; 0: no heartbeats "
                         "(a replay of old data)")
+    q.add_argument("--wait-for", type=options.ids, default=[], metavar="IDS",
+                   help="comma-separated processes to wait for before the first reading is published (a "
+                        "replay into a fuser just started: what goes out before it is heard is lost to it)")
     options.fabric(q)
     q.set_defaults(main=run)
 

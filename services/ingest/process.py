@@ -57,6 +57,7 @@ TICK_S = 0.1  # heartbeat watermarks at most this often
 MAX_CONNECTIONS = 64  # TCP connections a jsonl gateway reads at once
 IDLE_S = 300.0  # a TCP connection silent this long is closed
 MAX_BACKOFF_S = 30.0
+WAIT_S = 60.0  # how long a gateway waits for the processes of --wait-for (as a sensor does)
 PATHS = {"csv": "/DOA_value.html", "auto": "/DOA_value.html", "xml": "/doa.xml"}
 
 
@@ -88,6 +89,10 @@ def gateway_cache(period: float) -> int:
     reading and its watermark per nominal ``period``, and a heartbeat watermark per
     :data:`TICK_S` at most (:meth:`Outlet.tick`)."""
     return math.ceil(2.0 * RECOVERY_S * (2.0 / period + 1.0 / TICK_S))
+
+
+class NotHeard(Exception):
+    """A process the gateway was told to wait for never announced itself."""
 
 
 class Outlet:
@@ -131,6 +136,22 @@ class Outlet:
             self.t_last = max(self.t_last, item.t)
             if out and log.isEnabledFor(logging.DEBUG):  # -v: each reading published
                 log.debug("%s: published %s of %s", self.node.id, item.kind, utc_text(item.t))
+
+    def ready(self, wait_for: list[str], timeout: float = WAIT_S) -> None:
+        """Announce the gateway, wait until each process of ``wait_for`` has announced
+        itself, then say it is ready. A replay (``--pcap``, a file) publishes at once: what
+        goes out before its consumers' subscribers are known to this session is lost to
+        them. Raises :class:`NotHeard` (the status says stopped) if one never comes."""
+        self.node.announce()
+        if wait_for:
+            self.status("starting", force=True)  # (as a sensor that waits says)
+        try:
+            self.node.wait_for(wait_for, timeout)
+        except TimeoutError as e:
+            self.node.event(str(e))
+            self.status("stopped", force=True)
+            raise NotHeard(str(e)) from None
+        self.status("ready", force=True)
 
     def say_once(self, cause: str, text: str) -> None:
         if cause not in self._said:
@@ -226,8 +247,7 @@ def _poll(node: Node, gateway: Gateway, url: str, args, receive: Callable[[bytes
     counts = {"polls": 0, "http_errors": 0}
     outlet = Outlet(node, gateway, lambda: counts)
     backoff = Backoff(args.poll_s)
-    node.announce()
-    outlet.status("ready", force=True)
+    outlet.ready(args.wait_for)
     failing = False
     while not node.stop.is_set():
         counts["polls"] += 1
@@ -377,8 +397,7 @@ def _listen(node: Node, gateway: Gateway, station: KrakenStation, where: tuple[s
     fmt = "auto" if args.format == "auto" else args.format
     try:
         outlet = Outlet(node, gateway, lambda: counts)
-        node.announce()
-        outlet.status("ready", force=True)
+        outlet.ready(args.wait_for)
         node.event(f"listening on http://{where[0]}:{server.server_address[1]}/")
         while not node.stop.is_set():
             try:
@@ -425,8 +444,7 @@ def _sbs(node: Node, gateway: Gateway, receiver: AdsbReceiver, where: tuple[str,
     counts = {"connections": 0, "connection_errors": 0, "lines": 0}
     outlet = Outlet(node, gateway, lambda: counts)
     backoff = Backoff(args.poll_s)
-    node.announce()
-    outlet.status("ready", force=True)
+    outlet.ready(args.wait_for)
     while not node.stop.is_set():
         try:
             sock = socket.create_connection(where, timeout=args.timeout_s)
@@ -692,8 +710,7 @@ def _jsonl(node: Node, gateway: Gateway, source: tuple[str, tuple[str, int] | No
     reader = _Reader(source[0], source[1], inbox, node.stop)
     counts = {"lines": 0}
     outlet = Outlet(node, gateway, lambda: {**counts, **reader.counts})
-    node.announce()
-    outlet.status("ready", force=True)
+    outlet.ready(args.wait_for)
     reader.start()
     where = {"stdin": "stdin", "file": str(source[1])}.get(source[0]) or f"{source[0]}://{source[1][0]}:{source[1][1]}"
     replay = replays(source)
@@ -776,8 +793,7 @@ def run_asterix(args, keys: KeySpace, zopts) -> int:
         ingest = AsterixIngest(feed, gateway, node.reject, src=args.id, stations=adsb_stations)
         outlet = Outlet(node, ingest.gateway, ingest.counters)
         done = _done_of(node, senders)
-        node.announce()
-        outlet.status("ready", force=True)
+        outlet.ready(args.wait_for)
         if args.pcap:
             return _replay(node, ingest, outlet, packets, speed)
         try:
@@ -900,7 +916,16 @@ def _replay(node: Node, ingest, outlet: Outlet, packets: list[tuple[float, bytes
 
 
 def main(args, keys: KeySpace, zopts) -> int:
-    """``zfusion ingest GATEWAY`` (:mod:`services.commands.ingest` parses its options)."""
+    """``zfusion ingest GATEWAY`` (:mod:`services.commands.ingest` parses its options).
+    Exit 2 if a process of ``--wait-for`` never announced itself."""
+    try:
+        return _gateway_main(args, keys, zopts)
+    except NotHeard as e:
+        log.error("%s", e)
+        return 2
+
+
+def _gateway_main(args, keys: KeySpace, zopts) -> int:
     if args.gateway == "krakensdr":
         return run_krakensdr(args, keys, zopts)
     if args.gateway == "asterix":

@@ -396,15 +396,16 @@ def test_router_restart_under_gateways_loses_no_reading(tmp_path, deployment):
     def counters(pid: str) -> dict:
         return statuses.get(pid, {}).get("counters", {})
 
+    def exited() -> dict:  # a process that stopped ends every wait: which, and how
+        return {n: (p.returncode, p.stderr.read()[-2000:]) for n, p in procs.items() if p.poll() is not None}
+
     try:
-        assert wait(lambda: all(pid in statuses for pid in procs), 60), statuses.keys()
+        assert wait(lambda: all(pid in statuses for pid in procs), 60), (statuses.keys(), exited())
         feeder.start()
-        assert wait(lambda: counters("fuser").get("processed", 0) >= 15, 60), counters("fuser")
+        assert wait(lambda: counters("fuser").get("processed", 0) >= 15, 60), (counters("fuser"), exited())
         routers.append(_restarted(routers[0], ep))
         assert wait(lambda: all(statuses.get("fuser", {}).get("sources", {}).get(sid, {}).get("recovered", 0) > 0
-                                for sid in stations), 60), (statuses.get("fuser", {}).get("sources"),
-                                                            {n: p.poll() for n, p in procs.items()},
-                                                            procs["fuser"].stderr.read()[-3000:] if procs["fuser"].poll() else "")
+                                for sid in stations), 60), (statuses.get("fuser", {}).get("sources"), exited())
         feeding.set()
         feeder.join()
 
@@ -418,7 +419,7 @@ def test_router_restart_under_gateways_loses_no_reading(tmp_path, deployment):
             counted = sum(src[sid]["rejected"] + src[sid]["missed"] for sid in stations)
             return published > 0 and counters("fuser").get("processed", 0) + counted == published
 
-        assert wait(accounted, 60), (statuses["fuser"], {sid: counters(sid) for sid in stations})
+        assert wait(accounted, 60), (statuses["fuser"], {sid: counters(sid) for sid in stations}, exited())
     finally:
         feeding.set()
         sub.undeclare()

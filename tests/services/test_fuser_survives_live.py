@@ -82,15 +82,19 @@ def test_a_year_old_replay_then_live_data(deployment, tmp_path):
     with Processes(deployment) as p:
         p.start("fuser", "fuser", "--site", "patent-3d", "--method", "RADAR2D", "--start-grace", "2")
         p.ready(["fuser"])
-        p.start("replay", "ingest", "jsonl", "--id", "radar2d", "--site", "patent-3d", "--input", str(RADAR2D))
+        # a replay publishes at once: it waits until it has heard the fuser (what goes out before is lost
+        # to it: without the wait, a CI's fuser received none of the 10 lines)
+        p.start("replay", "ingest", "jsonl", "--id", "radar2d", "--site", "patent-3d", "--input", str(RADAR2D),
+                "--wait-for", "fuser")
         assert p.procs["replay"].wait(60) == 0
         old = max(m["t"] for m in lines)
         assert p.cap.wait(lambda: any(m.t >= old - 1.0 for m in p.cap.of("track", "fuser")), timeout=30), \
             p.cap.status("fuser")
         replayed = len(p.cap.of("status", "radar2d"))  # the replay has exited: a status more is the live one's
         p.start("live", "ingest", "jsonl", "--id", "radar2d", "--site", "patent-3d", "--input",
-                f"udp://127.0.0.1:{port}", "--watermark-lag", "0.5")
-        assert p.cap.wait(lambda: len(p.cap.of("status", "radar2d")) > replayed, timeout=30)
+                f"udp://127.0.0.1:{port}", "--watermark-lag", "0.5", "--wait-for", "fuser")
+        assert p.cap.wait(lambda: any(m.body["state"] in ("ready", "running")
+                                      for m in p.cap.of("status", "radar2d")[replayed:]), timeout=30)
         last = 0.0
         for line in lines:
             last = time.time()

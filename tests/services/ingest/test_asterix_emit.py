@@ -211,7 +211,10 @@ def test_a_plan_routes_the_radars_and_stations_through_one_gateway(snapshot, tmp
     # and the recorder waits for it; a live one reads UTC, and runs until stopped
     route = Asterix(str(site), "127.0.0.1:8611", ("radar1", "radar2"))
     run = RunPlan.build("air-picture", snapshot, "centralised", "SS", fabric=[], asterix=route)
-    assert run[ASTERIX_ID].role == "gateway" and run[ASTERIX_ID].argv[-2:] == ("--scenario-run", "radar1,radar2")
+    gw = run[ASTERIX_ID]
+    assert gw.role == "gateway" and gw.argv[gw.argv.index("--scenario-run") + 1] == "radar1,radar2"
+    # it publishes once the takers of its sensors' data have announced themselves (before: lost to them)
+    assert gw.argv[gw.argv.index("--wait-for") + 1] == "fuser,recorder" and gw.waits_for == ("fuser", "recorder")
     assert ASTERIX_ID in run["recorder"].argv[run["recorder"].argv.index("--expect") + 1].split(",")
     live = RunPlan.build("air-picture", snapshot, "centralised", "SS", fabric=[], live=Live(), asterix=route)
     assert "--scenario-run" not in live[ASTERIX_ID].argv

@@ -11,13 +11,16 @@ import sys
 import time
 
 import pytest
+import zenoh
 from _ingest_helpers import Capture, gateway, stop
 
 from schemas import asterix as ax
+from schemas import decode
 from sensors_sim import load_site
 from services.ingest.asterix import pcap_file, radars
 from services.ingest.gateway import local_frame
 from services.launcher import free_port
+from services.node import ZenohOptions
 
 NM = 1852.0
 SITE = """
@@ -107,9 +110,8 @@ def test_udp_datagrams_to_measurements(deployment, site):
     assert counters["records.cat048"] >= 9
 
 
-@pytest.mark.slow
-def test_a_pcap_replayed_at_full_speed(deployment, site, tmp_path):
-    t0 = 1_764_633_600.0 - 2.0  # two seconds before midnight: the replay crosses it
+def feed(tmp_path, t0: float = 1_764_633_600.0 - 2.0):
+    """A pcap of 30 CAT048 plots of r2d, each with its sector crossing, 0.1 s apart from ``t0``."""
     packets = []
     for k in range(30):
         t = t0 + 0.1 * k
@@ -118,6 +120,12 @@ def test_a_pcap_replayed_at_full_speed(deployment, site, tmp_path):
         packets.append((t + 0.2, ax.encode(recs)[0]))  # received 0.2 s after the plot
     cap_file = tmp_path / "feed.pcap"
     cap_file.write_bytes(pcap_file(packets))
+    return cap_file
+
+
+@pytest.mark.slow
+def test_a_pcap_replayed_at_full_speed(deployment, site, tmp_path):
+    cap_file = feed(tmp_path)  # two seconds before midnight: the replay crosses it
     with Capture(deployment) as cap:
         p = ingest("--site", str(site), "--pcap", str(cap_file), "--speed", "max", "--watermark-lag", "0",
                    capture=cap)
@@ -129,6 +137,35 @@ def test_a_pcap_replayed_at_full_speed(deployment, site, tmp_path):
     want = [1_764_633_600.0 - 2.0 + 0.1 * k for k in range(30)]
     assert times == pytest.approx(want, abs=1 / 256)  # across midnight, on the capture's clock
     assert cap.of("watermark", "r2d")[-1].t == times[-1]  # the end of the capture promises all
+
+
+@pytest.mark.slow
+def test_a_replay_waits_for_its_consumer(deployment, site, tmp_path):
+    """``--wait-for taker``: the replay starts once a process ``taker`` has announced
+    itself (after its subscriber, as every zfusion process does), so the taker, which
+    came up only after the gateway said it was waiting, hears every plot. Without the
+    wait the replay, over in milliseconds, would be gone before the taker was there."""
+    with Capture(deployment) as cap:
+        p = ingest("--site", str(site), "--pcap", str(feed(tmp_path)), "--speed", "max", "--watermark-lag", "0",
+                   "--wait-for", "taker", capture=cap)
+        try:
+            assert cap.wait(lambda: cap.status("gw").get("state") == "starting", timeout=30), p.stderr
+            heard = []
+            taker = zenoh.open(ZenohOptions(connect=[cap.endpoint]).to_config())
+            try:
+                sub = taker.declare_subscriber(cap.keys.meas("r2d"), lambda s: heard.append(decode(s.payload.to_bytes())))
+                token = taker.liveliness().declare_token(cap.keys.alive("taker", str(taker.zid())))
+                assert cap.wait(lambda: sum(m.kind == "range_az" for m in heard) == 30, timeout=30), len(heard)
+                token.undeclare()
+                sub.undeclare()
+            finally:
+                taker.close()
+            _, err = p.communicate(timeout=30)
+            assert p.returncode == 0, err[-3000:]
+        finally:
+            if p.poll() is None:
+                stop(p)
+    assert [m.t for m in heard if m.kind == "range_az"] == [m.t for m in cap.of("range_az")]
 
 
 def test_mistakes_are_one_line_and_exit_2(tmp_path, site):
