@@ -128,6 +128,7 @@ class Leadership:
         self._others: dict[str, Member] = {}  # the other live members this process knows, by token key
         self._eligible = False  # leads if it is the oldest: from the end of its start (a standby: below)
         self._deadline = time.monotonic() + grace if standby else None
+        self._started = False  # until its links have settled, no process leads
         self.leads = False
         self.takeovers = 0  # times it began to lead (its start included)
         self.yielded = 0  # times it stopped leading for an older member
@@ -141,6 +142,7 @@ class Leadership:
             older = self._older()
             self.joins = older is not None  # a leader ran already: this process stands by, joining its stream
             self._eligible = not standby or bool(self._others)
+            self._started = True
         if older is not None:
             self._event(f"an older member {older} of {fuser} runs: standing by ({links} links, settled in "
                         f"{waited:.2f} s)")
@@ -158,7 +160,7 @@ class Leadership:
         with self._lock:
             if sample.kind == zenoh.SampleKind.PUT:
                 self._others[key] = member
-                self._eligible = True  # a standby that knows another member knows enough to rank itself
+                self._eligible |= self._started  # a standby that knows another member knows enough to rank itself
             elif self._others.pop(key, None) is None:
                 return
         self._decide("the leader is gone: taking over" if sample.kind == zenoh.SampleKind.DELETE

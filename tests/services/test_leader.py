@@ -65,6 +65,9 @@ def test_a_younger_leader_yields_to_an_older_member_then_the_next_oldest_takes_o
         yielded_at = next(t for t, line in young.events if line.startswith("yielded to 100-"))
         assert young.election.yielded == 1 and young.election.takeovers == 1
         assert old.election.takeovers == 1 and old.election.yielded == 0 and not old.election.joins
+        (led_at, led), = old.events  # it leads once its links have settled, not as it meets the younger
+        assert led.startswith("leading: no older member"), led
+        assert yielded_at - led_at < 1.0, yielded_at - led_at  # the younger yields at once (by hand: 0.2 s before)
 
         middle = Process(deployment, 200, [hub], standby=True)  # the next oldest, a standby
         running.append(middle)
