@@ -57,7 +57,7 @@ from schemas import KeySpace
 
 
 LINK_WAIT_S = 5.0  # how long the election waits for the session's first link (none: a process alone)
-SETTLE_S = 0.5  # then until no new link has come for this long (gossip links the other peers one by one) ...
+SETTLE_S = 0.25  # then until no new link has come for this long (gossip links the other peers one by one) ...
 SETTLE_MAX_S = 2.0  # ... but no longer than this after the first link
 
 
