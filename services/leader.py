@@ -15,7 +15,7 @@ peers see the link drop and the token go: a DELETE). Leadership is a pure functi
 members a process knows: **the oldest live member leads**. A process that learns of an
 older member while leading yields at once (it stops publishing); one whose older
 members are all gone takes over. A process without ``--standby`` first waits for its
-session's first link and then for its links to settle (no new one for ``settle``
+session's first link and then for its links to settle (no new one for ``quiet``
 seconds: gossip connects it to the other peers one by one, and a peer not yet linked is a
 member not yet seen); a standby that knows no other member leads once ``grace`` has
 passed (no fuser to stand by for). A process that finds an older member at its start
@@ -148,6 +148,11 @@ class Leadership:
                         f"{waited:.2f} s)")
         self._decide(f"leading: no older member on {links} links, settled in {waited:.2f} s" if not standby
                      else "the oldest of the members known: leading")
+
+    def members(self) -> list[Member]:
+        """The live members this process knows, itself included, oldest first."""
+        with self._lock:
+            return sorted([self.me, *self._others.values()])
 
     def _older(self) -> Member | None:
         return min((m for m in self._others.values() if m < self.me), default=None)

@@ -73,8 +73,9 @@ def test_a_younger_leader_yields_to_an_older_member_then_the_next_oldest_takes_o
         running.append(middle)
         assert middle.election.joins and not middle.election.leads
         # every change of leadership after the yield is the standby's start only: one leader throughout
-        wait_for(lambda: len(middle.election._others) == 2 and len(young.election._others) == 2,
-                 "every member knows the two others", timeout=20)
+        everyone = sorted(p.election.me for p in running)
+        wait_for(lambda: all(p.election.members() == everyone for p in running), "every member knows every other",
+                 timeout=20)
         assert _leading(running) == [100]
         assert all(t < yielded_at for t, line in young.events if line.startswith("leading"))
 
