@@ -433,8 +433,7 @@ def run(process_id: str, scenario_ref: str, method_name: str, overrides: dict, k
             for key in heard:
                 node.subscribe(key, inbox)
             publisher = node.publisher
-        # The election once the session has had the time its declarations took to find its peers: its
-        # liveliness query, right after the session opened, may miss a leader's token (two leaders).
+        # The election once the session's links have settled: a member not yet linked is not yet seen.
         leader = Leadership(node.session, keys, identity, standby_for is not None, start_grace, node.event, node.stop)
         node.keep(leader)
         # Joining a running leader: its tracks from its picture, asked before this process serves its own.
@@ -526,7 +525,7 @@ def run(process_id: str, scenario_ref: str, method_name: str, overrides: dict, k
                                  late=core.merger.late, held=core.merger.held(),
                                  inbox=inbox.qsize(), inbox_waits=inbox.waits,
                                  unpublished=sum(core.unpublished.values()), leads=int(leader.leads),
-                                 takeovers=leader.takeovers,
+                                 takeovers=leader.takeovers, yielded=leader.yielded,
                                  **{f"unpublished.{c}": n for c, n in core.unpublished.items()})
             if core.refilter is not None:
                 node.counters.update(oosm=sum(st.oosm for st in core.merger.sources.values()),

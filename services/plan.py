@@ -161,7 +161,7 @@ class RunPlan:
                 *(["--system"] if regions else []),
                 "--source-timeout", str(timeout), *tuned,
                 *(["--max-delay", repr(live.max_delay), "--oosm-window", repr(live.oosm_window)] if live else []),
-                *fabric), restartable=True))
+                *fabric), waits_for=(FUSER_ID,), restartable=True))  # started after: the younger (services/leader.py)
         specs.append(ProcessSpec(RECORDER_ID, "recorder", (
             "record", "--rrd", rrd, "--id", RECORDER_ID, *given, *(["--spawn"] if spawn else []),
             *(["--rotate-s", str(rotate_s)] if rotate_s else []),
