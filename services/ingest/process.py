@@ -148,7 +148,9 @@ class Outlet:
         try:
             self.node.wait_for(wait_for, timeout)
         except TimeoutError as e:
-            self.node.event(str(e))
+            if self.node.stop.is_set():  # stopped while it waited: the caller's loop ends at once
+                return
+            self.node.events.append(str(e))  # in the status; the line on stderr is main's
             self.status("stopped", force=True)
             raise NotHeard(str(e)) from None
         self.status("ready", force=True)

@@ -168,6 +168,20 @@ def test_a_replay_waits_for_its_consumer(deployment, site, tmp_path):
     assert [m.t for m in heard if m.kind == "range_az"] == [m.t for m in cap.of("range_az")]
 
 
+@pytest.mark.slow
+def test_sigterm_while_it_waits_is_a_clean_stop(deployment, site, tmp_path):
+    """Stopped while it waits for a process that never comes: exit 0 within a second,
+    nothing published (not "gave up waiting", exit 2)."""
+    with Capture(deployment) as cap:
+        p = ingest("--site", str(site), "--pcap", str(feed(tmp_path)), "--speed", "max", "--wait-for", "nobody",
+                   capture=cap)
+        assert cap.wait(lambda: cap.status("gw").get("state") == "starting", timeout=30), p.stderr
+        t = time.monotonic()
+        err = stop(p)
+        assert time.monotonic() - t < 1.0 and "gave up" not in err, err
+    assert not cap.of("range_az")
+
+
 def test_mistakes_are_one_line_and_exit_2(tmp_path, site):
     no_radar = tmp_path / "none.toml"
     no_radar.write_text(SITE.replace("sac_sic = [25, 1]\n", "").replace("sac_sic = [25, 2]\n", ""))
