@@ -3,7 +3,10 @@ different streams for another."""
 
 from __future__ import annotations
 
+import signal
 import socket
+import subprocess
+import sys
 import time
 
 import pytest
@@ -64,3 +67,31 @@ def test_a_restart_that_overlaps_the_old_session_is_seen(deployment):
         keys.alive("fuser", "a/b")
     with pytest.raises(ValueError, match="not a liveliness token"):
         keys.alive_process(keys.status("fuser"))
+
+
+def test_sigterm_while_it_waits_for_its_consumers_is_a_clean_stop(deployment):
+    """A sensor stopped while it waits for ``--wait-for``'s processes (a run stopped
+    before its fuser was up) exits 0 within a second, not 2 as if the wait had failed."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        ep = f"tcp/127.0.0.1:{s.getsockname()[1]}"
+    keys = KeySpace(deployment)
+    hub = zenoh.open(ZenohOptions(listen=[ep]).to_config())
+    said: list[str] = []
+    try:
+        sub = hub.declare_subscriber(keys.status("radar2d"), lambda smp: said.append(decode(smp.payload.to_bytes())
+                                                                                        .body["state"]))
+        p = subprocess.Popen([sys.executable, "-m", "services.cli", "sensor", "--scenario", "patent-3d", "--id",
+                              "radar2d", "--wait-for", "fuser", "--deployment", deployment, "--connect", ep],
+                             stderr=subprocess.PIPE, text=True)
+        deadline = time.monotonic() + 30
+        while "starting" not in said and time.monotonic() < deadline:
+            time.sleep(0.02)
+        assert "starting" in said, p.stderr
+        t = time.monotonic()
+        p.send_signal(signal.SIGTERM)
+        _, err = p.communicate(timeout=10)
+        assert p.returncode == 0 and time.monotonic() - t < 1.0 and "Traceback" not in err, err
+        sub.undeclare()
+    finally:
+        hub.close()
