@@ -58,6 +58,8 @@ LAUNCHER_ID = "launcher"
 END_GRACE = 10.0  # s after the last source ends, when no fuser is left to say it is done
 START_LEAD_MAX = 15.0  # s: the most a paced run's sources are given to start (Launch.start)
 RECORDER_STALL = 30.0  # s: at the end, the recorder is stopped once it has recorded nothing new this long
+END_WAIT = 10.0  # s the sources and trackers have to end by themselves once the fuser is done
+STOP_GRACE = 2.0  # s a process has to stop after SIGTERM before it is killed (it should take < 1 s)
 SETTLE_MARGIN = 1.0  # s beyond the OOSM window and max delay before a live estimate is scored for good
 LIVE_LEAD = 8.0  # s from starting the sources of a live run to its scenario time 0 (their start-up)
 
@@ -272,21 +274,29 @@ class Launch:
     def finish_recorder(self) -> None:
         """The end of a scenario run: the sources and trackers end by themselves; the
         recorder once it has drawn its backlog (at --speed max, seconds of it)."""
-        children = self.children
-        for sid in self.plan.ids("source", "tracker"):
-            children.wait(sid, 10.0)
+        children, stop = self.children, self.node.stop
+        until = time.monotonic() + END_WAIT
+        ending = self.plan.ids("source", "tracker")
+        while any(children.procs[s].poll() is None for s in ending) and time.monotonic() < until \
+                and not stop.is_set():
+            self.drain(0.1)
         never_back = [n for n, outs in self.sup.outages.items() if outs[-1]["t_up"] is None]
+        stuck = [s for s in ending if children.procs[s].poll() is None]
+        if stuck and not stop.is_set():  # their last status says "stopped"; one that does not stop is killed
+            log.warning("%s did not end %g s after the fuser was done: stopping", ", ".join(stuck), END_WAIT)
+            children.terminate(stuck, self.drain, grace=STOP_GRACE)
         # It may have missed the "done" of processes that ended before it came up, and a
-        # process killed and not restarted (--no-restart) sends none: once it reports an
-        # empty backlog it has everything; stop it.
+        # process killed and not restarted (--no-restart), or one that did not end, sends
+        # none: once it reports an empty backlog it has everything; stop it.
         since, stalled = time.monotonic(), time.monotonic()
         progress = None
-        while children.procs[RECORDER_ID].poll() is None and time.monotonic() - stalled < RECORDER_STALL:
+        while children.procs[RECORDER_ID].poll() is None and time.monotonic() - stalled < RECORDER_STALL \
+                and not stop.is_set():
             self.drain(0.1)
             counters = self.statuses.get(RECORDER_ID, {}).get("counters", {})
             if (counters.get("recorded"), counters.get("backlog")) != progress:
                 progress, stalled = (counters.get("recorded"), counters.get("backlog")), time.monotonic()
-            if (self.sup.restarts.get(RECORDER_ID) or never_back) and \
+            if (self.sup.restarts.get(RECORDER_ID) or never_back or stuck) and \
                     self.heard_at.get(RECORDER_ID, 0.0) > since + 0.2 and counters.get("backlog") == 0:
                 break
         self.drain(0.2)

@@ -170,6 +170,40 @@ def test_no_restart_ends_the_run_after_the_sources(tmp_path, deployment):
     verify(tmp_path / "out.rrd")
 
 
+def test_a_tracker_that_never_ends_does_not_hold_the_run(tmp_path, deployment):
+    """A local tracker stopped (SIGSTOP) for good at 10 s of a 16 s feedback run: the
+    fuser declares it dead and finishes on the other node; the tracker never ends, so
+    neither its "done" nor its exit comes. The launcher gives it END_WAIT after the
+    sources, stops it (killed: a stopped process takes no SIGTERM), stops the recorder once
+    its backlog is empty, names the tracker, and exits 0 with the summary. (It once waited
+    for the tracker for ever: the recorder, waiting for its "done", recorded statuses each
+    second, so it never looked stalled, and the wait did not heed SIGINT.)"""
+    from services.launcher import END_WAIT, STOP_GRACE
+
+    watch = FusedWatch(deployment)
+    proc = subprocess.Popen(run_cmd(tmp_path, "patent-3d-60", deployment, "--speed", "3", "--duration-s", "16",
+                                    "--topology", "feedback", "--connect", watch.endpoint),
+                            stdout=subprocess.DEVNULL, stderr=(tmp_path / "run.log").open("w"))
+    try:
+        stuck = child(psutil.Process(proc.pid), "tracker", "angle")
+        watch.wait_until(10.0, proc)
+        stuck.suspend()
+        watch.wait_until(16.0, proc)  # the fuser went on without it, to the end
+        ended_at = time.monotonic()
+        assert proc.wait(END_WAIT + STOP_GRACE + 20.0) == 0, (tmp_path / "run.log").read_text()
+        assert time.monotonic() - ended_at < END_WAIT + STOP_GRACE + 15.0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        watch.close()
+    err = (tmp_path / "run.log").read_text()
+    assert "trk-angle did not end" in err and "killed at the end: trk-angle" in err, err
+    assert not psutil.pid_exists(stuck.pid) or stuck.status() == psutil.STATUS_ZOMBIE
+    doc = json.loads((tmp_path / "out.json").read_text())
+    assert doc["methods"]["PHHNV"]["series"]["t"][-1] == 16.0
+    assert doc["exit_codes"]["trk-angle"] == -signal.SIGKILL
+
+
 def test_recorder_then_fuser_killed_centralised(tmp_path, deployment):
     """Centralised (SS): kill -9 of the recorder, later of the fuser. The recorder's loss
     changes nothing fused and its restart records the rest of the run in a second,
