@@ -127,7 +127,8 @@ class WatermarkMerger:
         st.last_heard = now
         if st.dead:
             st.dead = False
-            st.dead_intervals[-1][1] = self.released_until if math.isfinite(self.released_until) else None
+            # (before anything was released: dead over [0, 0], not "until the end")
+            st.dead_intervals[-1][1] = self.released_until if math.isfinite(self.released_until) else 0.0
             events.append(f"source {src} rejoined")
 
     def add(self, src: str, t: float, seq: int, item: Any, now: float, events: list[str]) -> Rejection | None:

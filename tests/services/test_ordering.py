@@ -168,3 +168,15 @@ def test_a_late_message_does_not_advance_seq_bookkeeping():
     assert m.release() == ([], 5.0)
     assert m.add("b", 1.0, 10**9, "b-late", 2.0, ev).cause == "late"
     assert m.add("b", 6.0, 3, "b6", 2.0, ev) is None
+
+
+def test_a_source_back_before_anything_was_released_was_dead_over_nothing():
+    """Declared dead and heard again before the merger released anything (a restarted
+    fuser's first seconds): its outage is [0, 0], not open ("dead until the end"), which
+    the run summary's sources showed for a tracker that had come back at once."""
+    ev: list[str] = []
+    m = WatermarkMerger(["a", "b"], timeout=2.0, start_grace=0.0, now=0.0)
+    m.check_timeouts(2.5, ev)
+    assert m.sources["a"].dead and m.sources["b"].dead
+    m.watermark("a", 1.0, False, 3.0, ev)
+    assert m.sources["a"].dead_intervals == [[0.0, 0.0]] and m.sources["b"].dead_intervals == [[0.0, None]]
