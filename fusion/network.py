@@ -75,6 +75,10 @@ class LocalNode:
         self.pending: deque[Measurement] = deque()
         self.horizon = -math.inf
         self._seq = 0
+        # Measurements (frames) dropped as older than a prior the centre sent: it fused past
+        # them while this node was cut off or stopped, so what the node would send on them
+        # is late there, and its track cannot be predicted back to them.
+        self.stale = 0
 
     kinds: frozenset = frozenset()
 
@@ -212,6 +216,9 @@ class TrackNode(LocalNode):
     def _process(self, m, alone):
         # A track more than max_gap_s old, or left not positive definite, starts afresh
         # (fusion.guards); the centre, as old, starts afresh from the nodes' requests.
+        if self.tracker.initialised and m.t < self.tracker.t:  # (attribute ``stale``)
+            self.stale += 1
+            return []
         if self.tracker.initialised and gap_too_long(m.t - self.tracker.t, self.config.max_gap_s):
             self._start_afresh()
         if not self.tracker.initialised:
@@ -499,6 +506,9 @@ class MultiTrackNode(FramedNode):
 
     def _process(self, frame: list[Measurement], alone: bool) -> list[Uplink]:
         t = frame[0].t
+        if any(tr.t > t for tr in self.tracks.values()):  # (attribute ``stale``)
+            self.stale += 1
+            return []
         out: list[Uplink] = []
         for lid in [i for i, tr in self.tracks.items() if gap_too_long(t - tr.t, self.config.max_gap_s)]:
             out.append(self._delete(lid, t))  # too old to predict (fusion.guards): the frame starts afresh

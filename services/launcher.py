@@ -58,6 +58,7 @@ LAUNCHER_ID = "launcher"
 END_GRACE = 10.0  # s after the last source ends, when no fuser is left to say it is done
 START_LEAD_MAX = 15.0  # s: the most a paced run's sources are given to start (Launch.start)
 RECORDER_STALL = 30.0  # s: at the end, the recorder is stopped once it has recorded nothing new this long
+RECORDER_DONE_WAIT = 5.0  # s the recorder has to end by itself once everyone else has (it ends on their "done")
 END_WAIT = 10.0  # s the sources and trackers have to end by themselves once the fuser is done
 STOP_GRACE = 2.0  # s a process has to stop after SIGTERM before it is killed (it should take < 1 s)
 SETTLE_MARGIN = 1.0  # s beyond the OOSM window and max delay before a live estimate is scored for good
@@ -287,8 +288,11 @@ class Launch:
             children.terminate(stuck, self.drain, grace=STOP_GRACE)
         # It may have missed the "done" of processes that ended before it came up, and a
         # process killed and not restarted (--no-restart), or one that did not end, sends
-        # none: once it reports an empty backlog it has everything; stop it.
+        # none: once it reports an empty backlog it has everything; stop it. So too if it
+        # has not ended RECORDER_DONE_WAIT after everyone else: a "done" it never heard
+        # (a process that failed, or whose link to it was lost) does not hold the run.
         since, stalled = time.monotonic(), time.monotonic()
+        missing_done = bool(self.sup.restarts.get(RECORDER_ID) or never_back or stuck)
         progress = None
         while children.procs[RECORDER_ID].poll() is None and time.monotonic() - stalled < RECORDER_STALL \
                 and not stop.is_set():
@@ -296,7 +300,7 @@ class Launch:
             counters = self.statuses.get(RECORDER_ID, {}).get("counters", {})
             if (counters.get("recorded"), counters.get("backlog")) != progress:
                 progress, stalled = (counters.get("recorded"), counters.get("backlog")), time.monotonic()
-            if (self.sup.restarts.get(RECORDER_ID) or never_back or stuck) and \
+            if (missing_done or time.monotonic() > since + RECORDER_DONE_WAIT) and \
                     self.heard_at.get(RECORDER_ID, 0.0) > since + 0.2 and counters.get("backlog") == 0:
                 break
         self.drain(0.2)

@@ -127,7 +127,11 @@ def run(sensor: str, scenario_ref: str, method_name: str, overrides: dict, keys:
             if msg.kind == "watermark":
                 local.set_horizon(msg.t)
             else:
-                local.receive(downlink(sensor, msg))
+                try:
+                    local.receive(downlink(sensor, msg))
+                except ValueError as e:  # well-formed, but not for this node (a kind it takes none of)
+                    node.reject(msg.src, "unusable-downlink", f"{msg.kind} at t = {msg.t:g} s: {e}")
+                    return msg
             waiting_since = None
             if alone:
                 alone = False
@@ -198,7 +202,7 @@ def run(sensor: str, scenario_ref: str, method_name: str, overrides: dict, keys:
                 pub.put(encode("watermark", me, seq, wm, final=final))
                 sent_wm = wm
             node.counters.update(received=core.received, processed=core.processed, published=seq,
-                                 pending=len(local.pending), alone=int(alone))
+                                 pending=len(local.pending), alone=int(alone), stale=local.stale)
             if recovery is not None:
                 node.counters.update(recovery.counters())
             if final:

@@ -241,3 +241,56 @@ def test_a_dropped_track_and_a_lost_request(stream):
     node.offer(a[4])
     (third,) = node.step()
     assert isinstance(third, InitRequest) and not node.ran_alone
+
+
+def test_a_node_woken_after_the_centre_went_on_drops_what_the_centre_passed(stream):
+    """A node stopped (SIGSTOP) while the centre, which declared it dead, fused on without
+    it: on waking it holds its sensor's measurements since, and the centre's feedback since
+    comes in the same batch, applied before the measurements. With a prior at t5 and the
+    measurements at t1..t4 pending, those four are dropped (counted in ``stale``: the
+    centre refuses them as late, and the track cannot be predicted back to them) and t5 is
+    an update from the prior. It raised 'cannot predict backwards' and the tracker died."""
+    cfg = TrackerConfig.from_dict({})
+    node = TrackNode("angle", cfg, "PHHNV", SCHEMES["feedback"])
+    centre = TrackCentre("PHHNV", cfg, SCHEMES["feedback"])
+    a = _of(stream, "angle")
+    node.offer(a[0])
+    (req,) = node.step()
+    centre.process(req)
+    centre.advance(np.nextafter(a[1].t, 0))  # the node's promise while it holds t1
+    (init,) = centre.take_downlinks()
+    node.receive(init)
+    for m in a[1:7]:
+        node.offer(m)
+    e = init.estimate
+    node.receive(Feedback("angle", Estimate(a[5].t, e.x, e.P, "PHHNV", "centre", "T1"), None, None))
+    node.set_horizon(a[5].t)
+    (u,) = node.step()
+    assert node.stale == 4 and isinstance(u, LocalReport) and u.t == a[5].t and u.feedback_t == a[5].t
+    assert node.waiting_for == "feedback" and [m.t for m in node.pending] == [a[6].t]
+
+
+def test_a_many_target_node_woken_after_the_centre_went_on_drops_the_frames_it_passed(stream):
+    """The same for a many-target node: a frame older than a prior its centre sent is
+    dropped whole (its plots would start requests the centre refuses as late)."""
+    node = split("PHHNV").node("angle", {"association": "gnn"})
+    a = _of(stream, "angle")
+    node.offer(a[0])
+    node.set_watermark(np.nextafter(a[1].t, 0))
+    node.set_horizon(a[0].t)
+    (req,) = node.step()
+    assert isinstance(req, InitRequest)
+    centre = TrackCentre("PHHNV", TrackerConfig.from_dict({}), SCHEMES["feedback"])  # a state to start from
+    centre.process(req)
+    centre.advance(np.nextafter(a[1].t, 0))
+    (init,) = centre.take_downlinks()
+    node.receive(init)
+    for m in a[1:6]:
+        node.offer(m)
+    node.set_watermark(np.nextafter(a[6].t, 0))
+    node.receive(Feedback("angle", Estimate(a[4].t, init.estimate.x, init.estimate.P, "PHHNV", "centre", "T1"),
+                          None, None))
+    node.set_horizon(a[4].t)
+    out = node.step()
+    assert node.stale == 3  # the frames at t1..t3
+    assert [u.t for u in out] == [a[4].t] and set(node.tracks) == {"T1"}  # the frame at t4 is taken

@@ -171,14 +171,21 @@ def test_no_restart_ends_the_run_after_the_sources(tmp_path, deployment):
     verify(tmp_path / "out.rrd")
 
 
-def test_a_tracker_that_never_ends_does_not_hold_the_run(tmp_path, deployment):
-    """A local tracker stopped (SIGSTOP) for good at 10 s of a 16 s feedback run: the
-    fuser declares it dead and finishes on the other node; the tracker never ends, so
-    neither its "done" nor its exit comes. The launcher gives it END_WAIT after the
-    sources, stops it (killed: a stopped process takes no SIGTERM), stops the recorder once
-    its backlog is empty, names the tracker, and exits 0 with the summary. (It once waited
-    for the tracker for ever: the recorder, waiting for its "done", recorded statuses each
-    second, so it never looked stalled, and the wait did not heed SIGINT.)"""
+@pytest.mark.parametrize("wakes", [False, True], ids=["stopped-for-good", "woken-at-the-end"])
+def test_a_tracker_stopped_until_the_fuser_is_done_does_not_hold_the_run(tmp_path, deployment, wakes):
+    """A local tracker stopped (SIGSTOP) at 10 s of a 16 s feedback run; the fuser declares
+    it dead and finishes on the other node.
+
+    - Stopped for good: neither its "done" nor its exit comes. The launcher gives it
+      END_WAIT after the fuser is done, stops it (killed: a stopped process takes no
+      SIGTERM), stops the recorder once its backlog is empty, names the tracker, and exits
+      0 with the summary. (It waited for ever: the recorder, waiting for the tracker's
+      "done", recorded statuses each second, so it never looked stalled, and the wait did
+      not heed SIGINT.)
+    - Woken once the fuser is done: it holds its sensor's measurements from 10 s on and
+      the fuser's feedback up to the end, applied first; it drops what the fuser passed
+      (counted as ``stale``) and ends, by itself or stopped by the launcher. (It died on
+      'cannot predict backwards', and the run then waited for ever as above.)"""
     from services.launcher import END_WAIT, STOP_GRACE
 
     watch = FusedWatch(deployment)
@@ -190,6 +197,8 @@ def test_a_tracker_that_never_ends_does_not_hold_the_run(tmp_path, deployment):
         watch.wait_until(10.0, proc)
         stuck.suspend()
         watch.wait_until(16.0, proc)  # the fuser went on without it, to the end
+        if wakes:
+            stuck.resume()
         ended_at = time.monotonic()
         assert proc.wait(END_WAIT + STOP_GRACE + 20.0) == 0, (tmp_path / "run.log").read_text()
         assert time.monotonic() - ended_at < END_WAIT + STOP_GRACE + 15.0
@@ -198,11 +207,15 @@ def test_a_tracker_that_never_ends_does_not_hold_the_run(tmp_path, deployment):
             proc.kill()
         watch.close()
     err = (tmp_path / "run.log").read_text()
-    assert "trk-angle did not end" in err and "killed at the end: trk-angle" in err, err
+    assert "Traceback" not in err and "ended with errors" not in err, err
     assert not psutil.pid_exists(stuck.pid) or stuck.status() == psutil.STATUS_ZOMBIE
     doc = json.loads((tmp_path / "out.json").read_text())
     assert doc["methods"]["PHHNV"]["series"]["t"][-1] == 16.0
-    assert doc["exit_codes"]["trk-angle"] == -signal.SIGKILL
+    if not wakes:
+        assert "trk-angle did not end" in err and "killed at the end: trk-angle" in err, err
+        assert doc["exit_codes"]["trk-angle"] == -signal.SIGKILL
+    else:
+        assert doc["exit_codes"]["trk-angle"] == 0 and "killed at the end" not in err, err
 
 
 def test_recorder_then_fuser_killed_centralised(tmp_path, deployment):
