@@ -43,7 +43,7 @@ from .errors import FAILURE, UserError, zenoh_reason
 from .export.outputs import OUTPUTS
 from .intake import Intake
 from .lazy import lazy
-from .node import Inbox, Node, ZenohOptions
+from .node import Inbox, Node, Stopped, ZenohOptions
 from .plan import FUSER_ID, RECORDER_ID, Asterix, Live, RunPlan, source_timeout
 from .request import check_methods, resolve_topology, scenario_of
 from .resources import ProcessUsage, own_usage
@@ -399,11 +399,13 @@ def run(args) -> int:
             failure = launch.children.failed()
             if not interrupted and not live and not failure:
                 launch.finish_recorder()
-        except TimeoutError as e:  # a process did not come up (or Ctrl-C while waiting)
-            interrupted = node.stop.is_set()
-            not_started = not interrupted
+        except Stopped:  # Ctrl-C while a stage came up
+            interrupted = True
             failure = launch.children.failed()
-            if not_started and not failure:
+        except TimeoutError as e:  # a process did not come up
+            not_started = True
+            failure = launch.children.failed()
+            if not failure:
                 log.error("%s", e)
         finally:
             launch.sup.restart = False

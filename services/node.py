@@ -96,6 +96,11 @@ class ZenohOptions:
         return args + [a for o in self.overrides for a in ("--zenoh-set", o)]
 
 
+class Stopped(Exception):
+    """The process was told to stop (SIGINT/SIGTERM) while it waited (:meth:`Node.wait_for`):
+    a clean end, not a failure."""
+
+
 class Inbox:
     """The bounded hand-over from Zenoh's callbacks to a process's loop: ``(key, bytes)``,
     at most ``maxsize`` samples and ``max_bytes`` of payload (a sample larger than that
@@ -558,9 +563,10 @@ class Node:
 
     def wait_for(self, process_ids: Iterable[str], timeout: float,
                  gone: Callable[[], str | None] | None = None) -> None:
-        """Block until every named process has announced itself (or raise). ``gone``,
-        if given, is asked as it waits: a text saying that a process it waits for has
-        exited (it will not announce itself) ends the wait at once."""
+        """Block until every named process has announced itself. Raises
+        :class:`Stopped` if the process is told to stop meanwhile, ``TimeoutError`` past
+        ``timeout`` or when ``gone``, asked as it waits, gives a text saying that a process
+        it waits for has exited (it will not announce itself)."""
         wanted = set(process_ids)
         if not wanted:
             return
@@ -579,7 +585,9 @@ class Node:
             with cond:
                 while not wanted <= seen:
                     left = deadline - time.monotonic()
-                    if left <= 0 or self.stop.is_set():
+                    if self.stop.is_set():
+                        raise Stopped(f"{self.id}: stopped while waiting for {', '.join(sorted(wanted - seen))}")
+                    if left <= 0:
                         raise TimeoutError(f"{self.id}: gave up after {timeout:.0f} s waiting for "
                                            f"{', '.join(sorted(wanted - seen))}")
                     why = gone() if gone is not None else None

@@ -39,7 +39,7 @@ from sensors_sim.emulators import sensor_batches
 
 from .errors import UserError
 from .lazy import lazy
-from .node import Node
+from .node import Node, Stopped
 from .scenario import load
 
 
@@ -156,12 +156,13 @@ def run(process_id: str, scenario_ref: str, keys: KeySpace, zopts, speed: float,
         node.publish_status("starting")
         try:
             node.wait_for(wait_for, wait_timeout)
-        except TimeoutError as e:
-            stopped = node.stop.is_set()  # stopped while it waited: a clean stop, not a failure
-            if not stopped:
-                node.event(str(e))
+        except Stopped:  # a clean stop, not a failure
             node.publish_status("stopped")
-            return 0 if stopped else 2
+            return 0
+        except TimeoutError as e:
+            node.event(str(e))
+            node.publish_status("stopped")
+            return 2
         pacer = Pacer(node, start_at if start_at is not None else time.time(), 1.0 if live else speed, live)
         if emit is not None:
             t_last = _play_asterix(node, scenario, pacer, run_index, emit, asterix)

@@ -173,7 +173,7 @@ class Supervisor:
         """Start every process but the sources (and a router), stage by stage: a process
         once those it waits for are up; returns the seconds the first stage took to come
         up (what starting processes takes on this machine now). Raises ``TimeoutError``
-        if a stage does not come up (or a process of it exits first)."""
+        if a stage does not come up (or a process of it exits first), ``Stopped`` on Ctrl-C."""
         pending = [s for s in self.plan if s.role not in ("source", "router")]
         up: set[str] = set()
         startup: float | None = None

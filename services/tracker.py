@@ -33,7 +33,7 @@ from .fuser import FuserCore, MeasurementIntake
 from .intake import HORIZON_SLACK_S, Intake
 from .live import LiveOptions
 from .errors import UserError
-from .node import Inbox, Node, Recovery
+from .node import Inbox, Node, Recovery, Stopped
 from .scenario import load, load_site
 from .source import recovery_cache
 
@@ -104,6 +104,8 @@ def run(sensor: str, scenario_ref: str, method_name: str, overrides: dict, keys:
             history=True)
         try:  # be reachable from the fuser before a sensor (waiting for this token) starts
             node.wait_for([fuser_id], 60.0)
+        except Stopped:
+            pass  # (the loop below ends at once)
         except TimeoutError as e:
             node.event(f"{e}; running alone")
         node.announce()

@@ -42,7 +42,7 @@ from sensors_sim import load_site as load_site_file
 
 from ..errors import UserError
 from ..logs import chatty, utc_text
-from ..node import Node
+from ..node import Node, Stopped
 from ..source import RECOVERY_S
 from .adsb import AdsbReceiver, PositionReport, SbsClock, position_reading
 from .asterix import AsterixFeed, AsterixIngest, CaptureError, pcap_datagrams, radars, stations
@@ -147,9 +147,9 @@ class Outlet:
             self.status("starting", force=True)  # (as a sensor that waits says)
         try:
             self.node.wait_for(wait_for, timeout)
+        except Stopped:  # the caller's loop ends at once
+            return
         except TimeoutError as e:
-            if self.node.stop.is_set():  # stopped while it waited: the caller's loop ends at once
-                return
             self.node.events.append(str(e))  # in the status; the line on stderr is main's
             self.status("stopped", force=True)
             raise NotHeard(str(e)) from None

@@ -5,9 +5,14 @@ from __future__ import annotations
 
 import queue
 import threading
+import time
 import tracemalloc
 
-from services.node import ListenerInbox
+import pytest
+
+from schemas import KeySpace
+from services.launcher import free_port
+from services.node import ListenerInbox, Node, Stopped, ZenohOptions
 
 PAYLOAD = 1_000
 
@@ -65,3 +70,19 @@ def test_beyond_its_bound_the_inbox_drops_and_counts_what_it_cannot_hold():
         else:
             raise AssertionError("an empty inbox handed out a sample")
         inbox.close()
+
+
+def test_a_wait_told_to_stop_raises_stopped_and_one_that_times_out_timeout_error():
+    """``Node.wait_for``: a stop (SIGINT/SIGTERM) while it waits is ``Stopped``, a clean
+    end its callers do not report as a failure; past its timeout, ``TimeoutError``. (Both
+    were TimeoutError, and each caller asked the stop event which one it was.)"""
+    with Node("waiter", "test", KeySpace("twait"), ZenohOptions(listen=[f"tcp/127.0.0.1:{free_port()}"])) as node:
+        t0 = time.monotonic()
+        with pytest.raises(TimeoutError, match="gave up after"):
+            node.wait_for(["nobody"], 0.3)
+        assert 0.3 <= time.monotonic() - t0 < 5.0
+        threading.Timer(0.2, node.stop.set).start()
+        t0 = time.monotonic()
+        with pytest.raises(Stopped):
+            node.wait_for(["nobody"], 60.0)
+        assert time.monotonic() - t0 < 5.0
