@@ -58,6 +58,7 @@ LAUNCHER_ID = "launcher"
 END_GRACE = 10.0  # s after the last source ends, when no fuser is left to say it is done
 START_LEAD_MAX = 15.0  # s: the most a paced run's sources are given to start (Launch.start)
 RECORDER_STALL = 30.0  # s: at the end, the recorder is stopped once it has recorded nothing new this long
+RECORDER_IDLE = 5.0  # s: ... or once it has said, everyone else ended, that its backlog is empty this long
 SETTLE_MARGIN = 1.0  # s beyond the OOSM window and max delay before a live estimate is scored for good
 LIVE_LEAD = 8.0  # s from starting the sources of a live run to its scenario time 0 (their start-up)
 
@@ -278,16 +279,20 @@ class Launch:
         never_back = [n for n, outs in self.sup.outages.items() if outs[-1]["t_up"] is None]
         # It may have missed the "done" of processes that ended before it came up, and a
         # process killed and not restarted (--no-restart) sends none: once it reports an
-        # empty backlog it has everything; stop it.
+        # empty backlog it has everything; stop it. So it has once it has said so for
+        # RECORDER_IDLE: it missed a "done" (a status, which is dropped under congestion).
         since, stalled = time.monotonic(), time.monotonic()
-        progress = None
-        while children.procs[RECORDER_ID].poll() is None and time.monotonic() - stalled < RECORDER_STALL:
+        progress, idle = None, None
+        while children.procs[RECORDER_ID].poll() is None and time.monotonic() - stalled < RECORDER_STALL \
+                and not self.node.stop.is_set():
             self.drain(0.1)
             counters = self.statuses.get(RECORDER_ID, {}).get("counters", {})
             if (counters.get("recorded"), counters.get("backlog")) != progress:
                 progress, stalled = (counters.get("recorded"), counters.get("backlog")), time.monotonic()
-            if (self.sup.restarts.get(RECORDER_ID) or never_back) and \
-                    self.heard_at.get(RECORDER_ID, 0.0) > since + 0.2 and counters.get("backlog") == 0:
+            empty = self.heard_at.get(RECORDER_ID, 0.0) > since + 0.2 and counters.get("backlog") == 0
+            idle = (idle or time.monotonic()) if empty else None
+            if empty and (self.sup.restarts.get(RECORDER_ID) or never_back
+                          or time.monotonic() - idle >= RECORDER_IDLE):
                 break
         self.drain(0.2)
 
