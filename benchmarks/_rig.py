@@ -62,6 +62,8 @@ HERE = Path(__file__).resolve().parent
 SITE_RADIUS_M = 5_000.0
 STD = (0.2, 0.2, 10.0)  # az (deg), el (deg), range (m) of every benchmark radar
 PAIR_TOL = 1e-6  # s, the generated scenario's scan grouping tolerance
+T0_SCEN = 1.0  # s, scenario time of the load generator's first scan (the scenario's start_s: a fuser that
+# took it for a later one would think it joined mid-stream and drop what came before a watermark)
 
 
 # Scenario ------------------------------------------------------------------------------
@@ -104,7 +106,7 @@ def write_scenario(path: Path, n_sensors: int, duration_s: float) -> Path:
     ]
     for sid, s in zip(sensor_ids(n_sensors), sites):
         lines += [f"[sensors.{sid}]", 'kind = "radar3d"', f"pos_m = [{s[0]:.1f}, {s[1]:.1f}, {s[2]:.1f}]",
-                  "period_s = 1.0", "start_s = 0.0", f"std_az_deg = {STD[0]}", f"std_el_deg = {STD[1]}",
+                  "period_s = 1.0", f"start_s = {T0_SCEN}", f"std_az_deg = {STD[0]}", f"std_el_deg = {STD[1]}",
                   f"std_range_m = {STD[2]}"]
     path.write_text("\n".join(lines) + "\n")
     return path
@@ -219,7 +221,7 @@ def gen_main(argv: list[str]) -> int:
     n_scans = int(seconds / T) * S
     stds = [math.radians(STD[0]), math.radians(STD[1]), STD[2]]
     rng = np.random.default_rng(7)
-    t0_scen = 1.0  # scenario time of the first scan
+    t0_scen = T0_SCEN
     scan_t = t0_scen + np.arange(n_scans) * (T / S)  # scan k is sensor k % S
     scan_s = np.arange(n_scans) % S
     pub_first = np.zeros(n_scans)
@@ -286,7 +288,9 @@ def gen_main(argv: list[str]) -> int:
                     pub.put(b)
                 pub_wm[kk] = time.monotonic()
             k += len(batch_msgs)
-        t_end = float(scan_t[-1]) + T
+        # Past every look-ahead already sent (up to S periods on): a final watermark below
+        # one is refused as out of order, and the last scans would never be released.
+        t_end = float(scan_t[-1]) + T * (S + 1)
         for i, sid in enumerate(ids):
             wm_seq[i] += 1
             pubs[i].put(msgpack.packb({"v": 1, "kind": "watermark", "src": sid, "seq": wm_seq[i], "t": t_end,
@@ -406,8 +410,10 @@ def run_feed(feed: Feed, log_dir: Path | None = None) -> dict:
     by the scenario feeder; returns latency, CPU and memory figures (:func:`_score_feed`)."""
     from schemas import KeySpace
     from services.node import Node, ZenohOptions
+    from services.plan import source_timeout
     from services.scenario import load
 
+    sc = load(feed.scenario, None, feed.duration)
     work = Path(tempfile.mkdtemp(prefix="zf-feed-"))
     log_dir = log_dir or work
     dep = f"b{uuid.uuid4().hex[:10]}"
@@ -428,6 +434,7 @@ def run_feed(feed: Feed, log_dir: Path | None = None) -> dict:
             node.announce()
             procs.start("fuser", ["-m", "services.cli", "fuser", "--scenario", feed.scenario, "--duration-s",
                                   f"{feed.duration:g}", "--method", feed.method, "--json", str(work / "fuser.json"),
+                                  "--source-timeout", str(source_timeout(sc, "1")),  # as `zfusion run --speed 1`
                                   *common], log_dir / "fuser.log")
             node.wait_for(["fuser"], 120.0)
             sampler.start({"fuser": procs.procs["fuser"].pid})
@@ -452,7 +459,7 @@ def run_feed(feed: Feed, log_dir: Path | None = None) -> dict:
     np.savez(work / "fused.npz", recv=obs.recv, t=obs.t)  # kept in the work directory with the feed's log
     with np.load(work / "feed.npz") as npz:
         g = {k: npz[k] for k in npz.files}
-    result.update(_score_feed(g, obs, sampler, load(feed.scenario).tracker.get("pair_tol", 0.0)))
+    result.update(_score_feed(g, obs, sampler, sc.tracker.get("pair_tol", 0.0)))
     with contextlib.suppress(OSError, ValueError):
         summary = json.loads((work / "fuser.json").read_text())["methods"][feed.method]
         result["summary"] = {k: summary.get(k) for k in ("n_updates", "held", "held_after_init", "false_tracks",
@@ -512,12 +519,22 @@ def _score_feed(g, obs: FeedObserver, sampler: Sampler, pair_tol: float) -> dict
         b = a[busy] if busy.sum() >= 2 else a
         out["fuser_cpu_pct"] = 100.0 * (b[-1, 1] - b[0, 1]) / max(b[-1, 0] - b[0, 0], 1e-9)
         out["fuser_cpu_s"] = float(a[-1, 1] - a[0, 1])
-        at2 = a[np.searchsorted(a[:, 0], start + 120.0).clip(0, len(a) - 1)]
-        out["rss_2min_mb"] = float(at2[2])
+        k2 = int(np.searchsorted(a[:, 0], start + 120.0))
+        out["rss_2min_mb"] = float(a[k2, 2]) if k2 < len(a) else math.nan  # a shorter run has none
         out["rss_peak_mb"] = float(a[:, 2].max())
         out["rss_end_mb"] = float(b[-1, 2])
         out["rss_by_minute_mb"] = [float(a[np.searchsorted(a[:, 0], start + 60.0 * m).clip(0, len(a) - 1), 2])
                                    for m in range(int((a[-1, 0] - start) // 60) + 1)]
+    status = []  # the fuser's own counters: (s from the start, held for watermarks, queued in its inbox)
+    for at, data in obs.status:
+        with contextlib.suppress(Exception):
+            d = obs._unpack(data)
+            if d["src"] == "fuser":
+                status.append((at - start, d["counters"].get("held", 0), d["counters"].get("inbox", 0)))
+    for row in out["per_minute"]:
+        mine = [(h, q) for at, h, q in status if row["minute"] * 60 <= at < row["minute"] * 60 + 60]
+        row["held_max"] = max((h for h, _ in mine), default=None)
+        row["inbox_max"] = max((q for _, q in mine), default=None)
     out["fuser_hwm_mb"] = sampler.hwm.get("fuser", math.nan)
     rows = sampler.threads.get("fuser", [])
     if len(rows) >= 2:
@@ -621,6 +638,8 @@ class Sampler:
                 now = time.monotonic()
                 for n, ps in watched.items():
                     with contextlib.suppress(psutil.Error, OSError):
+                        if ps.status() == psutil.STATUS_ZOMBIE:  # exited: nothing left to measure
+                            continue
                         ct = ps.cpu_times()
                         self.samples.setdefault(n, []).append((now, ct.user + ct.system, ps.memory_info().rss / 2**20))
                         self.threads.setdefault(n, []).append((now, thread_cpu(ps.pid)))
