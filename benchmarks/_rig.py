@@ -14,7 +14,13 @@
   ``az_el_range`` measurement per track and then a watermark for ``t`` — exactly what
   ``services/source.py`` sends — and logs the monotonic clock just before each scan's
   first ``put`` and just after its watermark ``put``;
-* optionally the real **recorder** (``python -m services.cli record``).
+* optionally the real **recorder** (``python -m services.cli record``);
+* or, for a built-in scenario (``run_feed``), the real fuser on that scenario and the
+  **scenario feeder** (``python benchmarks/_rig.py feed``): every sensor of the scenario
+  in one process, publishing each batch (a rotating radar's sector, a snapshot sensor's
+  scan) at its scenario time in real time, exactly what ``services/source.py`` sends
+  (the same batches, measurements and look-ahead watermarks), niced so that the fuser
+  is not.
 
 Latency of a fused track = its arrival at the driver − the publication of the
 measurement it was made from (same machine, ``CLOCK_MONOTONIC``). "Fuser latency" counts
@@ -31,6 +37,8 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import functools
+import heapq
 import json
 import math
 import os
@@ -54,6 +62,8 @@ HERE = Path(__file__).resolve().parent
 SITE_RADIUS_M = 5_000.0
 STD = (0.2, 0.2, 10.0)  # az (deg), el (deg), range (m) of every benchmark radar
 PAIR_TOL = 1e-6  # s, the generated scenario's scan grouping tolerance
+T0_SCEN = 1.0  # s, scenario time of the load generator's first scan (the scenario's start_s: a fuser that
+# took it for a later one would think it joined mid-stream and drop what came before a watermark)
 
 
 # Scenario ------------------------------------------------------------------------------
@@ -96,7 +106,7 @@ def write_scenario(path: Path, n_sensors: int, duration_s: float) -> Path:
     ]
     for sid, s in zip(sensor_ids(n_sensors), sites):
         lines += [f"[sensors.{sid}]", 'kind = "radar3d"', f"pos_m = [{s[0]:.1f}, {s[1]:.1f}, {s[2]:.1f}]",
-                  "period_s = 1.0", "start_s = 0.0", f"std_az_deg = {STD[0]}", f"std_el_deg = {STD[1]}",
+                  "period_s = 1.0", f"start_s = {T0_SCEN}", f"std_az_deg = {STD[0]}", f"std_el_deg = {STD[1]}",
                   f"std_range_m = {STD[2]}"]
     path.write_text("\n".join(lines) + "\n")
     return path
@@ -211,7 +221,7 @@ def gen_main(argv: list[str]) -> int:
     n_scans = int(seconds / T) * S
     stds = [math.radians(STD[0]), math.radians(STD[1]), STD[2]]
     rng = np.random.default_rng(7)
-    t0_scen = 1.0  # scenario time of the first scan
+    t0_scen = T0_SCEN
     scan_t = t0_scen + np.arange(n_scans) * (T / S)  # scan k is sensor k % S
     scan_s = np.arange(n_scans) % S
     pub_first = np.zeros(n_scans)
@@ -278,7 +288,9 @@ def gen_main(argv: list[str]) -> int:
                     pub.put(b)
                 pub_wm[kk] = time.monotonic()
             k += len(batch_msgs)
-        t_end = float(scan_t[-1]) + T
+        # Past every look-ahead already sent (up to S periods on): a final watermark below
+        # one is refused as out of order, and the last scans would never be released.
+        t_end = float(scan_t[-1]) + T * (S + 1)
         for i, sid in enumerate(ids):
             wm_seq[i] += 1
             pubs[i].put(msgpack.packb({"v": 1, "kind": "watermark", "src": sid, "seq": wm_seq[i], "t": t_end,
@@ -287,6 +299,248 @@ def gen_main(argv: list[str]) -> int:
                  tracks=N, sensors=S, start=start, lookahead_s=(T - 1e-9) if lookahead else 0.0)
         time.sleep(0.5)  # let reliable samples drain before the session closes
     return 0
+
+
+# Scenario feeder ----------------------------------------------------------------------------
+def feed_main(argv: list[str]) -> int:
+    """Every sensor of a scenario in one process (module docstring): the batches of all
+    sensors merged by the time each goes out (its last plot's, ``Batch.t1``), each sent at
+    ``start + t1`` on the monotonic clock, then the sensor's look-ahead watermark, as
+    ``services/source.py``'s ``_play_sensor`` sends them; the final watermarks at the end.
+    Writes, per batch, its sensor, ``t1`` and when its first ``put`` went out, and per
+    watermark its value and when it went out; per plot its time and batch."""
+    from schemas import KeySpace, encode, encode_measurement
+    from sensors_sim.emulators import sensor_batches
+    from services.node import Node, ZenohOptions
+    from services.scenario import load
+
+    spec = json.loads(Path(argv[0]).read_text())
+    keys = KeySpace(spec["deployment"])
+    sc = load(spec["scenario"], None, spec["duration"])
+    ids = list(sc.sensors)
+    gens = [sensor_batches(sc, sid) for sid in ids]
+    heap = [(b.t1, i, b) for i, b in ((i, next(g, None)) for i, g in enumerate(gens)) if b is not None]
+    heapq.heapify(heap)
+    b_sensor, b_t1, b_put = [], [], []  # per batch
+    w_sensor, w_value, w_put = [], [], []  # per watermark
+    p_t, p_batch = [], []  # per plot
+    wm_seq = [0] * len(ids)
+    last = [0.0] * len(ids)
+    late = 0.0
+    with Node("feed", "sensor", keys, ZenohOptions(connect=spec["connect"])) as node:
+        pubs = [node.publisher(keys.meas(sid)) for sid in ids]
+        node.announce()
+        node.wait_for(spec["wait_for"], 60.0)
+        time.sleep(0.3)  # let the fuser's subscription reach this peer's routing table
+        start = time.monotonic() + 0.5
+
+        def watermark(i: int, t: float, final: bool) -> None:
+            wm_seq[i] += 1
+            pubs[i].put(encode("watermark", ids[i], wm_seq[i], t, final=final))
+            w_sensor.append(i)
+            w_value.append(t)
+            w_put.append(time.monotonic())
+
+        while heap and not node.stop.is_set():
+            t1, i, batch = heapq.heappop(heap)
+            due = start + t1
+            now = time.monotonic()
+            if due > now:
+                time.sleep(due - now)
+            else:
+                late = max(late, now - due)
+            b_sensor.append(i)
+            b_t1.append(t1)
+            last[i] = t1
+            b_put.append(time.monotonic())
+            for ev in batch.events:
+                if ev.measurement is not None:
+                    pubs[i].put(encode_measurement(ev.measurement, ids[i]))
+                    p_t.append(ev.measurement.t)
+                    p_batch.append(len(b_t1) - 1)
+            nxt = next(gens[i], None)
+            if nxt is not None:
+                heapq.heappush(heap, (nxt.t1, i, nxt))
+                if nxt.t1 > t1:
+                    watermark(i, math.nextafter(nxt.t0, -math.inf), False)
+        for i in range(len(ids)):  # as a sensor's last: its last batch's time, or the end of the scenario
+            watermark(i, max(last[i], sc.duration), True)
+        np.savez(spec["out"], b_sensor=b_sensor, b_t1=b_t1, b_put=b_put, w_sensor=w_sensor, w_value=w_value,
+                 w_put=w_put, p_t=p_t, p_batch=p_batch, start=start, late_max=late, sensors=len(ids))
+        time.sleep(0.5)  # let reliable samples drain before the session closes
+    return 0
+
+
+@dataclass
+class Feed:
+    """A scenario fed to the real fuser in real time (:func:`run_feed`)."""
+    scenario: str = "region-4000"
+    duration: float = 600.0
+    method: str = "SS"
+    feeder_nice: int = 10
+    sample_period: float = 1.0
+    drain_s: float = 120.0  # how long the fuser may take to finish after the last publish
+
+
+class FeedObserver:
+    """Arrival time and scenario time of every fused track (decoded on arrival: the
+    payloads of ten minutes would not fit), and the status messages."""
+
+    def __init__(self):
+        import msgpack
+
+        self._unpack = msgpack.unpackb
+        self.recv: list[float] = []
+        self.t: list[float] = []
+        self.status: list[tuple[float, bytes]] = []
+
+    def on_fused(self, sample) -> None:  # Zenoh's thread: cheap
+        now = time.monotonic()
+        d = self._unpack(sample.payload.to_bytes())
+        if d.get("kind") == "track":
+            self.recv.append(now)
+            self.t.append(float(d["t"]))
+
+    def on_status(self, sample) -> None:
+        self.status.append((time.monotonic(), sample.payload.to_bytes()))
+
+
+def run_feed(feed: Feed, log_dir: Path | None = None) -> dict:
+    """The real ``zfusion fuser --scenario S --duration-s D`` fed S's plots in real time
+    by the scenario feeder; returns latency, CPU and memory figures (:func:`_score_feed`)."""
+    from schemas import KeySpace
+    from services.node import Node, ZenohOptions
+    from services.plan import source_timeout
+    from services.scenario import load
+
+    sc = load(feed.scenario, None, feed.duration)
+    work = Path(tempfile.mkdtemp(prefix="zf-feed-"))
+    log_dir = log_dir or work
+    dep = f"b{uuid.uuid4().hex[:10]}"
+    keys = KeySpace(dep)
+    hub = f"tcp/127.0.0.1:{free_port()}"
+    spec = {"deployment": dep, "connect": [hub], "scenario": feed.scenario, "duration": feed.duration,
+            "out": str(work / "feed.npz"), "wait_for": ["fuser", "bench"]}
+    (work / "feed.json").write_text(json.dumps(spec))
+    common = ["--connect", hub, "--deployment", dep]
+    obs = FeedObserver()
+    procs = Procs()
+    sampler = Sampler(feed.sample_period)
+    result: dict = {"feed": asdict(feed), "work": str(work)}
+    try:
+        with Node("bench", "bench", keys, ZenohOptions(listen=[hub])) as node:
+            node.subscribe(keys.fused("fuser"), obs.on_fused)
+            node.subscribe(keys.all("status"), obs.on_status)
+            node.announce()
+            procs.start("fuser", ["-m", "services.cli", "fuser", "--scenario", feed.scenario, "--duration-s",
+                                  f"{feed.duration:g}", "--method", feed.method, "--json", str(work / "fuser.json"),
+                                  "--source-timeout", str(source_timeout(sc, "1")),  # as `zfusion run --speed 1`
+                                  *common], log_dir / "fuser.log")
+            node.wait_for(["fuser"], 120.0)
+            sampler.start({"fuser": procs.procs["fuser"].pid})
+            feeder = procs.start("feed", [str(HERE / "_rig.py"), "feed", str(work / "feed.json")], log_dir / "feed.log",
+                                 nice=feed.feeder_nice)
+            while feeder.poll() is None:
+                if node.stop.is_set():
+                    raise KeyboardInterrupt
+                time.sleep(0.2)
+            if feeder.returncode != 0:
+                raise RuntimeError(f"feeder failed ({feeder.returncode}): {(log_dir / 'feed.log').read_text()[-2000:]}")
+            fz = procs.procs["fuser"]
+            try:
+                fz.wait(feed.drain_s)
+            except subprocess.TimeoutExpired:
+                result["fuser_timeout"] = True
+            sampler.stop()
+            result["fuser_exit"] = fz.poll()
+    finally:
+        sampler.stop()
+        procs.stop_all()
+    np.savez(work / "fused.npz", recv=obs.recv, t=obs.t)  # kept in the work directory with the feed's log
+    with np.load(work / "feed.npz") as npz:
+        g = {k: npz[k] for k in npz.files}
+    result.update(_score_feed(g, obs, sampler, sc.tracker.get("pair_tol", 0.0)))
+    with contextlib.suppress(OSError, ValueError):
+        summary = json.loads((work / "fuser.json").read_text())["methods"][feed.method]
+        result["summary"] = {k: summary.get(k) for k in ("n_updates", "held", "held_after_init", "false_tracks",
+                                                          "break_rate", "tracks", "gospa")}
+    return result
+
+
+def _score_feed(g, obs: FeedObserver, sampler: Sampler, pair_tol: float) -> dict:
+    """Plot-to-track latency: a fused track at time ``t`` is the update by the plot of
+    time ``t`` (a rotating radar's plots have times of their own; tracks at a time no plot
+    has are not counted), from its batch's first ``put`` to the track's arrival at the
+    driver. "Once its frame could close": from when every sensor's watermark had passed
+    the end of the plot's frame (the tracker's frame: the plots within ``pair_tol`` of
+    its first, ``fusion.grouping.TimeGrouper``), the earliest the time ordering lets the
+    fuser run it; this leaves out the wait for the frame's window and the other sensors'
+    sectors, which the design sets, and keeps processing, queueing and transport. CPU
+    and memory over the run, RSS at 2 min from the feed's start."""
+    start = float(g["start"])
+    p_t, p_batch, b_put = g["p_t"], g["p_batch"], g["b_put"]
+    order = np.argsort(p_t, kind="stable")
+    pt_sorted = p_t[order]
+    t = np.array(obs.t)
+    recv = np.array(obs.recv)
+    j = np.clip(np.searchsorted(pt_sorted, t), 0, max(len(pt_sorted) - 1, 0))
+    hit = pt_sorted[j] == t if len(pt_sorted) else np.zeros(len(t), bool)
+    sent = b_put[p_batch[order[j[hit]]]]
+    lat = recv[hit] - sent
+    first = np.empty(len(pt_sorted))  # each plot's frame: its first plot's time
+    f = -np.inf
+    for k, tk in enumerate(pt_sorted.tolist()):
+        if tk - f > pair_tol:
+            f = tk
+        first[k] = f
+    frame_end = first[j[hit]] + pair_tol
+    ready = np.full(hit.sum(), -np.inf)
+    w_sensor, w_value, w_put = g["w_sensor"], g["w_value"], g["w_put"]
+    for s in range(int(g["sensors"])):
+        mine = w_sensor == s
+        vals, puts = w_value[mine], w_put[mine]
+        k = np.searchsorted(vals, frame_end, side="left")
+        ready = np.maximum(ready, np.where(k < len(vals), puts[np.minimum(k, len(vals) - 1)], np.inf))
+    lat_w = recv[hit] - np.maximum(sent, ready)
+    minute = ((sent - start) // 60).astype(int)
+    out = {"plots": len(p_t), "batches": len(b_put), "fused": len(t), "fused_at_a_plot": int(hit.sum()),
+           "feed_late_max_s": float(g["late_max"]), "feed_s": float(b_put[-1] - start) if len(b_put) else 0.0}
+    for name, v in (("lat", lat), ("lat_after_frame", lat_w[np.isfinite(lat_w)])):
+        if v.size:
+            out.update({f"{name}_p{q}_ms": 1e3 * float(np.percentile(v, q)) for q in (50, 90, 99)})
+            out[f"{name}_max_ms"] = 1e3 * float(v.max())
+    out["per_minute"] = [{"minute": int(m), "n": int((minute == m).sum()),
+                          "p50_ms": 1e3 * float(np.percentile(lat[minute == m], 50)),
+                          "p99_ms": 1e3 * float(np.percentile(lat[minute == m], 99))}
+                         for m in np.unique(minute)]
+    a = np.array(sampler.samples.get("fuser", []))
+    if len(a) >= 2:
+        busy = (a[:, 0] >= start) & (a[:, 0] <= (b_put[-1] if len(b_put) else a[-1, 0]))
+        b = a[busy] if busy.sum() >= 2 else a
+        out["fuser_cpu_pct"] = 100.0 * (b[-1, 1] - b[0, 1]) / max(b[-1, 0] - b[0, 0], 1e-9)
+        out["fuser_cpu_s"] = float(a[-1, 1] - a[0, 1])
+        k2 = int(np.searchsorted(a[:, 0], start + 120.0))
+        out["rss_2min_mb"] = float(a[k2, 2]) if k2 < len(a) else math.nan  # a shorter run has none
+        out["rss_peak_mb"] = float(a[:, 2].max())
+        out["rss_end_mb"] = float(b[-1, 2])
+        out["rss_by_minute_mb"] = [float(a[np.searchsorted(a[:, 0], start + 60.0 * m).clip(0, len(a) - 1), 2])
+                                   for m in range(int((a[-1, 0] - start) // 60) + 1)]
+    status = []  # the fuser's own counters: (s from the start, held for watermarks, queued in its inbox)
+    for at, data in obs.status:
+        with contextlib.suppress(Exception):
+            d = obs._unpack(data)
+            if d["src"] == "fuser":
+                status.append((at - start, d["counters"].get("held", 0), d["counters"].get("inbox", 0)))
+    for row in out["per_minute"]:
+        mine = [(h, q) for at, h, q in status if row["minute"] * 60 <= at < row["minute"] * 60 + 60]
+        row["held_max"] = max((h for h, _ in mine), default=None)
+        row["inbox_max"] = max((q for _, q in mine), default=None)
+    out["fuser_hwm_mb"] = sampler.hwm.get("fuser", math.nan)
+    rows = sampler.threads.get("fuser", [])
+    if len(rows) >= 2:
+        (ta, x), (tb, y) = rows[0], rows[-1]
+        out["fuser_threads_pct"] = {k: round(100.0 * (y[k] - x.get(k, 0.0)) / max(tb - ta, 1e-9), 1) for k in y}
+    return out
 
 
 # Driver -----------------------------------------------------------------------------------
@@ -305,16 +559,22 @@ class Trial:
     drain_s: float = 30.0  # how long the fuser may take to finish after the last publish
 
 
+def _child_setup(nice: int) -> None:
+    die_with_parent()
+    if nice:
+        os.nice(nice)
+
+
 class Procs(Children):
     """The launcher's children (PDEATHSIG, SIGTERM then SIGKILL on stop), started with
     their output in a log file."""
 
-    def start(self, name: str, argv: list[str], log: Path) -> subprocess.Popen:
+    def start(self, name: str, argv: list[str], log: Path, nice: int = 0) -> subprocess.Popen:
         env = {**os.environ, "PYTHONUNBUFFERED": "1", "PYTHONPATH": os.pathsep.join(
             [str(C.REPO), str(HERE), os.environ.get("PYTHONPATH", "")])}
         fh = open(log, "wb")
         p = subprocess.Popen([sys.executable, *argv], stdin=subprocess.DEVNULL, stdout=fh, stderr=subprocess.STDOUT,
-                             env=env, cwd=str(C.REPO), preexec_fn=die_with_parent)
+                             env=env, cwd=str(C.REPO), preexec_fn=functools.partial(_child_setup, nice))
         fh.close()
         self.procs[name] = p
         return p
@@ -355,10 +615,57 @@ def thread_cpu(pid: int) -> dict[str, float]:
     return out
 
 
+class Sampler:
+    """CPU time, resident memory and its high-water mark (the kernel's ``VmHWM``), and
+    CPU by thread (:func:`thread_cpu`), of some processes every ``period`` seconds, in a
+    thread of the driver."""
+
+    def __init__(self, period: float):
+        self.period = period
+        self.samples: dict[str, list[tuple[float, float, float]]] = {}  # name -> (t, cpu s, rss MB)
+        self.threads: dict[str, list[tuple[float, dict]]] = {}  # name -> (t, CPU s by thread name)
+        self.hwm: dict[str, float] = {}  # name -> the latest VmHWM read, MB
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    def start(self, pids: dict[str, int]) -> None:
+        import psutil
+
+        watched = {n: psutil.Process(pid) for n, pid in pids.items()}
+
+        def loop() -> None:
+            while not self._stop.is_set():
+                now = time.monotonic()
+                for n, ps in watched.items():
+                    with contextlib.suppress(psutil.Error, OSError):
+                        if ps.status() == psutil.STATUS_ZOMBIE:  # exited: nothing left to measure
+                            continue
+                        ct = ps.cpu_times()
+                        self.samples.setdefault(n, []).append((now, ct.user + ct.system, ps.memory_info().rss / 2**20))
+                        self.threads.setdefault(n, []).append((now, thread_cpu(ps.pid)))
+                        self.hwm[n] = high_water_mb(ps.pid)
+                self._stop.wait(self.period)
+
+        self._thread = threading.Thread(target=loop, daemon=True)
+        self._thread.start()
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join()
+
+
+def high_water_mb(pid: int) -> float:
+    """The process's peak resident memory so far (``VmHWM``), MB."""
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("VmHWM:"):
+            return int(line.split()[1]) / 1024
+    return math.nan
+
+
 def run_trial(trial: Trial, log_dir: Path | None = None) -> dict:
     """Start the processes, run one load level, stop everything, return the figures."""
     import msgpack
-    import psutil
 
     from schemas import KeySpace
     from services.node import Node, ZenohOptions
@@ -377,9 +684,8 @@ def run_trial(trial: Trial, log_dir: Path | None = None) -> dict:
     common = ["--connect", hub, "--deployment", dep]
     obs = Observer(trial.keep_every)
     procs = Procs()
-    samples: dict[str, list[tuple[float, float, float]]] = {}  # name -> (t, cpu s, rss MB)
-    threads: dict[str, list[tuple[float, dict]]] = {}  # name -> (t, CPU s by thread name)
-    stop_sampling = threading.Event()
+    sampler = Sampler(trial.sample_period)
+    samples, threads = sampler.samples, sampler.threads
     result: dict = {"trial": asdict(trial)}
     try:
         with contextlib.ExitStack() as stack:
@@ -397,20 +703,7 @@ def run_trial(trial: Trial, log_dir: Path | None = None) -> dict:
                 procs.start("recorder", ["-m", "services.cli", "record", "--rrd", str(work / "bench.rrd"), "--id",
                                          "recorder", *common], log_dir / "recorder.log")
             node.wait_for(["fuser"] + (["recorder"] if trial.recorder else []), 60.0)
-            watched = {n: psutil.Process(p.pid) for n, p in procs.procs.items()}
-
-            def sampler() -> None:
-                while not stop_sampling.is_set():
-                    now = time.monotonic()
-                    for n, ps in watched.items():
-                        with contextlib.suppress(psutil.Error, OSError):
-                            ct = ps.cpu_times()
-                            samples.setdefault(n, []).append((now, ct.user + ct.system, ps.memory_info().rss / 2**20))
-                            threads.setdefault(n, []).append((now, thread_cpu(ps.pid)))
-                    stop_sampling.wait(trial.sample_period)
-
-            th = threading.Thread(target=sampler, daemon=True)
-            th.start()
+            sampler.start({n: p.pid for n, p in procs.procs.items()})
             gen = procs.start("gen", [str(HERE / "_rig.py"), "gen", str(work / "gen.json")], log_dir / "gen.log")
             while gen.poll() is None:
                 if node.stop.is_set():
@@ -424,11 +717,10 @@ def run_trial(trial: Trial, log_dir: Path | None = None) -> dict:
             except subprocess.TimeoutExpired:
                 result["fuser_timeout"] = True
             time.sleep(0.3)
-            stop_sampling.set()
-            th.join()
+            sampler.stop()
             result["fuser_exit"] = fz.poll()
     finally:
-        stop_sampling.set()
+        sampler.stop()
         procs.stop_all()
     with np.load(work / "gen.npz") as npz:
         g = {k: npz[k] for k in npz.files}
@@ -542,4 +834,6 @@ if __name__ == "__main__":
         sys.exit(gen_main(rest))
     if cmd == "fuser":
         sys.exit(fuser_main(rest))
-    raise SystemExit(f"unknown entry point {cmd!r} (gen | fuser)")
+    if cmd == "feed":
+        sys.exit(feed_main(rest))
+    raise SystemExit(f"unknown entry point {cmd!r} (gen | fuser | feed)")

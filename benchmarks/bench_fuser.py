@@ -2,6 +2,7 @@
 process publishing to the real fuser process (``zfusion fuser``) on loopback.
 
     python benchmarks/bench_fuser.py [--sensors 4] [--seconds 4] [--repeats 3] [--json out.json]
+    python benchmarks/bench_fuser.py --scenario region-4000 --duration-s 600 [--json out.json]
 
 1. Sustained throughput: the offered rate is doubled from ``--start-rate`` until the
    fuser falls behind, then bisected. A level is *kept up* when every measurement came
@@ -17,6 +18,14 @@ process publishing to the real fuser process (``zfusion fuser``) on loopback.
    ``t`` (how sensors published them before), to show the ordering wait that removes.
 
 See ``_rig.py`` for the processes; every one is stopped at the end of each level.
+
+``--scenario S --duration-s D`` instead feeds the real ``zfusion fuser --scenario S``
+(its method, ``SS`` by default) S's own plots in real time for D seconds: every sensor's
+batches (a rotating radar's sectors) from one feeder process, niced, as the sensor
+processes would publish them (``_rig.run_feed``). It reports the plot-to-track latency
+(a plot's batch ``put`` → the track it updated received), p50/p90/p99 overall and per
+minute, the fuser's CPU, its RSS at 2 minutes, at its peak and at the end, and the
+criteria of issue 27: p99 ≤ 100 ms, peak RSS within 15 % of the 2-minute value.
 """
 
 from __future__ import annotations
@@ -76,6 +85,41 @@ def median_of(rs: list[dict], key: str) -> float:
     return statistics.median(v) if v else math.nan
 
 
+def fed(args) -> None:
+    """``--scenario``: the real fuser fed a scenario in real time (module docstring)."""
+    feed = _rig.Feed(scenario=args.scenario, duration=args.duration_s, method=args.method)
+    print(f"# {args.scenario} fed to `zfusion fuser --method {args.method}` in real time for "
+          f"{args.duration_s:g} s — {C.machine_line()}\n", flush=True)
+    r = _rig.run_feed(feed)
+    print(C.table(["plots", "fused tracks", "at a plot's time", "feeder late (max s)", "p50 ms", "p90 ms", "p99 ms",
+                   "max ms", "once its frame could close: p50 / p99 ms"],
+                  [[f"{r['plots']:,}", f"{r['fused']:,}", f"{r['fused_at_a_plot']:,}", f"{r['feed_late_max_s']:.3f}",
+                    f"{r.get('lat_p50_ms', math.nan):.1f}", f"{r.get('lat_p90_ms', math.nan):.1f}",
+                    f"{r.get('lat_p99_ms', math.nan):.1f}", f"{r.get('lat_max_ms', math.nan):.1f}",
+                    f"{r.get('lat_after_frame_p50_ms', math.nan):.1f} / {r.get('lat_after_frame_p99_ms', math.nan):.1f}"]]))
+    print("\nPer minute (by the plot's publication):\n")
+    print(C.table(["minute", "tracks", "p50 ms", "p99 ms", "fuser: most held for watermarks", "most in its inbox"],
+                  [[m["minute"], f"{m['n']:,}", f"{m['p50_ms']:.1f}", f"{m['p99_ms']:.1f}", m["held_max"],
+                    m["inbox_max"]] for m in r["per_minute"]]))
+    print(f"\nfuser: CPU {r.get('fuser_cpu_pct', math.nan):.0f} % of a core over the feed "
+          f"({r.get('fuser_cpu_s', math.nan):.0f} s in all; by thread {r.get('fuser_threads_pct')}), "
+          f"RSS at 2 min {r.get('rss_2min_mb', math.nan):.1f} MB, peak {r.get('rss_peak_mb', math.nan):.1f} MB "
+          f"(VmHWM {r.get('fuser_hwm_mb', math.nan):.1f}), end {r.get('rss_end_mb', math.nan):.1f} MB; "
+          f"by minute {r.get('rss_by_minute_mb')}")
+    print(f"fuser exit {r.get('fuser_exit')}; summary {r.get('summary')}; load now {C.load_now():.1f}")
+    p99, rss2, peak = r.get("lat_p99_ms", math.inf), r.get("rss_2min_mb", math.nan), r.get("rss_peak_mb", math.inf)
+    print("\n## Criteria (issue 27)\n")
+    print(f"- p99 plot-to-track latency ≤ 100 ms: {p99:.1f} ms ({'met' if p99 <= 100 else 'NOT MET'})")
+    if rss2 > 0:
+        print(f"- peak RSS within 15 % of its value at 2 min: {peak:.1f} MB against {rss2:.1f} MB, "
+              f"{100 * (peak / rss2 - 1):+.1f} % ({'met' if peak <= 1.15 * rss2 else 'NOT MET'})")
+    else:
+        print("- peak RSS within 15 % of its value at 2 min: the run is shorter than 2 min")
+    if args.json:
+        with open(args.json, "w") as fh:
+            json.dump({"machine": C.machine_line(), **r}, fh, indent=1, default=float)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--sensors", type=int, default=4)
@@ -84,8 +128,14 @@ def main() -> None:
     ap.add_argument("--start-rate", type=float, default=1000.0)
     ap.add_argument("--max-rate", type=float, default=64000.0)
     ap.add_argument("--bisect", type=int, default=3)
+    ap.add_argument("--scenario", help="feed this scenario's plots in real time instead (module docstring)")
+    ap.add_argument("--duration-s", type=float, default=600.0, help="with --scenario: seconds fed")
+    ap.add_argument("--method", default="SS", help="with --scenario: the fuser's method")
     ap.add_argument("--json")
     args = ap.parse_args()
+    if args.scenario:
+        fed(args)
+        return
 
     print(f"# Fuser over Zenoh — {C.machine_line()}")
     print(f"{args.sensors} sensors (3D radars, asynchronous), 1 track, method RADAR3D, {args.seconds:g} s per level\n")

@@ -290,7 +290,8 @@ class Launch:
         # process killed and not restarted (--no-restart), or one that did not end, sends
         # none: once it reports an empty backlog it has everything; stop it. So too if it
         # has not ended RECORDER_DONE_WAIT after everyone else: a "done" it never heard
-        # (a process that failed, or whose link to it was lost) does not hold the run.
+        # (a process that failed; a status, published with congestion control DROP, lost
+        # to congestion, or to a lost link) does not hold the run.
         since, stalled = time.monotonic(), time.monotonic()
         missing_done = bool(self.sup.restarts.get(RECORDER_ID) or never_back or stuck)
         progress = None

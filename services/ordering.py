@@ -81,7 +81,9 @@ class WatermarkMerger:
     Args:
         sources: the expected source ids (anything else is rejected as unknown).
         timeout: seconds of wall-clock silence after which a source is declared dead.
-        start_grace: extra seconds a source that has never been heard gets at start-up.
+        start_grace: extra seconds a source that has never been heard gets at start-up,
+            counted from the first source heard (before any input nothing waits on it,
+            and sources started together can take long to come up on a loaded host).
         now: wall clock at start.
         max_held: measurements held per source before the latest is shed (see the
             module docstring and :func:`hold_cap`).
@@ -101,6 +103,7 @@ class WatermarkMerger:
         self.timeout = timeout
         self.max_held = max_held
         self._start = now
+        self._first_heard: float | None = None  # wall clock of the first message of any source
         self._start_grace = start_grace
         self.released_until = -math.inf  # the merged watermark already passed downstream
         self.late = 0
@@ -124,6 +127,8 @@ class WatermarkMerger:
         return st
 
     def _heard(self, src: str, st: SourceState, now: float, events: list[str]) -> None:
+        if self._first_heard is None:
+            self._first_heard = now
         st.last_heard = now
         if st.dead:
             st.dead = False
@@ -217,7 +222,8 @@ class WatermarkMerger:
         for src, st in self.sources.items():
             if st.dead or st.final:
                 continue
-            since = st.last_heard if st.last_heard is not None else self._start + self._start_grace
+            since = st.last_heard if st.last_heard is not None else \
+                max(self._start, self._first_heard or self._start) + self._start_grace
             if now - since > self.timeout:
                 self.declare_dead(src, events, f"silent for more than {self.timeout:g} s")
 
