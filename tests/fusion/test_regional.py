@@ -157,3 +157,44 @@ def test_a_margin_track_waits_to_join_and_an_overlap_duplicate_waits():
     assert [e.track for e in out] == ["T1"] and system.tracks["T1"].members == {"west": "west.T1", "east": "east.T1"}
     out = system.frame(RegionalFrame("west", 1.0, (est("west", "T1", -2850.0, 1.0), est("west", "T3", -2700.0, 1.0))))
     assert [e.track for e in out] == ["T1"] and "west.T3" not in system.owner and len(system.tracks) == 2
+
+
+def test_two_system_tracks_on_one_aircraft_merge_into_the_older():
+    """A west duplicate born out of the gate of the aircraft's system track (held by west
+    and east) starts its own; once the two stay in each other's gate for merge_frames
+    looks at distinct times (two regions' frames of one time are one look) the younger
+    is merged into the older and its west track waits, starting none; when the west
+    tracker deletes its first track the waiting one joins the older system track, whose id
+    the aircraft keeps. Two system tracks held by one region each are that region's
+    tracker's to review: they are not merged."""
+    regions = {"west": Region("west", box_polygon(-60e3, -60e3, 0.0, 60e3), 8e3, ("w",)),
+               "east": Region("east", box_polygon(0.0, -60e3, 60e3, 60e3), 8e3, ("e",))}
+    P = np.diag([100.0, 100.0, 100.0, 10.0, 10.0, 10.0]) ** 2
+
+    def est(region, track, e, t):
+        return Estimate(t, np.array([e + 200.0 * t, 0.0, 6000.0, 200.0, 0.0, 0.0]), P, "SS", region,
+                        f"{region}.{track}")
+
+    system = SystemFuser("SS", ConstantVelocity(1.0), 0.999, "ci", regions=regions, merge_frames=3)
+    # west's second track 1.5 km off (d² ≈ 112: out of the gate) at t = 0, then 100 m off
+    offsets = {0.0: 1500.0, 1.0: 100.0, 2.0: 100.0, 3.0: 100.0, 4.0: 100.0}
+    seen = []
+    for t, off in offsets.items():
+        seen.append([e.track for e in system.frame(RegionalFrame(
+            "west", t, (est("west", "T1", -3000.0, t), est("west", "T2", -3000.0 + off, t))))])
+        seen.append([e.track for e in system.frame(RegionalFrame("east", t, (est("east", "T1", -2950.0, t),)))])
+        if t == 0.0:
+            assert system.tracks["T1"].members == {"west": "west.T1", "east": "east.T1"}
+            assert system.tracks["T2"].members == {"west": "west.T2"}
+    # looks in the gate at t = 1, 2, 3: merged at t = 3, nothing of T2 after
+    assert seen[:6] == [["T1", "T2"], ["T1"], ["T1", "T2"], ["T1"], ["T1", "T2"], ["T1"]]
+    assert seen[6:] == [["T1"], ["T1"], ["T1"], ["T1"]]
+    assert list(system.tracks) == ["T1"] and "west.T2" in system.absorbed
+    out = system.frame(RegionalFrame("west", 5.0, (est("west", "T2", -2900.0, 5.0),), dropped=("west.T1",)))
+    assert [e.track for e in out] == ["T1"]
+    assert system.tracks["T1"].members == {"west": "west.T2", "east": "east.T1"}
+
+    alone = SystemFuser("SS", ConstantVelocity(1.0), 0.999, "ci", regions=regions, merge_frames=3)
+    for t, off in offsets.items():
+        out = alone.frame(RegionalFrame("west", t, (est("west", "T1", -40e3, t), est("west", "T2", -40e3 + off, t))))
+        assert [e.track for e in out] == ["T1", "T2"]
