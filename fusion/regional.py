@@ -29,7 +29,14 @@ centre takes local tracks, and keeps the system tracks ``T<n>``:
    three or four members (where regions meet), most certain first. Two regions fed by
    one sensor, with the same process noise, have errors correlated in a way neither
    knows; CI is consistent for every such correlation, the naive product is not
-   (docs/regional.md).
+   (docs/regional.md);
+4. two system tracks, one of them held by two regions or more, that stay in each other's
+   gate for ``merge_frames`` consecutive looks (the trackers' own duplicate rule,
+   :class:`fusion.tracking.table.DuplicateWatch`, on the system estimates) are one
+   aircraft: the younger is merged into the older, its members joining it where the older
+   holds no track of their region, and otherwise left waiting (a region's duplicate: it
+   may join a system track later, never start one). Each region's tracker has reviewed its
+   own tracks; a fused track no tracker has.
 
 So an aircraft's system id survives a handover: the next region's track joins the system
 track while both regions hold the aircraft in the overlap, and the first region's track
@@ -46,6 +53,7 @@ from dataclasses import dataclass, field
 from typing import Callable, Mapping, Sequence
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from .measurement.kinds import KINDS
 from .patent import TrackerConfig, uses
@@ -66,16 +74,34 @@ PLOT_SLACK_M = 15_000.0  # m: how far beyond its region and margin a plot's grou
 SCREEN_SLACK_M = 2000.0  # m: the screen's allowance for the spread's growth over an extrapolation
 
 
-def _screen(a: Sequence[Estimate], b: Sequence[Estimate], gate: float) -> np.ndarray:
-    """``(len(a), len(b))``: the pairs that may be in the gate (:meth:`SystemFuser._associate`)."""
+def _screen(a: Sequence[Estimate], b: Sequence[Estimate], gate: float) -> tuple[np.ndarray, np.ndarray]:
+    """The pairs ``(i, j)`` of ``a`` and ``b`` that may be in the gate, in row-major order:
+    those whose horizontal positions, each extrapolated to the later of the two times,
+    lie within ``√(gate·(sᵢ + sⱼ)) + SCREEN_SLACK_M`` (``s`` the horizontal variance).
+    A k-d tree over ``b``'s positions gives each ``a`` the candidates within that radius
+    at its largest plus the distance the two can have moved over the span of all times
+    (a superset), and the test is made on those pairs alone: the same pairs as the test
+    over every pair, at the cost of the near ones."""
     def parts(es):
         return (np.array([e.t for e in es]), np.array([e.x[:2] for e in es]), np.array([e.x[3:5] for e in es]),
                 np.array([e.P[0, 0] + e.P[1, 1] for e in es]))
+    none = np.zeros(0, dtype=int)
+    if not a or not b:
+        return none, none
     (ta, pa, va, sa), (tb, pb, vb, sb) = parts(a), parts(b)
-    t = np.maximum(ta[:, None], tb[None, :])
-    gap = (pa[:, None] + va[:, None] * (t - ta[:, None])[..., None]) - (pb[None] + vb[None] * (t - tb[None])[..., None])
-    radius = np.sqrt(gate * (sa[:, None] + sb[None, :])) + SCREEN_SLACK_M
-    return np.sum(gap * gap, axis=-1) <= radius * radius
+    span = max(ta.max(), tb.max()) - min(ta.min(), tb.min())
+    speed_a, speed_b = np.hypot(va[:, 0], va[:, 1]), np.hypot(vb[:, 0], vb[:, 1])
+    reach = np.sqrt(gate * (sa + sb.max())) + SCREEN_SLACK_M + (speed_a + speed_b.max()) * span
+    near = cKDTree(pb).query_ball_point(pa, reach * (1 + 1e-9) + 1e-6)
+    i = np.repeat(np.arange(len(a)), [len(n) for n in near])
+    j = np.array([k for n in near for k in sorted(n)], dtype=int)
+    if not len(i):
+        return none, none
+    t = np.maximum(ta[i], tb[j])
+    gap = (pa[i] + va[i] * (t - ta[i])[:, None]) - (pb[j] + vb[j] * (t - tb[j])[:, None])
+    radius = np.sqrt(gate * (sa[i] + sb[j])) + SCREEN_SLACK_M
+    keep = np.sum(gap * gap, axis=-1) <= radius * radius
+    return i[keep], j[keep]
 
 
 @dataclass(frozen=True)
@@ -167,6 +193,10 @@ class SystemTrack:
     members: dict[str, str] = field(default_factory=dict)
     last: Estimate | None = None
 
+    def regional(self) -> bool:
+        """Held by two regions or more: a fused track, which no region's tracker reviews."""
+        return len(self.members) > 1
+
 
 class SystemFuser:
     """The system picture from the regional frames (module docstring, steps 1-3).
@@ -178,10 +208,12 @@ class SystemFuser:
         rule: ``ci`` (covariance intersection) or ``naive`` (independent errors assumed).
         ci_criterion: CI's ``trace`` or ``det``.
         regions: the regions by name (None: every regional track may start a system track).
+        merge_frames: the consecutive looks in each other's gate that make two system
+            tracks one (step 4; 0: never).
     """
 
     def __init__(self, name: str, motion, gate_prob: float, rule: str = "ci", ci_criterion: str = "trace",
-                 regions: Mapping[str, Region] | None = None):
+                 regions: Mapping[str, Region] | None = None, merge_frames: int = 0):
         if rule not in SYSTEM_RULES:
             raise ValueError(f"system fusion rule must be one of {SYSTEM_RULES}, got {rule!r}")
         if not hasattr(motion, "F"):
@@ -193,12 +225,16 @@ class SystemFuser:
         self.tracks: dict[str, SystemTrack] = {}  # system id -> track, in creation order
         self.latest: dict[str, Estimate] = {}  # regional id -> its latest estimate
         self.owner: dict[str, SystemTrack] = {}  # regional id -> its system track
+        self.merge_frames = merge_frames
+        self.absorbed: set[str] = set()  # regional ids merged away as their region's duplicates: they never start one
+        self._streak: dict[tuple[str, str], tuple[int, float]] = {}  # (older, younger) -> (looks in the gate, last look's t)
 
     def frame(self, f: RegionalFrame) -> list[Estimate]:
         """One regional frame; returns the estimates of the system tracks it touched."""
         for rid in f.dropped:
             self._leave(f.region, rid)
             self.latest.pop(rid, None)
+            self.absorbed.discard(rid)
         for e in f.tracks:
             self.latest[e.track] = e
         unowned = []
@@ -210,15 +246,15 @@ class SystemFuser:
             if s is None:
                 unowned.append(e)
         self._associate(f.region, unowned)
-        out: list[Estimate] = []
-        done: set[str] = set()
+        touched: dict[str, SystemTrack] = {}
         for e in f.tracks:
             s = self.owner.get(e.track)
-            if s is not None and s.id not in done:
-                done.add(s.id)
+            if s is not None and s.id not in touched:
+                touched[s.id] = s
                 s.last = self._fuse(s)
-                out.append(s.last)
-        return out
+        for s in self._review(list(touched.values())):
+            touched[s.id] = s
+        return [s.last for s in touched.values() if s.id in self.tracks]
 
     # -- association -----------------------------------------------------------------------
     def _at(self, e: Estimate, t: float) -> tuple[np.ndarray, np.ndarray]:
@@ -259,13 +295,13 @@ class SystemFuser:
         gate = gate_threshold(len(_COMPARED), self.gate_prob)
         d2 = np.full((len(unowned), len(near)), np.inf)
         if near:
-            for i, j in zip(*np.nonzero(_screen(unowned, [s.last for s in near], gate))):
+            for i, j in zip(*_screen(unowned, [s.last for s in near], gate)):
                 d2[i, j] = self._distance2(unowned[i], near[j].last)
         taken = {i: free[j] for i, j in gnn(d2[:, free], gate)} if free else {}
         for i, e in enumerate(unowned):
             if i in taken:
                 s = near[taken[i]]
-            elif self._responsible(region, e) and not np.isfinite(d2[i]).any():
+            elif e.track not in self.absorbed and self._responsible(region, e) and not np.isfinite(d2[i]).any():
                 s = SystemTrack(self.ids.next())
                 self.tracks[s.id] = s
             else:
@@ -292,6 +328,54 @@ class SystemFuser:
             del s.members[region]
         if not s.members:
             del self.tracks[s.id]
+            self._streak = {k: n for k, n in self._streak.items() if s.id not in k} if self._streak else self._streak
+
+    # -- review (step 4) ---------------------------------------------------------------------
+    def _review(self, touched: list[SystemTrack]) -> list[SystemTrack]:
+        """Each system track just re-fused against the system tracks near it (screened
+        as in :meth:`_associate`): a pair, one of them held by two regions or more, in
+        the gate of :meth:`_distance2` adds a look to its streak if it is at a later time
+        than the streak's last (several regions' frames of one time are one look), out
+        of it ends the streak; at ``merge_frames`` looks the younger is merged into the
+        older (:meth:`_merge`). Returns the system tracks that took members."""
+        if not self.merge_frames or not touched:
+            return []
+        others = [s for s in self.tracks.values() if s.last is not None]
+        gate = gate_threshold(len(_COMPARED), self.gate_prob)
+        looked: set[tuple[str, str]] = set()
+        merged: list[SystemTrack] = []
+        for i, j in zip(*_screen([s.last for s in touched], [o.last for o in others], gate)):
+            a, b = touched[i], others[j]
+            if a is b or not (a.regional() or b.regional()):
+                continue
+            key = (a.id, b.id) if self.ids.number(a.id) < self.ids.number(b.id) else (b.id, a.id)
+            if key in looked or key[0] not in self.tracks or key[1] not in self.tracks:
+                continue
+            looked.add(key)
+            if not np.isfinite(self._distance2(a.last, b.last)):
+                self._streak.pop(key, None)
+                continue
+            n, t = self._streak.get(key, (0, -math.inf))
+            now = max(a.last.t, b.last.t)
+            self._streak[key] = n, t = (n + 1, now) if now > t else (n, t)
+            if n >= self.merge_frames:
+                merged.append(self._merge(self.tracks[key[0]], self.tracks[key[1]]))
+        return merged
+
+    def _merge(self, keep: SystemTrack, gone: SystemTrack) -> SystemTrack:
+        """``gone``'s members join ``keep`` where it holds no track of their region, the
+        others wait as their region's duplicates; ``gone`` is deleted."""
+        for region, rid in gone.members.items():
+            del self.owner[rid]
+            if region in keep.members:
+                self.absorbed.add(rid)
+            else:
+                keep.members[region] = rid
+                self.owner[rid] = keep
+        del self.tracks[gone.id]
+        self._streak = {k: n for k, n in self._streak.items() if gone.id not in k}
+        keep.last = self._fuse(keep)
+        return keep
 
     # -- fusion ----------------------------------------------------------------------------
     def _fuse(self, s: SystemTrack) -> Estimate:
@@ -346,7 +430,8 @@ class RegionalMethod:
         if association is None:
             raise ValueError(f"{name}: the regional topology needs a many-target method ('association' in [tracker])")
         cfg = TrackerConfig.from_dict(rest)
-        return SystemFuser(name, cfg.motion_model(), association.gate_prob, rule, cfg.ci_criterion, regions)
+        return SystemFuser(name, cfg.motion_model(), association.gate_prob, rule, cfg.ci_criterion, regions,
+                           association.merge_frames)
 
     def process(self, m: Measurement) -> list[Estimate]:
         # another measurement at m.t may still open a frame at m.t: only earlier ones go

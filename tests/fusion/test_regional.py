@@ -13,7 +13,7 @@ import pytest
 from fusion.methods import make_method, method_config
 from fusion.metrics import chi2_bounds
 from fusion.motion import ConstantVelocity
-from fusion.regional import RegionalFrame, RegionalMethod, SystemFuser
+from fusion.regional import SCREEN_SLACK_M, RegionalFrame, RegionalMethod, SystemFuser, _screen
 from fusion.regions import Region, box_polygon
 from fusion.types import Estimate
 from sensors_sim import load_scenario, truth_trajectory
@@ -157,3 +157,73 @@ def test_a_margin_track_waits_to_join_and_an_overlap_duplicate_waits():
     assert [e.track for e in out] == ["T1"] and system.tracks["T1"].members == {"west": "west.T1", "east": "east.T1"}
     out = system.frame(RegionalFrame("west", 1.0, (est("west", "T1", -2850.0, 1.0), est("west", "T3", -2700.0, 1.0))))
     assert [e.track for e in out] == ["T1"] and "west.T3" not in system.owner and len(system.tracks) == 2
+
+
+def test_two_system_tracks_on_one_aircraft_merge_into_the_older():
+    """A west duplicate born out of the gate of the aircraft's system track (held by west
+    and east) starts its own; once the two stay in each other's gate for merge_frames
+    looks at distinct times (two regions' frames of one time are one look) the younger
+    is merged into the older and its west track waits, starting none; when the west
+    tracker deletes its first track the waiting one joins the older system track, whose id
+    the aircraft keeps. Two system tracks held by one region each are that region's
+    tracker's to review: they are not merged."""
+    regions = {"west": Region("west", box_polygon(-60e3, -60e3, 0.0, 60e3), 8e3, ("w",)),
+               "east": Region("east", box_polygon(0.0, -60e3, 60e3, 60e3), 8e3, ("e",))}
+    P = np.diag([100.0, 100.0, 100.0, 10.0, 10.0, 10.0]) ** 2
+
+    def est(region, track, e, t):
+        return Estimate(t, np.array([e + 200.0 * t, 0.0, 6000.0, 200.0, 0.0, 0.0]), P, "SS", region,
+                        f"{region}.{track}")
+
+    system = SystemFuser("SS", ConstantVelocity(1.0), 0.999, "ci", regions=regions, merge_frames=3)
+    # west's second track 1.5 km off (d² ≈ 112: out of the gate) at t = 0, then 100 m off
+    offsets = {0.0: 1500.0, 1.0: 100.0, 2.0: 100.0, 3.0: 100.0, 4.0: 100.0}
+    seen = []
+    for t, off in offsets.items():
+        seen.append([e.track for e in system.frame(RegionalFrame(
+            "west", t, (est("west", "T1", -3000.0, t), est("west", "T2", -3000.0 + off, t))))])
+        seen.append([e.track for e in system.frame(RegionalFrame("east", t, (est("east", "T1", -2950.0, t),)))])
+        if t == 0.0:
+            assert system.tracks["T1"].members == {"west": "west.T1", "east": "east.T1"}
+            assert system.tracks["T2"].members == {"west": "west.T2"}
+    # looks in the gate at t = 1, 2, 3: merged at t = 3, nothing of T2 after
+    assert seen[:6] == [["T1", "T2"], ["T1"], ["T1", "T2"], ["T1"], ["T1", "T2"], ["T1"]]
+    assert seen[6:] == [["T1"], ["T1"], ["T1"], ["T1"]]
+    assert list(system.tracks) == ["T1"] and "west.T2" in system.absorbed
+    out = system.frame(RegionalFrame("west", 5.0, (est("west", "T2", -2900.0, 5.0),), dropped=("west.T1",)))
+    assert [e.track for e in out] == ["T1"]
+    assert system.tracks["T1"].members == {"west": "west.T2", "east": "east.T1"}
+
+    alone = SystemFuser("SS", ConstantVelocity(1.0), 0.999, "ci", regions=regions, merge_frames=3)
+    for t, off in offsets.items():
+        out = alone.frame(RegionalFrame("west", t, (est("west", "T1", -40e3, t), est("west", "T2", -40e3 + off, t))))
+        assert [e.track for e in out] == ["T1", "T2"]
+
+
+def test_the_screen_finds_the_pairs_of_the_test_over_every_pair():
+    """The system fuser's screen (a k-d tree's candidates, then the test) finds exactly
+    the pairs the test over every pair finds: tracks spread over 60 km, spreads from 50 m
+    to 3 km, times over 12 s, 200 random draws, a few thousand pairs in all."""
+    rng = np.random.default_rng(3)
+    gate, found = 22.46, 0
+
+    def draw(n):
+        out = []
+        for _ in range(n):
+            x = np.zeros(9)
+            x[:2], x[3:5] = rng.uniform(-30e3, 30e3, 2), rng.normal(0.0, 200.0, 2)
+            P = np.eye(9) * float(rng.choice([50.0, 300.0, 3000.0])) ** 2
+            out.append(Estimate(float(rng.uniform(0.0, 12.0)), x, P, "SS", "n", "T1"))
+        return out
+
+    for _ in range(200):
+        a, b = draw(int(rng.integers(1, 30))), draw(int(rng.integers(1, 60)))
+        t = np.maximum.outer([e.t for e in a], [e.t for e in b])
+        pos = [np.array([e.x[:2] + e.x[3:5] * (t[i, j] - e.t) for j in range(len(b))]) for i, e in enumerate(a)]
+        other = np.array([[f.x[:2] + f.x[3:5] * (t[i, j] - f.t) for j, f in enumerate(b)] for i in range(len(a))])
+        spread = np.add.outer([e.P[0, 0] + e.P[1, 1] for e in a], [f.P[0, 0] + f.P[1, 1] for f in b])
+        every = np.linalg.norm(np.array(pos) - other, axis=-1) <= np.sqrt(gate * spread) + SCREEN_SLACK_M
+        i, j = _screen(a, b, gate)
+        np.testing.assert_array_equal(np.stack([i, j]), np.stack(np.nonzero(every)))
+        found += len(i)
+    assert found > 1000
