@@ -438,21 +438,10 @@ def run_feed(feed: Feed, log_dir: Path | None = None) -> dict:
                                   *common], log_dir / "fuser.log")
             node.wait_for(["fuser"], 120.0)
             sampler.start({"fuser": procs.procs["fuser"].pid})
-            feeder = procs.start("feed", [str(HERE / "_rig.py"), "feed", str(work / "feed.json")], log_dir / "feed.log",
-                                 nice=feed.feeder_nice)
-            while feeder.poll() is None:
-                if node.stop.is_set():
-                    raise KeyboardInterrupt
-                time.sleep(0.2)
-            if feeder.returncode != 0:
-                raise RuntimeError(f"feeder failed ({feeder.returncode}): {(log_dir / 'feed.log').read_text()[-2000:]}")
-            fz = procs.procs["fuser"]
-            try:
-                fz.wait(feed.drain_s)
-            except subprocess.TimeoutExpired:
-                result["fuser_timeout"] = True
+            play_then_drain(node, procs, "feed", [str(HERE / "_rig.py"), "feed", str(work / "feed.json")],
+                            log_dir / "feed.log", feed.drain_s, result, nice=feed.feeder_nice)
             sampler.stop()
-            result["fuser_exit"] = fz.poll()
+            result["fuser_exit"] = procs.procs["fuser"].poll()
     finally:
         sampler.stop()
         procs.stop_all()
@@ -580,6 +569,24 @@ class Procs(Children):
         return p
 
 
+def play_then_drain(node, procs: Procs, name: str, argv: list[str], log: Path, drain_s: float, result: dict,
+                    nice: int = 0) -> None:
+    """Start the load process ``name`` (the load generator, the scenario feeder), wait
+    until it ends (Ctrl-C: ``KeyboardInterrupt``), then give the fuser ``drain_s`` seconds
+    to finish (``result["fuser_timeout"]`` if it does not)."""
+    p = procs.start(name, argv, log, nice=nice)
+    while p.poll() is None:
+        if node.stop.is_set():
+            raise KeyboardInterrupt
+        time.sleep(0.1)
+    if p.returncode != 0:
+        raise RuntimeError(f"{name} failed ({p.returncode}): {log.read_text()[-2000:]}")
+    try:
+        procs.procs["fuser"].wait(drain_s)
+    except subprocess.TimeoutExpired:
+        result["fuser_timeout"] = True
+
+
 class Observer:
     def __init__(self, keep_every: int):
         self.keep_every = keep_every
@@ -704,18 +711,9 @@ def run_trial(trial: Trial, log_dir: Path | None = None) -> dict:
                                          "recorder", *common], log_dir / "recorder.log")
             node.wait_for(["fuser"] + (["recorder"] if trial.recorder else []), 60.0)
             sampler.start({n: p.pid for n, p in procs.procs.items()})
-            gen = procs.start("gen", [str(HERE / "_rig.py"), "gen", str(work / "gen.json")], log_dir / "gen.log")
-            while gen.poll() is None:
-                if node.stop.is_set():
-                    raise KeyboardInterrupt
-                time.sleep(0.1)
-            if gen.returncode != 0:
-                raise RuntimeError(f"load generator failed ({gen.returncode}): {(log_dir / 'gen.log').read_text()[-2000:]}")
+            play_then_drain(node, procs, "gen", [str(HERE / "_rig.py"), "gen", str(work / "gen.json")],
+                            log_dir / "gen.log", trial.drain_s, result)
             fz = procs.procs["fuser"]
-            try:
-                fz.wait(trial.drain_s)
-            except subprocess.TimeoutExpired:
-                result["fuser_timeout"] = True
             time.sleep(0.3)
             sampler.stop()
             result["fuser_exit"] = fz.poll()
