@@ -24,7 +24,8 @@ changes (switched on by ``revisit_s`` in ``[tracker]``):
 3. **track management in time** (:class:`SweepLogic`): a track is looked at whenever a
    beam crosses it, each sensor at its own period, so a frame says nothing of the tracks
    it did not update. ``revisit_s`` is the longest time between two looks at a target
-   (the slowest sensor's period). A tentative track is confirmed at its ``confirm_m``-th
+   (the slowest sensor's period). A tentative track is confirmed by its score (5.), or,
+   without one (``llr`` None), at its ``confirm_m``-th
    hit once two sensors have seen it (clutter feeds a track from one radar at most; an
    aircraft is seen by three or four), one that measures elevation has (two 2D
    radars' ranges and azimuths fit a ghost kilometres off in height and position), and
@@ -41,6 +42,18 @@ changes (switched on by ``revisit_s`` in ``[tracker]``):
    (``init_el_std``), its gate gathers the other sensors' false plots, and it could not
    be confirmed before a plot measuring elevation hits it anyway. The aircraft's track
    starts from that plot instead (a 3D radar's, an angle sensor's, or a pair).
+5. **a track score** (Blackman & Popoli's sequential likelihood ratio) in place of
+   counting hits: a track's ``llr`` is the sum, over the plots that hit it after the
+   first, of ``ln(P_D N(ν; 0, S) / λ)`` — the plot's density under the track (its
+   innovation at the state the plots before it left) over its density as a false
+   plot, ``λ`` its sensor's false-plot density in measurement space
+   (:class:`ClutterDensity`: the plots no track took, over the measurement volume the
+   sensor swept); a miss adds nothing (a sweep does not say which beams crossed a
+   track). Confirmed once ``llr ≥ ln(1/α)`` (Wald's threshold, ``α`` =
+   ``FALSE_CONFIRM_PROB``) and, as before, two sensors and one measuring elevation have
+   hit it (one angle sensor's plots do not fix a range). A plot at the edge of a wide
+   gate, as a false plot in a young track's gate is, scores below zero; an aircraft's
+   plot on a settled track, ``ln(P_D/(λ √|2πS|))`` ≈ 5–10 (docs/results/region-400.md).
 
 A frame reports the confirmed tracks it updated or confirmed (the others' estimates have
 not changed). No duplicate review: few false tracks are near an aircraft another track
@@ -73,6 +86,8 @@ MAX_ACC = 20.0  # m/s²: what a track's velocity may be off by, per second, beyo
 # s: how much later than a period on a beam may cross a moving target, v·T²/(2π·r) (260 m/s,
 # a 12 s turn, 10 km away: 0.6 s)
 REVISIT_SLACK_S = 1.0
+P_DETECT = 0.9  # a sensor's detection probability, in the track score (module docstring, 5.)
+FALSE_CONFIRM_PROB = 1e-4  # α: the probability that a false track's score reaches the confirmation threshold
 
 
 @dataclass
@@ -90,6 +105,7 @@ class SweepLogic:
     hits: int = 1
     repeated: bool = False  # whether a sensor has hit it on two of its looks
     born: float | None = None  # its birth's time (``last_hit`` at birth if None)
+    llr: float | None = None  # its score (module docstring, 5.); None: confirmed by counting hits
     #: no existence probability (the protocol of a track's logic, fusion.tracking.table.Track)
     existence = None
 
@@ -102,12 +118,18 @@ class SweepLogic:
         """Nothing to age: the life is kept in time by :meth:`record`."""
 
     def _confirm(self) -> None:
-        if (self.status == TENTATIVE and self.hits >= self.rule.confirm_m and len(self.sensors) >= 2
-                and self.elevation and self.repeated):
+        if self.status != TENTATIVE or not self.elevation:
+            return
+        if self.llr is not None:
+            if self.llr >= confirm_threshold() and len(self.sensors) >= 2:
+                self.status = CONFIRMED
+        elif self.hits >= self.rule.confirm_m and len(self.sensors) >= 2 and self.repeated:
             self.status = CONFIRMED
 
     def record(self, hit: bool, P_pos: np.ndarray | None = None, t: float | None = None,
-               sensors=(), elevation: bool = False) -> str:
+               sensors=(), elevation: bool = False, score: float = 0.0) -> str:
+        """``score``: the hit's plots' log-likelihood ratio (module docstring, 5.), added
+        to ``llr`` when it is kept."""
         if self.status == DELETED:
             raise ValueError("a deleted track records no more frames")
         t = self.last_hit if t is None else t
@@ -120,12 +142,102 @@ class SweepLogic:
             self.last_hit = max(self.last_hit, t)
             self.sensors = self.sensors | frozenset(sensors)
             self.elevation = self.elevation or elevation
+            if self.llr is not None:
+                self.llr += score
             self._confirm()
         if self.status == CONFIRMED and t - self.last_hit > self.revisit_s * self.rule.delete_misses:
             self.status = DELETED
         elif P_pos is not None and math.sqrt(float(np.trace(P_pos))) > self.rule.max_pos_std:
             self.status = DELETED
         return self.status
+
+
+def confirm_threshold(alpha: float = FALSE_CONFIRM_PROB) -> float:
+    """Wald's upper threshold of a sequential test that misses no target: ``ln(1/α)``."""
+    return math.log(1.0 / alpha)
+
+
+def plot_score(log_likelihood: float, log_density: float, p_detect: float = P_DETECT) -> float:
+    """A plot's term of the track score (module docstring, 5.): ``ln(P_D N(ν; 0, S) / λ)``
+    from ``ln N(ν; 0, S)`` and the sensor's ``ln λ``."""
+    return math.log(p_detect) + log_likelihood - log_density
+
+
+@dataclass
+class _Seen:
+    """One sensor's plots so far, for :class:`ClutterDensity`."""
+
+    left: int = 0
+    t0: float = math.inf
+    t1: float = -math.inf
+    times: set = None  # its scan times (a staring sensor's)
+    swept: float = 0.0  # Σ azimuth swept within its scans, and their Σ time
+    swept_t: float = 0.0
+    lo: np.ndarray = None
+    hi: np.ndarray = None
+
+
+# The least span a sensor's component is taken to cover (a sensor that has seen few
+# plots, or one target, has seen only a sliver of its coverage): radians, metres.
+MIN_SPAN = {EL: math.radians(10.0), RANGE: 10_000.0}
+
+
+class ClutterDensity:
+    r"""Each sensor's false-plot density ``λ`` in its measurement space, per look, from
+    its plots no track took (module docstring, 5.):
+
+    ``λ = n_left / (T · ω · Π spans)``, with ``T`` the time its plots span, ``ω`` the
+    azimuth it sweeps per second — a rotating radar's from its plots' times and azimuths
+    within a scan (a beam crosses azimuth ``az`` at ``t_scan + az/ω``), a staring
+    sensor's a turn per scan — and ``Π spans`` the spans of its other components (range
+    from 0, elevation from least to most, at least ``MIN_SPAN``). Without azimuth,
+    ``n_left`` over its scans and the spans of all components. At least one plot is
+    counted (``λ > 0``)."""
+
+    def __init__(self):
+        self.seen: dict[str, _Seen] = {}
+
+    def see(self, scan: Sequence, left: Sequence) -> None:
+        """A scan (one sensor's plots of a frame) and those of them no track took."""
+        first = scan[0]
+        s = self.seen.get(first.sensor)
+        comps = KINDS[first.kind].components
+        Z = np.array([m.z for m in scan], float)
+        if s is None:
+            s = self.seen[first.sensor] = _Seen(times=set(), lo=Z.min(axis=0), hi=Z.max(axis=0))
+        s.left += len(left)
+        times = [m.t for m in scan]
+        s.t0, s.t1 = min(s.t0, min(times)), max(s.t1, max(times))
+        s.times.update(times)
+        s.lo, s.hi = np.minimum(s.lo, Z.min(axis=0)), np.maximum(s.hi, Z.max(axis=0))
+        if AZ in comps:
+            k = comps.index(AZ)
+            a, b = scan[int(np.argmin(times))], scan[int(np.argmax(times))]
+            if b.t > a.t:
+                s.swept += abs(float(wrap_pi(b.z[k] - a.z[k])))
+                s.swept_t += b.t - a.t
+
+    def log_density(self, plot) -> float:
+        """``ln λ`` of the plot's sensor (``inf``: not seen yet, so no plot of it scores)."""
+        s = self.seen.get(plot.sensor)
+        if s is None:
+            return math.inf
+        comps = KINDS[plot.kind].components
+        T = max(s.t1 - s.t0, 1e-9)
+        volume = 1.0
+        for k, c in enumerate(comps):
+            if c is AZ:
+                continue
+            span = s.hi[k] - (0.0 if c is RANGE else s.lo[k])
+            volume *= max(span, MIN_SPAN.get(c, 1.0))
+        if AZ in comps:
+            if s.swept_t > 0.0:
+                volume *= s.swept / s.swept_t * T
+            else:
+                volume *= 2.0 * math.pi * len(s.times)
+        else:
+            volume *= len(s.times)
+        return math.log(max(s.left, 1) / max(volume, 1e-300))
 
 
 @dataclass(frozen=True)
@@ -281,6 +393,7 @@ class SweepTracker(MultiTargetTracker):
         if not revisit_s > 0.0:
             raise ValueError(f"revisit_s must be > 0, got {revisit_s}")
         self.gate_prob, self.rule, self.revisit_s = gate_prob, rule, float(revisit_s)
+        self.clutter = ClutterDensity()
 
     def frame(self, plots: Sequence) -> list[Track]:
         """One frame; returns the confirmed tracks it updated or confirmed, in id order."""
@@ -295,20 +408,21 @@ class SweepTracker(MultiTargetTracker):
             was = track.confirmed
             mine = taken[i] + continued.get(i, [])
             plots_i = sorted((m for tk in mine for m in tk.plots), key=lambda m: m.order_key)
+            score = 0.0
             if plots_i:
-                self.update(track, plots_i)
+                score = self.update(track, plots_i)
                 track.claim(plots_i)
             hit = bool(plots_i) and scores_hit([m.kind for m in {m.sensor: m for m in plots_i}.values()],
                                                track.confirmed, 1)
             track.logic.record(hit, track.filter.P[:3, :3] if plots_i else None, t_end, {m.sensor for m in plots_i},
-                               any(_measures_el(m) for m in plots_i))
+                               any(_measures_el(m) for m in plots_i), score)
             if plots_i or (track.confirmed and not was):
                 changed.add(id(track))
         for group in births:
-            track = self.start(group)
+            track, score = self.start(group)
             first, more = group[0], group[1]
             track.logic = SweepLogic(self.rule, self.revisit_s, track.last.t, frozenset(m.sensor for m in (*first, *more)),
-                                     any(_measures_el(m) for m in (*first, *more)))
+                                     any(_measures_el(m) for m in (*first, *more)), llr=score)
             self.table.add(track)
             track.claim(initial_plots(group))
             changed.add(id(track))
@@ -325,6 +439,7 @@ class SweepTracker(MultiTargetTracker):
             keep = near(spread, scan[0].t, scan)
             rows = np.flatnonzero(keep.any(axis=1))
             if not len(rows):
+                self.clutter.see(scan, scan)
                 left += scan
                 continue
             model = model_of(scan[0], tracks[0].filter.x.size)
@@ -337,30 +452,45 @@ class SweepTracker(MultiTargetTracker):
             for r, cols, beta, miss in association.per_row():
                 taken[rows[r]].append(Taken(tuple(scan[c] for c in cols), tuple(d2[r, list(cols)]), beta, miss))
             used = association.used
-            left += [scan[c] for c in range(len(scan)) if c not in used]
+            unused = [scan[c] for c in range(len(scan)) if c not in used]
+            self.clutter.see(scan, unused)
+            left += unused
         return taken, left
 
-    def update(self, track: Track, plots: list) -> None:
-        """The filter predicted to each plot's time and updated (plots at one time: one scan)."""
+    def update(self, track: Track, plots: list) -> float:
+        """The filter predicted to each plot's time and updated (plots at one time: one
+        scan); returns the plots' score (module docstring, 5.)."""
         plots = [m for m in plots if m.t >= track.filter.t]
-        i = 0
+        score, i = 0.0, 0
         while i < len(plots):
             j = i
             while j < len(plots) and plots[j].t == plots[i].t:
                 j += 1
-            track.last = self.updater.scan(track.filter, plots[i:j])
+            score += self._scan(track, plots[i:j])
             i = j
+        return score
 
-    def start(self, group) -> Track:
+    def _scan(self, track: Track, scan: list) -> float:
+        """:meth:`fusion.mtt.ScanUpdater.scan`'s update of one scan, and its score: each
+        piece's ``ln N(ν; 0, S)`` at the state the pieces before it left, each plot's
+        ``ln(P_D / λ)``."""
+        f = track.filter
+        f.predict(scan[0].t)
+        steps = [(f.update(model, z), model.n_z) for model, z in self.updater.pieces(scan, self.updater.n_x)]
+        nis = sum(r.nis for r, _ in steps)
+        track.last = Estimate(scan[0].t, f.x, f.P, self.updater.name, "centre", None, nis, sum(n for _, n in steps))
+        log_lik = sum(-0.5 * (r.nis + np.linalg.slogdet(2.0 * math.pi * r.S)[1]) for r, _ in steps)
+        return sum(plot_score(0.0, self.clutter.log_density(m)) for m in scan) + log_lik
+
+    def start(self, group) -> tuple[Track, float]:
         """A track from an initiation group ``(first, more, x, P)``: its filter started at
-        ``(x, P)`` at the time of ``first``, updated with ``more`` at their own times."""
+        ``(x, P)`` at the time of ``first``, updated with ``more`` at their own times; and
+        its score, that of ``more`` (module docstring, 5.)."""
         first, more, x, P = group
         f = self.updater.new_filter(x, P, first[0].t)
         track = Track(f, Estimate(first[0].t, x, P, self.updater.name, "centre"))
         later = sorted((m for m in more if m.t >= f.t), key=lambda m: m.order_key)  # none before its start
-        if later:
-            self.update(track, later)
-        return track
+        return track, (self.update(track, later) if later else 0.0)
 
 
 def pair_d2(tracks: Sequence[Track], spread: Spread, rows: np.ndarray, plots: Sequence, cols: np.ndarray,

@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from scipy.stats import multivariate_normal
 
 from fusion.ekf import TrackEKF
 from fusion.measurement.kinds import model_of
@@ -253,3 +254,58 @@ def test_a_lone_2d_radar_plot_starts_no_track_a_3d_radar_or_angle_plot_does():
     tracker.frame(pair)
     assert len(tracker.table.tracks) == 1
     assert tracker.table.tracks[0].logic.sensors == {"range_az", "azel"}
+
+
+def test_the_track_score_is_the_sum_of_its_plots_log_likelihood_ratios_confirmed_at_wald_threshold():
+    """With a score, a track's llr is its birth's plus each kept hit's (a miss adds
+    nothing), and it is confirmed at the first hit that takes the sum to ln(1/α), once a
+    plot measuring elevation has hit it and two sensors have (one angle sensor's plots do
+    not fix a range); a plot's term is ln(P_D N(ν; 0, S) / λ)."""
+    threshold = math.log(1.0 / sweep.FALSE_CONFIRM_PROB)
+    assert sweep.confirm_threshold() == pytest.approx(threshold)
+    terms = [0.25 * threshold, 0.5 * threshold, -0.1 * threshold, 0.4 * threshold]
+    logic = SweepLogic(RULE, 4.0, 0.0, frozenset({"a", "b"}), llr=0.1 * threshold)
+    total = 0.1 * threshold
+    for k, (t, term) in enumerate(zip((0.5, 1.0, 1.5, 2.0), terms)):
+        assert logic.record(False, None, t - 0.1, score=99.0) == TENTATIVE  # a miss: not counted
+        status = logic.record(True, None, t, {"a"}, elevation=True, score=term)
+        total += term
+        assert logic.llr == pytest.approx(total)
+        assert status == (CONFIRMED if k == 3 else TENTATIVE)  # 0.85, 0.75 below; 1.15 above
+    flat = SweepLogic(RULE, 4.0, 0.0, frozenset({"a"}), elevation=False, llr=0.0)
+    assert flat.record(True, None, 1.0, {"b"}, score=2 * threshold) == TENTATIVE  # no height yet
+    assert flat.record(True, None, 2.0, {"c"}, elevation=True, score=0.0) == CONFIRMED
+    alone = SweepLogic(RULE, 4.0, 0.0, frozenset({"a"}), llr=0.0)
+    assert alone.record(True, None, 1.0, {"a"}, elevation=True, score=2 * threshold) == TENTATIVE
+    assert alone.record(True, None, 2.0, {"b"}, score=0.0) == CONFIRMED
+    nu, S, lam = np.array([0.01, -30.0]), np.array([[1e-4, 0.1], [0.1, 900.0]]), 1e-5
+    log_lik = multivariate_normal(np.zeros(2), S).logpdf(nu)
+    assert sweep.plot_score(log_lik, math.log(lam)) == pytest.approx(
+        math.log(sweep.P_DETECT * math.exp(log_lik) / lam))
+
+
+def test_the_clutter_density_is_the_left_plots_over_the_swept_measurement_volume():
+    """A radar turning at ω = 2π/8 s: over T seconds its n plots no track took, uniform in
+    range up to R, give λ = n / (T ω R) per rad·m; a staring angle sensor's, n over its
+    scans, a turn of azimuth and its elevation span each."""
+    rng = np.random.default_rng(3)
+    omega, R, clutter = 2 * math.pi / 8.0, 90e3, sweep.ClutterDensity()
+    n = 0
+    for frame in range(160):  # 40 s in frames of 0.25 s
+        t0 = frame * 0.25
+        ts = np.sort(rng.uniform(t0, t0 + 0.25, 6))
+        scan = [Measurement(t, "r", "range_az", np.array([(omega * t) % (2 * math.pi), r]), np.array([0.003, 100.0]),
+                            np.zeros(3)) for t, r in zip(ts, rng.uniform(0.0, R, 6))]
+        scan[-1] = dataclasses.replace(scan[-1], z=np.array([scan[-1].z[0], R]))  # the farthest plot at R
+        clutter.see(scan, scan[:4])
+        n += 4
+    seen = clutter.seen["r"]
+    expected = n / ((seen.t1 - seen.t0) * omega * R)
+    assert 39.5 < seen.t1 - seen.t0 <= 40.0
+    assert math.exp(clutter.log_density(scan[0])) == pytest.approx(expected, rel=1e-9)
+    staring = sweep.ClutterDensity()
+    for k in range(10):
+        scan = [Measurement(float(k), "eo", "azel", np.array([a % (2 * math.pi), e]), np.array([1e-3, 1e-3]), np.zeros(3))
+                for a, e in ((0.1, 0.05), (2.0, 0.45), (-1.0, 0.25))]
+        staring.see(scan, scan[:2])
+    assert math.exp(staring.log_density(scan[0])) == pytest.approx(20 / (10 * 2 * math.pi * 0.4))
