@@ -33,6 +33,10 @@ one, so Q is singular (PSD) — that is the model, not a defect.
 
 :meth:`sample` draws the next true state from the very same ``F`` and ``Q``, so a
 simulated truth and the filter's model are matched by construction.
+
+``q_up`` (CV and CA; None: ``q``) is the up axis's own ``q``, for targets that hold
+their level most of the time (aircraft) while they turn: ``Q(dt) = Q₁(dt) ⊗ diag(1,
+1, q_up/q)``, the up axis's block that of ``q_up`` (``q > 0``).
 """
 
 from __future__ import annotations
@@ -64,19 +68,25 @@ class KinematicModel:
     order: int
     name: str
 
-    def __init__(self, q: float, noise: str = "continuous"):
+    def __init__(self, q: float, noise: str = "continuous", q_up: float | None = None):
         q = float(q)
         if not np.isfinite(q) or q < 0.0:
             raise ValueError(f"process noise q must be finite and >= 0, got {q!r}")
         if noise not in NOISE_FORMS:
             raise ValueError(f"process noise form must be one of {NOISE_FORMS}, got {noise!r}")
+        if q_up is not None and not (np.isfinite(q_up) and q_up >= 0.0 and q > 0.0):
+            raise ValueError(f"process noise q_up must be finite and >= 0, with q > 0, got {q_up!r} (q={q!r})")
         self.q = q
         self.noise = noise
+        self.q_up = None if q_up is None else float(q_up)
+        #: the per-axis scale of ``Q₁`` (module docstring): None, or ``[1, 1, q_up/q]``
+        self.axis_scale = None if q_up is None else np.array([1.0, 1.0, self.q_up / q])
         self.n_x = 3 * self.order
         self._cache: dict[float, tuple[np.ndarray, np.ndarray]] = {}  # dt -> (F, Q), read-only
 
     def __repr__(self) -> str:
-        return f"{type(self).__name__}(q={self.q!r}, noise={self.noise!r})"
+        up = "" if self.q_up is None else f", q_up={self.q_up!r}"
+        return f"{type(self).__name__}(q={self.q!r}, noise={self.noise!r}{up})"
 
     @staticmethod
     def _check_dt(dt: float) -> float:
@@ -132,7 +142,8 @@ class KinematicModel:
         FQ = self._cache.get(dt)
         if FQ is None:
             F = _kron_i3(self.F_axis(dt))
-            Q = _kron_i3(self.Q_axis(dt))
+            Q = _kron_i3(self.Q_axis(dt)) if self.axis_scale is None else np.kron(self.Q_axis(dt),
+                                                                                   np.diag(self.axis_scale))
             F.setflags(write=False)
             Q.setflags(write=False)
             if len(self._cache) >= 64:
@@ -145,7 +156,8 @@ class KinematicModel:
         return self._FQ(dt)[0]
 
     def Q(self, dt: float) -> np.ndarray:
-        """Process-noise covariance ``Q(dt) = Q₁(dt) ⊗ I₃`` (n_x × n_x), read-only."""
+        """Process-noise covariance ``Q(dt) = Q₁(dt) ⊗ I₃`` (n_x × n_x; with ``q_up``,
+        ``Q₁(dt) ⊗ diag(1, 1, q_up/q)``), read-only."""
         return self._FQ(dt)[1]
 
     def check_state(self, x: np.ndarray) -> np.ndarray:
@@ -174,6 +186,8 @@ class KinematicModel:
         # Rows of x reshaped to (..., m derivatives, 3 axes): F acts on the derivative index.
         X = x.reshape(*batch, m, 3)
         noise = rng.standard_normal((*batch, L1.shape[1], 3))
+        if self.axis_scale is not None:
+            noise = noise * np.sqrt(self.axis_scale)
         Xn = np.einsum("ij,...jk->...ik", F1, X) + np.einsum("ij,...jk->...ik", L1, noise)
         return Xn.reshape(*batch, self.n_x)
 
@@ -367,10 +381,10 @@ class CoordinatedTurn(KinematicModel):
 MOTION_MODELS = {"cv": ConstantVelocity, "ca": ConstantAcceleration}
 
 
-def make_motion(name: str, q: float, noise: str = "continuous") -> KinematicModel:
+def make_motion(name: str, q: float, noise: str = "continuous", q_up: float | None = None) -> KinematicModel:
     """Build a motion model by name (``"ca"`` or ``"cv"``)."""
     try:
         cls = MOTION_MODELS[name]
     except KeyError:
         raise ValueError(f"motion model must be one of {sorted(MOTION_MODELS)}, got {name!r}") from None
-    return cls(q, noise)
+    return cls(q, noise, q_up)

@@ -27,6 +27,7 @@ another) and emits one estimate per scan. The methods, scans, outputs and the
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass
 from typing import Callable, Protocol, Sequence
 
@@ -68,6 +69,7 @@ class TrackerConfig:
 
     motion: str = "ca"
     q: float = 0.01
+    q_up: float = math.nan  # the up axis's own q (fusion.motion); NaN: q
     process_noise: str = "continuous"
     fusion_rule: str = "info"
     ci_criterion: str = "trace"
@@ -117,6 +119,8 @@ class TrackerConfig:
             raise ValueError(f"tracker config 'ci_criterion' must be one of {CI_CRITERIA}, got {self.ci_criterion!r}")
         if self.q < 0.0:
             raise ValueError(f"tracker config 'q' must be >= 0, got {self.q}")
+        if not math.isnan(self.q_up) and not (self.q_up >= 0.0 and self.q > 0.0 and self.motion != "imm"):
+            raise ValueError(f"tracker config 'q_up' must be >= 0, with q > 0 and motion 'ca' or 'cv', got {self.q_up}")
         if self.pair_tol < 0.0:
             raise ValueError(f"tracker config 'pair_tol' must be >= 0, got {self.pair_tol}")
         if not self.max_gap_s > 0.0:
@@ -159,7 +163,7 @@ class TrackerConfig:
             sojourn = {"cv": self.imm_sojourn_cv, "ct": self.imm_sojourn_ct, "turn": self.imm_sojourn_turn,
                        "ca": self.imm_sojourn_ca}
             return model_set(self.imm_model_names(), q, self.imm_turn_rate_values(), sojourn, self.process_noise)
-        return make_motion(self.motion, self.q, self.process_noise)
+        return make_motion(self.motion, self.q, self.process_noise, None if math.isnan(self.q_up) else self.q_up)
 
     def new_filter(self, motion, centralised: bool = False) -> NewFilter:
         """The track filter's factory; ``ekf_iterations`` applies to the centralised methods."""

@@ -282,7 +282,7 @@ def _linear(f) -> bool:
 
 
 def _same(a, b) -> bool:
-    return a is b or (type(a) is type(b) and a.q == b.q and a.noise == b.noise)
+    return a is b or (type(a) is type(b) and a.q == b.q and a.noise == b.noise and a.q_up == b.q_up)
 
 
 def position_row(motion, dt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -291,7 +291,8 @@ def position_row(motion, dt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     :class:`~fusion.motion.ConstantVelocity` or :class:`~fusion.motion.ConstantAcceleration`
     model, for every interval of ``dt (k,)`` at once (:mod:`fusion.motion`'s closed
     forms): continuous white noise of PSD ``q`` on derivative ``m − 1``, ``q dt²ᵐ⁻¹ /
-    ((2m − 1)·((m − 1)!)²)`` (CV ``q dt³/3``, CA ``q dt⁵/20``); discrete, ``q (dt²/2)²``."""
+    ((2m − 1)·((m − 1)!)²)`` (CV ``q dt³/3``, CA ``q dt⁵/20``); discrete, ``q (dt²/2)²``
+    (per axis times the model's ``axis_scale``, if any)."""
     dt = np.asarray(dt, dtype=float)
     m = motion.order
     f = np.empty((dt.size, m))
@@ -528,7 +529,7 @@ def _stacked_d2(spread: Spread, rows: np.ndarray, times: np.ndarray, Z: np.ndarr
     x[:, :3] = np.einsum("ka,kai->ki", f, spread.x[rows, :3 * m].reshape(k, m, 3))
     G = (f[:, None, :, None] * np.eye(3)[None, :, None, :]).reshape(k, 3, 3 * m)  # f ⊗ I₃
     P = G @ spread.P[rows, :3 * m, :3 * m] @ G.transpose(0, 2, 1)
-    P[:, range(3), range(3)] += q00[:, None]
+    P[:, range(3), range(3)] += q00[:, None] * (1.0 if spread.motion.axis_scale is None else spread.motion.axis_scale)
     zp, Hp = batch.spherical(model, x)
     nu = batch.innovation(model, Z, zp)
     S = Hp @ P @ Hp.transpose(0, 2, 1) + model.R

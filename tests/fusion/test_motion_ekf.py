@@ -35,16 +35,20 @@ def _continuous_A(order: int) -> np.ndarray:
 
 
 # Motion -------------------------------------------------------------------------------
+@pytest.mark.parametrize("q_up", [None, 0.02])
 @pytest.mark.parametrize("cls", MODELS)
 @pytest.mark.parametrize("dt", [0.1, 1.0, 2.7])
-def test_continuous_F_Q_equal_van_loan(cls, dt):
+def test_continuous_F_Q_equal_van_loan(cls, dt, q_up):
+    """Van Loan's F and Q of white noise on the highest derivative, of PSD diag(q, q,
+    q_up) over (east, north, up) with ``q_up`` (its definition), else q I₃."""
     q = 0.37
-    m = cls(q)
+    m = cls(q, q_up=q_up)
     A = _continuous_A(m.order)
     n = m.n_x
     L = np.zeros((n, 3))
     L[-3:, :] = np.eye(3)  # white noise drives the highest derivative
-    M = np.block([[-A, q * L @ L.T], [np.zeros((n, n)), A.T]]) * dt
+    psd = np.diag([q, q, q if q_up is None else q_up])
+    M = np.block([[-A, L @ psd @ L.T], [np.zeros((n, n)), A.T]]) * dt
     E = expm(M)
     F_ref = E[n:, n:].T
     Q_ref = F_ref @ E[:n, n:]
@@ -72,11 +76,12 @@ def test_continuous_model_is_a_semigroup(a, b, cls):
     np.testing.assert_allclose(m.Q(a + b), Q2, rtol=1e-9, atol=1e-12 * (1 + np.abs(Q2).max()))
 
 
+@pytest.mark.parametrize("q_up", [None, 0.05])
 @pytest.mark.parametrize("noise", ["continuous", "discrete"])
 @pytest.mark.parametrize("cls", MODELS)
-def test_sample_draws_from_F_and_Q(cls, noise):
+def test_sample_draws_from_F_and_Q(cls, noise, q_up):
     rng = np.random.default_rng(7)
-    m = cls(0.8, noise)
+    m = cls(0.8, noise, q_up)
     x0 = np.arange(m.n_x, dtype=float)
     dt, N = 1.7, 100_000
     x1 = m.sample(np.tile(x0, (N, 1)), dt, rng)

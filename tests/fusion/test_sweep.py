@@ -164,7 +164,8 @@ def test_the_closed_form_prediction_row_is_the_motion_models(motion):
         np.testing.assert_allclose(q00[i], motion.Q_axis(d)[0, 0], rtol=1e-13, atol=0)
 
 
-@pytest.mark.parametrize("motion", [ConstantAcceleration(q=0.5), ConstantVelocity(q=2.0, noise="discrete")], ids=repr)
+@pytest.mark.parametrize("motion", [ConstantAcceleration(q=0.5), ConstantVelocity(q=2.0, noise="discrete"),
+                                    ConstantAcceleration(q=0.5, q_up=0.02)], ids=repr)
 @pytest.mark.parametrize("kind", ["range_az", "az_el_range", "azel"])
 def test_the_stacked_costs_are_the_per_pair_ones(kind, motion):
     """Random correlated tracks (σ 30 m to 3 km, 0 to 5 s old) against plots of one sensor,
