@@ -170,7 +170,7 @@ class _Seen:
     left: int = 0
     t0: float = math.inf
     t1: float = -math.inf
-    times: set = None  # its scan times (a staring sensor's)
+    scans: int = 0  # its distinct plot times (a staring sensor's scans)
     swept: float = 0.0  # Σ azimuth swept within its scans, and their Σ time
     swept_t: float = 0.0
     lo: np.ndarray = None
@@ -204,11 +204,11 @@ class ClutterDensity:
         comps = KINDS[first.kind].components
         Z = np.array([m.z for m in scan], float)
         if s is None:
-            s = self.seen[first.sensor] = _Seen(times=set(), lo=Z.min(axis=0), hi=Z.max(axis=0))
+            s = self.seen[first.sensor] = _Seen(lo=Z.min(axis=0), hi=Z.max(axis=0))
         s.left += len(left)
         times = [m.t for m in scan]
         s.t0, s.t1 = min(s.t0, min(times)), max(s.t1, max(times))
-        s.times.update(times)
+        s.scans += len(set(times))  # frames, so scans, do not share a time
         s.lo, s.hi = np.minimum(s.lo, Z.min(axis=0)), np.maximum(s.hi, Z.max(axis=0))
         if AZ in comps:
             k = comps.index(AZ)
@@ -234,9 +234,9 @@ class ClutterDensity:
             if s.swept_t > 0.0:
                 volume *= s.swept / s.swept_t * T
             else:
-                volume *= 2.0 * math.pi * len(s.times)
+                volume *= 2.0 * math.pi * s.scans
         else:
-            volume *= len(s.times)
+            volume *= s.scans
         return math.log(max(s.left, 1) / max(volume, 1e-300))
 
 
