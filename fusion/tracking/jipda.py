@@ -28,7 +28,7 @@ from __future__ import annotations
 import math
 from collections import deque
 from dataclasses import dataclass, field
-from typing import Sequence
+from typing import Mapping, Sequence
 
 import numpy as np
 from scipy.sparse import coo_matrix
@@ -481,42 +481,55 @@ class JIPDA:
     takes, ``existence`` the rows' ``r⁺``, ``used`` the plots some track made with
     probability at least :data:`USED` (the others may start tracks).
 
-    The clutter density of each sensor is estimated from its last ``clutter_scans``
+    Every scan is the recursion's step with *its* sensor's numbers: that sensor's
+    ``P_D`` (:meth:`detection`) in the miss weight ``1 − P_D P_G rᵢ`` and in ``aᵢ``, and
+    that sensor's clutter density in ``Nᵢⱼ/ρ``, estimated from its last ``clutter_scans``
     scans (:class:`ClutterWindow`), the expected target plots ``Σ P_D P_G rᵢ`` taken off;
-    so the associator keeps a window per sensor and must see every scan once.
+    so the associator keeps a window per sensor and must see every scan once. Over a
+    frame's scans the existence odds ``r/(1 − r)`` are multiplied by each scan's
+    ``1 − δ`` in turn (a lone track: ``δ = P_D P_G − P_D Σⱼ Nⱼ/ρ`` of that scan).
 
     Args:
-        p_detect: the sensors' detection probability ``P_D``.
+        p_detect: the detection probability ``P_D`` of every sensor not in ``p_detect_by_sensor``.
         gate_prob: the gate's ``P_G`` (the hypotheses' gates must be ``χ²⁻¹(P_G; n_z)``).
         clutter_scans: the scans of a sensor its clutter density is estimated from.
         exact_events: the cluster size up to which probabilities are summed exactly.
+        p_detect_by_sensor: ``P_D`` of named sensors (sensor id → P_D).
     """
 
     def __init__(self, p_detect: float, gate_prob: float, clutter_scans: int = CLUTTER_SCANS,
-                 exact_events: float = EXACT_EVENTS):
-        if not 0.0 < p_detect <= 1.0:
-            raise ValueError(f"p_detect must lie in (0, 1], got {p_detect}")
+                 exact_events: float = EXACT_EVENTS, p_detect_by_sensor: Mapping[str, float] | None = None):
+        by_sensor = {str(k): float(v) for k, v in (p_detect_by_sensor or {}).items()}
+        for name, pd in [("p_detect", p_detect), *((f"p_detect of {k!r}", v) for k, v in by_sensor.items())]:
+            if not 0.0 < pd <= 1.0:
+                raise ValueError(f"{name} must lie in (0, 1], got {pd}")
         self.p_detect, self.gate_prob = float(p_detect), float(gate_prob)
+        self.p_detect_by_sensor = by_sensor
         self.clutter_scans, self.exact_events = int(clutter_scans), exact_events
         self._clutter: dict[str, ClutterWindow] = {}
         self.density: dict[str, float] = {}  # the latest clutter density of each sensor
+
+    def detection(self, sensor: str) -> float:
+        """``P_D`` of ``sensor``: its own if named, else :attr:`p_detect`."""
+        return self.p_detect_by_sensor.get(sensor, self.p_detect)
 
     def associate(self, hyp: Hypotheses) -> Weights:
         if hyp.log_norm is None or hyp.model is None:
             raise ValueError("JIPDA needs the plots' likelihoods: hypotheses of measurements with log_norm")
         n, m = hyp.d2.shape
         r = np.ones(n) if hyp.existence is None else np.asarray(hyp.existence, dtype=float)
-        pdg = self.p_detect * self.gate_prob
+        sensor = hyp.plots[0].sensor
+        p_detect = self.detection(sensor)
+        pdg = p_detect * self.gate_prob
         gated = [np.flatnonzero(g) for g in hyp.gated]
         volumes = gate_volume(hyp.model.n_z, hyp.gate, hyp.log_norm)
-        sensor = hyp.plots[0].sensor
         window = self._clutter.setdefault(sensor, ClutterWindow(self.clutter_scans))
         rho = window.update(np.array([p.z for p in hyp.plots]), hyp.model.angles, pdg * float(r.sum()),
                             float(np.max(volumes[np.isfinite(volumes)], initial=0.0)))
         self.density[sensor] = rho
         ratios = [np.exp(hyp.log_norm[i] - 0.5 * hyp.d2[i, g]) / rho for i, g in enumerate(gated)]
-        beta, _ = joint_association(gated, ratios, r, m, self.p_detect, self.gate_prob, self.exact_events)
-        r_post, c0 = existence_update(r, beta[:, 0], self.p_detect, self.gate_prob)
+        beta, _ = joint_association(gated, ratios, r, m, p_detect, self.gate_prob, self.exact_events)
+        r_post, c0 = existence_update(r, beta[:, 0], p_detect, self.gate_prob)
         alive = r_post > 0.0
         c = np.zeros((n, m))
         c[alive] = beta[alive, 1:] / r_post[alive, None]

@@ -70,6 +70,57 @@ def test_associator_equals_the_one_scan_jipda(seed):
     assert w.used == frozenset(int(j) for j in np.flatnonzero(ref.beta[:, 1:].sum(axis=0) >= 0.5))
 
 
+def _az_el_range(p, site):
+    e, n, u = np.asarray(p, dtype=float) - site
+    return np.array([math.atan2(e, n) % (2 * math.pi), math.atan2(u, math.hypot(e, n)), math.hypot(e, n, u)])
+
+
+def test_existence_over_two_sensors_is_the_closed_form_with_each_sensors_own_numbers():
+    """One track, one frame of two sensors: an angle sensor whose two plots fall in the
+    gate (a hit), then a 2D radar whose plots all fall outside it (a miss). IPDA's closed
+    form, scan by scan, in odds: ``r/(1 − r)`` times ``1 − δ`` of each scan, with
+    ``δ = P_D P_G − P_D Σⱼ Nⱼ/ρ`` taken with *that* sensor's P_D and clutter density —
+    the angle sensor's ``Nⱼ`` in (az, el), the radar's ``Σ`` empty. ``Nⱼ`` by hand
+    (scipy's normal density at the innovation, ``S = HPHᵀ + R`` at the prediction)."""
+    from scipy.stats import multivariate_normal
+
+    x = np.array([20000.0, 30000.0, 6000.0, 150.0, -50.0, 0.0])
+    P = np.diag([300.0**2] * 3 + [40.0**2] * 3)
+    angle_site, radar_site = np.array([50000.0, 0.0, 0.0]), np.array([0.0, 0.0, 0.0])
+    angle_std, radar_std = np.array([0.05 * DEG, 0.05 * DEG]), np.array([1.0 * DEG, 20.0])
+    za = _az_el_range(x[:3], angle_site)[:2]
+    angle = [Measurement(0.0, "angle1", "azel", za + d * angle_std, angle_std, angle_site, k)
+             for k, d in enumerate([np.array([0.3, -0.5]), np.array([2.0, 1.0]), np.array([300.0, 200.0]),
+                                    np.array([-900.0, 400.0])])]
+    zr = _az_el_range(x[:3], radar_site)[[0, 2]]
+    radar = [Measurement(0.0, "radar1", "range_az", zr + np.array([0.2 * k - 0.3, 5000.0 + 3000.0 * k]), radar_std,
+                         radar_site, k) for k in range(4)]
+    pd = {"angle1": 0.6, "radar1": 0.95}
+    r0, gate_prob = 0.3, 0.999
+    jipda = JIPDA(0.8, gate_prob, p_detect_by_sensor=pd)
+    hypothesiser = PlotHypothesiser(6, gate_prob)
+    hyp = hypothesiser.hypotheses([(x, P)], angle, [True], np.array([r0]))
+    w1 = jipda.associate(hyp)
+    model = hyp.model
+    H = model.jacobian(x)
+    S = H @ P @ H.T + model.R
+    nus = model.residual(np.array([m.z for m in angle]), model.h(x))
+    gated = np.einsum("ij,ji->i", nus, np.linalg.solve(S, nus.T)) <= hyp.gate[0]
+    assert gated.tolist() == [True, True, False, False]
+    lik = multivariate_normal(np.zeros(2), S).pdf(nus[gated])
+    delta_a = pd["angle1"] * gate_prob - pd["angle1"] * float(np.sum(lik)) / jipda.density["angle1"]
+    odds = r0 / (1.0 - r0) * (1.0 - delta_a)
+    assert w1.existence[0] == pytest.approx(odds / (1.0 + odds), rel=1e-9)
+    states = [(x, P)]
+    hypothesiser.condition(states, hyp, w1)
+    hyp2 = hypothesiser.hypotheses(states, radar, [True], w1.existence)
+    assert not hyp2.gated.any()
+    w2 = jipda.associate(hyp2)
+    odds *= 1.0 - pd["radar1"] * gate_prob
+    assert w2.existence[0] == pytest.approx(odds / (1.0 + odds), rel=1e-9)
+    assert jipda.detection("radar2") == 0.8  # a sensor not named: the one P_D
+
+
 def test_existence_logic_confirms_and_deletes_by_its_thresholds():
     rule = ExistenceRule(p_survive=0.9, existence_birth=0.2, existence_confirm=0.8, existence_delete=0.05)
     logic = ExistenceLogic(rule)
