@@ -11,6 +11,7 @@ import math
 
 import numpy as np
 import pytest
+from scipy.stats import multivariate_normal
 
 from fusion.ekf import TrackEKF
 from fusion.methods import make_method, spec
@@ -82,8 +83,6 @@ def test_existence_over_two_sensors_is_the_closed_form_with_each_sensors_own_num
     ``δ = P_D P_G − P_D Σⱼ Nⱼ/ρ`` taken with *that* sensor's P_D and clutter density —
     the angle sensor's ``Nⱼ`` in (az, el), the radar's ``Σ`` empty. ``Nⱼ`` by hand
     (scipy's normal density at the innovation, ``S = HPHᵀ + R`` at the prediction)."""
-    from scipy.stats import multivariate_normal
-
     x = np.array([20000.0, 30000.0, 6000.0, 150.0, -50.0, 0.0])
     P = np.diag([300.0**2] * 3 + [40.0**2] * 3)
     angle_site, radar_site = np.array([50000.0, 0.0, 0.0]), np.array([0.0, 0.0, 0.0])
