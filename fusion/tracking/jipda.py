@@ -126,15 +126,20 @@ class ExistenceLogic:
         return self.status
 
 
-def existence_update(r, beta0, p_detect: float, gate_prob: float):
+def existence_update(r, beta0, p_detect: float, gate_prob: float, assigned=None):
     """``(r⁺, c₀)``: existence after a scan whose joint association left the track
     unassigned with probability ``beta0``, and the weight of "missed" among the
-    association hypotheses given that the target exists (module docstring)."""
+    association hypotheses given that the target exists (module docstring).
+
+    ``assigned``: ``Σⱼ βᵢⱼ`` as summed (else ``1 − beta0``). ``r⁺ = Σⱼ βᵢⱼ + β₀ a`` from
+    it keeps its relative precision where ``β₀`` is within rounding of 1 (an unlikely
+    track), so that ``cⱼ = βᵢⱼ/r⁺`` and ``c₀`` still sum to 1."""
     r = np.asarray(r, dtype=float)
     beta0 = np.asarray(beta0, dtype=float)
+    assigned = 1.0 - beta0 if assigned is None else np.asarray(assigned, dtype=float)
     pdg = p_detect * gate_prob
     a = (1.0 - pdg) * r / (1.0 - pdg * r)  # P(exists | unassigned)
-    r_post = 1.0 - beta0 + beta0 * a
+    r_post = assigned + beta0 * a
     with np.errstate(invalid="ignore", divide="ignore"):
         c0 = np.where(r_post > 0.0, beta0 * a / r_post, 1.0)
     return r_post, c0
@@ -458,7 +463,7 @@ def scan_update(model, states: Sequence[tuple[np.ndarray, np.ndarray]], r: Seque
         raise ValueError(f"clutter density must be > 0, got {density}")
     ratios = [np.exp(h.log_lik) / density for h in hyps]  # Nᵢⱼ / ρ
     beta, exact = joint_association([h.plots for h in hyps], ratios, r, m, p_detect, gate_prob, exact_events)
-    r_post, c0 = existence_update(r, beta[:, 0], p_detect, gate_prob)
+    r_post, c0 = existence_update(r, beta[:, 0], p_detect, gate_prob, beta[:, 1:].sum(axis=1))
     xs, Ps = [], []
     for i, (x, P) in enumerate(states):
         h = hyps[i]
@@ -529,7 +534,7 @@ class JIPDA:
         self.density[sensor] = rho
         ratios = [np.exp(hyp.log_norm[i] - 0.5 * hyp.d2[i, g]) / rho for i, g in enumerate(gated)]
         beta, _ = joint_association(gated, ratios, r, m, p_detect, self.gate_prob, self.exact_events)
-        r_post, c0 = existence_update(r, beta[:, 0], p_detect, self.gate_prob)
+        r_post, c0 = existence_update(r, beta[:, 0], p_detect, self.gate_prob, beta[:, 1:].sum(axis=1))
         alive = r_post > 0.0
         c = np.zeros((n, m))
         c[alive] = beta[alive, 1:] / r_post[alive, None]

@@ -339,6 +339,23 @@ def test_existence_without_plots_and_prediction():
     assert r_post[0] == pytest.approx(0.8 + 0.2 * a) and c0[0] == pytest.approx(0.2 * a / (0.8 + 0.2 * a))
 
 
+def test_an_unlikely_track_keeps_weights_that_sum_to_one():
+    """A track of existence 1e-9 with a plot far out in its gate: ``β₀`` is within
+    rounding of 1, and ``r⁺ = 1 − β₀ + β₀ a`` would cancel; from ``Σⱼ βⱼ`` it does not, so
+    the weights given existence sum to 1 as the PDA update requires (to 1e-12)."""
+    model = PositionModel(10.0)
+    x = np.zeros(6)
+    P = np.eye(6) * 100.0
+    out = scan_update(model, [(x, P)], [1e-9], np.array([[30.0, 20.0, 0.0]]), 0.9, 0.999, 1e-2)
+    beta0, beta = out.beta[0, 0], out.beta[0, 1]
+    assert 0.0 < beta < 1e-11
+    pdg = 0.9 * 0.999
+    a = (1 - pdg) * 1e-9 / (1 - pdg * 1e-9)
+    assert out.r[0] == pytest.approx(beta + beta0 * a, rel=1e-12)
+    r_post, c0 = existence_update(np.array([1e-9]), np.array([beta0]), 0.9, 0.999, np.array([beta]))
+    assert c0[0] + beta / r_post[0] == pytest.approx(1.0, abs=1e-12)
+
+
 # Properties ----------------------------------------------------------------------------------
 @pytest.mark.parametrize("seed", range(8))
 @pytest.mark.parametrize("exact_events", [math.inf, 0])  # every cluster exact, and every one by LBP
