@@ -252,9 +252,13 @@ class ClutterWindow:
             raise ValueError(f"a clutter window needs at least one scan, got {scans}")
         self._scans: deque[tuple[np.ndarray, float]] = deque(maxlen=int(scans))
 
+    def add(self, Z: np.ndarray, expected_targets: float) -> None:
+        """Add a scan's plots (and the target plots expected in it)."""
+        self._scans.append((np.atleast_2d(np.asarray(Z, dtype=float)), float(expected_targets)))
+
     def update(self, Z: np.ndarray, angles: np.ndarray, expected_targets: float, min_volume: float = 0.0) -> float:
         """Add a scan's plots (and the target plots expected in it); the density now."""
-        self._scans.append((np.atleast_2d(np.asarray(Z, dtype=float)), float(expected_targets)))
+        self.add(Z, expected_targets)
         plots = np.concatenate([z for z, _ in self._scans])
         expected = sum(e for _, e in self._scans)
         return clutter_density(plots, angles, expected, min_volume, len(self._scans))
@@ -529,7 +533,11 @@ class JIPDA:
         gated = [np.flatnonzero(g) for g in hyp.gated]
         volumes = gate_volume(hyp.model.n_z, hyp.gate, hyp.log_norm)
         window = self._clutter.setdefault(sensor, ClutterWindow(self.clutter_scans))
-        rho = window.update(np.array([p.z for p in hyp.plots]), hyp.model.angles, pdg * float(r.sum()),
+        Z = np.array([p.z for p in hyp.plots])
+        if n == 0:  # no track: no density needed (one plot alone spans none), the scan still counts
+            window.add(Z, 0.0)
+            return Weights(np.zeros((0, m)), np.zeros(0), frozenset(), np.zeros(0))
+        rho = window.update(Z, hyp.model.angles, pdg * float(r.sum()),
                             float(np.max(volumes[np.isfinite(volumes)], initial=0.0)))
         self.density[sensor] = rho
         ratios = [np.exp(hyp.log_norm[i] - 0.5 * hyp.d2[i, g]) / rho for i, g in enumerate(gated)]

@@ -181,3 +181,14 @@ def test_three_crossing_aircraft_in_clutter_with_jipda(crossing, method):
         assert min(first.values()) >= 0.9  # a track is published from its confirmation on
     else:
         assert local and all(e.existence is None for e in out if e.node == "centre")  # the centre's: M-of-N
+
+
+
+def test_a_scan_of_one_plot_without_tracks_is_no_error():
+    """A sensor's scan of one plot before there is any track: one plot spans no volume
+    and no gate gives one, so no density can be estimated, and none is needed; the scan
+    still counts in the sensor's clutter window (it raised ValueError)."""
+    m = Measurement(0.0, "angle1", "azel", np.array([1.0, 0.3]), np.array([0.001, 0.001]), np.zeros(3), 0)
+    hyp = PlotHypothesiser(6, 0.999).hypotheses([], [m], [], np.zeros(0))
+    w = JIPDA(0.9, 0.999).associate(hyp)
+    assert w.beta.shape == (0, 1) and w.miss.shape == (0,) and w.used == frozenset()
