@@ -522,6 +522,13 @@ class JIPDA:
         """``P_D`` of ``sensor``: its own if named, else :attr:`p_detect`."""
         return self.p_detect_by_sensor.get(sensor, self.p_detect)
 
+    def born(self, r: float, missed: Sequence[str]) -> float:
+        """The existence of a track after its birth frame: ``r`` (``existence_birth``)
+        with the miss of each sensor of the frame that gave its group no plot, as the
+        recursion charges it: odds × ``∏ (1 − P_D P_G)``."""
+        odds_factor = float(np.prod([1.0 - self.detection(s) * self.gate_prob for s in missed]))
+        return r * odds_factor / (1.0 - r + r * odds_factor)
+
     def associate(self, hyp: Hypotheses) -> Weights:
         if hyp.log_norm is None or hyp.model is None:
             raise ValueError("JIPDA needs the plots' likelihoods: hypotheses of measurements with log_norm")

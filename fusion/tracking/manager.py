@@ -14,8 +14,10 @@ one) at a time:
    miss in its logic (with JIPDA the logic's existence: it survives to the frame before
    step 1, and takes each scan's ``r⁺`` from the associator);
 4. **review** the table (duplicates; a configuration's own checks);
-5. **start** the new tracks; **close** the frame: ids at confirmation, the deleted
-   gone, the priority order restored (:class:`~fusion.tracking.table.TrackTable`).
+5. **start** the new tracks (with an associator that keeps existence, JIPDA's ``born``:
+   a new track's existence is charged the miss of each sensor of its frame that gave
+   its group no plot); **close** the frame: ids at confirmation, the deleted gone, the
+   priority order restored (:class:`~fusion.tracking.table.TrackTable`).
 
 The parts are protocols (below). The centralised many-target methods
 (:class:`fusion.mtt.MultiTargetMethod`), the distributed centre
@@ -151,11 +153,16 @@ class MultiTargetTracker:
             track.claim([m for tk in mine if not tk.weighted for m in tk.plots])
         if self.reviewer is not None:
             self.reviewer.review(expired + tracks)
+        born = getattr(self.associator, "born", None)  # JIPDA's: the birth frame's misses
         for group in births:
             track = self.updater.start(group, frame)
             if track is not None:
                 self.table.add(track).logic.survive(frame.t)
                 track.claim(initial_plots(group))
+                if born is not None and track.existence is not None:
+                    seen = {m.sensor for m in initial_plots(group)}
+                    missed = [s for s in dict.fromkeys(m.sensor for m in frame.plots) if s not in seen]
+                    track.logic.existence = born(track.existence, missed)
         return self.table.close_frame()
 
     def associate(self, tracks: list[Track], frame: Frame) -> tuple[list[list[Taken]], list]:

@@ -30,7 +30,7 @@ from stonesoup.updater.kalman import ExtendedKalmanUpdater
 from stonesoup.updater.probability import PDAUpdater
 
 from fusion import kalman
-from fusion.tracking.jipda import (EXACT_EVENTS, ClutterWindow, ExistenceRule, clusters, clutter_density, exact_marginals, existence_update,
+from fusion.tracking.jipda import (EXACT_EVENTS, JIPDA, ClutterWindow, ExistenceRule, clusters, clutter_density, exact_marginals, existence_update,
                           hypothesise, ipda_existence, lbp_marginals, marginals, n_events_bound, pda_update,
                           scan_update)
 from fusion.measurement.models import SphericalModel
@@ -354,6 +354,17 @@ def test_an_unlikely_track_keeps_weights_that_sum_to_one():
     assert out.r[0] == pytest.approx(beta + beta0 * a, rel=1e-12)
     r_post, c0 = existence_update(np.array([1e-9]), np.array([beta0]), 0.9, 0.999, np.array([beta]))
     assert c0[0] + beta / r_post[0] == pytest.approx(1.0, abs=1e-12)
+
+
+def test_birth_existence_charges_the_birth_frames_misses():
+    """A track started from the plots of some of its frame's sensors: its existence is
+    ``existence_birth`` with each other sensor's miss, odds × ``(1 − P_D P_G)`` with that
+    sensor's P_D; a group of every sensor keeps ``existence_birth``."""
+    jipda = JIPDA(0.9, 0.999, p_detect_by_sensor={"radar2": 0.6})
+    r = 0.1
+    odds = r / (1 - r) * (1 - 0.9 * 0.999) * (1 - 0.6 * 0.999)
+    assert jipda.born(r, ["angle2", "radar2"]) == pytest.approx(odds / (1 + odds), rel=1e-12)
+    assert jipda.born(r, []) == r
 
 
 # Properties ----------------------------------------------------------------------------------

@@ -192,3 +192,24 @@ def test_a_scan_of_one_plot_without_tracks_is_no_error():
     hyp = PlotHypothesiser(6, 0.999).hypotheses([], [m], [], np.zeros(0))
     w = JIPDA(0.9, 0.999).associate(hyp)
     assert w.beta.shape == (0, 1) and w.miss.shape == (0,) and w.used == frozenset()
+
+
+def test_a_track_born_without_a_sensor_of_its_frame_is_charged_that_sensors_miss():
+    """One aircraft seen by a 2D radar and an angle sensor, and a second angle sensor
+    whose one plot is far off: the track starts from the first two, and its existence
+    after the frame is ``existence_birth`` with the second angle sensor's miss, odds ×
+    ``(1 − P_D P_G)``; without that sensor in the frame, ``existence_birth`` itself."""
+    target = np.array([20000.0, 30000.0, 6000.0])
+    radar_site, angle_site, far_site = np.zeros(3), np.array([50000.0, 0.0, 0.0]), np.array([0.0, 55000.0, 0.0])
+    radar_std, angle_std = np.array([1.0 * DEG, 20.0]), np.array([0.05 * DEG, 0.05 * DEG])
+    plots = [Measurement(0.0, "radar1", "range_az", _az_el_range(target, radar_site)[[0, 2]], radar_std, radar_site, 0),
+             Measurement(0.0, "angle1", "azel", _az_el_range(target, angle_site)[:2], angle_std, angle_site, 0),
+             Measurement(0.0, "angle2", "azel", np.array([1.0, 0.3]), angle_std, far_site, 0)]
+    p_detect, gate_prob, birth = 0.8, 0.999, 0.1
+    for frame, missed in ((plots, 1), (plots[:2], 0)):
+        method = make_method("SS", {"association": "jipda", "p_detect": p_detect, "gate_prob": gate_prob,
+                                    "existence_birth": birth})
+        method.tracker.frame(frame)
+        (track,) = method.tracker.tracks
+        odds = birth / (1 - birth) * (1 - p_detect * gate_prob) ** missed
+        assert track.existence == pytest.approx(odds / (1 + odds), rel=1e-12)
