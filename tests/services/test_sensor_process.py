@@ -71,7 +71,10 @@ def test_a_restart_that_overlaps_the_old_session_is_seen(deployment):
 
 def test_sigterm_while_it_waits_for_its_consumers_is_a_clean_stop(deployment):
     """A sensor stopped while it waits for ``--wait-for``'s processes (a run stopped
-    before its fuser was up) exits 0 within a second, not 2 as if the wait had failed."""
+    before its fuser was up) says "stopped" at once and exits 0, not 2 as if the wait had
+    failed. The times are bounds a loaded host keeps: quiet, the exit takes ~0.3 s; at
+    load 15-20 (a CI beside four engineers' runs) it took 2.1 s, the interpreter's and the
+    session's teardown, not the stop (a status says it first)."""
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         ep = f"tcp/127.0.0.1:{s.getsockname()[1]}"
@@ -90,8 +93,12 @@ def test_sigterm_while_it_waits_for_its_consumers_is_a_clean_stop(deployment):
         assert "starting" in said, p.stderr
         t = time.monotonic()
         p.send_signal(signal.SIGTERM)
+        while "stopped" not in said and time.monotonic() < t + 10:
+            time.sleep(0.02)
+        told = time.monotonic() - t
         _, err = p.communicate(timeout=10)
-        assert p.returncode == 0 and time.monotonic() - t < 1.0 and "Traceback" not in err, err
+        assert p.returncode == 0 and "Traceback" not in err, err
+        assert told < 2.0 and time.monotonic() - t < 5.0, (told, time.monotonic() - t)
         sub.undeclare()
     finally:
         hub.close()

@@ -170,15 +170,16 @@ def test_a_replay_waits_for_its_consumer(deployment, site, tmp_path):
 
 @pytest.mark.slow
 def test_sigterm_while_it_waits_is_a_clean_stop(deployment, site, tmp_path):
-    """Stopped while it waits for a process that never comes: exit 0 within a second,
-    nothing published (not "gave up waiting", exit 2)."""
+    """Stopped while it waits for a process that never comes: it says "stopped" at once,
+    exits 0 and publishes nothing (not "gave up waiting", exit 2). The exit's bound is
+    one a loaded host keeps (test_sensor_process.py's twin says why)."""
     with Capture(deployment) as cap:
         p = ingest("--site", str(site), "--pcap", str(feed(tmp_path)), "--speed", "max", "--wait-for", "nobody",
                    capture=cap)
         assert cap.wait(lambda: cap.status("gw").get("state") == "starting", timeout=30), p.stderr
         t = time.monotonic()
         err = stop(p)
-        assert time.monotonic() - t < 1.0 and "gave up" not in err, err
+        assert time.monotonic() - t < 5.0 and "gave up" not in err, err
     assert not cap.of("range_az")
 
 
