@@ -540,7 +540,7 @@ def udp_drops(sock: socket.socket) -> int:
     ``drops`` column of ``/proc/net/udp`` (or ``udp6``) on the socket's inode: Linux's
     per-socket count, exact and readable at any time (``SO_RXQ_OVFL`` delivers it only
     with a later datagram, so a burst's last drops would go unseen). 0 where there is no
-    such file."""
+    such file. Raises ``OSError`` if the socket is closed."""
     inode = str(os.fstat(sock.fileno()).st_ino)
     name = "/proc/net/udp6" if sock.family == socket.AF_INET6 else "/proc/net/udp"
     try:
@@ -640,15 +640,23 @@ class _Reader:
             try:
                 data = self.sock.recv(MAX_LINE)
             except (TimeoutError, socket.timeout):
-                self.counts["udp_dropped"] = udp_drops(self.sock)
+                self._count_udp_drops()
                 self._mark("udp", True)
                 continue
             except OSError:
                 return
             if time.monotonic() - counted >= 1.0:
                 counted = time.monotonic()
-                self.counts["udp_dropped"] = udp_drops(self.sock)
+                self._count_udp_drops()
             self._emit(LineSplitter().feed(data + b"\n"))  # a datagram holds whole lines
+
+    def _count_udp_drops(self) -> None:
+        """The kernel's drop count, unless :meth:`close` has closed the socket meanwhile
+        (a stop: the count read before stands)."""
+        try:
+            self.counts["udp_dropped"] = udp_drops(self.sock)
+        except OSError:  # (EBADF: closed between the read's timeout and this)
+            pass
 
     def _tcp(self) -> None:
         while not self.stop.is_set():

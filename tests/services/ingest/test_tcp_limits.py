@@ -75,3 +75,29 @@ def test_a_silent_connection_is_closed_after_idle_s(reader, monkeypatch):
         assert r.counts["idle_closed"] == 1
         chatty.sendall(b'{"still": true}\n')
         wait_for(lambda: b'{"still": true}' in list(r.inbox.queue), "the talking connection still read")
+
+
+def test_a_udp_input_closed_as_its_read_times_out_ends_quietly():
+    """The stop's race, made certain: the gateway's stop closes the UDP socket just as the
+    reader's ``recv`` times out, and the reader then reads the kernel's drop count of a
+    closed socket. It ended its thread with ``OSError: Bad file descriptor`` and a traceback
+    on stderr (ci26: two gateway tests); now the count read before stands and it ends."""
+    stop = threading.Event()
+    r = process._Reader("udp", ("127.0.0.1", free_port()), queue.Queue(10), stop)
+    real = r.sock
+    r.counts["udp_dropped"] = 7
+
+    class ClosedOnTimeout:  # recv: the stop closes the socket, then the read times out
+        family = real.family
+
+        def recv(self, n):
+            stop.set()
+            real.close()
+            raise socket.timeout
+
+        def fileno(self):
+            return real.fileno()
+
+    r.sock = ClosedOnTimeout()
+    r._udp()  # on this thread: an exception would fail the test
+    assert r.counts["udp_dropped"] == 7
