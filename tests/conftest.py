@@ -19,6 +19,15 @@ DATA = Path(__file__).resolve().parent / "data"
 CROSSING = DATA / "crossing.toml"  # three aircraft crossing in clutter: the many-target scenario
 
 
+def pytest_collection_modifyitems(config, items):
+    """The modules with slow tests (multi-process runs, Monte Carlo) first, each module's
+    tests kept together and in order (its module fixtures are set up once a worker): the
+    workers start on the long tests and end on short ones, so the suite does not end
+    waiting on a long test one of them took last."""
+    slow = {item.module for item in items if item.get_closest_marker("slow") is not None}
+    items.sort(key=lambda item: getattr(item, "module", None) not in slow)
+
+
 @pytest.fixture
 def deployment() -> str:
     return f"t{uuid.uuid4().hex[:10]}"
