@@ -22,7 +22,10 @@ CROSSING = DATA / "crossing.toml"  # three aircraft crossing in clutter: the man
 # The modules whose tests took 25 s or more each in CI (``--durations``, a quiet fresh
 # clone), longest first: they start first, so that the workers do not end waiting on a
 # long test one of them took last (it ran 97 s past the rest). An ordering hint only: a
-# module not named runs in its place, as collected.
+# module not named runs in its place, as collected. pytest-xdist hands each worker a
+# quarter of its share of the tests in one consecutive block unless ``--maxschedchunk``
+# says otherwise (``pyproject.toml``: 1, i.e. two at a time): with blocks, one worker got
+# every long test in a row.
 FIRST = ("services/test_standby.py", "services/test_regional_run.py", "services/ingest/test_asterix_e2e.py",
          "services/test_faults.py", "services/test_region_run.py", "services/ingest/test_ingest_adsb_e2e.py",
          "services/test_live_run.py", "sensors_sim/test_traffic.py", "fusion/test_regional.py",
