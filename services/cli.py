@@ -18,7 +18,7 @@ from .commands import eval as eval_command
 from .commands import (export, fuser, ingest, picture, plan, record, router, run, scenarios, sensor, tracker,
                        view)
 from .commands.options import Parser
-from .errors import INTERRUPTED, UserError, one_line
+from .errors import INTERRUPTED, UserError, interrupted, one_line
 from .logs import setup_logging
 
 # In the order of `zfusion --help`: a user's commands, then the processes of a deployment.
@@ -82,6 +82,8 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         return INTERRUPTED
     except Exception as exc:
+        if interrupted(exc):  # a Ctrl-C while a library was importing
+            return INTERRUPTED
         said = one_line(exc)
         if said is None or getattr(args, "verbose", False):
             raise

@@ -58,6 +58,19 @@ def zenoh_text(exc: BaseException) -> tuple[str, int]:
     return f"Zenoh: {text}; check --listen/--connect endpoints (tcp/HOST:PORT) and the Zenoh config", USAGE
 
 
+def interrupted(exc: BaseException) -> bool:
+    """Whether ``exc`` comes of a Ctrl-C: a KeyboardInterrupt, or an error raised while
+    handling one (numpy turns an interrupt during its import into ``ImportError:
+    numpy._core.umath failed to import``)."""
+    seen: set[int] = set()
+    while exc is not None and id(exc) not in seen:
+        if isinstance(exc, KeyboardInterrupt):
+            return True
+        seen.add(id(exc))
+        exc = exc.__cause__ or exc.__context__
+    return False
+
+
 def one_line(exc: BaseException) -> tuple[str, int] | None:
     """The one line and exit code for an error a user can cause, else None (a bug)."""
     if isinstance(exc, UserError):

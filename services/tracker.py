@@ -38,6 +38,12 @@ from .scenario import load, load_site
 from .source import recovery_cache
 
 
+# A node says its watermark again this often while it has nothing new to promise (waiting
+# for an init or feedback): it is not silent, which its fuser would take for dead after
+# its source timeout (3 s for trackers), passing over the request it waits on.
+ALIVE_S = 1.0
+
+
 class _Feed:
     """The method FuserCore drives: ordered measurements go into the node's queue."""
 
@@ -111,7 +117,7 @@ def run(sensor: str, scenario_ref: str, method_name: str, overrides: dict, keys:
         node.announce()
         node.publish_status("ready")
         seq = 0
-        sent_wm = -math.inf
+        sent_wm, sent_at = -math.inf, 0.0
         waiting_since: float | None = None
         alone = False
         last_status = 0.0
@@ -199,10 +205,10 @@ def run(sensor: str, scenario_ref: str, method_name: str, overrides: dict, keys:
                 pub.put(encode_uplink(u, me, seq))
             final = feed.finished and not local.pending
             wm = local.upstream_watermark(feed.watermark)
-            if math.isfinite(wm) and (wm > sent_wm or final):
+            if math.isfinite(wm) and (wm > sent_wm or final or (wm == sent_wm and now - sent_at >= ALIVE_S)):
                 seq += 1
                 pub.put(encode("watermark", me, seq, wm, final=final))
-                sent_wm = wm
+                sent_wm, sent_at = wm, now
             node.counters.update(received=core.received, processed=core.processed, published=seq,
                                  pending=len(local.pending), alone=int(alone), stale=local.stale)
             if recovery is not None:

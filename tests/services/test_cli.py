@@ -63,3 +63,38 @@ def test_the_command_line_offers_the_key_spaces_default():
     from services.commands import options
 
     assert (options.DEFAULT_DEPLOYMENT, options.DEFAULT_FUSER) == (DEFAULT_DEPLOYMENT, DEFAULT_FUSER)
+
+
+def test_an_interrupt_that_a_library_turned_into_another_error_is_an_interrupt(monkeypatch):
+    """Ctrl-C while numpy imports its C extension comes out as ``ImportError: numpy._core.
+    umath failed to import`` (raised while handling the KeyboardInterrupt): the command
+    ends with 130, as for any Ctrl-C, not 1 with a traceback (ci29, a run sent SIGINT
+    0.3 s after it started)."""
+    from services import cli
+    from services.commands import scenarios
+    from services.errors import INTERRUPTED
+
+    def importing(_args):
+        try:
+            raise KeyboardInterrupt
+        except KeyboardInterrupt:
+            raise ImportError("numpy._core.umath failed to import") from None
+
+    def bug(_args):
+        raise ImportError("something else")
+
+    monkeypatch.setattr(scenarios, "run", importing)
+    parser = cli.build_parser()
+    monkeypatch.setattr(cli, "build_parser", lambda: parser)
+    for action in parser._subparsers._group_actions[0].choices.values():
+        if action.get_default("main") is not None and action.prog.endswith(" scenarios"):
+            action.set_defaults(main=importing)
+    assert cli.main(["scenarios"]) == INTERRUPTED
+    for action in parser._subparsers._group_actions[0].choices.values():
+        if action.prog.endswith(" scenarios"):
+            action.set_defaults(main=bug)
+    try:
+        cli.main(["scenarios"])
+        raise AssertionError("a bug's ImportError was taken for an interrupt")
+    except ImportError:
+        pass
