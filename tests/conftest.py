@@ -19,34 +19,6 @@ DATA = Path(__file__).resolve().parent / "data"
 CROSSING = DATA / "crossing.toml"  # three aircraft crossing in clutter: the many-target scenario
 
 
-# The modules whose tests took 25 s or more each in CI (``--durations``, a quiet fresh
-# clone), longest first: they start first, so that the workers do not end waiting on a
-# long test one of them took last (it ran 97 s past the rest). An ordering hint only: a
-# module not named runs in its place, as collected. pytest-xdist hands each worker a
-# quarter of its share of the tests in one consecutive block unless ``--maxschedchunk``
-# says otherwise (``pyproject.toml``: 1, i.e. two at a time): with blocks, one worker got
-# every long test in a row.
-FIRST = ("services/test_standby.py", "services/test_regional_run.py", "services/ingest/test_asterix_e2e.py",
-         "services/test_faults.py", "services/test_region_run.py", "services/ingest/test_ingest_adsb_e2e.py",
-         "services/test_live_run.py", "sensors_sim/test_traffic.py", "fusion/test_regional.py",
-         "services/test_topologies.py", "fusion/df/test_df_montecarlo.py")
-
-
-def pytest_collection_modifyitems(config, items):
-    """:data:`FIRST`'s modules first, each module's tests kept together and in order (its
-    module fixtures are set up once a worker)."""
-    rank = {name: i for i, name in enumerate(FIRST)}
-    here = Path(__file__).resolve().parent
-
-    def first(item) -> int:
-        try:
-            return rank.get(Path(item.fspath).resolve().relative_to(here).as_posix(), len(FIRST))
-        except ValueError:
-            return len(FIRST)
-
-    items.sort(key=first)
-
-
 @pytest.fixture
 def deployment() -> str:
     return f"t{uuid.uuid4().hex[:10]}"
