@@ -214,11 +214,11 @@ class TrackNode(LocalNode):
         return None
 
     def _process(self, m, alone):
-        # A track more than max_gap_s old, or left not positive definite, starts afresh
-        # (fusion.guards); the centre, as old, starts afresh from the nodes' requests.
         if self.tracker.initialised and m.t < self.tracker.t:  # (attribute ``stale``)
             self.stale += 1
             return []
+        # A track more than max_gap_s old, or left not positive definite, starts afresh
+        # (fusion.guards); the centre, as old, starts afresh from the nodes' requests.
         if self.tracker.initialised and gap_too_long(m.t - self.tracker.t, self.config.max_gap_s):
             self._start_afresh()
         if not self.tracker.initialised:
