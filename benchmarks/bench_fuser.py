@@ -25,7 +25,7 @@ batches (a rotating radar's sectors) from one feeder process, niced, as the sens
 processes would publish them (``_rig.run_feed``). It reports the plot-to-track latency
 (a plot's batch ``put`` → the track it updated received), p50/p90/p99 overall and per
 minute, the fuser's CPU, its RSS at 2 minutes, at its peak and at the end, and the
-criteria of issue 27: p99 ≤ 100 ms, peak RSS within 15 % of the 2-minute value.
+scale criteria: p99 ≤ 100 ms, peak RSS within 15 % of the 2-minute value.
 """
 
 from __future__ import annotations
@@ -108,7 +108,7 @@ def fed(args) -> None:
           f"by minute {r.get('rss_by_minute_mb')}")
     print(f"fuser exit {r.get('fuser_exit')}; summary {r.get('summary')}; load now {C.load_now():.1f}")
     p99, rss2, peak = r.get("lat_p99_ms", math.inf), r.get("rss_2min_mb", math.nan), r.get("rss_peak_mb", math.inf)
-    print("\n## Criteria (issue 27)\n")
+    print("\n## Criteria\n")
     print(f"- p99 plot-to-track latency ≤ 100 ms: {p99:.1f} ms ({'met' if p99 <= 100 else 'NOT MET'})")
     if rss2 > 0:
         print(f"- peak RSS within 15 % of its value at 2 min: {peak:.1f} MB against {rss2:.1f} MB, "

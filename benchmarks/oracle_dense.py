@@ -1,5 +1,5 @@
 """The true-association reference of a many-target scenario: the floor any associator
-can reach with zfusion's filter and track logic on the same plots (issue 30).
+can reach with zfusion's filter and track logic on the same plots.
 
 Each aircraft's own detections only (the events the emulator made from it; every false
 alarm and every other aircraft's plot left out) go through the same method and

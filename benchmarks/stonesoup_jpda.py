@@ -1,5 +1,5 @@
 """A Stone Soup JPDA tracker on a many-target scenario's plots: the reference the JIPDA
-association is measured against (issue 30), scored exactly as ``zfusion eval`` scores
+association is measured against, scored exactly as ``zfusion eval`` scores
 zfusion's trackers.
 
 Same plots: run ``r``'s stream is :func:`services.evaluation.merged_measurements`, the

@@ -1,6 +1,6 @@
 """The in-process benchmark scripts run from a checkout, each with its one documented
 command (here with tiny arguments), and print the tables benchmarks/README.md quotes.
-They measure speed; this only checks that they still run and report (issue 9). The
+They measure speed; this only checks that they still run and report. The
 Zenoh benchmarks (bench_fuser, bench_scaling, bench_memory) start a process set per
 level and take minutes even with tiny arguments; they are left to their own commands."""
 

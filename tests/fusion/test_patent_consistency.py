@@ -1,8 +1,8 @@
-"""Consistency (NEES) of the patent methods over 200 Monte Carlo runs of ``patent-3d``
-(issue 3). The diagnosis, with the numbers behind every choice here, is in
+"""Consistency (NEES) of the patent methods over 200 Monte Carlo runs of ``patent-3d``.
+The diagnosis, with the numbers behind every choice here, is in
 docs/consistency.md; in short:
 
-The issue's criterion — "over 200 runs, each method in its consistent configuration has
+The criterion — "over 200 runs, each method in its consistent configuration has
 its average NEES inside the two-sided 95 % χ² bounds at ≥ 90 % of the time steps after
 the first five scans" — is not a pass/fail test. Each run's error persists from scan to
 scan, so the 26 per-scan averages are strongly correlated (lag-one correlation 0.75) and

@@ -17,10 +17,10 @@ segment can stand for hundreds of messages:
 * ``skew``: from now on the sensors stamp up to 4.9 s ahead of the fuser's clock (the
   live limit is 5 s);
 * ``live``: the data jumps to the clock. A stream may start a year or an hour behind the
-  clock (a replay of old data, sent fast), and ``live`` then is the issue's "replay,
+  clock (a replay of old data, sent fast), and ``live`` then is the reported "replay,
   then live data".
 
-Every configuration also runs the issue's three cases as explicit examples (a replay
+Every configuration also runs the three reported cases as explicit examples (a replay
 dated a year back then live data; one station alone for 81 scans, then the others; a
 day of silence). Budget: 6 generated examples per configuration (``derandomize``: the
 same ones every run), 25 configurations, 16 s of CPU on a loaded machine; on the code
@@ -297,7 +297,7 @@ def test_the_fuser_survives_any_valid_stream(name, overrides):
     @settings(max_examples=EXAMPLES, deadline=None, derandomize=True, database=None,
               phases=[Phase.explicit, Phase.generate], suppress_health_check=list(HealthCheck))
     @given(streams(sensors))
-    # the issue's cases: a replay dated a year back, then live data; one station alone for
+    # the reported cases: a replay dated a year back, then live data; one station alone for
     # 81 scans, then the others; every sensor silent for a day
     @example((1, 3.2e7, [("scans", 10, 1.0, every, 0.0, False), ("live",), ("scans", 10, 1.0, every, 0.0, False)]))
     @example((2, 0.0, [("burst", sensors[0], 81, 1.0), ("scans", 5, 1.0, every, 0.0, False)]))

@@ -1,4 +1,4 @@
-"""Issue 26's two reproductions of a fuser that died on valid data, from outside: a live
+"""Two reproductions of a fuser that died on valid data, from outside: a live
 ``zfusion fuser --site`` fed by real ``zfusion ingest jsonl`` gateways. A second DF
 station that joins after the first has sent 81 bearings, and docs/ingest.md's year-old
 example replayed before live data: the fuser keeps running and publishes what the wire

@@ -1,5 +1,5 @@
 """Moving emitters: the constant-velocity emitter model, its filters, its posterior CRB,
-the df-moving scenarios (issue 20)."""
+the df-moving scenarios."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Real air traffic end to end (issue 32): a local web server replays the Paris recording
+"""Real air traffic end to end: a local web server replays the Paris recording
 (the ``traffic`` package's quickstart collection, an hour in: 22 aircraft) as readsb's
 ``aircraft.json`` in real time; ``zfusion ingest adsb --url`` polls it and a live
 ``zfusion fuser --site`` tracks what it publishes. Within 60 s ``zfusion picture`` must
