@@ -21,13 +21,13 @@ from pathlib import Path
 import numpy as np
 
 from fusion.geodetic import LocalFrame, geodetic_to_enu
+from fusion.lazy import lazy
 from fusion.measurement.kinds import KINDS
 from fusion.regions import Region, box_polygon, polygon_area
 
 from ._toml import ANGLE, LENGTH, RATE, TIME, Reader, TomlSource
 from .geometry import coverage_span
 from .noise import OUTLIER_LAWS
-from .recorded import Recording, RecordedTraffic, SmoothingOptions, read_records, traffic_sample
 from .spec import (
     DF_KINDS,
     JAM_MODES,
@@ -51,6 +51,9 @@ from .segments import (
     Static,
     Waypoints,
 )
+
+# A recorded trajectory file's reader (and its scipy splines) loads only for a scenario that has one.
+recorded = lazy("sensors_sim.recorded")
 
 _ID = re.compile(r"^[A-Za-z0-9_-]+$")  # ids become Zenoh key chunks: no '/', '*', ...
 _MIN_SEPARATION = 1.0  # m: a sensor closer than this to a target or jammer is "at" it
@@ -316,7 +319,7 @@ def _traffic(r: Reader) -> TrafficSpec:
 TRAFFIC_SAMPLE = "traffic:"  # ``file = "traffic:quickstart"``: a collection of the traffic package
 
 
-def _recorded(r: Reader, origin, display: str, duration: float) -> RecordedTraffic:
+def _recorded(r: Reader, origin, display: str, duration: float) -> recorded.RecordedTraffic:
     """The ``[truth]`` table: recorded aircraft as the targets (:mod:`sensors_sim.recorded`).
     ``file``: a path (relative to the scenario file) or ``traffic:<name>``, a collection
     of the ``traffic`` package; ``format``: ``traffic`` or ``jsonl`` (default: from the
@@ -326,7 +329,7 @@ def _recorded(r: Reader, origin, display: str, duration: float) -> RecordedTraff
     name = r.string("file")
     if name.startswith(TRAFFIC_SAMPLE):
         try:
-            path = traffic_sample(name[len(TRAFFIC_SAMPLE):])
+            path = recorded.traffic_sample(name[len(TRAFFIC_SAMPLE):])
         except FileNotFoundError as e:
             raise r.error(str(e), "file") from None
     else:
@@ -337,25 +340,26 @@ def _recorded(r: Reader, origin, display: str, duration: float) -> RecordedTraff
     form = r.string("format", "jsonl" if jsonl else "traffic", choices=("traffic", "jsonl"))
     start = r.quantity("start", TIME, default=0.0, ge=0)
     length = r.quantity("duration", TIME, default=duration, gt=0)
-    options = SmoothingOptions(max_gap_s=r.quantity("max_gap", TIME, default=SmoothingOptions.max_gap_s, gt=0),
-                               keep_ground=r.raw("keep_ground", False))
+    options = recorded.SmoothingOptions(
+        max_gap_s=r.quantity("max_gap", TIME, default=recorded.SmoothingOptions.max_gap_s, gt=0),
+        keep_ground=r.raw("keep_ground", False))
     if not isinstance(options.keep_ground, bool):
         raise r.error("must be true or false", "keep_ground")
     without = r.number("without_adsb", 0.0, ge=0, le=1)
     r.finish()
     try:
-        records = read_records(path, form)
+        records = recorded.read_records(path, form)
     except (OSError, ValueError) as e:
         raise r.error(f"cannot read {path}: {e}", "file") from None
     if not len(records):
         raise r.error(f"{path}: no record could be read ({dict(records.rejected)})", "file")
     t_zero = float(records.t.min()) + start
-    recording = Recording(records, LocalFrame(*origin, deg=True), options, window=(t_zero, t_zero + length))
+    recording = recorded.Recording(records, LocalFrame(*origin, deg=True), options, window=(t_zero, t_zero + length))
     if not recording.segments:
         span = float(records.t.max() - records.t.min())
         raise r.error(f"no aircraft in the window [{start:g}, {start + length:g}] s of the recording "
                       f"({span:g} s long)", "start_s")
-    return RecordedTraffic(recording, t_zero, name, without)
+    return recorded.RecordedTraffic(recording, t_zero, name, without)
 
 
 _SEGMENT_TYPES = ("static", "cv", "ca", "turn", "waypoints", "orbit")

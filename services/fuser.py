@@ -32,6 +32,7 @@ from collections import Counter
 from pathlib import Path
 from typing import Any, Callable, Mapping
 
+from fusion.lazy import lazy
 from fusion.links import InitRequest
 from fusion.measurement.kinds import KINDS
 from fusion.methods import METHODS, make_method, method_config, split, track_fusion_rule
@@ -46,7 +47,6 @@ from schemas.links import encode_downlink, encode_regional_frame, horizon_messag
 
 from .errors import UserError
 from .intake import HORIZON_SLACK_S, Intake
-from .lazy import lazy
 from .leader import Leadership, rebuild
 from .live import ClockGuard, LiveOptions
 from .logs import utc_text

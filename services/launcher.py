@@ -35,6 +35,7 @@ from typing import Iterable
 
 import zenoh
 
+from fusion.lazy import lazy
 from fusion.methods import TRACK_FUSION_METHODS, track_fusion_rule
 from schemas import KeySpace, to_estimate
 
@@ -42,7 +43,6 @@ from .commands import options
 from .errors import FAILURE, UserError, zenoh_reason
 from .export.outputs import OUTPUTS
 from .intake import Intake
-from .lazy import lazy
 from .node import Inbox, Node, Stopped, ZenohOptions
 from .plan import FUSER_ID, RECORDER_ID, Asterix, Live, RunPlan, source_timeout
 from .request import check_methods, resolve_topology, scenario_of

@@ -33,12 +33,12 @@ import socket
 import time
 from typing import Iterator
 
+from fusion.lazy import lazy
 from schemas import KeySpace, encode, encode_measurement
 from sensors_sim import jam_events, truth_events
 from sensors_sim.emulators import sensor_batches
 
 from .errors import UserError
-from .lazy import lazy
 from .node import Node, Stopped
 from .scenario import load
 

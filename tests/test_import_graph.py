@@ -10,7 +10,7 @@ dependency.
 * No function-local imports: every import is at module level (a module-level ``try`` or
   ``if`` counts), except of the optional dependencies :data:`OPTIONAL` (Rerun, matplotlib),
   which only their one feature needs.
-* A module loaded on first use (``services.lazy.lazy("services.launcher")``, at module
+* A module loaded on first use (``fusion.lazy.lazy("services.launcher")``, at module
   level: the command line reaches a command's heavy modules only when it runs) is an
   edge like any import, so the checks see it.
 
@@ -33,7 +33,7 @@ PACKAGES = ("fusion", "schemas", "sensors_sim", "services")
 MAY_IMPORT = {"fusion": set(), "schemas": {"fusion"}, "sensors_sim": {"fusion", "schemas"},
               "services": {"fusion", "schemas", "sensors_sim"}}
 OPTIONAL = frozenset({"rerun", "matplotlib"})  # third-party modules that may be imported where they are used
-LAZY = "lazy"  # services.lazy.lazy("module"): an import on first use, an edge of the graph
+LAZY = "lazy"  # fusion.lazy.lazy("module"): an import on first use, an edge of the graph
 
 
 def _module_name(path: Path) -> str:
@@ -174,7 +174,7 @@ def test_the_graph_sees_cycles_local_imports_and_lazy_edges(tmp_path, monkeypatc
         (tmp_path / pkg / "__init__.py").write_text("")
     (tmp_path / "pkg" / "a.py").write_text("from .b import f\n")
     (tmp_path / "pkg" / "b.py").write_text("import json\n\ndef f():\n    from .a import f\n    import rerun\n")
-    (tmp_path / "pkg" / "c.py").write_text("from services.lazy import lazy\n\nd = lazy('pkg.d')\n")
+    (tmp_path / "pkg" / "c.py").write_text("from fusion.lazy import lazy\n\nd = lazy('pkg.d')\n")
     (tmp_path / "pkg" / "d.py").write_text("from . import c\n")
     (tmp_path / "low" / "x.py").write_text("import pkg.a\n\ndef g():\n    import json\n")
     monkeypatch.setattr(sys.modules[__name__], "ROOT", tmp_path)

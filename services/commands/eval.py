@@ -10,10 +10,10 @@ import sys
 import tomllib
 from pathlib import Path
 
+from fusion.lazy import lazy
 from fusion.topology import METHOD_TOPOLOGIES
 
 from ..errors import UserError
-from ..lazy import lazy
 from . import names, options
 
 evaluation = lazy("services.evaluation")

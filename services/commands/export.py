@@ -3,9 +3,10 @@
 
 from __future__ import annotations
 
+from fusion.lazy import lazy
+
 from ..errors import UserError
 from ..export.outputs import BY_NAME, OUTPUTS
-from ..lazy import lazy
 from . import options
 
 process = lazy("services.export.process")

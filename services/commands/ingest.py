@@ -8,7 +8,8 @@ from __future__ import annotations
 
 import argparse
 
-from ..lazy import lazy
+from fusion.lazy import lazy
+
 from . import options
 
 process = lazy("services.ingest.process")

@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-from ..lazy import lazy
+from fusion.lazy import lazy
+
 from . import options
 
 picture = lazy("services.picture")

@@ -5,7 +5,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from ..lazy import lazy
+from fusion.lazy import lazy
+
 from . import options
 
 launcher = lazy("services.launcher")

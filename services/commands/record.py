@@ -3,7 +3,8 @@
 
 from __future__ import annotations
 
-from ..lazy import lazy
+from fusion.lazy import lazy
+
 from ..rotation import rotated_path
 from . import options
 

@@ -6,9 +6,10 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from fusion.lazy import lazy
+
 from ..errors import UserError
 from ..export.outputs import OUTPUTS
-from ..lazy import lazy
 from ..rotation import rotated_path
 from . import names, options
 

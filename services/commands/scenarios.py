@@ -2,8 +2,7 @@
 
 from __future__ import annotations
 
-from ..lazy import lazy
-
+from fusion.lazy import lazy
 sensors_sim = lazy("sensors_sim")
 
 

@@ -7,8 +7,9 @@ import argparse
 import math
 import urllib.parse
 
+from fusion.lazy import lazy
+
 from ..errors import UserError
-from ..lazy import lazy
 from . import options
 
 source = lazy("services.source")

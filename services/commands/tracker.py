@@ -5,8 +5,9 @@ from __future__ import annotations
 
 import argparse
 
+from fusion.lazy import lazy
+
 from ..errors import UserError
-from ..lazy import lazy
 from . import options
 
 methods = lazy("fusion.methods")

@@ -1,7 +1,7 @@
 """What the shared options mean once a command runs: the key space, the Zenoh options,
 a live session's options and the scenario's (or site's) defaults.
 
-Loaded by the commands when they run (:func:`services.lazy.lazy`), never to build the
+Loaded by the commands when they run (:func:`fusion.lazy.lazy`), never to build the
 parser: it imports the wire schemas (numpy) and Zenoh.
 """
 

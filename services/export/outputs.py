@@ -16,9 +16,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
 
+from fusion.lazy import lazy
+
 from ..commands.options import writable_file
 from ..errors import UserError
-from ..lazy import lazy
 from .cot_types import STALE_S, TYPE_EMITTER, TYPE_TRACK
 
 asterix = lazy("services.export.asterix")
