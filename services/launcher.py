@@ -61,6 +61,9 @@ RECORDER_STALL = 30.0  # s: at the end, the recorder is stopped once it has reco
 RECORDER_DONE_WAIT = 5.0  # s the recorder has to end by itself once everyone else has (it ends on their "done")
 END_WAIT = 10.0  # s the sources and trackers have to end by themselves once the fuser is done
 STOP_GRACE = 2.0  # s a process has to stop after SIGTERM before it is killed (it should take < 1 s)
+# s the recorder has at the run's end: killed, its file loses its footer and the rows it had not
+# flushed; on a loaded machine (five test workers on two cores) it once took more than 5 s
+RECORDER_STOP_GRACE = 15.0
 SETTLE_MARGIN = 1.0  # s beyond the OOSM window and max delay before a live estimate is scored for good
 LIVE_LEAD = 8.0  # s from starting the sources of a live run to its scenario time 0 (their start-up)
 
@@ -410,7 +413,7 @@ def run(args) -> int:
                 log.error("%s", e)
         finally:
             launch.sup.restart = False
-            launch.children.stop_all()
+            launch.children.stop_all(longer={RECORDER_ID: RECORDER_STOP_GRACE})
     return report(args, launch, scenario, topology, method, rrd, interrupted, failure, not_started, endless)
 
 

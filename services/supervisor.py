@@ -27,7 +27,8 @@ import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Iterable
+from types import MappingProxyType
+from typing import Iterable, Mapping
 
 from .plan import RunPlan
 
@@ -124,14 +125,16 @@ class Children:
                 p.kill()
                 p.wait()
 
-    def stop_all(self, grace: float = 5.0) -> None:
+    def stop_all(self, grace: float = 5.0, longer: Mapping[str, float] = MappingProxyType({})) -> None:
+        """SIGTERM to every child still running; one still there ``grace`` seconds later
+        (``longer[name]`` for the named ones) is killed."""
         live = {n: p for n, p in self.procs.items() if p.poll() is None}
         for p in live.values():
             p.send_signal(signal.SIGTERM)
-        deadline = time.monotonic() + grace
+        start = time.monotonic()
         for name, p in live.items():
             try:
-                p.wait(max(0.0, deadline - time.monotonic()))
+                p.wait(max(0.0, start + longer.get(name, grace) - time.monotonic()))
             except subprocess.TimeoutExpired:
                 self.forced.add(name)
                 p.kill()
