@@ -369,7 +369,8 @@ class _Rows:
         live = np.flatnonzero(self.held[:len(self.tracks)] != 0)
         self.tracks = [self.tracks[i] for i in live]
         self.row = {s.id: k for k, s in enumerate(self.tracks)}
-        self.t, self.s, self.held, self.p, self.v = (a[live].copy() for a in (self.t, self.s, self.held, self.p, self.v))
+        arrays = (self.t, self.s, self.held, self.p, self.v)
+        self.t, self.s, self.held, self.p, self.v = (a[live].copy() for a in arrays)
         self._tree_rows = np.arange(len(live))
         self._tree, self._tree_t0 = self._tree_of(self._tree_rows)
         self._fresh = set()
@@ -539,10 +540,11 @@ class SystemFuser:
     def _review(self, touched: list[SystemTrack]) -> list[SystemTrack]:
         """Each system track just re-fused against the system tracks near it (screened
         as in :meth:`_associate`; the χ² only where one of the two is held by two regions
-        or more, for all such pairs at once): a pair in the gate of :meth:`_distances2` adds a look to its streak if it is at a
-        later time than the streak's last (several regions' frames of one time are one
-        look), out of it ends the streak; at ``merge_frames`` looks the younger is merged
-        into the older (:meth:`_merge`). Returns the system tracks that took members."""
+        or more, for all such pairs at once): a pair in the gate of :meth:`_distances2`
+        adds a look to its streak if it is at a later time than the streak's last
+        (several regions' frames of one time are one look), out of it ends the streak; at
+        ``merge_frames`` looks the younger is merged into the older (:meth:`_merge`).
+        Returns the system tracks that took members."""
         if not self.merge_frames or not touched:
             return []
         rows = self._rows

@@ -252,8 +252,9 @@ def test_the_screen_finds_the_pairs_of_the_test_over_every_pair():
     assert found > 1000
 
 
-@pytest.mark.parametrize("motion", [ConstantVelocity(1.0), ConstantAcceleration(0.5), ConstantAcceleration(2.0, "discrete"),
-                                    ConstantVelocity(3.0, "discrete", q_up=0.1), ConstantTurn(0.02, 1.0)])
+@pytest.mark.parametrize("motion", [ConstantVelocity(1.0), ConstantAcceleration(0.5),
+                                    ConstantAcceleration(2.0, "discrete"), ConstantVelocity(3.0, "discrete", q_up=0.1),
+                                    ConstantTurn(0.02, 1.0)])
 def test_the_batched_transitions_are_the_models_own(motion):
     """F(dt), Q(dt) for many dt at once (the polynomial models' blocks evaluated together;
     any other model through its own F and Q) equal the model's F and Q, dt = 0 included."""
@@ -287,9 +288,9 @@ def test_the_batched_track_distances_are_track_distance2():
     inside = 0
     for e, f, d in zip(a, b, got):
         t = max(e.t, f.t)
-        (xa, Pa), (xb, Pb) = ((g.x, g.P) if g.t == t else
-                              (motion.F(t - g.t) @ g.x, motion.F(t - g.t) @ g.P @ motion.F(t - g.t).T + motion.Q(t - g.t))
-                              for g in (e, f))
+        FQ = [(motion.F(t - g.t), motion.Q(t - g.t)) for g in (e, f)]
+        (xa, Pa), (xb, Pb) = ((g.x, g.P) if g.t == t else (F @ g.x, F @ g.P @ F.T + Q)
+                              for g, (F, Q) in zip((e, f), FQ))
         d2, rank = track_distance2(xa, Pa, xb, Pb, dims=np.arange(6))
         if d2 <= gate_threshold(rank, 0.999):
             inside += 1
