@@ -30,13 +30,14 @@ centre takes local tracks, and keeps the system tracks ``T<n>``:
    one sensor, with the same process noise, have errors correlated in a way neither
    knows; CI is consistent for every such correlation, the naive product is not
    (docs/regional.md);
-4. two system tracks, one of them held by two regions or more, that stay in each other's
-   gate for ``merge_frames`` consecutive looks (the trackers' own duplicate rule,
-   :class:`fusion.tracking.table.DuplicateWatch`, on the system estimates) are one
-   aircraft: the younger is merged into the older, its members joining it where the older
-   holds no track of their region, and otherwise left waiting (a region's duplicate: it
-   may join a system track later, never start one). Each region's tracker has reviewed its
-   own tracks; a fused track no tracker has.
+4. two system tracks, one of them held by two regions or more or the two held by
+   different regions, that stay in each other's gate for ``merge_frames`` consecutive
+   looks (the trackers' own duplicate rule, :class:`fusion.tracking.table.DuplicateWatch`,
+   on the system estimates) are one aircraft: the younger is merged into the older, its
+   members joining it where the older holds no track of their region, and otherwise left
+   waiting (a region's duplicate: it may join a system track later, never start one).
+   Each region's tracker has reviewed its own tracks; a fused track, or two regions'
+   tracks, no tracker has.
 
 So an aircraft's system id survives a handover: the next region's track joins the system
 track while both regions hold the aircraft in the overlap, and the first region's track
@@ -551,14 +552,14 @@ class SystemFuser:
         gate = gate_threshold(len(_COMPARED), self.gate_prob)
         i, j = rows.near([s.last for s in touched], gate, rows.held != 0)
         pairs = [(touched[a], rows.tracks[b]) for a, b in zip(i, j)]
-        scored = [k for k, (a, b) in enumerate(pairs) if a is not b and (a.regional() or b.regional())]
+        scored = [k for k, (a, b) in enumerate(pairs) if a is not b and self._reviewed(a, b)]
         d2 = np.full(len(pairs), np.nan)
         d2[scored] = self._distances2([pairs[k][0].last for k in scored], [pairs[k][1].last for k in scored])
         looked: set[tuple[str, str]] = set()
         merged: list[SystemTrack] = []
         changed: set[str] = set()  # merged into in this review: a new estimate, new members
         for (a, b), d in zip(pairs, d2):
-            if a is b or not (a.regional() or b.regional()):
+            if a is b or not self._reviewed(a, b):
                 continue
             key = (a.id, b.id) if self.ids.number(a.id) < self.ids.number(b.id) else (b.id, a.id)
             if key in looked or key[0] not in self.tracks or key[1] not in self.tracks:
@@ -576,6 +577,14 @@ class SystemFuser:
                 merged.append(self._merge(self.tracks[key[0]], self.tracks[key[1]]))
                 changed.add(key[0])
         return merged
+
+    @staticmethod
+    def _reviewed(a: SystemTrack, b: SystemTrack) -> bool:
+        """Whether step 6 reviews a pair: one of them held by two regions or more, or the
+        two held by different regions (two regions' tracks of one aircraft that the join
+        missed — one born out of the other's gate — which no region's tracker sees
+        together). Two system tracks of one region alone are its tracker's to review."""
+        return a.regional() or b.regional() or not a.members.keys() & b.members.keys()
 
     def _merge(self, keep: SystemTrack, gone: SystemTrack) -> SystemTrack:
         """``gone``'s members join ``keep`` where it holds no track of their region, the

@@ -203,6 +203,29 @@ def test_two_system_tracks_on_one_aircraft_merge_into_the_older():
         assert [e.track for e in out] == ["T1", "T2"]
 
 
+def test_two_regions_tracks_of_one_aircraft_the_join_missed_merge():
+    """An east track born 1.5 km off the west track of the same aircraft (out of the gate:
+    it starts its own system track, over east) and then 100 m off: the two system tracks,
+    held by one region each but different ones, are merged after merge_frames looks, the
+    east track joining the older; two tracks of one region are not (its tracker's)."""
+    regions = {"west": Region("west", box_polygon(-60e3, -60e3, 0.0, 60e3), 8e3, ("w",)),
+               "east": Region("east", box_polygon(0.0, -60e3, 60e3, 60e3), 8e3, ("e",))}
+    P = np.diag([100.0, 100.0, 100.0, 10.0, 10.0, 10.0]) ** 2
+
+    def est(region, track, e, t):
+        return Estimate(t, np.array([e + 200.0 * t, 0.0, 6000.0, 200.0, 0.0, 0.0]), P, "SS", region,
+                        f"{region}.{track}")
+
+    system = SystemFuser("SS", ConstantVelocity(1.0), 0.999, "ci", regions=regions, merge_frames=3)
+    for t, off in {0.0: 1500.0, 1.0: 100.0, 2.0: 100.0, 3.0: 100.0, 4.0: 100.0}.items():
+        system.frame(RegionalFrame("west", t, (est("west", "T1", -1000.0, t),)))
+        system.frame(RegionalFrame("east", t, (est("east", "T1", -1000.0 + off, t),)))
+        if t == 0.0:
+            assert {k: s.members for k, s in system.tracks.items()} == {"T1": {"west": "west.T1"},
+                                                                         "T2": {"east": "east.T1"}}
+    assert {k: s.members for k, s in system.tracks.items()} == {"T1": {"west": "west.T1", "east": "east.T1"}}
+
+
 def test_the_screen_finds_the_pairs_of_the_test_over_every_pair():
     """The system fuser's screen (two k-d trees' candidates, over the rows unchanged since
     the big one was built and over those written since, then the test) finds exactly the
