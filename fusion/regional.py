@@ -30,13 +30,14 @@ centre takes local tracks, and keeps the system tracks ``T<n>``:
    one sensor, with the same process noise, have errors correlated in a way neither
    knows; CI is consistent for every such correlation, the naive product is not
    (docs/regional.md);
-4. two system tracks, one of them held by two regions or more, that stay in each other's
-   gate for ``merge_frames`` consecutive looks (the trackers' own duplicate rule,
-   :class:`fusion.tracking.table.DuplicateWatch`, on the system estimates) are one
-   aircraft: the younger is merged into the older, its members joining it where the older
-   holds no track of their region, and otherwise left waiting (a region's duplicate: it
-   may join a system track later, never start one). Each region's tracker has reviewed its
-   own tracks; a fused track no tracker has.
+4. two system tracks, one of them held by two regions or more or the two held by
+   different regions, that stay in each other's gate for ``merge_frames`` consecutive
+   looks (the trackers' own duplicate rule, :class:`fusion.tracking.table.DuplicateWatch`,
+   on the system estimates) are one aircraft: the younger is merged into the older, its
+   members joining it where the older holds no track of their region, and otherwise left
+   waiting (a region's duplicate: it may join a system track later, never start one).
+   Each region's tracker has reviewed its own tracks; a fused track, or two regions'
+   tracks, no tracker has.
 
 So an aircraft's system id survives a handover: the next region's track joins the system
 track while both regions hold the aircraft in the overlap, and the first region's track
@@ -48,6 +49,7 @@ from __future__ import annotations
 
 import dataclasses
 import heapq
+import itertools
 import math
 from dataclasses import dataclass, field
 from typing import Callable, Mapping, Sequence
@@ -56,12 +58,13 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from .measurement.kinds import KINDS
+from .motion import KinematicModel
 from .patent import TrackerConfig, uses
 from .regions import Region
-from .track_fusion import fuse_ci, fuse_naive
+from .track_fusion import CI_CRITERIA, _inv_spd_many, fuse_naive
 from .tracking.associators import gnn
 from .tracking.config import AssociationConfig
-from .tracking.hypotheses import gate_threshold, track_distance2
+from .tracking.hypotheses import _PINV_RTOL, gate_threshold
 from .tracking.table import DELETED, TrackIds
 from .types import Estimate, Measurement
 
@@ -74,34 +77,86 @@ PLOT_SLACK_M = 15_000.0  # m: how far beyond its region and margin a plot's grou
 SCREEN_SLACK_M = 2000.0  # m: the screen's allowance for the spread's growth over an extrapolation
 
 
-def _screen(a: Sequence[Estimate], b: Sequence[Estimate], gate: float) -> tuple[np.ndarray, np.ndarray]:
-    """The pairs ``(i, j)`` of ``a`` and ``b`` that may be in the gate, in row-major order:
-    those whose horizontal positions, each extrapolated to the later of the two times,
-    lie within ``√(gate·(sᵢ + sⱼ)) + SCREEN_SLACK_M`` (``s`` the horizontal variance).
-    A k-d tree over ``b``'s positions gives each ``a`` the candidates within that radius
-    at its largest plus the distance the two can have moved over the span of all times
-    (a superset), and the test is made on those pairs alone: the same pairs as the test
-    over every pair, at the cost of the near ones."""
-    def parts(es):
-        return (np.array([e.t for e in es]), np.array([e.x[:2] for e in es]), np.array([e.x[3:5] for e in es]),
-                np.array([e.P[0, 0] + e.P[1, 1] for e in es]))
-    none = np.zeros(0, dtype=int)
-    if not a or not b:
-        return none, none
-    (ta, pa, va, sa), (tb, pb, vb, sb) = parts(a), parts(b)
-    span = max(ta.max(), tb.max()) - min(ta.min(), tb.min())
-    speed_a, speed_b = np.hypot(va[:, 0], va[:, 1]), np.hypot(vb[:, 0], vb[:, 1])
-    reach = np.sqrt(gate * (sa + sb.max())) + SCREEN_SLACK_M + (speed_a + speed_b.max()) * span
-    near = cKDTree(pb).query_ball_point(pa, reach * (1 + 1e-9) + 1e-6)
-    i = np.repeat(np.arange(len(a)), [len(n) for n in near])
-    j = np.array([k for n in near for k in sorted(n)], dtype=int)
-    if not len(i):
-        return none, none
-    t = np.maximum(ta[i], tb[j])
-    gap = (pa[i] + va[i] * (t - ta[i])[:, None]) - (pb[j] + vb[j] * (t - tb[j])[:, None])
-    radius = np.sqrt(gate * (sa[i] + sb[j])) + SCREEN_SLACK_M
-    keep = np.sum(gap * gap, axis=-1) <= radius * radius
-    return i[keep], j[keep]
+def _transitions(motion, dt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``F(dt)`` and ``Q(dt)`` of ``motion`` for each of the ``dt`` (stacked ``(k, n, n)``):
+    the per-axis blocks of :class:`~fusion.motion.KinematicModel`'s polynomial models
+    (``F₁[i, j] = dt^(j−i)/(j−i)!``; ``Q₁`` continuous or discrete) evaluated at every
+    ``dt`` at once and expanded as :meth:`~fusion.motion.KinematicModel.F` does (``⊗ I₃``,
+    ``Q₁ ⊗ diag(axis_scale)``); any other model through its ``F`` and ``Q``, once per
+    distinct ``dt``."""
+    base = type(motion)
+    polynomial = isinstance(motion, KinematicModel) and all(
+        getattr(base, f) is getattr(KinematicModel, f) for f in ("F_axis", "Q_axis", "noise_gain_axis",
+                                                                  "continuous_Q_axis"))
+    if not polynomial:
+        uniq, back = np.unique(dt, return_inverse=True)
+        return (np.stack([motion.F(d) for d in uniq])[back], np.stack([motion.Q(d) for d in uniq])[back])
+    m, k = motion.order, len(dt)
+    lag = np.arange(m)[None, :] - np.arange(m)[:, None]  # j − i
+    fact = np.array([math.factorial(max(n, 0)) for n in range(m)], dtype=float)
+    power = dt[:, None, None] ** np.maximum(lag, 0)[None]
+    F1 = np.where(lag[None] >= 0, power / fact[np.maximum(lag, 0)][None], 0.0)
+    if motion.noise == "discrete":
+        G = np.stack([0.5 * dt * dt, dt, np.ones(k)][:m], axis=-1)  # Γ
+        Q1 = motion.q * G[:, :, None] * G[:, None, :]
+    else:
+        p = (m - 1) - np.arange(m)
+        pf = np.array([1.0, 1.0, 2.0])[p]
+        s = p[:, None] + p[None, :] + 1
+        Q1 = motion.q * dt[:, None, None] ** s[None] / (s * pf[:, None] * pf[None, :])[None]
+    scale = np.ones(3) if motion.axis_scale is None else motion.axis_scale
+
+    def expand(A, d):  # A ⊗ diag(d), per k
+        return (A[:, :, None, :, None] * np.diag(d)[None, None, :, None, :]).reshape(k, 3 * m, 3 * m)
+    return expand(F1, np.ones(3)), expand(Q1, scale)
+
+
+def _ci_pairs(x1: np.ndarray, P1: np.ndarray, x2: np.ndarray, P2: np.ndarray,
+              criterion: str) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`fusion.track_fusion.fuse_ci` of each pair ``(x1[k], P1[k])``, ``(x2[k],
+    P2[k])``, all at once: ``Yᵢ = Pᵢ⁻¹``, ω from the pencil ``Y₁v = λY₂v`` (``VᵀY₂V =
+    I``, through ``Y₂ = LLᵀ``: the eigenvalues of ``L⁻¹Y₁L⁻ᵀ``) as the root in ``[0, 1]``
+    of the criterion's derivative, ``−Σ cₐa/(1 + ωa)²`` for the trace (``a = λ − 1``,
+    ``c = |v|²``) or ``−Σ a/(1 + ωa)`` for the determinant — increasing in ω, found by
+    Newton steps kept inside a shrinking bracket — then ``P = (ωY₁ + (1−ω)Y₂)⁻¹``,
+    ``x = x₁ + P(1−ω)Y₂(x₂ − x₁)``. Equal covariances: the mean, ``P₁``."""
+    k = len(x1)
+    Y = np.asarray(_inv_spd_many(np.concatenate([P1, P2])))
+    Y1, Y2 = Y[:k], Y[k:]
+    Linv = np.linalg.inv(np.linalg.cholesky(Y2))
+    lam, U = np.linalg.eigh(Linv @ Y1 @ np.swapaxes(Linv, -1, -2))
+    V = np.swapaxes(Linv, -1, -2) @ U
+    a, c = lam - 1.0, np.sum(V * V, axis=-2)
+    trace = criterion == "trace"
+
+    def slope(w):  # the derivative and its own derivative, per pair
+        r = 1.0 / (1.0 + w[:, None] * a)
+        if trace:
+            return -np.sum(c * a * r * r, axis=-1), np.sum(2.0 * c * a * a * r ** 3, axis=-1)
+        return -np.sum(a * r, axis=-1), np.sum(a * a * r * r, axis=-1)
+    g0, g1 = slope(np.zeros(k))[0], slope(np.ones(k))[0]
+    w = np.where(g0 >= 0.0, 0.0, 1.0)
+    inner = np.flatnonzero((g0 < 0.0) & (g1 > 0.0))
+    if len(inner):
+        a, c = a[inner], c[inner]
+        lo, hi, wi = np.zeros(len(inner)), np.ones(len(inner)), np.full(len(inner), 0.5)
+        for _ in range(100):
+            g, gp = slope(wi)
+            lo, hi = np.where(g < 0.0, wi, lo), np.where(g < 0.0, hi, wi)
+            step = wi - g / gp
+            step = np.where((step > lo) & (step < hi), step, 0.5 * (lo + hi))
+            done = np.abs(step - wi) <= 1e-15
+            wi = step
+            if done.all():
+                break
+        w[inner] = wi
+    M = w[:, None, None] * Y1 + (1.0 - w)[:, None, None] * Y2
+    P = np.asarray(_inv_spd_many(M, "CI information"))
+    x = x1 + np.einsum("kij,kj->ki", P, (1.0 - w)[:, None] * np.einsum("kij,kj->ki", Y2, x2 - x1))
+    equal = np.all(P1 == P2, axis=(-2, -1))
+    if equal.any():
+        x[equal], P[equal] = (x1[equal] + x2[equal]) / 2, P1[equal]
+    return x, P
 
 
 @dataclass(frozen=True)
@@ -198,6 +253,131 @@ class SystemTrack:
         return len(self.members) > 1
 
 
+class _Rows:
+    """The system tracks' latest fused estimates as arrays for the screen, kept as the
+    tracks change rather than built from every track per frame: per row (rows in the
+    order the tracks were created, never reused until compacted) the time, horizontal
+    position, velocity and variance, and which regions hold the track (a bit each). A
+    k-d tree over the positions as they were when it was built; the rows written since
+    are tested directly, and the tree is built again once they are many."""
+
+    def __init__(self, regions: Sequence[str]):
+        self.bit = {r: 1 << i for i, r in enumerate(regions)}
+        self.row: dict[str, int] = {}  # system id -> row
+        self.tracks: list[SystemTrack | None] = []
+        self.t, self.s = np.zeros(0), np.zeros(0)
+        self.p, self.v = np.zeros((0, 2)), np.zeros((0, 2))
+        self.held = np.zeros(0, dtype=np.int64)  # the regions' bits; 0: no row (deleted)
+        self._tree: cKDTree | None = None
+        self._tree_t0 = 0.0
+        self._tree_rows = np.zeros(0, dtype=int)
+        self._fresh: set[int] = set()  # rows written since the tree was built
+
+    def mask(self, regions) -> int:
+        m = 0
+        for r in regions:
+            b = self.bit.get(r)
+            m |= b if b is not None else self.bit.setdefault(r, 1 << len(self.bit))
+        return m
+
+    def put(self, s: SystemTrack) -> None:
+        """``s`` took a new estimate or other members."""
+        if s.last is None:
+            return
+        i = self.row.get(s.id)
+        if i is None:
+            i = self.row[s.id] = len(self.tracks)
+            self.tracks.append(s)
+            if i >= len(self.t):
+                grow = max(64, len(self.t))
+                self.t, self.s, self.held = (np.concatenate([a, np.zeros(grow, a.dtype)])
+                                             for a in (self.t, self.s, self.held))
+                self.p, self.v = (np.concatenate([a, np.zeros((grow, 2))]) for a in (self.p, self.v))
+        e = s.last
+        self.t[i], self.p[i], self.v[i], self.s[i] = e.t, e.x[:2], e.x[3:5], e.P[0, 0] + e.P[1, 1]
+        self.held[i] = self.mask(s.members)
+        self._fresh.add(i)
+
+    def remove(self, s: SystemTrack) -> None:
+        i = self.row.pop(s.id, None)
+        if i is not None:
+            self.tracks[i] = None
+            self.held[i] = 0
+            self._fresh.discard(i)
+
+    def near(self, es: Sequence[Estimate], gate: float, eligible: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The pairs ``(i, row)`` of ``es`` and the rows where ``eligible`` (a boolean per
+        row) that may be in the gate, in row-major order: those whose horizontal
+        positions, each extrapolated to the later of the two times, lie within
+        ``√(gate·(sᵢ + sⱼ)) + SCREEN_SLACK_M`` (``s`` the horizontal variance). The
+        candidates come from two k-d trees, over the rows unchanged since the big one
+        was built and over the rows written since, each over the positions extrapolated
+        to its latest time ``T₀``: a row within the radius at the later time ``t`` is
+        within ``√(gate·(sᵢ + max s)) + SCREEN_SLACK_M + |vᵢ|·max(0, T₀ − tᵢ) + max|v|·|tᵢ −
+        T₀|`` of ``es[i]``'s own position there (a superset); the test is made on those
+        pairs alone."""
+        none = np.zeros(0, dtype=int)
+        if not es:
+            return none, none
+        if len(self._fresh) > max(256, len(self.row) // 4):
+            kept = self._build()
+            eligible = eligible[kept]
+        n = len(self.tracks)
+        wanted = eligible[:n] & (self.held[:n] != 0)
+        if not wanted.any():
+            return none, none
+        ta, pa = np.array([e.t for e in es]), np.array([e.x[:2] for e in es])
+        va, sa = np.array([e.x[3:5] for e in es]), np.array([e.P[0, 0] + e.P[1, 1] for e in es])
+        speed_a = np.hypot(va[:, 0], va[:, 1])
+        fresh = np.array(sorted(self._fresh), dtype=int)
+        fresh = fresh[wanted[fresh]]
+        stale = wanted.copy()
+        stale[fresh] = False
+        parts_i, parts_j = [none], [none]
+        for tree, t0, rows, mine in ((self._tree, self._tree_t0, self._tree_rows, stale),
+                                     (*self._tree_of(fresh), fresh, wanted)):
+            among = np.flatnonzero(mine)
+            if tree is None or not len(among):
+                continue
+            reach = (np.sqrt(gate * (sa + self.s[among].max())) + SCREEN_SLACK_M + speed_a * np.maximum(0.0, t0 - ta)
+                     + np.hypot(self.v[among, 0], self.v[among, 1]).max() * np.abs(ta - t0))
+            found = tree.query_ball_point(pa, reach * (1 + 1e-9) + 1e-6, return_sorted=False)
+            counts = np.fromiter((len(f) for f in found), int, len(found))
+            cand = rows[np.fromiter(itertools.chain.from_iterable(found), int, int(counts.sum()))]
+            ci = np.repeat(np.arange(len(es)), counts)
+            use = mine[cand]
+            parts_i.append(ci[use])
+            parts_j.append(cand[use])
+        i, j = np.concatenate(parts_i), np.concatenate(parts_j)
+        order = np.lexsort((j, i))
+        i, j = i[order], j[order]
+        t = np.maximum(ta[i], self.t[j])
+        gap = (pa[i] + va[i] * (t - ta[i])[:, None]) - (self.p[j] + self.v[j] * (t - self.t[j])[:, None])
+        radius = np.sqrt(gate * (sa[i] + self.s[j])) + SCREEN_SLACK_M
+        keep = np.sum(gap * gap, axis=-1) <= radius * radius
+        return i[keep], j[keep]
+
+    def _tree_of(self, rows: np.ndarray) -> tuple[cKDTree | None, float]:
+        """A k-d tree over ``rows``' positions extrapolated to their latest time, and that time."""
+        if not len(rows):
+            return None, 0.0
+        t0 = float(self.t[rows].max())
+        return cKDTree(self.p[rows] + self.v[rows] * (t0 - self.t[rows])[:, None]), t0
+
+    def _build(self) -> np.ndarray:
+        """Compacts the rows (dropping the deleted, keeping the order) and builds the
+        tree; returns the old rows kept, in their new order."""
+        live = np.flatnonzero(self.held[:len(self.tracks)] != 0)
+        self.tracks = [self.tracks[i] for i in live]
+        self.row = {s.id: k for k, s in enumerate(self.tracks)}
+        arrays = (self.t, self.s, self.held, self.p, self.v)
+        self.t, self.s, self.held, self.p, self.v = (a[live].copy() for a in arrays)
+        self._tree_rows = np.arange(len(live))
+        self._tree, self._tree_t0 = self._tree_of(self._tree_rows)
+        self._fresh = set()
+        return live
+
+
 class SystemFuser:
     """The system picture from the regional frames (module docstring, steps 1-3).
 
@@ -216,6 +396,8 @@ class SystemFuser:
                  regions: Mapping[str, Region] | None = None, merge_frames: int = 0):
         if rule not in SYSTEM_RULES:
             raise ValueError(f"system fusion rule must be one of {SYSTEM_RULES}, got {rule!r}")
+        if ci_criterion not in CI_CRITERIA:
+            raise ValueError(f"ci criterion must be one of {CI_CRITERIA}, got {ci_criterion!r}")
         if not hasattr(motion, "F"):
             raise ValueError(f"the system fuser predicts with a kinematic model, not {motion!r}")
         self.name, self.motion, self.gate_prob = name, motion, gate_prob
@@ -228,6 +410,7 @@ class SystemFuser:
         self.merge_frames = merge_frames
         self.absorbed: set[str] = set()  # regional ids merged away as their region's duplicates: they never start one
         self._streak: dict[tuple[str, str], tuple[int, float]] = {}  # (older, younger) -> (looks in the gate, last look's t)
+        self._rows = _Rows(list(self.regions or ()))  # the system tracks' estimates as arrays, for the screen
 
     def frame(self, f: RegionalFrame) -> list[Estimate]:
         """One regional frame; returns the estimates of the system tracks it touched."""
@@ -237,46 +420,66 @@ class SystemFuser:
             self.absorbed.discard(rid)
         for e in f.tracks:
             self.latest[e.track] = e
-        unowned = []
-        for e in f.tracks:
+        # keeping (step 1): every owned track against its system track's other members, at once
+        mine, others, whose = [], [], []
+        for k, e in enumerate(f.tracks):
             s = self.owner.get(e.track)
-            if s is not None and not self._agrees(e, s):
+            if s is not None:
+                for rid in s.members.values():
+                    if rid != e.track:
+                        mine.append(e), others.append(self.latest[rid]), whose.append(k)
+        agrees = np.ones(len(f.tracks), dtype=bool)
+        if whose:
+            agrees[whose] = False
+            agrees[np.asarray(whose)[np.isfinite(self._distances2(mine, others))]] = True
+        unowned = []
+        for e, ok in zip(f.tracks, agrees):
+            s = self.owner.get(e.track)
+            if s is not None and not ok:
                 self._leave(f.region, e.track)
                 s = None
             if s is None:
                 unowned.append(e)
         self._associate(f.region, unowned)
-        touched: dict[str, SystemTrack] = {}
-        for e in f.tracks:
-            s = self.owner.get(e.track)
-            if s is not None and s.id not in touched:
-                touched[s.id] = s
-                s.last = self._fuse(s)
-        for s in self._review(list(touched.values())):
-            touched[s.id] = s
-        return [s.last for s in touched.values() if s.id in self.tracks]
+        touched = list({s.id: s for s in (self.owner.get(e.track) for e in f.tracks) if s is not None}.values())
+        self._fuse(touched)
+        merged = {s.id: s for s in self._review(touched)}
+        out = {s.id: s for s in touched}
+        out.update(merged)
+        return [s.last for s in out.values() if s.id in self.tracks]
 
     # -- association -----------------------------------------------------------------------
-    def _at(self, e: Estimate, t: float) -> tuple[np.ndarray, np.ndarray]:
-        """``e`` predicted to ``t ≥ e.t``."""
-        if t == e.t:
-            return e.x, e.P
-        F, Q = self.motion.F(t - e.t), self.motion.Q(t - e.t)
-        return F @ e.x, F @ e.P @ F.T + Q
+    def _predict(self, es: Sequence[Estimate], t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Each ``es[k]`` predicted to ``t[k] ≥ es[k].t`` (itself where the times are equal),
+        stacked."""
+        x, P = np.array([e.x for e in es]), np.array([e.P for e in es])
+        dt = t - np.array([e.t for e in es])
+        move = np.flatnonzero(dt != 0)
+        if len(move):
+            F, Q = _transitions(self.motion, dt[move])
+            x[move] = np.einsum("kij,kj->ki", F, x[move])
+            P[move] = F @ P[move] @ np.swapaxes(F, -1, -2) + Q
+        return x, P
 
-    def _distance2(self, a: Estimate, b: Estimate) -> float:
-        """The track-to-track ``d²`` of two estimates at the later time; ``inf`` outside
-        the gate of its rank."""
-        t = max(a.t, b.t)
-        (xa, Pa), (xb, Pb) = self._at(a, t), self._at(b, t)
-        d2, rank = track_distance2(xa, Pa, xb, Pb, dims=_COMPARED)
-        return d2 if not rank or d2 <= gate_threshold(rank, self.gate_prob) else np.inf
-
-    def _agrees(self, e: Estimate, s: SystemTrack) -> bool:
-        """Whether ``e`` stays associated: in the gate of one of its system track's other
-        members (trivially, if it has none)."""
-        others = [self.latest[rid] for rid in s.members.values() if rid != e.track]
-        return not others or any(np.isfinite(self._distance2(e, o)) for o in others)
+    def _distances2(self, a: Sequence[Estimate], b: Sequence[Estimate]) -> np.ndarray:
+        """The track-to-track ``d²`` of each pair ``(a[k], b[k])`` at the later of their
+        times (:func:`~fusion.tracking.hypotheses.track_distance2` on position and
+        velocity, for all pairs at once); ``inf`` outside the gate of its rank."""
+        if not len(a):
+            return np.zeros(0)
+        t = np.maximum([e.t for e in a], [e.t for e in b])
+        (xa, Pa), (xb, Pb) = self._predict(a, t), self._predict(b, t)
+        d = (xa - xb)[:, _COMPARED]
+        T = (Pa + Pb)[:, _COMPARED[:, None], _COMPARED[None, :]]
+        sd = np.sqrt(np.clip(np.diagonal(T, axis1=-2, axis2=-1), 0.0, None))
+        sd = np.where(sd > 1e-300, sd, 1.0)
+        w, V = np.linalg.eigh(0.5 * (T + np.swapaxes(T, -1, -2)) / sd[:, :, None] / sd[:, None, :])
+        keep = w > _PINV_RTOL * np.maximum(np.max(w, axis=-1, initial=0.0), 1e-300)[:, None]
+        y = np.einsum("kji,kj->ki", V, d / sd)
+        d2 = np.sum(np.where(keep, y * y / np.where(keep, w, 1.0), 0.0), axis=-1)
+        rank = keep.sum(axis=-1)
+        limit = np.array([gate_threshold(int(r), self.gate_prob) if r else np.inf for r in range(len(_COMPARED) + 1)])
+        return np.where((rank == 0) | (d2 <= limit[rank]), d2, np.inf)
 
     def _associate(self, region: str, unowned: list[Estimate]) -> None:
         """GNN of a region's regional tracks without a system track to the system tracks
@@ -284,23 +487,23 @@ class SystemFuser:
         region is responsible for it (:meth:`_responsible`) and no system track holding
         another region's track is in its gate (else it is a duplicate of that one's
         aircraft, its region's second track there), and otherwise waits. The pairs are
-        screened first: only those whose horizontal positions, extrapolated to the later
-        time, lie within the gate's radius of their summed horizontal spread (plus
-        :data:`SCREEN_SLACK_M` for the growth of that spread over the extrapolation) get
-        the χ² of :meth:`_distance2`."""
+        screened first (:meth:`_Rows.near`): only those whose horizontal positions,
+        extrapolated to the later time, lie within the gate's radius of their summed
+        horizontal spread (plus :data:`SCREEN_SLACK_M` for the growth of that spread over
+        the extrapolation) get the χ² of :meth:`_distances2`."""
         if not unowned:
             return
-        near = [s for s in self.tracks.values() if s.last is not None and set(s.members) - {region}]
-        free = [j for j, s in enumerate(near) if region not in s.members]
+        rows, bit = self._rows, self._rows.mask([region])
         gate = gate_threshold(len(_COMPARED), self.gate_prob)
-        d2 = np.full((len(unowned), len(near)), np.inf)
-        if near:
-            for i, j in zip(*_screen(unowned, [s.last for s in near], gate)):
-                d2[i, j] = self._distance2(unowned[i], near[j].last)
-        taken = {i: free[j] for i, j in gnn(d2[:, free], gate)} if free else {}
+        i, j = rows.near(unowned, gate, (rows.held & ~bit) != 0)
+        cols, j = np.unique(j, return_inverse=True)
+        d2 = np.full((len(unowned), len(cols)), np.inf)
+        d2[i, j] = self._distances2([unowned[k] for k in i], [rows.tracks[r].last for r in cols[j]])
+        free = np.flatnonzero((rows.held[cols] & bit) == 0)
+        taken = {i: int(cols[free[j]]) for i, j in gnn(d2[:, free], gate)} if len(free) else {}
         for i, e in enumerate(unowned):
             if i in taken:
-                s = near[taken[i]]
+                s = rows.tracks[taken[i]]
             elif e.track not in self.absorbed and self._responsible(region, e) and not np.isfinite(d2[i]).any():
                 s = SystemTrack(self.ids.next())
                 self.tracks[s.id] = s
@@ -308,6 +511,7 @@ class SystemFuser:
                 continue  # it waits to join (tried again each frame)
             s.members[region] = e.track
             self.owner[e.track] = s
+            rows.put(s)
 
     def _responsible(self, region: str, e: Estimate) -> bool:
         """Whether ``region``'s track ``e`` may start a system track: it is over the
@@ -328,31 +532,42 @@ class SystemFuser:
             del s.members[region]
         if not s.members:
             del self.tracks[s.id]
+            self._rows.remove(s)
             self._streak = {k: n for k, n in self._streak.items() if s.id not in k} if self._streak else self._streak
+        else:
+            self._rows.put(s)
 
     # -- review (step 4) ---------------------------------------------------------------------
     def _review(self, touched: list[SystemTrack]) -> list[SystemTrack]:
         """Each system track just re-fused against the system tracks near it (screened
-        as in :meth:`_associate`): a pair, one of them held by two regions or more, in
-        the gate of :meth:`_distance2` adds a look to its streak if it is at a later time
-        than the streak's last (several regions' frames of one time are one look), out
-        of it ends the streak; at ``merge_frames`` looks the younger is merged into the
-        older (:meth:`_merge`). Returns the system tracks that took members."""
+        as in :meth:`_associate`; the χ² only where one of the two is held by two regions
+        or more, for all such pairs at once): a pair in the gate of :meth:`_distances2`
+        adds a look to its streak if it is at a later time than the streak's last
+        (several regions' frames of one time are one look), out of it ends the streak; at
+        ``merge_frames`` looks the younger is merged into the older (:meth:`_merge`).
+        Returns the system tracks that took members."""
         if not self.merge_frames or not touched:
             return []
-        others = [s for s in self.tracks.values() if s.last is not None]
+        rows = self._rows
         gate = gate_threshold(len(_COMPARED), self.gate_prob)
+        i, j = rows.near([s.last for s in touched], gate, rows.held != 0)
+        pairs = [(touched[a], rows.tracks[b]) for a, b in zip(i, j)]
+        scored = [k for k, (a, b) in enumerate(pairs) if a is not b and self._reviewed(a, b)]
+        d2 = np.full(len(pairs), np.nan)
+        d2[scored] = self._distances2([pairs[k][0].last for k in scored], [pairs[k][1].last for k in scored])
         looked: set[tuple[str, str]] = set()
         merged: list[SystemTrack] = []
-        for i, j in zip(*_screen([s.last for s in touched], [o.last for o in others], gate)):
-            a, b = touched[i], others[j]
-            if a is b or not (a.regional() or b.regional()):
+        changed: set[str] = set()  # merged into in this review: a new estimate, new members
+        for (a, b), d in zip(pairs, d2):
+            if a is b or not self._reviewed(a, b):
                 continue
             key = (a.id, b.id) if self.ids.number(a.id) < self.ids.number(b.id) else (b.id, a.id)
             if key in looked or key[0] not in self.tracks or key[1] not in self.tracks:
                 continue
             looked.add(key)
-            if not np.isfinite(self._distance2(a.last, b.last)):
+            if np.isnan(d) or a.id in changed or b.id in changed:
+                d = self._distances2([a.last], [b.last])[0]
+            if not np.isfinite(d):
                 self._streak.pop(key, None)
                 continue
             n, t = self._streak.get(key, (0, -math.inf))
@@ -360,7 +575,16 @@ class SystemFuser:
             self._streak[key] = n, t = (n + 1, now) if now > t else (n, t)
             if n >= self.merge_frames:
                 merged.append(self._merge(self.tracks[key[0]], self.tracks[key[1]]))
+                changed.add(key[0])
         return merged
+
+    @staticmethod
+    def _reviewed(a: SystemTrack, b: SystemTrack) -> bool:
+        """Whether step 6 reviews a pair: one of them held by two regions or more, or the
+        two held by different regions (two regions' tracks of one aircraft that the join
+        missed — one born out of the other's gate — which no region's tracker sees
+        together). Two system tracks of one region alone are its tracker's to review."""
+        return a.regional() or b.regional() or not a.members.keys() & b.members.keys()
 
     def _merge(self, keep: SystemTrack, gone: SystemTrack) -> SystemTrack:
         """``gone``'s members join ``keep`` where it holds no track of their region, the
@@ -373,24 +597,46 @@ class SystemFuser:
                 keep.members[region] = rid
                 self.owner[rid] = keep
         del self.tracks[gone.id]
+        self._rows.remove(gone)
         self._streak = {k: n for k, n in self._streak.items() if gone.id not in k}
-        keep.last = self._fuse(keep)
+        self._fuse([keep])
         return keep
 
     # -- fusion ----------------------------------------------------------------------------
-    def _fuse(self, s: SystemTrack) -> Estimate:
-        """The members' estimates predicted to the latest of their times and fused."""
-        members = [self.latest[rid] for rid in s.members.values()]
-        t = max(e.t for e in members)
-        states = [self._at(e, t) for e in members]
-        if self.rule == "naive" and len(states) > 1:
-            x, P = fuse_naive([x for x, _ in states], [P for _, P in states])
-        else:  # CI folded pairwise, most certain first: each step's ω in closed form
-            states.sort(key=lambda s: float(np.trace(s[1][:3, :3])))
-            x, P = states[0]
-            for xi, Pi in states[1:]:
-                x, P, _ = fuse_ci([x, xi], [P, Pi], self.ci_criterion)
-        return Estimate(t, x, P, self.name, "centre", s.id)
+    def _fuse(self, tracks: Sequence[SystemTrack]) -> None:
+        """Each track's members' estimates predicted to the latest of their times and
+        fused (its ``last``): CI folded pairwise, most certain first (each step's ω in
+        closed form, :func:`_ci_pairs`), the ``k``-th step of every track with more than
+        ``k`` members together. A track with one member is that member's estimate."""
+        several = []
+        for s in tracks:
+            if len(s.members) == 1:
+                e = self.latest[next(iter(s.members.values()))]
+                s.last = Estimate(e.t, e.x, e.P, self.name, "centre", s.id)
+                self._rows.put(s)
+            else:
+                several.append(s)
+        if not several:
+            return
+        members = [[self.latest[rid] for rid in s.members.values()] for s in several]
+        n = np.array([len(m) for m in members])
+        t = np.array([max(e.t for e in m) for m in members])
+        xs, Ps = self._predict([e for m in members for e in m], np.repeat(t, n))
+        ends = np.cumsum(n)
+        if self.rule == "naive":
+            fused = [fuse_naive(list(xs[e - k:e]), list(Ps[e - k:e])) for k, e in zip(n, ends)]
+            x, P = np.array([f[0] for f in fused]), np.array([f[1] for f in fused])
+        else:  # CI folded pairwise, most certain first (by the trace of the position block; ties in order)
+            size = np.trace(Ps[:, :3, :3], axis1=-2, axis2=-1)
+            order = [e - k + np.argsort(size[e - k:e], kind="stable") for k, e in zip(n, ends)]
+            x, P = xs[[o[0] for o in order]], Ps[[o[0] for o in order]]
+            for k in range(1, int(n.max())):
+                fold = np.flatnonzero(n > k)
+                nxt = [order[i][k] for i in fold]
+                x[fold], P[fold] = _ci_pairs(x[fold], P[fold], xs[nxt], Ps[nxt], self.ci_criterion)
+        for s, tk, xk, Pk in zip(several, t, x, P):
+            s.last = Estimate(float(tk), xk.copy(), Pk.copy(), self.name, "centre", s.id)
+            self._rows.put(s)
 
 
 class RegionalMethod:

@@ -12,9 +12,12 @@ import pytest
 
 from fusion.methods import make_method, method_config
 from fusion.metrics import chi2_bounds
-from fusion.motion import ConstantVelocity
-from fusion.regional import SCREEN_SLACK_M, RegionalFrame, RegionalMethod, SystemFuser, _screen
+from fusion.motion import ConstantAcceleration, ConstantTurn, ConstantVelocity
+from fusion.regional import (SCREEN_SLACK_M, RegionalFrame, RegionalMethod, SystemFuser, SystemTrack, _ci_pairs, _Rows,
+                             _transitions)
 from fusion.regions import Region, box_polygon
+from fusion.track_fusion import fuse_ci
+from fusion.tracking.hypotheses import gate_threshold, track_distance2
 from fusion.types import Estimate
 from sensors_sim import load_scenario, truth_trajectory
 from services.evaluation import merged_measurements, run_method
@@ -200,10 +203,35 @@ def test_two_system_tracks_on_one_aircraft_merge_into_the_older():
         assert [e.track for e in out] == ["T1", "T2"]
 
 
+def test_two_regions_tracks_of_one_aircraft_the_join_missed_merge():
+    """An east track born 1.5 km off the west track of the same aircraft (out of the gate:
+    it starts its own system track, over east) and then 100 m off: the two system tracks,
+    held by one region each but different ones, are merged after merge_frames looks, the
+    east track joining the older; two tracks of one region are not (its tracker's)."""
+    regions = {"west": Region("west", box_polygon(-60e3, -60e3, 0.0, 60e3), 8e3, ("w",)),
+               "east": Region("east", box_polygon(0.0, -60e3, 60e3, 60e3), 8e3, ("e",))}
+    P = np.diag([100.0, 100.0, 100.0, 10.0, 10.0, 10.0]) ** 2
+
+    def est(region, track, e, t):
+        return Estimate(t, np.array([e + 200.0 * t, 0.0, 6000.0, 200.0, 0.0, 0.0]), P, "SS", region,
+                        f"{region}.{track}")
+
+    system = SystemFuser("SS", ConstantVelocity(1.0), 0.999, "ci", regions=regions, merge_frames=3)
+    for t, off in {0.0: 1500.0, 1.0: 100.0, 2.0: 100.0, 3.0: 100.0, 4.0: 100.0}.items():
+        system.frame(RegionalFrame("west", t, (est("west", "T1", -1000.0, t),)))
+        system.frame(RegionalFrame("east", t, (est("east", "T1", -1000.0 + off, t),)))
+        if t == 0.0:
+            assert {k: s.members for k, s in system.tracks.items()} == {"T1": {"west": "west.T1"},
+                                                                         "T2": {"east": "east.T1"}}
+    assert {k: s.members for k, s in system.tracks.items()} == {"T1": {"west": "west.T1", "east": "east.T1"}}
+
+
 def test_the_screen_finds_the_pairs_of_the_test_over_every_pair():
-    """The system fuser's screen (a k-d tree's candidates, then the test) finds exactly
-    the pairs the test over every pair finds: tracks spread over 60 km, spreads from 50 m
-    to 3 km, times over 12 s, 200 random draws, a few thousand pairs in all."""
+    """The system fuser's screen (two k-d trees' candidates, over the rows unchanged since
+    the big one was built and over those written since, then the test) finds exactly the
+    pairs the test over every pair finds, among the rows asked for and not deleted:
+    tracks spread over 60 km, spreads from 50 m to 3 km, times over 12 s, rows rewritten
+    and deleted between builds, 200 random draws, a few thousand pairs in all."""
     rng = np.random.default_rng(3)
     gate, found = 22.46, 0
 
@@ -217,13 +245,97 @@ def test_the_screen_finds_the_pairs_of_the_test_over_every_pair():
         return out
 
     for _ in range(200):
-        a, b = draw(int(rng.integers(1, 30))), draw(int(rng.integers(1, 60)))
+        rows = _Rows(["west", "east"])
+        tracks = [SystemTrack(f"T{k}", {"west": "w"}, e) for k, e in enumerate(draw(int(rng.integers(1, 60))))]
+        for s in tracks:
+            rows.put(s)
+        if rng.uniform() < 0.7:
+            rows._build()
+        for s in rng.choice(tracks, len(tracks) // 3):  # rewritten since the build
+            s.last = draw(1)[0]
+            rows.put(s)
+        for s in rng.choice(tracks, len(tracks) // 5):  # deleted
+            rows.remove(s)
+        a = draw(int(rng.integers(1, 30)))
+        eligible = rng.uniform(size=len(rows.held)) < 0.8
+        i, j = rows.near(a, gate, eligible)
+        live = [k for k, s in enumerate(rows.tracks) if s is not None and s.id in rows.row and eligible[k]]
+        if not live:
+            assert len(i) == len(j) == 0
+            continue
+        b = [rows.tracks[k].last for k in live]
         t = np.maximum.outer([e.t for e in a], [e.t for e in b])
-        pos = [np.array([e.x[:2] + e.x[3:5] * (t[i, j] - e.t) for j in range(len(b))]) for i, e in enumerate(a)]
-        other = np.array([[f.x[:2] + f.x[3:5] * (t[i, j] - f.t) for j, f in enumerate(b)] for i in range(len(a))])
+        pos = np.array([[e.x[:2] + e.x[3:5] * (t[i_, j_] - e.t) for j_ in range(len(b))] for i_, e in enumerate(a)])
+        other = np.array([[f.x[:2] + f.x[3:5] * (t[i_, j_] - f.t) for j_, f in enumerate(b)] for i_ in range(len(a))])
         spread = np.add.outer([e.P[0, 0] + e.P[1, 1] for e in a], [f.P[0, 0] + f.P[1, 1] for f in b])
-        every = np.linalg.norm(np.array(pos) - other, axis=-1) <= np.sqrt(gate * spread) + SCREEN_SLACK_M
-        i, j = _screen(a, b, gate)
-        np.testing.assert_array_equal(np.stack([i, j]), np.stack(np.nonzero(every)))
+        every = np.linalg.norm(pos - other, axis=-1) <= np.sqrt(gate * spread) + SCREEN_SLACK_M
+        ei, ej = np.nonzero(every.reshape(len(a), len(b)))
+        np.testing.assert_array_equal(np.stack([i, j]), np.stack([ei, np.array(live, dtype=int)[ej]]))
         found += len(i)
     assert found > 1000
+
+
+@pytest.mark.parametrize("motion", [ConstantVelocity(1.0), ConstantAcceleration(0.5),
+                                    ConstantAcceleration(2.0, "discrete"), ConstantVelocity(3.0, "discrete", q_up=0.1),
+                                    ConstantTurn(0.02, 1.0)])
+def test_the_batched_transitions_are_the_models_own(motion):
+    """F(dt), Q(dt) for many dt at once (the polynomial models' blocks evaluated together;
+    any other model through its own F and Q) equal the model's F and Q, dt = 0 included."""
+    dt = np.array([0.0, 0.37, 4.0, 12.5, 4.0])
+    F, Q = _transitions(motion, dt)
+    for k, d in enumerate(dt):
+        np.testing.assert_allclose(F[k], motion.F(d), rtol=1e-13, atol=1e-13)
+        np.testing.assert_allclose(Q[k], motion.Q(d), rtol=1e-13, atol=1e-13)
+
+
+def _spd(rng, n, scale):
+    A = rng.normal(size=(n, n)) * scale
+    return A @ A.T + np.diag(scale ** 2)
+
+
+def test_the_batched_track_distances_are_track_distance2():
+    """The system fuser's d² of many pairs at once equals track_distance2 of each pair
+    predicted (with the model's F, Q) to the later of its times on position and velocity,
+    and is inf exactly where that is beyond the gate of its rank."""
+    rng = np.random.default_rng(5)
+    motion = ConstantAcceleration(0.5)
+    system = SystemFuser("SS", motion, 0.999)
+    scale = np.array([300.0, 300.0, 300.0, 20.0, 20.0, 20.0, 2.0, 2.0, 2.0])
+    a, b = [], []
+    for k in range(200):
+        x = rng.normal(size=9) * scale
+        a.append(Estimate(float(rng.uniform(0, 6)), x, _spd(rng, 9, scale), "SS", "w", "w.T1"))
+        b.append(Estimate(float(rng.uniform(0, 6)), x + rng.normal(size=9) * scale * rng.uniform(0.5, 15.0),
+                          _spd(rng, 9, scale), "SS", "e", "e.T1"))
+    got = system._distances2(a, b)
+    inside = 0
+    for e, f, d in zip(a, b, got):
+        t = max(e.t, f.t)
+        FQ = [(motion.F(t - g.t), motion.Q(t - g.t)) for g in (e, f)]
+        (xa, Pa), (xb, Pb) = ((g.x, g.P) if g.t == t else (F @ g.x, F @ g.P @ F.T + Q)
+                              for g, (F, Q) in zip((e, f), FQ))
+        d2, rank = track_distance2(xa, Pa, xb, Pb, dims=np.arange(6))
+        if d2 <= gate_threshold(rank, 0.999):
+            inside += 1
+            assert d == pytest.approx(d2, rel=1e-9)
+        else:
+            assert d == np.inf
+    assert 20 < inside < 180
+
+
+@pytest.mark.parametrize("criterion", ["trace", "det"])
+def test_the_batched_covariance_intersection_is_fuse_ci(criterion):
+    """CI of many pairs at once (ω from the pencil's eigenvalues and Newton steps) equals
+    fuse_ci pair by pair, ω inside (0, 1) and at its ends, and equal covariances."""
+    rng = np.random.default_rng(7)
+    scale = np.array([300.0, 300.0, 300.0, 20.0, 20.0, 20.0, 2.0, 2.0, 2.0])
+    P1 = np.array([_spd(rng, 9, scale * rng.uniform(0.3, 3.0)) for _ in range(60)])
+    P2 = np.array([_spd(rng, 9, scale * rng.uniform(0.3, 3.0)) for _ in range(60)])
+    P2[:5] = P1[:5] * 100.0  # one far more certain: ω = 1
+    P2[5] = P1[5]
+    x1, x2 = rng.normal(size=(60, 9)) * scale, rng.normal(size=(60, 9)) * scale
+    x, P = _ci_pairs(x1, P1, x2, P2, criterion)
+    for k in range(60):
+        xr, Pr, w = fuse_ci([x1[k], x2[k]], [P1[k], P2[k]], criterion)
+        np.testing.assert_allclose(x[k], xr, rtol=1e-9, atol=1e-9 * np.max(np.abs(xr)))
+        np.testing.assert_allclose(P[k], Pr, rtol=1e-9, atol=1e-9 * np.max(np.abs(Pr)))
