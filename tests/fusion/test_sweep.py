@@ -310,3 +310,30 @@ def test_the_clutter_density_is_the_left_plots_over_the_swept_measurement_volume
                 for a, e in ((0.1, 0.05), (2.0, 0.45), (-1.0, 0.25))]
         staring.see(scan, scan[:2])
     assert math.exp(staring.log_density(scan[0])) == pytest.approx(20 / (10 * 2 * math.pi * 0.4))
+
+
+def test_the_false_plot_density_counts_no_plot_in_a_gate_nor_one_that_started_a_confirmed_track(monkeypatch):
+    """The false-plot density's count (module docstring, 6.): a plot no track took but
+    inside a track's gate (a target's, which a neighbour's track took) is not counted; a
+    plot counted when it started a track is uncounted when that track is confirmed (it
+    was a target's); a plot far from every track is counted."""
+    sc = load_scenario(str(ROTATING))
+    tracker = make_method("SS", method_config(_method(sc, revisit_s=6.0, pair_tol=0.25).tracker, "SS")).tracker
+    monkeypatch.setattr(sweep, "confirm_threshold", lambda: -math.inf)  # confirmed once two sensors, one with height
+    aircraft = np.array([20000.0, 5000.0, 4000.0])
+
+    def plot(sensor, site, t, seq, off=(0.0, 0.0, 0.0)):
+        d = aircraft + np.asarray(off) - np.asarray(site, float)
+        z = [math.atan2(d[0], d[1]) % (2 * math.pi), math.atan2(d[2], math.hypot(d[0], d[1])), np.linalg.norm(d)]
+        return Measurement(t, sensor, "az_el_range", np.array(z), np.array([math.radians(0.3), math.radians(0.3), 100.0]),
+                           tuple(site), seq=seq)
+
+    a, b = (30000.0, 0.0, 0.0), (0.0, -20000.0, 0.0)
+    tracker.frame([plot("a", a, 1.0, 0)])
+    assert len(tracker.table.tracks) == 1 and not tracker.table.tracks[0].confirmed
+    assert tracker.clutter.seen["a"].left == 1  # far from every track when it came
+    tracker.frame([plot("b", b, 1.5, 1), plot("b", b, 1.5, 2, off=(150.0, 0.0, 0.0)),
+                   plot("b", b, 1.5, 3, off=(-60000.0, 10000.0, 0.0))])
+    assert tracker.table.tracks[0].confirmed
+    assert tracker.clutter.seen["b"].left == 1  # the far plot: not the one in the track's gate
+    assert tracker.clutter.seen["a"].left == 0  # it started the track now confirmed
