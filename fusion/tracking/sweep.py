@@ -54,6 +54,20 @@ changes (switched on by ``revisit_s`` in ``[tracker]``):
    hit it (one angle sensor's plots do not fix a range). A plot at the edge of a wide
    gate, as a false plot in a young track's gate is, scores below zero; an aircraft's
    plot on a settled track, ``ln(P_D/(λ √|2πS|))`` ≈ 5–10 (docs/results/region-400.md).
+6. **false plots only in λ**: a plot no track took is not counted if it is inside a
+   track's gate (a target's, which a neighbour's track took), and one that started a
+   track is uncounted when that track is confirmed (a target's). Counted, the plots of
+   aircraft not yet tracked (every aircraft at a run's start) raised ``λ`` several times
+   (``region-4000``, first minute: the 3D radars' left plots 4.9 times their false
+   plots) and slowed every confirmation. The plots of aircraft that no track is near
+   yet are still counted (docs/results/region-4000.md).
+7. **a second range**: a track is confirmed only once a plot measuring range has hit it
+   besides the one it started from (a radar's next look, or one gathered at its birth).
+   A 2D radar plot and an angle plot pair wherever the ray crosses the range sphere at
+   the radar's azimuth, a coincidence in one dimension that a dense picture offers at
+   every frame; the angle sensor's next plots, on the same ray, scored it above Wald's
+   threshold at once (the first 60 s of ``region-4000``: 12 of its 29 false tracks, on
+   an aircraft's ray kilometres from it, while that aircraft's own track held it).
 
 A frame reports the confirmed tracks it updated or confirmed (the others' estimates have
 not changed). No duplicate review: few false tracks are near an aircraft another track
@@ -106,6 +120,8 @@ class SweepLogic:
     repeated: bool = False  # whether a sensor has hit it on two of its looks
     born: float | None = None  # its birth's time (``last_hit`` at birth if None)
     llr: float | None = None  # its score (module docstring, 5.); None: confirmed by counting hits
+    counted: tuple = ()  # the sensors of its birth's plots that the false-plot density counted (6.)
+    ranged: bool = False  # whether a plot measuring range has hit it besides the one it started from (7.)
     #: no existence probability (the protocol of a track's logic, fusion.tracking.table.Track)
     existence = None
 
@@ -121,15 +137,15 @@ class SweepLogic:
         if self.status != TENTATIVE or not self.elevation:
             return
         if self.llr is not None:
-            if self.llr >= confirm_threshold() and len(self.sensors) >= 2:
+            if self.llr >= confirm_threshold() and len(self.sensors) >= 2 and self.ranged:
                 self.status = CONFIRMED
         elif self.hits >= self.rule.confirm_m and len(self.sensors) >= 2 and self.repeated:
             self.status = CONFIRMED
 
     def record(self, hit: bool, P_pos: np.ndarray | None = None, t: float | None = None,
-               sensors=(), elevation: bool = False, score: float = 0.0) -> str:
+               sensors=(), elevation: bool = False, score: float = 0.0, ranged: bool = False) -> str:
         """``score``: the hit's plots' log-likelihood ratio (module docstring, 5.), added
-        to ``llr`` when it is kept."""
+        to ``llr`` when it is kept; ``ranged``: whether a plot of the hit measures range."""
         if self.status == DELETED:
             raise ValueError("a deleted track records no more frames")
         t = self.last_hit if t is None else t
@@ -142,6 +158,7 @@ class SweepLogic:
             self.last_hit = max(self.last_hit, t)
             self.sensors = self.sensors | frozenset(sensors)
             self.elevation = self.elevation or elevation
+            self.ranged = self.ranged or ranged
             if self.llr is not None:
                 self.llr += score
             self._confirm()
@@ -184,7 +201,8 @@ MIN_SPAN = {EL: math.radians(10.0), RANGE: 10_000.0}
 
 class ClutterDensity:
     r"""Each sensor's false-plot density ``λ`` in its measurement space, per look, from
-    its plots no track took (module docstring, 5.):
+    its plots no track took (module docstring, 5., 6.: :meth:`see`'s ``left``, less what
+    :meth:`unsee` takes back):
 
     ``λ = n_left / (T · ω · Π spans)``, with ``T`` the time its plots span, ``ω`` the
     azimuth it sweeps per second — a rotating radar's from its plots' times and azimuths
@@ -196,9 +214,14 @@ class ClutterDensity:
 
     def __init__(self):
         self.seen: dict[str, _Seen] = {}
+        self.counted: set = set()  # the order keys of the plots counted since :meth:`start_frame`
+
+    def start_frame(self) -> None:
+        self.counted = set()
 
     def see(self, scan: Sequence, left: Sequence) -> None:
         """A scan (one sensor's plots of a frame) and those of them no track took."""
+        self.counted.update(m.order_key for m in left)
         first = scan[0]
         s = self.seen.get(first.sensor)
         comps = KINDS[first.kind].components
@@ -216,6 +239,12 @@ class ClutterDensity:
             if b.t > a.t:
                 s.swept += abs(float(wrap_pi(b.z[k] - a.z[k])))
                 s.swept_t += b.t - a.t
+
+    def unsee(self, sensors: Sequence[str]) -> None:
+        """A plot of each of ``sensors`` that was counted was a target's after all (it
+        started a track that was confirmed)."""
+        for sensor in sensors:
+            self.seen[sensor].left -= 1
 
     def log_density(self, plot) -> float:
         """``ln λ`` of the plot's sensor (``inf``: not seen yet, so no plot of it scores)."""
@@ -401,6 +430,7 @@ class SweepTracker(MultiTargetTracker):
         frame = Frame(plots)
         t_end = plots[-1].t
         tracks = list(self.table.tracks)
+        self.clutter.start_frame()
         taken, left = self.associate(tracks, frame)
         continued, births = self.initiator.initiate(left, tracks, frame)
         births = [g for g in births if starts_alone(g)]
@@ -416,14 +446,20 @@ class SweepTracker(MultiTargetTracker):
             hit = bool(plots_i) and scores_hit([m.kind for m in {m.sensor: m for m in plots_i}.values()],
                                                track.confirmed, 1)
             track.logic.record(hit, track.filter.P[:3, :3] if plots_i else None, t_end, {m.sensor for m in plots_i},
-                               any(_measures_el(m) for m in plots_i), score)
+                               any(_measures(m, EL) for m in plots_i), score, any(_measures(m, RANGE) for m in plots_i))
+            if track.confirmed and not was:
+                self.clutter.unsee(track.logic.counted)
             if plots_i or (track.confirmed and not was):
                 changed.add(id(track))
         for group in births:
             track, score = self.start(group)
             first, more = group[0], group[1]
             track.logic = SweepLogic(self.rule, self.revisit_s, track.last.t, frozenset(m.sensor for m in (*first, *more)),
-                                     any(_measures_el(m) for m in (*first, *more)), llr=score)
+                                     any(_measures(m, EL) for m in (*first, *more)), llr=score,
+                                     ranged=any(_measures(m, RANGE) for m in more),
+                                     counted=tuple(m.sensor for m in (*first, *more) if m.order_key in self.clutter.counted))
+            if track.confirmed:
+                self.clutter.unsee(track.logic.counted)
             self.table.add(track)
             track.claim(initial_plots(group))
             changed.add(id(track))
@@ -454,7 +490,8 @@ class SweepTracker(MultiTargetTracker):
                 taken[rows[r]].append(Taken(tuple(scan[c] for c in cols), tuple(d2[r, list(cols)]), beta, miss))
             used = association.used
             unused = [scan[c] for c in range(len(scan)) if c not in used]
-            self.clutter.see(scan, unused)
+            gated = (d2 <= gate).any(axis=0)  # a target's, which a neighbour's track took
+            self.clutter.see(scan, [scan[c] for c in range(len(scan)) if c not in used and not gated[c]])
             left += unused
         return taken, left
 
@@ -544,7 +581,8 @@ def starts_alone(group) -> bool:
     return len(first) > 1 or KINDS[first[0].kind].start != SPHERE
 
 
-def _measures_el(m) -> bool:
-    """Whether a plot fixes its target's height: it measures elevation, or is a position."""
+def _measures(m, component) -> bool:
+    """Whether a plot fixes its target's ``component`` (``EL``: its height, ``RANGE``: its
+    range from the site): it measures it, or is a position."""
     kind = KINDS[m.kind]
-    return EL in kind.components or not kind.sited
+    return component in kind.components or not kind.sited

@@ -261,11 +261,13 @@ def test_the_track_score_is_the_sum_of_its_plots_log_likelihood_ratios_confirmed
     """With a score, a track's llr is its birth's plus each kept hit's (a miss adds
     nothing), and it is confirmed at the first hit that takes the sum to ln(1/α), once a
     plot measuring elevation has hit it and two sensors have (one angle sensor's plots do
-    not fix a range); a plot's term is ln(P_D N(ν; 0, S) / λ)."""
+    not fix a range) and a plot measuring range has, besides the one it started from (a
+    ray's pairing with a range sphere is a coincidence in one dimension that the angle
+    sensor's next plots on the ray do not test); a plot's term is ln(P_D N(ν; 0, S) / λ)."""
     threshold = math.log(1.0 / sweep.FALSE_CONFIRM_PROB)
     assert sweep.confirm_threshold() == pytest.approx(threshold)
     terms = [0.25 * threshold, 0.5 * threshold, -0.1 * threshold, 0.4 * threshold]
-    logic = SweepLogic(RULE, 4.0, 0.0, frozenset({"a", "b"}), llr=0.1 * threshold)
+    logic = SweepLogic(RULE, 4.0, 0.0, frozenset({"a", "b"}), llr=0.1 * threshold, ranged=True)
     total = 0.1 * threshold
     for k, (t, term) in enumerate(zip((0.5, 1.0, 1.5, 2.0), terms)):
         assert logic.record(False, None, t - 0.1, score=99.0) == TENTATIVE  # a miss: not counted
@@ -273,12 +275,16 @@ def test_the_track_score_is_the_sum_of_its_plots_log_likelihood_ratios_confirmed
         total += term
         assert logic.llr == pytest.approx(total)
         assert status == (CONFIRMED if k == 3 else TENTATIVE)  # 0.85, 0.75 below; 1.15 above
-    flat = SweepLogic(RULE, 4.0, 0.0, frozenset({"a"}), elevation=False, llr=0.0)
+    flat = SweepLogic(RULE, 4.0, 0.0, frozenset({"a"}), elevation=False, llr=0.0, ranged=True)
     assert flat.record(True, None, 1.0, {"b"}, score=2 * threshold) == TENTATIVE  # no height yet
     assert flat.record(True, None, 2.0, {"c"}, elevation=True, score=0.0) == CONFIRMED
-    alone = SweepLogic(RULE, 4.0, 0.0, frozenset({"a"}), llr=0.0)
+    alone = SweepLogic(RULE, 4.0, 0.0, frozenset({"a"}), llr=0.0, ranged=True)
     assert alone.record(True, None, 1.0, {"a"}, elevation=True, score=2 * threshold) == TENTATIVE
     assert alone.record(True, None, 2.0, {"b"}, score=0.0) == CONFIRMED
+    ray = SweepLogic(RULE, 4.0, 0.0, frozenset({"radar", "eo"}), llr=0.0)  # a 2D radar plot and an angle plot paired
+    assert ray.record(True, None, 1.0, {"eo"}, elevation=True, score=2 * threshold) == TENTATIVE  # on the same ray
+    assert ray.record(True, None, 2.0, {"eo"}, elevation=True, score=2 * threshold) == TENTATIVE
+    assert ray.record(True, None, 3.0, {"radar"}, score=0.0, ranged=True) == CONFIRMED  # its range seen again
     nu, S, lam = np.array([0.01, -30.0]), np.array([[1e-4, 0.1], [0.1, 900.0]]), 1e-5
     log_lik = multivariate_normal(np.zeros(2), S).logpdf(nu)
     assert sweep.plot_score(log_lik, math.log(lam)) == pytest.approx(
@@ -310,3 +316,30 @@ def test_the_clutter_density_is_the_left_plots_over_the_swept_measurement_volume
                 for a, e in ((0.1, 0.05), (2.0, 0.45), (-1.0, 0.25))]
         staring.see(scan, scan[:2])
     assert math.exp(staring.log_density(scan[0])) == pytest.approx(20 / (10 * 2 * math.pi * 0.4))
+
+
+def test_the_false_plot_density_counts_no_plot_in_a_gate_nor_one_that_started_a_confirmed_track(monkeypatch):
+    """The false-plot density's count (module docstring, 6.): a plot no track took but
+    inside a track's gate (a target's, which a neighbour's track took) is not counted; a
+    plot counted when it started a track is uncounted when that track is confirmed (it
+    was a target's); a plot far from every track is counted."""
+    sc = load_scenario(str(ROTATING))
+    tracker = make_method("SS", method_config(_method(sc, revisit_s=6.0, pair_tol=0.25).tracker, "SS")).tracker
+    monkeypatch.setattr(sweep, "confirm_threshold", lambda: -math.inf)  # confirmed once two sensors, one with height
+    aircraft = np.array([20000.0, 5000.0, 4000.0])
+
+    def plot(sensor, site, t, seq, off=(0.0, 0.0, 0.0)):
+        d = aircraft + np.asarray(off) - np.asarray(site, float)
+        z = [math.atan2(d[0], d[1]) % (2 * math.pi), math.atan2(d[2], math.hypot(d[0], d[1])), np.linalg.norm(d)]
+        return Measurement(t, sensor, "az_el_range", np.array(z), np.array([math.radians(0.3), math.radians(0.3), 100.0]),
+                           tuple(site), seq=seq)
+
+    a, b = (30000.0, 0.0, 0.0), (0.0, -20000.0, 0.0)
+    tracker.frame([plot("a", a, 1.0, 0)])
+    assert len(tracker.table.tracks) == 1 and not tracker.table.tracks[0].confirmed
+    assert tracker.clutter.seen["a"].left == 1  # far from every track when it came
+    tracker.frame([plot("b", b, 1.5, 1), plot("b", b, 1.5, 2, off=(150.0, 0.0, 0.0)),
+                   plot("b", b, 1.5, 3, off=(-60000.0, 10000.0, 0.0))])
+    assert tracker.table.tracks[0].confirmed
+    assert tracker.clutter.seen["b"].left == 1  # the far plot: not the one in the track's gate
+    assert tracker.clutter.seen["a"].left == 0  # it started the track now confirmed
