@@ -140,17 +140,29 @@ def test_one_region_covering_everything_is_the_centralised_tracker():
         np.testing.assert_allclose(b.P, a.P, rtol=0, atol=1e-9)
 
 
+def west_and_east() -> dict[str, Region]:
+    """Two regions west and east of e = 0 with 8 km margins, a radar each (w, e)."""
+    return {"west": Region("west", box_polygon(-60e3, -60e3, 0.0, 60e3), 8e3, ("w",)),
+            "east": Region("east", box_polygon(0.0, -60e3, 60e3, 60e3), 8e3, ("e",))}
+
+
+def aircraft(region: str, track: str, e: float, t: float = 0.0, moving: bool = True) -> Estimate:
+    """A regional track's estimate of an aircraft flying east at 200 m/s, 6 km up: at e (m)
+    at t = 0 (``moving``: at e + 200 t at t; else at e whatever t), σ 100 m and 10 m/s."""
+    x = e + 200.0 * t if moving else e
+    P = np.diag([100.0, 100.0, 100.0, 10.0, 10.0, 10.0]) ** 2
+    return Estimate(t, np.array([x, 0.0, 6000.0, 200.0, 0.0, 0.0]), P, "SS", region, f"{region}.{track}")
+
+
 def test_a_margin_track_waits_to_join_and_an_overlap_duplicate_waits():
     """A track in its region's margin (over the neighbour's polygon) starts no system track:
     it waits, and joins the neighbour's once that exists; a second west track on an
     aircraft that both regions hold waits too; a west track over west alone starts one."""
-    regions = {"west": Region("west", box_polygon(-60e3, -60e3, 0.0, 60e3), 8e3, ("w",)),
-               "east": Region("east", box_polygon(0.0, -60e3, 60e3, 60e3), 8e3, ("e",))}
+    regions = west_and_east()
     system = SystemFuser("SS", ConstantVelocity(1.0), 0.999, "ci", regions=regions)
-    P = np.diag([100.0, 100.0, 100.0, 10.0, 10.0, 10.0]) ** 2
 
     def est(region, track, e, t=0.0):
-        return Estimate(t, np.array([e, 0.0, 6000.0, 200.0, 0.0, 0.0]), P, "SS", region, f"{region}.{track}")
+        return aircraft(region, track, e, t, moving=False)
 
     assert system.frame(RegionalFrame("east", 0.0, (est("east", "T1", -3000.0),))) == []  # over west: waits
     assert not system.tracks
@@ -170,22 +182,15 @@ def test_two_system_tracks_on_one_aircraft_merge_into_the_older():
     tracker deletes its first track the waiting one joins the older system track, whose id
     the aircraft keeps. Two system tracks held by one region each are that region's
     tracker's to review: they are not merged."""
-    regions = {"west": Region("west", box_polygon(-60e3, -60e3, 0.0, 60e3), 8e3, ("w",)),
-               "east": Region("east", box_polygon(0.0, -60e3, 60e3, 60e3), 8e3, ("e",))}
-    P = np.diag([100.0, 100.0, 100.0, 10.0, 10.0, 10.0]) ** 2
-
-    def est(region, track, e, t):
-        return Estimate(t, np.array([e + 200.0 * t, 0.0, 6000.0, 200.0, 0.0, 0.0]), P, "SS", region,
-                        f"{region}.{track}")
-
+    regions = west_and_east()
     system = SystemFuser("SS", ConstantVelocity(1.0), 0.999, "ci", regions=regions, merge_frames=3)
     # west's second track 1.5 km off (d² ≈ 112: out of the gate) at t = 0, then 100 m off
     offsets = {0.0: 1500.0, 1.0: 100.0, 2.0: 100.0, 3.0: 100.0, 4.0: 100.0}
     seen = []
     for t, off in offsets.items():
         seen.append([e.track for e in system.frame(RegionalFrame(
-            "west", t, (est("west", "T1", -3000.0, t), est("west", "T2", -3000.0 + off, t))))])
-        seen.append([e.track for e in system.frame(RegionalFrame("east", t, (est("east", "T1", -2950.0, t),)))])
+            "west", t, (aircraft("west", "T1", -3000.0, t), aircraft("west", "T2", -3000.0 + off, t))))])
+        seen.append([e.track for e in system.frame(RegionalFrame("east", t, (aircraft("east", "T1", -2950.0, t),)))])
         if t == 0.0:
             assert system.tracks["T1"].members == {"west": "west.T1", "east": "east.T1"}
             assert system.tracks["T2"].members == {"west": "west.T2"}
@@ -193,13 +198,14 @@ def test_two_system_tracks_on_one_aircraft_merge_into_the_older():
     assert seen[:6] == [["T1", "T2"], ["T1"], ["T1", "T2"], ["T1"], ["T1", "T2"], ["T1"]]
     assert seen[6:] == [["T1"], ["T1"], ["T1"], ["T1"]]
     assert list(system.tracks) == ["T1"] and "west.T2" in system.absorbed
-    out = system.frame(RegionalFrame("west", 5.0, (est("west", "T2", -2900.0, 5.0),), dropped=("west.T1",)))
+    out = system.frame(RegionalFrame("west", 5.0, (aircraft("west", "T2", -2900.0, 5.0),), dropped=("west.T1",)))
     assert [e.track for e in out] == ["T1"]
     assert system.tracks["T1"].members == {"west": "west.T2", "east": "east.T1"}
 
     alone = SystemFuser("SS", ConstantVelocity(1.0), 0.999, "ci", regions=regions, merge_frames=3)
     for t, off in offsets.items():
-        out = alone.frame(RegionalFrame("west", t, (est("west", "T1", -40e3, t), est("west", "T2", -40e3 + off, t))))
+        out = alone.frame(RegionalFrame("west", t, (aircraft("west", "T1", -40e3, t),
+                                                    aircraft("west", "T2", -40e3 + off, t))))
         assert [e.track for e in out] == ["T1", "T2"]
 
 
@@ -208,18 +214,11 @@ def test_two_regions_tracks_of_one_aircraft_the_join_missed_merge():
     it starts its own system track, over east) and then 100 m off: the two system tracks,
     held by one region each but different ones, are merged after merge_frames looks, the
     east track joining the older; two tracks of one region are not (its tracker's)."""
-    regions = {"west": Region("west", box_polygon(-60e3, -60e3, 0.0, 60e3), 8e3, ("w",)),
-               "east": Region("east", box_polygon(0.0, -60e3, 60e3, 60e3), 8e3, ("e",))}
-    P = np.diag([100.0, 100.0, 100.0, 10.0, 10.0, 10.0]) ** 2
-
-    def est(region, track, e, t):
-        return Estimate(t, np.array([e + 200.0 * t, 0.0, 6000.0, 200.0, 0.0, 0.0]), P, "SS", region,
-                        f"{region}.{track}")
-
+    regions = west_and_east()
     system = SystemFuser("SS", ConstantVelocity(1.0), 0.999, "ci", regions=regions, merge_frames=3)
     for t, off in {0.0: 1500.0, 1.0: 100.0, 2.0: 100.0, 3.0: 100.0, 4.0: 100.0}.items():
-        system.frame(RegionalFrame("west", t, (est("west", "T1", -1000.0, t),)))
-        system.frame(RegionalFrame("east", t, (est("east", "T1", -1000.0 + off, t),)))
+        system.frame(RegionalFrame("west", t, (aircraft("west", "T1", -1000.0, t),)))
+        system.frame(RegionalFrame("east", t, (aircraft("east", "T1", -1000.0 + off, t),)))
         if t == 0.0:
             assert {k: s.members for k, s in system.tracks.items()} == {"T1": {"west": "west.T1"},
                                                                          "T2": {"east": "east.T1"}}
