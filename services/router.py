@@ -4,12 +4,21 @@ Production deployments use the official ``zenohd`` (see ``deploy/`` and docs/dep
 this one exists so that a machine with only ``pip install zfusion`` can host a fabric. It
 reads the same JSON5 files as ``zenohd`` (``deploy/zenoh/router*.json5``, TLS and access
 control included: the Python wheel has both compiled in).
+
+It stops within a second of SIGINT or SIGTERM, whichever thread the kernel hands the
+signal to: Python runs its handler in the main thread only when that thread next runs
+Python code, and a signal taken by one of Zenoh's threads does not wake a main thread
+blocked without a timeout (it waited for ever). And it does not wait on Zenoh for ever
+either: a session that has not closed :data:`CLOSE_WAIT_S` after the stop is left, with
+one line on stderr.
 """
 
 from __future__ import annotations
 
 import json
+import os
 import signal
+import sys
 import threading
 
 import zenoh
@@ -17,6 +26,8 @@ import zenoh
 from .node import ZenohOptions
 
 DEFAULT_LISTEN = "tcp/127.0.0.1:7447"
+WAKE_S = 0.2  # s: how often the main thread looks for a stop (a signal another thread took)
+CLOSE_WAIT_S = 2.0  # s: how long a stopping router waits for its Zenoh session to close
 
 
 def run(listen: list[str] | None = None, config_file: str | None = None, overrides: list[str] = ()) -> int:
@@ -32,7 +43,14 @@ def run(listen: list[str] | None = None, config_file: str | None = None, overrid
     session = zenoh.open(conf)
     try:
         print(f"zfusion router listening on {conf.get_json('listen/endpoints')}", flush=True)
-        stop.wait()
+        while not stop.wait(WAKE_S):
+            pass
     finally:
-        session.close()
+        closer = threading.Thread(target=session.close, name="close", daemon=True)
+        closer.start()
+        closer.join(CLOSE_WAIT_S)
+        if closer.is_alive():  # the interpreter's exit would wait on it again: leave at once
+            print(f"zfusion router: its Zenoh session had not closed {CLOSE_WAIT_S:g} s after the stop; exiting "
+                  "without it", file=sys.stderr, flush=True)
+            os._exit(0)
     return 0

@@ -303,7 +303,12 @@ def _stop(proc: subprocess.Popen, watch: FusedWatch, routers: list[subprocess.Po
     for r in routers:
         if r.poll() is None:
             r.send_signal(signal.SIGINT)
-            r.wait(10)
+            try:
+                r.wait(10)
+            finally:  # one that does not stop fails the test, and is not left running
+                if r.poll() is None:
+                    r.kill()
+                    r.wait()
 
 
 def test_router_restart_in_client_mode(tmp_path, deployment):
