@@ -29,7 +29,9 @@ centre takes local tracks, and keeps the system tracks ``T<n>``:
    three or four members (where regions meet), most certain first. Two regions fed by
    one sensor, with the same process noise, have errors correlated in a way neither
    knows; CI is consistent for every such correlation, the naive product is not
-   (docs/regional.md);
+   (docs/regional.md). The system track says what its members say of the target: the
+   identity (address, callsign) of the most certain member that has one, and the
+   largest existence among them (a JIPDA region's);
 4. two system tracks, one of them held by two regions or more or the two held by
    different regions, that stay in each other's gate for ``merge_frames`` consecutive
    looks (the trackers' own duplicate rule, :class:`fusion.tracking.table.DuplicateWatch`,
@@ -607,12 +609,13 @@ class SystemFuser:
         """Each track's members' estimates predicted to the latest of their times and
         fused (its ``last``): CI folded pairwise, most certain first (each step's ω in
         closed form, :func:`_ci_pairs`), the ``k``-th step of every track with more than
-        ``k`` members together. A track with one member is that member's estimate."""
+        ``k`` members together. A track with one member is that member's estimate. Each
+        carries its members' identity and existence (module docstring, step 3)."""
         several = []
         for s in tracks:
             if len(s.members) == 1:
                 e = self.latest[next(iter(s.members.values()))]
-                s.last = Estimate(e.t, e.x, e.P, self.name, "centre", s.id)
+                s.last = Estimate(e.t, e.x, e.P, self.name, "centre", s.id, existence=e.existence, identity=e.identity)
                 self._rows.put(s)
             else:
                 several.append(s)
@@ -621,21 +624,27 @@ class SystemFuser:
         members = [[self.latest[rid] for rid in s.members.values()] for s in several]
         n = np.array([len(m) for m in members])
         t = np.array([max(e.t for e in m) for m in members])
-        xs, Ps = self._predict([e for m in members for e in m], np.repeat(t, n))
+        flat = [e for m in members for e in m]
+        xs, Ps = self._predict(flat, np.repeat(t, n))
         ends = np.cumsum(n)
+        # most certain first (by the trace of the position block; ties in order)
+        size = np.trace(Ps[:, :3, :3], axis1=-2, axis2=-1)
+        order = [e - k + np.argsort(size[e - k:e], kind="stable") for k, e in zip(n, ends)]
         if self.rule == "naive":
             fused = [fuse_naive(list(xs[e - k:e]), list(Ps[e - k:e])) for k, e in zip(n, ends)]
             x, P = np.array([f[0] for f in fused]), np.array([f[1] for f in fused])
-        else:  # CI folded pairwise, most certain first (by the trace of the position block; ties in order)
-            size = np.trace(Ps[:, :3, :3], axis1=-2, axis2=-1)
-            order = [e - k + np.argsort(size[e - k:e], kind="stable") for k, e in zip(n, ends)]
+        else:  # CI folded pairwise, most certain first
             x, P = xs[[o[0] for o in order]], Ps[[o[0] for o in order]]
             for k in range(1, int(n.max())):
                 fold = np.flatnonzero(n > k)
                 nxt = [order[i][k] for i in fold]
                 x[fold], P[fold] = _ci_pairs(x[fold], P[fold], xs[nxt], Ps[nxt], self.ci_criterion)
-        for s, tk, xk, Pk in zip(several, t, x, P):
-            s.last = Estimate(float(tk), xk.copy(), Pk.copy(), self.name, "centre", s.id)
+        for s, o, tk, xk, Pk in zip(several, order, t, x, P):
+            said = [flat[i] for i in o]
+            identity = next((e.identity for e in said if e.identity is not None), None)
+            existence = max((e.existence for e in said if e.existence is not None), default=None)
+            s.last = Estimate(float(tk), xk.copy(), Pk.copy(), self.name, "centre", s.id, existence=existence,
+                              identity=identity)
             self._rows.put(s)
 
 

@@ -18,7 +18,7 @@ from fusion.regional import (SCREEN_SLACK_M, RegionalFrame, RegionalMethod, Syst
 from fusion.regions import Region, box_polygon
 from fusion.track_fusion import fuse_ci
 from fusion.tracking.hypotheses import gate_threshold, track_distance2
-from fusion.types import Estimate
+from fusion.types import Estimate, Identity
 from sensors_sim import load_scenario, truth_trajectory
 from services.evaluation import merged_measurements, run_method
 from conftest import ROOT
@@ -223,6 +223,30 @@ def test_two_regions_tracks_of_one_aircraft_the_join_missed_merge():
             assert {k: s.members for k, s in system.tracks.items()} == {"T1": {"west": "west.T1"},
                                                                          "T2": {"east": "east.T1"}}
     assert {k: s.members for k, s in system.tracks.items()} == {"T1": {"west": "west.T1", "east": "east.T1"}}
+
+
+def test_a_system_track_says_its_members_identity_and_existence():
+    """The system picture carries what its regional tracks say of the target, as a
+    centralised fuser's does: a track of one member its identity and existence; of
+    several, the identity of the most certain member that has one and the largest
+    existence (without them CoT and CAT062 lost every callsign in the regional topology)."""
+    regions = west_and_east()
+    system = SystemFuser("SS", ConstantVelocity(1.0), 0.999, "ci", regions=regions)
+    afr, dlh = Identity("39856a", "AFR1234"), Identity("3c6444", "DLH5KP")
+
+    def said(region, track, t, identity, existence, sigma=1.0):
+        e = aircraft(region, track, -3000.0, t, moving=False)
+        return dataclasses.replace(e, P=e.P * sigma ** 2, identity=identity, existence=existence)
+
+    (out,) = system.frame(RegionalFrame("west", 0.0, (said("west", "T1", 0.0, afr, 0.93),)))
+    assert (out.track, out.identity, out.existence) == ("T1", afr, 0.93)
+    (out,) = system.frame(RegionalFrame("east", 1.0, (said("east", "T1", 1.0, None, 0.99, sigma=0.5),)))
+    assert system.tracks["T1"].members == {"west": "west.T1", "east": "east.T1"}
+    assert (out.identity, out.existence) == (afr, 0.99)  # the only one that says who it is; the larger existence
+    (out,) = system.frame(RegionalFrame("east", 2.0, (said("east", "T1", 2.0, dlh, 0.5, sigma=0.5),)))
+    assert (out.identity, out.existence) == (dlh, 0.93)  # the more certain member's
+    (out,) = system.frame(RegionalFrame("west", 2.0, (said("west", "T1", 2.0, None, None, sigma=0.25),)))
+    assert (out.identity, out.existence) == (dlh, 0.5)
 
 
 def test_the_screen_finds_the_pairs_of_the_test_over_every_pair():
