@@ -270,12 +270,32 @@ def _client_config(tmp_path, ep: str):
     return config
 
 
-def _router(ep: str) -> subprocess.Popen:
-    """``zfusion router`` listening on ``ep``, once it says so."""
-    r = subprocess.Popen([sys.executable, "-m", "services.cli", "router", "--listen", ep],
-                         stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+# ``zfusion router`` in a process that has imported what it runs, and starts it on a line
+# of its standard input: a restart's outage is then the test's sleep, not the sleep plus
+# an interpreter's start (seconds on a loaded CI host: in ci50 the outage outlasted the
+# scenario's sources, whose last words were lost with it).
+_ROUTER_ON_CUE = ("import sys\nimport services.router\nfrom services.cli import main\nprint('imported', flush=True)\n"
+                  "sys.stdin.readline()\nsys.exit(main(['router', '--listen', sys.argv[1]]))")
+
+
+def _router_on_cue(ep: str) -> subprocess.Popen:
+    """A router for ``ep`` ready to start (:data:`_ROUTER_ON_CUE`): write a line to its stdin."""
+    r = subprocess.Popen([sys.executable, "-c", _ROUTER_ON_CUE, ep], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                         stderr=subprocess.DEVNULL, text=True)
+    assert r.stdout.readline().strip() == "imported"
+    return r
+
+
+def _start(r: subprocess.Popen) -> subprocess.Popen:
+    r.stdin.write("go\n")
+    r.stdin.flush()
     assert "listening" in r.stdout.readline()
     return r
+
+
+def _router(ep: str) -> subprocess.Popen:
+    """``zfusion router`` listening on ``ep``, once it says so."""
+    return _start(_router_on_cue(ep))
 
 
 # The router's outage: the fault injected, not a wait for a condition. Longer than the
@@ -288,10 +308,16 @@ OUTAGE_S = source_timeout(load_scenario("patent-3d"), "1") + 1.5
 
 def _restarted(router: subprocess.Popen, ep: str) -> subprocess.Popen:
     """kill -9 of ``router``, and a new one on the same endpoint :data:`OUTAGE_S` later."""
-    router.kill()
-    router.wait()
-    time.sleep(OUTAGE_S)
-    return _router(ep)
+    new = _router_on_cue(ep)
+    try:
+        router.kill()
+        router.wait()
+        time.sleep(OUTAGE_S)
+        return _start(new)
+    except BaseException:
+        new.kill()
+        new.wait()
+        raise
 
 
 def _stop(proc: subprocess.Popen, watch: FusedWatch, routers: list[subprocess.Popen]) -> None:
