@@ -121,14 +121,17 @@ def test_fuser_killed_with_many_targets_in_the_feedback_topology(tmp_path, deplo
     """Three crossing aircraft in clutter, feedback (PHHNV): kill -9 of the fuser. The
     restarted fuser's centre knows none of the nodes' local tracks: the nodes drop them
     when they see the new fuser, send their plots up as requests, and the new centre
-    starts fused tracks from them. Every aircraft is held again, and the GOSPA from then
-    on is the undisturbed run's. Measured: all three held from 0–1 s after the fuser was
-    back. When the nodes kept their tracks (and the centre dropped each as it was
-    reported), no aircraft was held for 9 s and one not for 16 s: a mean GOSPA of 398 m
-    over the window below, against 108 m undisturbed."""
+    starts fused tracks from them. Every aircraft is held again within 12 s of the
+    fuser's return, and the GOSPA from then on is the undisturbed run's. Measured: all
+    three held from 0–1 s after the fuser was back, on a quiet host. When the nodes kept
+    their tracks (and the centre dropped each as it was reported), no aircraft was held
+    for 9 s and one not for 16 s, a mean GOSPA of 398 m from 8 s after the return against
+    108 m undisturbed. At speed 1.5: on a loaded host the nodes see the new fuser seconds
+    later, each second of it that much scenario (ci54, at speed 3: a GOSPA of 1,000 m or
+    more for the first seven scans from 8 s after the return)."""
 
     path = CROSSING
-    doc, err = disturb(tmp_path, str(path), deployment, 3.0, [(25.0, "fuser", "fuser")], "--topology", "feedback")
+    doc, err = disturb(tmp_path, str(path), deployment, 1.5, [(25.0, "fuser", "fuser")], "--topology", "feedback")
     fuser = _outage(doc, "fuser", 25.0)
     assert err.count("fuser restarted: tracks dropped, asking it for initial states again") == 2
     got = doc["methods"]["PHHNV"]
@@ -137,7 +140,10 @@ def test_fuser_killed_with_many_targets_in_the_feedback_topology(tmp_path, deplo
     sc = load_scenario(path)
     ref = tracks_summary([score_tracks_of(sc, run_method(sc, "PHHNV"))])["series"]
     ref_gospa = dict(zip(ref["t"], ref["gospa"]))
-    after = t >= fuser["t_up"] + 8.0  # a new track is confirmed 3 of 4 frames after its first
+    # every aircraft held again: one missed or false target alone costs c/√2 (p = 2)
+    held = t[(t >= fuser["t_up"]) & (gospa < GOSPA_CUTOFF / np.sqrt(2))]
+    assert len(held) and held[0] <= fuser["t_up"] + 12.0, (fuser, t, gospa)
+    after = t >= held[0]
     assert after.sum() >= 10
     assert np.mean(gospa[after]) <= 1.5 * np.mean([ref_gospa[s] for s in t[after]]) + 50.0, (gospa[after], ref)
     # every aircraft held at the end: one missed or false target alone costs c/√2 (p = 2)
