@@ -12,7 +12,8 @@ it has heard whole (after a watermark of every sensor: ``schedule``), and in the
 handshake, which rebuilds the common prior and cross-covariances the fusion rules need
 (docs/reliability.md, "Faults", says why and what is counted). It finishes when every
 source is final or dead and at least one is final: sources all dead at once (a router
-restart) are not the end. Live (``--site``, docs/live.md): UTC time, no end, stamps from
+restart) are not the end (if their end is lost, the launcher stops it: docs/reliability.md).
+Live (``--site``, docs/live.md): UTC time, no end, stamps from
 the future refused, a lagging source waited for at most ``--max-delay`` s, late data
 applied by re-filtering (:class:`fusion.oosm.Refiltering`).
 

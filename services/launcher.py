@@ -60,6 +60,7 @@ START_LEAD_MAX = 15.0  # s: the most a paced run's sources are given to start (L
 RECORDER_STALL = 30.0  # s: at the end, the recorder is stopped once it has recorded nothing new this long
 RECORDER_DONE_WAIT = 5.0  # s the recorder has to end by itself once everyone else has (it ends on their "done")
 END_WAIT = 10.0  # s the sources and trackers have to end by themselves once the fuser is done
+END_STALL = 10.0  # s a running fuser may report no progress after every source has ended (Launch.end_lost)
 STOP_GRACE = 2.0  # s a process has to stop after SIGTERM before it is killed (it should take < 1 s)
 # s the recorder has at the run's end: killed, its file loses its footer and the rows it had not
 # flushed; on a loaded machine (five test workers on two cores) it once took more than 5 s
@@ -194,6 +195,7 @@ class Launch:
         self.inbox = Inbox(node.stop)
         self.intake = Intake(node.keys, node.reject, ["fused", "status"])
         self.sup = Supervisor(self.children, plan, restart, self.clock, self.event, fuser_grace=timeout)
+        self._stalled: tuple[float, tuple] | None = None  # (since, progress) of the fuser once the sources ended
         node.subscribe(node.keys.fused(FUSER_ID), self.inbox)
         node.subscribe(node.keys.all("status"), self.inbox)
         node.announce()
@@ -264,6 +266,14 @@ class Launch:
             code = children.procs[FUSER_ID].returncode
             if code is not None and code >= 0:  # the fuser finished (or failed)
                 break
+            if code is None and self.end_lost(sources):
+                waiting = [n for n in (FUSER_ID, *self.plan.ids("tracker")) if children.procs[n].poll() is None]
+                text = (f"every source ended {END_STALL:g} s ago and the fuser has not heard the end "
+                        f"(lost with a link, or sent before it came up): stopping {', '.join(waiting)}")
+                log.warning("%s", text)
+                self.event(text)
+                children.terminate(waiting, self.drain, grace=STOP_GRACE)
+                break
             if code is not None and not sup.pending(FUSER_ID):
                 # Killed and not restarted by us: a fuser restarted by hand may finish
                 # the run; if none does, it ends a grace period after the sources.
@@ -274,6 +284,23 @@ class Launch:
                 if last_source_end is not None and time.monotonic() - last_source_end > END_GRACE:
                     break
         return None
+
+    def end_lost(self, sources: list[str]) -> bool:
+        """Every source has exited, none is to be restarted, and the fuser's statuses have
+        shown no progress (measurements received or processed) for ``END_STALL`` s since:
+        it waits for final watermarks it will never hear, every source dead and none final
+        (lost in a router outage, or sent before a restarted fuser came up). Only statuses
+        heard say so: a fuser busy with a backlog (``--speed max``) that sends none is not
+        judged."""
+        if any(self.children.procs[s].poll() is None or self.sup.pending(s) for s in sources):
+            self._stalled = None
+            return False
+        status = self.statuses.get(FUSER_ID, {})
+        progress = tuple(status.get("counters", {}).get(k) for k in ("received", "processed"))
+        now = time.monotonic()
+        if self._stalled is None or self._stalled[1] != progress:
+            self._stalled = (now, progress)
+        return self.heard_at.get(FUSER_ID, 0.0) - self._stalled[0] > END_STALL
 
     def finish_recorder(self) -> None:
         """The end of a scenario run: the sources and trackers end by themselves; the

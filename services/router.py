@@ -30,6 +30,14 @@ WAKE_S = 0.2  # s: how often the main thread looks for a stop (a signal another 
 CLOSE_WAIT_S = 2.0  # s: how long a stopping router waits for its Zenoh session to close
 
 
+def _close(session: zenoh.Session) -> None:
+    """Close the session; a failure to is one line on stderr (the router is stopping anyway)."""
+    try:
+        session.close()
+    except zenoh.ZError as e:
+        print(f"zfusion router: closing its Zenoh session failed: {e}", file=sys.stderr, flush=True)
+
+
 def run(listen: list[str] | None = None, config_file: str | None = None, overrides: list[str] = ()) -> int:
     """Serve until SIGINT/SIGTERM. ``listen`` (if given) replaces the config file's
     endpoints; without a file the router listens on ``DEFAULT_LISTEN``."""
@@ -46,7 +54,7 @@ def run(listen: list[str] | None = None, config_file: str | None = None, overrid
         while not stop.wait(WAKE_S):
             pass
     finally:
-        closer = threading.Thread(target=session.close, name="close", daemon=True)
+        closer = threading.Thread(target=_close, args=(session,), name="close", daemon=True)
         closer.start()
         closer.join(CLOSE_WAIT_S)
         if closer.is_alive():  # the interpreter's exit would wait on it again: leave at once

@@ -269,6 +269,47 @@ def test_recorder_then_fuser_killed_centralised(tmp_path, deployment):
     assert tracks and rec["t_up"] - 1 <= min(tracks) and max(tracks) == 60.0
 
 
+def test_a_fuser_that_never_hears_its_sources_end_is_stopped(tmp_path, deployment):
+    """A fuser held (SIGSTOP) until every source has ended, then killed: its restart hears
+    no source at all, each one dead and none final, and would wait for ever for their
+    final watermarks (so would one whose sources' last words went with a router outage).
+    The launcher stops it once the sources have all ended and the fuser's statuses show
+    no progress for END_STALL s, says so, and the run ends with what was fused."""
+    from services.launcher import END_STALL
+
+    watch = FusedWatch(deployment)
+    log = tmp_path / "run.log"
+    proc = subprocess.Popen(run_cmd(tmp_path, "patent-3d", deployment, "--speed", "4", "--connect", watch.endpoint),
+                            stdout=subprocess.DEVNULL, stderr=log.open("w"))
+    try:
+        launcher = psutil.Process(proc.pid)
+        fuser = child(launcher, "fuser", "fuser")
+        watch.wait_until(10.0, proc)
+        fuser.suspend()
+        sensors = [c for c in launcher.children() if c.cmdline()[c.cmdline().index("services.cli") + 1] == "sensor"]
+        assert sensors
+        _, alive = psutil.wait_procs(sensors, timeout=60)
+        assert not alive, "the sources did not end"
+        ended = time.monotonic()
+        fuser.kill()
+        proc.wait(END_STALL + 60)
+        took = time.monotonic() - ended
+    finally:
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGINT)
+            proc.wait(30)
+        watch.close()
+    err = log.read_text()
+    assert proc.returncode == 0, err[-3000:]
+    assert re.search(r"every source ended \S+ s ago and the fuser has not heard the end .*: stopping fuser", err)
+    assert took > END_STALL
+    doc = json.loads((tmp_path / "out.json").read_text())
+    (out,) = doc["outages"]["fuser"]
+    assert out["t_up"] is not None
+    t = doc["methods"]["SS"]["series"]["t"]
+    assert 10.0 <= t[-1] < 30.0  # what was fused before the hold, scored; nothing after it
+
+
 def _client_config(tmp_path, ep: str):
     """A Zenoh config file making a process a client of the router at ``ep`` only, which
     retries a lost router every 0.2-0.5 s (Zenoh's default backs off to tries 1, 3, 7 and
