@@ -60,7 +60,7 @@ START_LEAD_MAX = 15.0  # s: the most a paced run's sources are given to start (L
 RECORDER_STALL = 30.0  # s: at the end, the recorder is stopped once it has recorded nothing new this long
 RECORDER_DONE_WAIT = 5.0  # s the recorder has to end by itself once everyone else has (it ends on their "done")
 END_WAIT = 10.0  # s the sources and trackers have to end by themselves once the fuser is done
-END_STALL = 10.0  # s a running fuser may report no progress after every source has ended (Launch.end_lost)
+END_STALL = 10.0  # s beyond its source timeout a fuser may show no progress once every source has ended
 STOP_GRACE = 2.0  # s a process has to stop after SIGTERM before it is killed (it should take < 1 s)
 # s the recorder has at the run's end: killed, its file loses its footer and the rows it had not
 # flushed; on a loaded machine (five test workers on two cores) it once took more than 5 s
@@ -195,6 +195,7 @@ class Launch:
         self.inbox = Inbox(node.stop)
         self.intake = Intake(node.keys, node.reject, ["fused", "status"])
         self.sup = Supervisor(self.children, plan, restart, self.clock, self.event, fuser_grace=timeout)
+        self.timeout = timeout
         self._stalled: tuple[float, tuple] | None = None  # (since, progress) of the fuser once the sources ended
         node.subscribe(node.keys.fused(FUSER_ID), self.inbox)
         node.subscribe(node.keys.all("status"), self.inbox)
@@ -268,7 +269,7 @@ class Launch:
                 break
             if code is None and self.end_lost(sources):
                 waiting = [n for n in (FUSER_ID, *self.plan.ids("tracker")) if children.procs[n].poll() is None]
-                text = (f"every source ended {END_STALL:g} s ago and the fuser has not heard the end "
+                text = (f"every source ended {self.timeout + END_STALL:g} s ago and the fuser has not heard the end "
                         f"(lost with a link, or sent before it came up): stopping {', '.join(waiting)}")
                 log.warning("%s", text)
                 self.event(text)
@@ -287,11 +288,12 @@ class Launch:
 
     def end_lost(self, sources: list[str]) -> bool:
         """Every source has exited, none is to be restarted, and the fuser's statuses have
-        shown no progress (measurements received or processed) for ``END_STALL`` s since:
-        it waits for final watermarks it will never hear, every source dead and none final
-        (lost in a router outage, or sent before a restarted fuser came up). Only statuses
-        heard say so: a fuser busy with a backlog (``--speed max``) that sends none is not
-        judged."""
+        shown no progress (measurements received or processed) since for the source timeout
+        and ``END_STALL`` s more: it waits for final watermarks it will never hear, every
+        source dead and none final (lost in a router outage, or sent before a restarted
+        fuser came up). Not before the timeout: a tracker starved of CPU may be silent that
+        long and is waited for. Only statuses heard say so: a fuser busy with a backlog
+        (``--speed max``) that sends none is not judged."""
         if any(self.children.procs[s].poll() is None or self.sup.pending(s) for s in sources):
             self._stalled = None
             return False
@@ -300,7 +302,7 @@ class Launch:
         now = time.monotonic()
         if self._stalled is None or self._stalled[1] != progress:
             self._stalled = (now, progress)
-        return self.heard_at.get(FUSER_ID, 0.0) - self._stalled[0] > END_STALL
+        return self.heard_at.get(FUSER_ID, 0.0) - self._stalled[0] > self.timeout + END_STALL
 
     def finish_recorder(self) -> None:
         """The end of a scenario run: the sources and trackers end by themselves; the

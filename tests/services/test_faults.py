@@ -274,7 +274,8 @@ def test_a_fuser_that_never_hears_its_sources_end_is_stopped(tmp_path, deploymen
     no source at all, each one dead and none final, and would wait for ever for their
     final watermarks (so would one whose sources' last words went with a router outage).
     The launcher stops it once the sources have all ended and the fuser's statuses show
-    no progress for END_STALL s, says so, and the run ends with what was fused."""
+    no progress for the source timeout and END_STALL s more, says so, and the run ends
+    with what was fused."""
     from services.launcher import END_STALL
 
     watch = FusedWatch(deployment)
@@ -292,7 +293,7 @@ def test_a_fuser_that_never_hears_its_sources_end_is_stopped(tmp_path, deploymen
         assert not alive, "the sources did not end"
         ended = time.monotonic()
         fuser.kill()
-        proc.wait(END_STALL + 60)
+        proc.wait(source_timeout(load_scenario("patent-3d"), "4") + END_STALL + 60)
         took = time.monotonic() - ended
     finally:
         if proc.poll() is None:
@@ -302,7 +303,7 @@ def test_a_fuser_that_never_hears_its_sources_end_is_stopped(tmp_path, deploymen
     err = log.read_text()
     assert proc.returncode == 0, err[-3000:]
     assert re.search(r"every source ended \S+ s ago and the fuser has not heard the end .*: stopping fuser", err)
-    assert took > END_STALL
+    assert took > source_timeout(load_scenario("patent-3d"), "4") + END_STALL
     doc = json.loads((tmp_path / "out.json").read_text())
     (out,) = doc["outages"]["fuser"]
     assert out["t_up"] is not None
