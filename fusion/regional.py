@@ -63,7 +63,7 @@ from .measurement.kinds import KINDS
 from .motion import KinematicModel
 from .patent import TrackerConfig, uses
 from .regions import Region
-from .track_fusion import CI_CRITERIA, _inv_spd_many, fuse_naive
+from .track_fusion import CI_CRITERIA, fuse_naive
 from .tracking.associators import gnn
 from .tracking.config import AssociationConfig
 from .tracking.hypotheses import _PINV_RTOL, gate_threshold
@@ -116,45 +116,61 @@ def _transitions(motion, dt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def _ci_pairs(x1: np.ndarray, P1: np.ndarray, x2: np.ndarray, P2: np.ndarray,
               criterion: str) -> tuple[np.ndarray, np.ndarray]:
     """:func:`fusion.track_fusion.fuse_ci` of each pair ``(x1[k], P1[k])``, ``(x2[k],
-    P2[k])``, all at once: ``Yᵢ = Pᵢ⁻¹``, ω from the pencil ``Y₁v = λY₂v`` (``VᵀY₂V =
-    I``, through ``Y₂ = LLᵀ``: the eigenvalues of ``L⁻¹Y₁L⁻ᵀ``) as the root in ``[0, 1]``
-    of the criterion's derivative, ``−Σ cₐa/(1 + ωa)²`` for the trace (``a = λ − 1``,
-    ``c = |v|²``) or ``−Σ a/(1 + ωa)`` for the determinant — increasing in ω, found by
-    Newton steps kept inside a shrinking bracket — then ``P = (ωY₁ + (1−ω)Y₂)⁻¹``,
-    ``x = x₁ + P(1−ω)Y₂(x₂ − x₁)``. Equal covariances: the mean, ``P₁``."""
+    P2[k])``, all at once, through the pencil of ``Yᵢ = Pᵢ⁻¹`` with no inverse taken:
+    with ``P₂ = LLᵀ`` (Cholesky of the equilibrated ``P₂``) and ``L⁻¹P₁L⁻ᵀ = Z diag(μ)
+    Zᵀ``, ``V = LZ`` has ``VᵀY₂V = I`` and ``VᵀY₁V = diag(λ)``, ``λ = 1/μ``, so
+    ``P = (ωY₁ + (1−ω)Y₂)⁻¹ = V diag(1/(1 + ωa)) Vᵀ`` (``a = λ − 1``) and
+    ``x = x₁ + (1−ω)PY₂(x₂ − x₁) = x₁ + (1−ω)V diag(1/(1 + ωa)) ZᵀL⁻¹(x₂ − x₁)``. ω is
+    the root in ``[0, 1]`` of the criterion's derivative, ``−Σ cₐa/(1 + ωa)²`` for the
+    trace (``c = |v|²``, the columns of ``V``) or ``−Σ a/(1 + ωa)`` for the determinant
+    — increasing in ω, found by Newton steps kept inside a shrinking bracket. Equal
+    covariances: the mean, ``P₁``."""
+    d = np.diagonal(P2, axis1=-2, axis2=-1)
+    if not d.min() > 0.0:  # also catches NaN
+        raise ValueError("covariance is not positive definite")
+    s = 1.0 / np.sqrt(d)
+    try:
+        C = np.linalg.cholesky(P2 * (s[:, :, None] * s[:, None, :]))
+    except np.linalg.LinAlgError:
+        raise ValueError("covariance is not positive definite") from None
+    W = np.linalg.inv(C) * s[:, None, :]  # L⁻¹, L = diag(1/s) C
+    mu, Z = np.linalg.eigh(W @ P1 @ np.swapaxes(W, -1, -2))
+    if not mu.min() > 0.0:
+        raise ValueError("covariance is not positive definite")
+    V = (C @ Z) / s[:, :, None]
+    a, c = 1.0 / mu - 1.0, np.sum(V * V, axis=-2)
     k = len(x1)
-    Y = np.asarray(_inv_spd_many(np.concatenate([P1, P2])))
-    Y1, Y2 = Y[:k], Y[k:]
-    Linv = np.linalg.inv(np.linalg.cholesky(Y2))
-    lam, U = np.linalg.eigh(Linv @ Y1 @ np.swapaxes(Linv, -1, -2))
-    V = np.swapaxes(Linv, -1, -2) @ U
-    a, c = lam - 1.0, np.sum(V * V, axis=-2)
     trace = criterion == "trace"
 
-    def slope(w):  # the derivative and its own derivative, per pair
+    def slope(w, a, c):  # the derivative and its own derivative, per pair
         r = 1.0 / (1.0 + w[:, None] * a)
         if trace:
             return -np.sum(c * a * r * r, axis=-1), np.sum(2.0 * c * a * a * r ** 3, axis=-1)
         return -np.sum(a * r, axis=-1), np.sum(a * a * r * r, axis=-1)
-    g0, g1 = slope(np.zeros(k))[0], slope(np.ones(k))[0]
+    g0, g1 = slope(np.zeros(k), a, c)[0], slope(np.ones(k), a, c)[0]
     w = np.where(g0 >= 0.0, 0.0, 1.0)
     inner = np.flatnonzero((g0 < 0.0) & (g1 > 0.0))
-    if len(inner):
-        a, c = a[inner], c[inner]
-        lo, hi, wi = np.zeros(len(inner)), np.ones(len(inner)), np.full(len(inner), 0.5)
-        for _ in range(100):
-            g, gp = slope(wi)
-            lo, hi = np.where(g < 0.0, wi, lo), np.where(g < 0.0, hi, wi)
-            step = wi - g / gp
-            step = np.where((step > lo) & (step < hi), step, 0.5 * (lo + hi))
-            done = np.abs(step - wi) <= 1e-15
-            wi = step
-            if done.all():
-                break
-        w[inner] = wi
-    M = w[:, None, None] * Y1 + (1.0 - w)[:, None, None] * Y2
-    P = np.asarray(_inv_spd_many(M, "CI information"))
-    x = x1 + np.einsum("kij,kj->ki", P, (1.0 - w)[:, None] * np.einsum("kij,kj->ki", Y2, x2 - x1))
+    # Newton steps for the pairs not yet converged (each pair's own): a step that leaves
+    # the bracket halves it instead; a pair is done once its step is below 1e-15, or its
+    # bracket below 1e-14 (where the derivative's rounding makes steps cycle).
+    lo, hi, wi = np.zeros(len(inner)), np.ones(len(inner)), np.full(len(inner), 0.5)
+    active = np.arange(len(inner))
+    for _ in range(100):
+        if not len(active):
+            break
+        u = wi[active]
+        g, gp = slope(u, a[inner[active]], c[inner[active]])
+        below = g < 0.0
+        lo[active], hi[active] = np.where(below, u, lo[active]), np.where(below, hi[active], u)
+        step = u - g / gp
+        step = np.where((step >= lo[active]) & (step <= hi[active]), step, 0.5 * (lo[active] + hi[active]))
+        wi[active] = step
+        active = active[(np.abs(step - u) > 1e-15) & (hi[active] - lo[active] > 1e-14)]
+    w[inner] = wi
+    D = 1.0 / (1.0 + w[:, None] * a)
+    P = (V * D[:, None, :]) @ np.swapaxes(V, -1, -2)
+    z = np.einsum("kji,kj->ki", Z, np.einsum("kij,kj->ki", W, x2 - x1))
+    x = x1 + (1.0 - w)[:, None] * np.einsum("kij,kj->ki", V, D * z)
     equal = np.all(P1 == P2, axis=(-2, -1))
     if equal.any():
         x[equal], P[equal] = (x1[equal] + x2[equal]) / 2, P1[equal]
