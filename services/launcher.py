@@ -196,7 +196,7 @@ class Launch:
         self.intake = Intake(node.keys, node.reject, ["fused", "status"])
         self.sup = Supervisor(self.children, plan, restart, self.clock, self.event, fuser_grace=timeout)
         self.timeout = timeout
-        self._stalled: tuple[float, tuple] | None = None  # (since, progress) of the fuser once the sources ended
+        self._stalled: tuple[float, int | None] | None = None  # (since, processed) of the fuser once the sources ended
         node.subscribe(node.keys.fused(FUSER_ID), self.inbox)
         node.subscribe(node.keys.all("status"), self.inbox)
         node.announce()
@@ -288,17 +288,18 @@ class Launch:
 
     def end_lost(self, sources: list[str]) -> bool:
         """Every source has exited, none is to be restarted, and the fuser's statuses have
-        shown no progress (measurements received or processed) since for the source timeout
-        and ``END_STALL`` s more: it waits for final watermarks it will never hear, every
-        source dead and none final (lost in a router outage, or sent before a restarted
-        fuser came up). Not before the timeout: a tracker starved of CPU may be silent that
-        long and is waited for. Only statuses heard say so: a fuser busy with a backlog
-        (``--speed max``) that sends none is not judged."""
+        shown nothing more processed since for the source timeout and ``END_STALL`` s
+        more: it waits for what will never come — final watermarks lost in a router outage
+        or sent before a restarted fuser came up, or a node waiting for an init that
+        cannot come, which says its watermark again each second (so "received" grows).
+        Not before the timeout: a tracker starved of CPU may be silent that long and is
+        waited for. Only statuses heard say so: a fuser busy with a backlog (``--speed
+        max``) that sends none is not judged."""
         if any(self.children.procs[s].poll() is None or self.sup.pending(s) for s in sources):
             self._stalled = None
             return False
         status = self.statuses.get(FUSER_ID, {})
-        progress = tuple(status.get("counters", {}).get(k) for k in ("received", "processed"))
+        progress = status.get("counters", {}).get("processed")
         now = time.monotonic()
         if self._stalled is None or self._stalled[1] != progress:
             self._stalled = (now, progress)
