@@ -118,22 +118,22 @@ def test_tracker_stopped_across_a_fuser_restart_in_the_feedback_topology(tmp_pat
 
 
 def test_fuser_killed_with_many_targets_in_the_feedback_topology(tmp_path, deployment):
-    """Three crossing aircraft in clutter, feedback (PHHNV): kill -9 of the fuser. The
-    restarted fuser's centre knows none of the nodes' local tracks: the nodes drop them
-    when they see the new fuser, send their plots up as requests, and the new centre
-    starts fused tracks from them. Every aircraft is held again within 12 s of the
-    fuser's return, and the GOSPA from then on is the undisturbed run's. Measured: all
-    three held from 0–1 s after the fuser was back, on a quiet host. When the nodes kept
-    their tracks (and the centre dropped each as it was reported), no aircraft was held
-    for 9 s and one not for 16 s, a mean GOSPA of 398 m from 8 s after the return against
-    108 m undisturbed. At speed 1: on a loaded host the nodes see the new fuser seconds
-    later, each second of it that much scenario (ci54, at speed 3: a GOSPA of 1,000 m or
-    more for the first seven scans from 8 s after the return; ci72, at speed 1.5 with a
-    core kept busy: every aircraft held from 12.9 s after the return)."""
+    """Three crossing aircraft in clutter, feedback (PHHNV): kill -9 of the fuser at 8 s,
+    well before A and B cross (30 s). The restarted fuser's centre knows none of the
+    nodes' local tracks: the nodes drop them when they see the new fuser, send their plots
+    up as requests, and the new centre starts fused tracks from them. Every aircraft is
+    held again within 14 s of the fuser's return, and the GOSPA from then on is the
+    undisturbed run's. Measured, quiet: back at 8.7 s, all three held from 16 s (7.3 s;
+    the undisturbed run holds them from 7 s); with the nodes keeping their tracks (the
+    defect this guards: `MultiTrackNode.centre_restarted` not dropping them), from 29 s
+    (20.4 s). Killed at 25 s, the return fell into the crossing and all three were held
+    only from 46 s whether the fuser was back at 26 s (ci75, speed 1) or 33 s (ci72,
+    speed 1.5): a fused track started from the nodes' requests there is ambiguous, a
+    limit of initiation in a crossing, not of the restart."""
 
     path = CROSSING
-    doc, err = disturb(tmp_path, str(path), deployment, 1.0, [(25.0, "fuser", "fuser")], "--topology", "feedback")
-    fuser = _outage(doc, "fuser", 25.0)
+    doc, err = disturb(tmp_path, str(path), deployment, 1.0, [(8.0, "fuser", "fuser")], "--topology", "feedback")
+    fuser = _outage(doc, "fuser", 8.0)
     assert err.count("fuser restarted: tracks dropped, asking it for initial states again") == 2
     got = doc["methods"]["PHHNV"]
     t, gospa = np.array(got["series"]["t"]), np.array(got["series"]["gospa"])
@@ -143,7 +143,7 @@ def test_fuser_killed_with_many_targets_in_the_feedback_topology(tmp_path, deplo
     ref_gospa = dict(zip(ref["t"], ref["gospa"]))
     # every aircraft held again: one missed or false target alone costs c/√2 (p = 2)
     held = t[(t >= fuser["t_up"]) & (gospa < GOSPA_CUTOFF / np.sqrt(2))]
-    assert len(held) and held[0] <= fuser["t_up"] + 12.0, (fuser, t, gospa)
+    assert len(held) and held[0] <= fuser["t_up"] + 14.0, (fuser, t, gospa)
     after = t >= held[0]
     assert after.sum() >= 10
     assert np.mean(gospa[after]) <= 1.5 * np.mean([ref_gospa[s] for s in t[after]]) + 50.0, (gospa[after], ref)
