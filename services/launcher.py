@@ -269,8 +269,9 @@ class Launch:
                 break
             if code is None and self.end_lost(sources):
                 waiting = [n for n in (FUSER_ID, *self.plan.ids("tracker")) if children.procs[n].poll() is None]
-                text = (f"every source ended {self.timeout + END_STALL:g} s ago and the fuser has not heard the end "
-                        f"(lost with a link, or sent before it came up): stopping {', '.join(waiting)}")
+                text = (f"every source ended {self.timeout + END_STALL:g} s ago and the fuser has processed nothing "
+                        f"since (an end it did not hear, or a node waiting for what cannot come): "
+                        f"stopping {', '.join(waiting)}")
                 log.warning("%s", text)
                 self.event(text)
                 children.terminate(waiting, self.drain, grace=STOP_GRACE)
