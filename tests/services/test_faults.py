@@ -238,7 +238,7 @@ def test_recorder_then_fuser_killed_centralised(tmp_path, deployment):
     # At speed 1.5 the restarted fuser has 23 s of wall time to be back for the last 11 s
     # of scenario this checks: in ci61, at speed 4 with a core kept busy, it took 14 s and
     # came back after its sources had ended (the run then never ended, all of them dead
-    # and none final: a known defect).
+    # and none final; now the launcher ends such a run: the test below).
     doc, err = disturb(tmp_path, "patent-3d-60", deployment, 1.5,
                         [(6.0, "record", "recorder"), (15.0, "fuser", "fuser")])
     rec = _outage(doc, "recorder", 6.0)
@@ -279,6 +279,7 @@ def test_a_fuser_that_never_hears_its_sources_end_is_stopped(tmp_path, deploymen
     with what was fused."""
     from services.launcher import END_STALL
 
+    stall = source_timeout(load_scenario("patent-3d"), "4") + END_STALL
     watch = FusedWatch(deployment)
     log = tmp_path / "run.log"
     proc = subprocess.Popen(run_cmd(tmp_path, "patent-3d", deployment, "--speed", "4", "--connect", watch.endpoint),
@@ -288,13 +289,14 @@ def test_a_fuser_that_never_hears_its_sources_end_is_stopped(tmp_path, deploymen
         fuser = child(launcher, "fuser", "fuser")
         watch.wait_until(10.0, proc)
         fuser.suspend()
-        sensors = [c for c in launcher.children() if c.cmdline()[c.cmdline().index("services.cli") + 1] == "sensor"]
+        sensors = [c for c in launcher.children()
+                   if (cmd := c.cmdline())[cmd.index("services.cli") + 1] == "sensor"]
         assert sensors
         _, alive = psutil.wait_procs(sensors, timeout=60)
         assert not alive, "the sources did not end"
         ended = time.monotonic()
         fuser.kill()
-        proc.wait(source_timeout(load_scenario("patent-3d"), "4") + END_STALL + 60)
+        proc.wait(stall + 60)
         took = time.monotonic() - ended
     finally:
         if proc.poll() is None:
@@ -304,7 +306,7 @@ def test_a_fuser_that_never_hears_its_sources_end_is_stopped(tmp_path, deploymen
     err = log.read_text()
     assert proc.returncode == 0, err[-3000:]
     assert re.search(r"every source ended \S+ s ago and the fuser has processed nothing since .*: stopping fuser", err)
-    assert took > source_timeout(load_scenario("patent-3d"), "4") + END_STALL
+    assert took > stall
     doc = json.loads((tmp_path / "out.json").read_text())
     (out,) = doc["outages"]["fuser"]
     assert out["t_up"] is not None
