@@ -865,7 +865,9 @@ class NetworkMethod:
         moved = False
         while True:
             delivered = sent = False
-            for node in self.nodes.values():
+            # in the order of their uplinks' keys (t, node, seq), as the fuser merges them:
+            # not the order the nodes were created in, which a node joining later changes
+            for node in [self.nodes[name] for name in sorted(self.nodes)]:
                 # a scan's downlinks before the horizon that passes it, as the fuser sends them
                 downs = self.centre.take_downlinks()
                 for d in downs:

@@ -38,7 +38,7 @@ from fusion.links import InitRequest
 from fusion.measurement.kinds import KINDS
 from fusion.methods import METHODS, make_method, method_config, split, track_fusion_rule
 from fusion.mtt import AssociationConfig
-from fusion.network import TrackCentre
+from fusion.network import MultiTrackCentre, TrackCentre
 from fusion.regional import RegionalFuser, RegionalMethod, RegionalStage, SystemStage
 from fusion.oosm import Refiltering
 from fusion.types import Estimate
@@ -160,13 +160,39 @@ class JoinGate:
         members = set(self.centre.nodes)
         out = step(*args)
         for node in sorted(self.centre.nodes - members):
-            self.event(f"{tracker_id(node)} joined with its request at t = {self._asked.pop(node):g} s")
+            self.event(joined(node, self._asked.pop(node)))
         return out
 
     def __getattr__(self, name: str) -> Any:
         if name.startswith("__"):  # copy/pickle protocol lookups, before ``centre`` exists
             raise AttributeError(name)
         return getattr(self.centre, name)
+
+
+class FirstRequests(JoinGate):
+    """A many-target centre's joins: each node's first initialisation request an event,
+    as :class:`JoinGate`'s. It needs no gate: a report of a local track this centre did
+    not name is dropped by the centre, and its node told to drop it
+    (:class:`fusion.network.MultiTrackCentre`). A restarted fuser's nodes drop their
+    tracks and send their plots up as requests from the scan they join with; the output
+    from there is the in-process run on each node's data from that scan on."""
+
+    def process(self, u) -> list[Estimate]:
+        if isinstance(u, InitRequest) and u.node not in self._asked:
+            self._asked[u.node] = u.t
+            self.event(joined(u.node, u.t))
+        return self.centre.process(u)
+
+    def advance(self, t: float) -> list[Estimate]:
+        return self.centre.advance(t)
+
+    def finish(self) -> list[Estimate]:
+        return self.centre.finish()
+
+
+def joined(node: str, t: float) -> str:
+    """The event of a node's join: the scan of the request it joined with."""
+    return f"{tracker_id(node)} joined with its request at t = {t:g} s"
 
 
 class FuserCore:
@@ -417,8 +443,9 @@ def run(process_id: str, scenario_ref: str, method_name: str, overrides: dict, k
         if live is None and not distributed and not system else None
     with Node(process_id, "fuser", keys, zopts, live=live is not None) as node:
         inbox = Inbox(node.stop)
-        if isinstance(method, TrackCentre):
-            method = JoinGate(method, node.reject, node.event)
+        if isinstance(method, (TrackCentre, MultiTrackCentre)):
+            gate = JoinGate if isinstance(method, TrackCentre) else FirstRequests
+            method = gate(method, node.reject, node.event)
         identity = standby_for or process_id  # the fuser consumers take the fused output of
         utc = time.time if live is not None else lambda: None
         recovery = Recovery(node.processes_by_session()) if live is not None else None

@@ -212,6 +212,29 @@ def test_a_node_is_named_apart_from_its_sensor(crossing, name):
         _same(dataclasses.replace(g, node=e.node), e)
 
 
+@pytest.mark.parametrize("name", ["PHHNV", "DDHNV"])
+def test_a_node_that_joins_later_is_merged_in_order(crossing, name):
+    """Many targets, the radar's node from 8 s and the angle sensor's from 9 s (the
+    nodes of a restarted fuser, joining at different scans): at 9 s both nodes' uplinks
+    reach the centre in key order (t, node, seq), as the fuser merges them, whichever
+    node was created first — the same estimates as with the nodes named so that their
+    creation order is their key order. (Pumped in creation order, the radar's uplink of
+    9 s went first and the centre refused the angle's as out of order.)"""
+    start = {"radar": 8.0, "angle": 9.0}
+    ms = [m for m in merged_measurements(crossing, 0) if start[m.sensor] <= m.t <= 25.0]
+    runs = []
+    for node_of in (lambda sensor: sensor, {"radar": "a-radar", "angle": "b-angle"}.get):
+        method = NetworkMethod(split(name), dict(crossing.tracker), node_of=node_of)
+        out = []
+        for m in ms:
+            out += method.process(m)
+        runs.append([e for e in out + method.finish() if e.node == "centre"])
+    a, b = runs
+    assert len(a) == len(b) and len(a) > 20
+    for e, g in zip(a, b):
+        _same(g, e)
+
+
 def test_a_dropped_track_and_a_lost_request(stream):
     """The centre's ``DropTrack`` drops the node's track: its next measurement asks for an
     initial state again (the typed links once ignored it, so the node kept reporting a

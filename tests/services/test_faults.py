@@ -119,35 +119,46 @@ def test_tracker_stopped_across_a_fuser_restart_in_the_feedback_topology(tmp_pat
 
 def test_fuser_killed_with_many_targets_in_the_feedback_topology(tmp_path, deployment):
     """Three crossing aircraft in clutter, feedback (PHHNV): kill -9 of the fuser at 8 s,
-    well before A and B cross (30 s). The restarted fuser's centre knows none of the
-    nodes' local tracks: the nodes drop them when they see the new fuser, send their plots
-    up as requests, and the new centre starts fused tracks from them. Every aircraft is
-    held again within 14 s of the fuser's return, and the GOSPA from then on is the
-    undisturbed run's. Measured, quiet: back at 8.7 s, all three held from 16 s (7.3 s;
-    the undisturbed run holds them from 7 s); with the nodes keeping their tracks (the
-    defect this guards: `MultiTrackNode.centre_restarted` not dropping them), from 29 s
-    (20.4 s). Killed at 25 s, the return fell into the crossing and all three were held
-    only from 46 s whether the fuser was back at 26 s (ci75, speed 1) or 33 s (ci72,
-    speed 1.5): a fused track started from the nodes' requests there is ambiguous, a
-    limit of initiation in a crossing, not of the restart."""
+    before A and B cross (30 s). The restarted fuser's centre knows none of the nodes'
+    local tracks: the nodes drop them when they see the new fuser and send their plots
+    up as requests from the scan they join with; from there the air picture is the
+    in-process run's on each sensor's data from its node's join on, GOSPA to 1e-9 —
+    a cold start, whatever scan the load makes it. (With the nodes keeping their tracks,
+    the defect this guards — ``MultiTrackNode.centre_restarted`` not dropping them —
+    their reports of local ids the new centre never named are dropped and it differs.)
+
+    How soon every aircraft is held again is then the cold start's, not the restart's,
+    and it depends on the scan (in-process cold starts, both nodes from one scan: from
+    6 s held again at 8 s, 7 → 10, 8 → 29, 9 → 16, 10 → 16, 11–13 → 29, 14 → 17; the
+    undisturbed run from 7 s). Joined at 8 s (ci85, and the project's CI on 348df30),
+    A's radar plot paired with B's angle ray at 13–14 s, where A and B are within 0.8°
+    of each other seen from the angle sensor and that ray meets A's range sphere 0.5σ
+    off A's radar azimuth, 1.4 km above A; B's radar plot with A's ray likewise. Two
+    sensors cannot tell the two pairings apart while the aircraft stay aligned from
+    the angle sensor (10–50 s), and the swapped tracks lived to 41 s: a limit of
+    two-sensor initiation, not of the restart (the bound of 14 s from the return this
+    test once asserted held only for the scans where the pairing came out right)."""
 
     path = CROSSING
     doc, err = disturb(tmp_path, str(path), deployment, 1.0, [(8.0, "fuser", "fuser")], "--topology", "feedback")
     fuser = _outage(doc, "fuser", 8.0)
     assert err.count("fuser restarted: tracks dropped, asking it for initial states again") == 2
+    rejoined = err[err.index("fuser killed (signal 9)"):]
+    joins = {sensor: float(s) for sensor, s in
+             re.findall(r"fuser: trk-(\w+) joined with its request at t = ([\d.]+) s", rejoined)}
+    assert joins.keys() == {"radar", "angle"}, rejoined
+    assert all(fuser["t_down"] - 1 <= s <= fuser["t_up"] + 5 for s in joins.values()), (joins, fuser)
     got = doc["methods"]["PHHNV"]
     t, gospa = np.array(got["series"]["t"]), np.array(got["series"]["gospa"])
-    assert t[-1] == 60.0
+    assert np.all(np.diff(t) > 0) and t[-1] == 60.0
     sc = load_scenario(path)
-    ref = tracks_summary([score_tracks_of(sc, run_method(sc, "PHHNV"))])["series"]
-    ref_gospa = dict(zip(ref["t"], ref["gospa"]))
-    # every aircraft held again: one missed or false target alone costs c/√2 (p = 2)
-    held = t[(t >= fuser["t_up"]) & (gospa < GOSPA_CUTOFF / np.sqrt(2))]
-    assert len(held) and held[0] <= fuser["t_up"] + 14.0, (fuser, t, gospa)
-    after = t >= held[0]
-    assert after.sum() >= 10
-    assert np.mean(gospa[after]) <= 1.5 * np.mean([ref_gospa[s] for s in t[after]]) + 50.0, (gospa[after], ref)
-    # every aircraft held at the end: one missed or false target alone costs c/√2 (p = 2)
+    cold = [m for m in merged_measurements(sc) if m.t >= joins[m.sensor]]
+    ref = tracks_summary([score_tracks_of(sc, run_method(sc, "PHHNV", measurements=cold))])["series"]
+    assert list(t) == ref["t"]
+    since = t >= min(joins.values())  # before: the killed fuser's picture, then none
+    np.testing.assert_allclose(gospa[since], np.array(ref["gospa"])[since], rtol=0, atol=1e-9)
+    # a real air picture after the restart: every aircraft held at the end, where one
+    # missed or false target alone costs c/√2 (p = 2)
     assert gospa[-1] < GOSPA_CUTOFF / np.sqrt(2), gospa[-20:]
 
 
