@@ -316,6 +316,15 @@ class FuserCore:
             self.events.append(f"joined {msg.src}'s stream mid-way (first watermark heard: {msg.t:g} s); "
                                f"fusing from the first scan heard whole ({n} held measurements dropped)")
 
+    def end(self, src: str, now: float) -> float:
+        """Take ``src``'s stream as ended without its final watermark (a tracker whose
+        sensor's process is gone, its end not heard): what it sent is released as if that
+        watermark had come with its last data. Returns the time of that end."""
+        st = self.merger.sources[src]
+        t = max([st.watermark, *(t for t, _, _ in st.held[-1:]), 0.0])  # (a scenario's time: from 0)
+        self.merger.watermark(src, t, True, now, self.events)
+        return t
+
     def step(self, now: float) -> list[Estimate]:
         """Release what the watermarks allow and run the method on it."""
         if self.finished:

@@ -10,6 +10,13 @@ seconds, the node runs on alone — updating from its own last estimate, or star
 from its own measurement — and says so in its status events; when downlinks come
 back it takes them again.
 
+In a scenario run its sensor's stream ends with a final watermark. If the sensor's
+process is gone (no liveliness token of it) for ``--feedback-timeout`` seconds and its
+end was not heard, the stream is taken as ended at its last data: a tracker paused (or
+cut off) for longer than Zenoh's lease loses its link to the sensor, and what the sensor
+sent meanwhile, its end too; waiting for it would hold the fuser's merge for ever.
+Sensors are never restarted in a scenario run; live, the tracker waits for its sensor.
+
 A *restarted* fuser (a liveliness token of a new incarnation, i.e. Zenoh session, of
 the fuser appears) knows nothing of this node: the node drops its tracks (one, or a
 many-target node's ``L<n>`` and ``A<n>``) and re-runs the initialisation handshake,
@@ -82,6 +89,7 @@ def run(sensor: str, scenario_ref: str, method_name: str, overrides: dict, keys:
     local = split(method_name).node(sensor, config)
     feed = _Feed(local)
     fuser_token: queue.SimpleQueue[str] = queue.SimpleQueue()  # incarnations of the fuser that appeared
+    sensor_token: queue.SimpleQueue[tuple[bool, str]] = queue.SimpleQueue()  # (up, incarnation) of the sensor's
     with Node(me, "tracker", keys, zopts, live=live is not None) as node:
         inbox = Inbox(node.stop)
         # Its one sensor is never declared dead here: the tracker waits for it to come back
@@ -107,6 +115,10 @@ def run(sensor: str, scenario_ref: str, method_name: str, overrides: dict, keys:
         watch = node.session.liveliness().declare_subscriber(
             keys.alive(fuser_id),
             lambda s: s.kind == zenoh.SampleKind.PUT and fuser_token.put(keys.alive_process(str(s.key_expr))[1]),
+            history=True)
+        sensor_watch = node.session.liveliness().declare_subscriber(
+            keys.alive(sensor),
+            lambda s: sensor_token.put((s.kind == zenoh.SampleKind.PUT, keys.alive_process(str(s.key_expr))[1])),
             history=True)
         try:  # be reachable from the fuser before a sensor (waiting for this token) starts
             node.wait_for([fuser_id], 60.0)
@@ -172,6 +184,27 @@ def run(sensor: str, scenario_ref: str, method_name: str, overrides: dict, keys:
                     restart_handshake()
                 fuser_incarnation = incarnation
 
+        sensor_up: set[str] = set()  # the sensor's incarnations whose tokens are up
+        sensor_heard = False
+        gone_since: float | None = None
+
+        def sensor_gone(now: float) -> None:
+            """A scenario run's sensor gone without its end heard (module docstring)."""
+            nonlocal sensor_heard, gone_since
+            while not sensor_token.empty():
+                up, incarnation = sensor_token.get()
+                (sensor_up.add if up else sensor_up.discard)(incarnation)
+                sensor_heard |= up
+            if sensor_up or not sensor_heard or feed.finished:
+                gone_since = None
+            elif gone_since is None:
+                gone_since = now
+            elif now - gone_since > feedback_timeout:
+                t_end = core.end(sensor, now)
+                node.event(f"{sensor} gone for more than {feedback_timeout:g} s and the end of its stream not "
+                           f"heard: taken as ended at t = {t_end:g} s")
+                gone_since = math.inf  # (once)
+
         while not node.stop.is_set():
             heard_fuser()
             try:
@@ -188,6 +221,8 @@ def run(sensor: str, scenario_ref: str, method_name: str, overrides: dict, keys:
             except queue.Empty:
                 pass
             now = time.monotonic()
+            if live is None:
+                sensor_gone(now)
             core.step(now)
             for ev in core.events:
                 node.event(ev)
@@ -220,4 +255,5 @@ def run(sensor: str, scenario_ref: str, method_name: str, overrides: dict, keys:
                 last_status = now
         node.publish_status("done" if feed.finished else "stopped", max(sent_wm, 0.0))
         watch.undeclare()
+        sensor_watch.undeclare()
     return 0

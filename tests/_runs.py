@@ -9,6 +9,7 @@ import subprocess
 import sys
 import time
 from contextlib import contextmanager
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -68,12 +69,25 @@ def child(launcher: psutil.Process, command: str, ident: str, timeout: float = 1
     raise AssertionError(f"no {command} {ident} process")
 
 
-def disturb(tmp_path, scenario, deployment, speed, kills, *extra, timeout=120, killed_at=None, hold=None):
+@dataclass(frozen=True)
+class Hold:
+    """Stop a process (SIGSTOP) once the fused output reaches ``at`` (None: right after
+    the last kill), until it reaches ``until`` or for at most ``max_s`` seconds of wall
+    time, then let it go on (SIGCONT). Zenoh's lease is 10 s: a process stopped longer
+    loses its links (and what was sent on them meanwhile)."""
+
+    command: str
+    ident: str
+    until: float = math.inf
+    at: float | None = None
+    max_s: float = math.inf
+
+
+def disturb(tmp_path, scenario, deployment, speed, kills, *extra, timeout=120, killed_at=None,
+            hold: Hold | None = None):
     """Run the scenario; once the fused output reaches each scenario time of ``kills``
-    (t, command, id), kill -9 that process (its monotonic time appended to ``killed_at``).
-    ``hold`` (command, id, t): right after the last kill, stop that process (SIGSTOP)
-    until the fused output reaches ``t``, then let it go on (SIGCONT).
-    Returns the summary and the launcher's stderr."""
+    (t, command, id), kill -9 that process (its monotonic time appended to ``killed_at``);
+    then :class:`Hold` ``hold``. Returns the summary and the launcher's stderr."""
     watch = FusedWatch(deployment)
     proc = subprocess.Popen(run_cmd(tmp_path, scenario, deployment, "--speed", str(speed),
                                     "--connect", watch.endpoint, *extra),
@@ -87,11 +101,12 @@ def disturb(tmp_path, scenario, deployment, speed, kills, *extra, timeout=120, k
             if killed_at is not None:
                 killed_at.append(time.monotonic())
         if hold is not None:
-            command, ident, t = hold
-            held = child(launcher, command, ident)
+            held = child(launcher, hold.command, hold.ident)
+            if hold.at is not None:
+                watch.wait_until(hold.at, proc)
             held.suspend()
             try:
-                watch.wait_until(t, proc)
+                watch.wait_until(hold.until, proc, timeout=min(hold.max_s, 60.0), expire=hold.max_s < math.inf)
             finally:
                 held.resume()
         proc.wait(timeout)
@@ -121,10 +136,14 @@ class FusedWatch:
     def _on_fused(self, sample) -> None:
         self.t = max(self.t, decode(sample.payload.to_bytes()).t)
 
-    def wait_until(self, t: float, proc, timeout: float = 60) -> None:
-        """Until the fused output has reached scenario time ``t``."""
+    def wait_until(self, t: float, proc, timeout: float = 60, expire: bool = False) -> None:
+        """Until the fused output has reached scenario time ``t``; at most ``timeout``
+        seconds (then a failure, or with ``expire`` the end of the wait), and while the
+        run goes on (or with ``expire`` until it ends)."""
         deadline = time.monotonic() + timeout
         while self.t < t:
+            if expire and (time.monotonic() >= deadline or proc.poll() is not None):
+                return
             assert proc.poll() is None, "the run ended early"
             assert time.monotonic() < deadline, f"no fused estimate at t >= {t} (last {self.t})"
             time.sleep(0.02)

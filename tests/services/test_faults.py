@@ -26,7 +26,7 @@ from _ingest_helpers import site_toml
 from conftest import CROSSING
 from schemas import decode
 from sensors_sim import load_scenario
-from _runs import FusedWatch, child, disturb, in_process, run_cmd
+from _runs import FusedWatch, Hold, child, disturb, in_process, run_cmd
 from services.evaluation import merged_measurements, run_method
 from services.launcher import free_port
 from services.plan import source_timeout
@@ -90,7 +90,9 @@ def test_tracker_then_fuser_killed_in_the_feedback_topology(tmp_path, deployment
 
 def test_tracker_stopped_across_a_fuser_restart_in_the_feedback_topology(tmp_path, deployment):
     """Feedback (PHHNV): kill -9 of the fuser, and the angle sensor's tracker stopped
-    (SIGSTOP) from then until the restarted fuser's output reaches 26 s. The resumed
+    (SIGSTOP) from then until the restarted fuser's output reaches 26 s (at most 7 s:
+    stopped past Zenoh's lease of 10 s, it lost its link to the sensor and what was sent
+    meanwhile, and the run wedged in ci72 and ci79: the next test). The resumed
     tracker's request is for a scan the fuser has passed, refused as late; the node asks
     again with each next measurement, once the fuser's horizon (said again each second)
     shows its request passed over, and joins at the first scan the fuser has not passed,
@@ -103,7 +105,7 @@ def test_tracker_stopped_across_a_fuser_restart_in_the_feedback_topology(tmp_pat
     at 52 s, then growing again to 11.6 km at 56 s)."""
     doc, err = disturb(tmp_path, "patent-3d-60", deployment, 3.0,
                        [(8.0, "tracker", "angle"), (20.0, "fuser", "fuser")], "--topology", "feedback",
-                       hold=("tracker", "angle", 26.0))
+                       hold=Hold("tracker", "angle", until=26.0, max_s=7.0))
     fuser = _outage(doc, "fuser", 20.0)
     t = np.array(doc["methods"]["PHHNV"]["series"]["t"])
     rejoined = err[err.index("fuser killed (signal 9)"):]
@@ -115,6 +117,27 @@ def test_tracker_stopped_across_a_fuser_restart_in_the_feedback_topology(tmp_pat
     assert np.all(np.diff(t) > 0) and t[-1] == 60.0
     assert set(np.arange(joins["radar2d"] + 2, 61.0)) <= set(t), (t, joins)  # every scan after the restart
     assert joins["angle"] <= fuser["t_up"] + 30, (joins, fuser)
+
+
+def test_a_tracker_stopped_past_the_lease_while_its_sensor_ended_ends_by_itself(tmp_path, deployment):
+    """Feedback (PHHNV): the angle sensor's tracker stopped (SIGSTOP) at 20 s for 18 s of
+    wall time, past Zenoh's lease (10 s) and past the sensor's end (13 s at speed 3): the
+    links of the stopped process are closed, and the rest of the angle sensor's stream,
+    its end too, is lost to it. Resumed, the tracker sees the sensor gone, takes its
+    stream as ended at its last data and ends; the fuser, which went on with the radar
+    alone, fuses every scan to 60 s. (Before, the resumed tracker waited for the end
+    that could not come: the launcher stopped it 10 s after the fuser was done, and with
+    a restarted fuser waiting for it — ci72, ci79 — the run wedged at 43 s until the
+    launcher's end-of-sources watch stopped everything.)"""
+    doc, err = disturb(tmp_path, "patent-3d-60", deployment, 3.0, [], "--topology", "feedback",
+                       hold=Hold("tracker", "angle", at=20.0, max_s=18.0))
+    ended = re.findall(r"trk-angle: angle gone for more than [\d.]+ s and the end of its stream not heard: "
+                       r"taken as ended at t = ([\d.]+) s", err)
+    assert len(ended) == 1 and 20.0 <= float(ended[0]) < 60.0, err
+    assert "did not end" not in err and "killed at the end" not in err and "processed nothing" not in err, err
+    assert doc["exit_codes"]["trk-angle"] == 0, doc["exit_codes"]
+    t = np.array(doc["methods"]["PHHNV"]["series"]["t"])
+    assert np.all(np.diff(t) > 0) and set(np.arange(0.0, 61.0)) <= set(t), t  # every scan, with the radar alone
 
 
 def test_fuser_killed_with_many_targets_in_the_feedback_topology(tmp_path, deployment):
