@@ -73,14 +73,17 @@ def child(launcher: psutil.Process, command: str, ident: str, timeout: float = 1
 class Hold:
     """Stop a process (SIGSTOP) once the fused output reaches ``at`` (None: right after
     the last kill), until it reaches ``until`` or for at most ``max_s`` seconds of wall
-    time, then let it go on (SIGCONT). Zenoh's lease is 10 s: a process stopped longer
-    loses its links (and what was sent on them meanwhile)."""
+    time, or else until the process ``exit_of`` (command, id) has exited and for at
+    least ``min_s`` seconds; then let it go on (SIGCONT). Zenoh's lease is 10 s: a
+    process stopped longer loses its links (and what was sent on them meanwhile)."""
 
     command: str
     ident: str
     until: float = math.inf
     at: float | None = None
     max_s: float = math.inf
+    exit_of: tuple[str, str] | None = None
+    min_s: float = 0.0
 
 
 def disturb(tmp_path, scenario, deployment, speed, kills, *extra, timeout=120, killed_at=None,
@@ -102,11 +105,17 @@ def disturb(tmp_path, scenario, deployment, speed, kills, *extra, timeout=120, k
                 killed_at.append(time.monotonic())
         if hold is not None:
             held = child(launcher, hold.command, hold.ident)
+            awaited = child(launcher, *hold.exit_of) if hold.exit_of else None
             if hold.at is not None:
                 watch.wait_until(hold.at, proc)
             held.suspend()
+            since = time.monotonic()
             try:
-                watch.wait_until(hold.until, proc, timeout=min(hold.max_s, 60.0), expire=hold.max_s < math.inf)
+                if awaited is None:
+                    watch.wait_until(hold.until, proc, timeout=min(hold.max_s, 60.0), expire=hold.max_s < math.inf)
+                else:
+                    awaited.wait(60)  # (psutil: raises TimeoutExpired past the deadline)
+                time.sleep(max(0.0, since + hold.min_s - time.monotonic()))  # the fault's own length
             finally:
                 held.resume()
         proc.wait(timeout)

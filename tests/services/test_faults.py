@@ -120,17 +120,17 @@ def test_tracker_stopped_across_a_fuser_restart_in_the_feedback_topology(tmp_pat
 
 
 def test_a_tracker_stopped_past_the_lease_while_its_sensor_ended_ends_by_itself(tmp_path, deployment):
-    """Feedback (PHHNV): the angle sensor's tracker stopped (SIGSTOP) at 20 s for 18 s of
-    wall time, past Zenoh's lease (10 s) and past the sensor's end (13 s at speed 3): the
-    links of the stopped process are closed, and the rest of the angle sensor's stream,
-    its end too, is lost to it. Resumed, the tracker sees the sensor gone, takes its
+    """Feedback (PHHNV): the angle sensor's tracker stopped (SIGSTOP) at 20 s until the
+    angle sensor has ended (13 s of wall time at speed 3) and for at least 12 s, past
+    Zenoh's lease (10 s): the links of the stopped process are closed, and the rest of
+    the angle sensor's stream, its end too, is lost to it. Resumed, the tracker sees the sensor gone, takes its
     stream as ended at its last data and ends; the fuser, which went on with the radar
     alone, fuses every scan to 60 s. (Before, the resumed tracker waited for the end
     that could not come: the launcher stopped it 10 s after the fuser was done, and with
     a restarted fuser waiting for it — ci72, ci79 — the run wedged at 43 s until the
     launcher's end-of-sources watch stopped everything.)"""
     doc, err = disturb(tmp_path, "patent-3d-60", deployment, 3.0, [], "--topology", "feedback",
-                       hold=Hold("tracker", "angle", at=20.0, max_s=18.0))
+                       hold=Hold("tracker", "angle", at=20.0, exit_of=("sensor", "angle"), min_s=12.0))
     ended = re.findall(r"trk-angle: angle gone for more than [\d.]+ s and the end of its stream not heard: "
                        r"taken as ended at t = ([\d.]+) s", err)
     assert len(ended) == 1 and 20.0 <= float(ended[0]) < 60.0, err
