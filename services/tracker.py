@@ -11,11 +11,12 @@ from its own measurement — and says so in its status events; when downlinks co
 back it takes them again.
 
 In a scenario run its sensor's stream ends with a final watermark. If the sensor's
-process is gone (no liveliness token of it) for ``--feedback-timeout`` seconds and its
-end was not heard, the stream is taken as ended at its last data: a tracker paused (or
-cut off) for longer than Zenoh's lease loses its link to the sensor, and what the sensor
-sent meanwhile, its end too; waiting for it would hold the fuser's merge for ever.
-Sensors are never restarted in a scenario run; live, the tracker waits for its sensor.
+process is gone (no liveliness token of it, while other processes' tokens are seen: the
+tracker is not cut off) for ``--feedback-timeout`` seconds and its end was not heard,
+the stream is taken as ended at its last data: a tracker paused for longer than Zenoh's
+lease loses its link to the sensor, and what the sensor sent meanwhile, its end too;
+waiting for it would hold the fuser's merge for ever. Sensors are never restarted in a
+scenario run; live, the tracker waits for its sensor.
 
 A *restarted* fuser (a liveliness token of a new incarnation, i.e. Zenoh session, of
 the fuser appears) knows nothing of this node: the node drops its tracks (one, or a
@@ -49,6 +50,7 @@ from .source import recovery_cache
 # for an init or feedback): it is not silent, which its fuser would take for dead after
 # its source timeout (3 s for trackers), passing over the request it waits on.
 ALIVE_S = 1.0
+ALIVE_MAX = 4096  # liveliness tokens kept (the deployment's processes; more are not tracked)
 
 
 class _Feed:
@@ -89,7 +91,7 @@ def run(sensor: str, scenario_ref: str, method_name: str, overrides: dict, keys:
     local = split(method_name).node(sensor, config)
     feed = _Feed(local)
     fuser_token: queue.SimpleQueue[str] = queue.SimpleQueue()  # incarnations of the fuser that appeared
-    sensor_token: queue.SimpleQueue[tuple[bool, str]] = queue.SimpleQueue()  # (up, incarnation) of the sensor's
+    tokens: queue.SimpleQueue[tuple[bool, str, str]] = queue.SimpleQueue()  # (up, process, incarnation)
     with Node(me, "tracker", keys, zopts, live=live is not None) as node:
         inbox = Inbox(node.stop)
         # Its one sensor is never declared dead here: the tracker waits for it to come back
@@ -116,10 +118,15 @@ def run(sensor: str, scenario_ref: str, method_name: str, overrides: dict, keys:
             keys.alive(fuser_id),
             lambda s: s.kind == zenoh.SampleKind.PUT and fuser_token.put(keys.alive_process(str(s.key_expr))[1]),
             history=True)
-        sensor_watch = node.session.liveliness().declare_subscriber(
-            keys.alive(sensor),
-            lambda s: sensor_token.put((s.kind == zenoh.SampleKind.PUT, keys.alive_process(str(s.key_expr))[1])),
-            history=True)
+
+        def on_token(s: zenoh.Sample) -> None:
+            try:
+                tokens.put((s.kind == zenoh.SampleKind.PUT, *keys.alive_process(str(s.key_expr))))
+            except ValueError:
+                pass  # (not a process's token)
+
+        alive_watch = node.session.liveliness().declare_subscriber(keys.all("alive"), on_token, history=True) \
+            if live is None else None  # (live: the tracker waits for its sensor)
         try:  # be reachable from the fuser before a sensor (waiting for this token) starts
             node.wait_for([fuser_id], 60.0)
         except Stopped:
@@ -184,18 +191,22 @@ def run(sensor: str, scenario_ref: str, method_name: str, overrides: dict, keys:
                     restart_handshake()
                 fuser_incarnation = incarnation
 
-        sensor_up: set[str] = set()  # the sensor's incarnations whose tokens are up
+        alive: set[tuple[str, str]] = set()  # (process, incarnation) of the tokens up, at most ALIVE_MAX
         sensor_heard = False
         gone_since: float | None = None
 
         def sensor_gone(now: float) -> None:
             """A scenario run's sensor gone without its end heard (module docstring)."""
             nonlocal sensor_heard, gone_since
-            while not sensor_token.empty():
-                up, incarnation = sensor_token.get()
-                (sensor_up.add if up else sensor_up.discard)(incarnation)
-                sensor_heard |= up
-            if sensor_up or not sensor_heard or feed.finished:
+            while not tokens.empty():
+                up, process, incarnation = tokens.get()
+                if not up:
+                    alive.discard((process, incarnation))
+                elif len(alive) < ALIVE_MAX:
+                    alive.add((process, incarnation))
+                sensor_heard |= up and process == sensor
+            seen = {process for process, _ in alive} - {me}
+            if sensor in seen or not seen or not sensor_heard or feed.finished:  # (none seen: cut off)
                 gone_since = None
             elif gone_since is None:
                 gone_since = now
@@ -255,5 +266,6 @@ def run(sensor: str, scenario_ref: str, method_name: str, overrides: dict, keys:
                 last_status = now
         node.publish_status("done" if feed.finished else "stopped", max(sent_wm, 0.0))
         watch.undeclare()
-        sensor_watch.undeclare()
+        if alive_watch is not None:
+            alive_watch.undeclare()
     return 0
