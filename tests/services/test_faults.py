@@ -462,6 +462,36 @@ def test_router_restart_in_client_mode(tmp_path, deployment):
         assert before[-1] - 1 <= gap[0] <= before[-1] + 1, (gap, t)
 
 
+def test_router_restart_under_trackers_ends_no_tracker(tmp_path, deployment):
+    """The router restart of the test above under local trackers (``--topology
+    distributed``): every liveliness token vanishes with the router, the trackers' sensors'
+    too, for longer than their feedback timeout (3 s). A tracker takes its sensor for gone
+    (and its stream for ended) only while it sees other processes' tokens, so none ends:
+    every one exits 0 after the scenario's end, and the fused output comes back after the
+    reconnection and goes on to 30 s. (Judging its sensor's token alone, both trackers
+    took their streams as ended at t = 8 s, during the outage.)"""
+    ep = f"tcp/127.0.0.1:{free_port()}"
+    config = _client_config(tmp_path, ep)
+    routers = [_router(ep)]
+    watch = FusedWatch(deployment, connect=ep)
+    proc = subprocess.Popen(run_cmd(tmp_path, "patent-3d", deployment, "--speed", "1", "--topology", "distributed",
+                                    "--zenoh-config", str(config)),
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        watch.wait_until(7.0, proc)
+        routers.append(_restarted(routers[0], ep))
+        _, err = proc.communicate(timeout=120)
+    finally:
+        _stop(proc, watch, routers)
+    assert proc.returncode == 0, err[-3000:]
+    assert "gone for more than" not in err, err
+    doc = json.loads((tmp_path / "out.json").read_text())
+    assert set(doc["exit_codes"].values()) == {0}, doc["exit_codes"]
+    t = doc["methods"]["HNV"]["series"]["t"]
+    n = next(i for i in range(1, len(t)) if t[i] - t[i - 1] > 1.0)
+    assert t[n] <= 26.0 and t[n:] == list(np.arange(t[n], 31.0)), t
+
+
 def test_router_restart_in_a_live_session_loses_nothing(tmp_path, deployment):
     """A live session, every process a Zenoh client of one router; kill -9 of the router
     once the fuser is fusing, and a new one on the same port :data:`OUTAGE_S` later. The sensors'
