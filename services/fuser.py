@@ -498,6 +498,9 @@ def run(process_id: str, scenario_ref: str, method_name: str, overrides: dict, k
         if stage is None:  # a regional fuser's frames are no picture: it answers no `zfusion picture`
             node.keep(picture.serve(node.session, keys))
         down = {tid: publisher(keys.feedback(tid)) for tid in (intake.nodes if distributed else ())}
+        # Each downlink says which process and incarnation sent it: a node sees a restarted
+        # fuser in its first downlink, whichever path its liveliness token takes (services.tracker).
+        sender = f"{process_id}/{node.session.zid()}".encode()
         node.announce()
         node.publish_status("ready")
         kept: list[Estimate] | None = [] if json_path and live is None else None
@@ -541,7 +544,7 @@ def run(process_id: str, scenario_ref: str, method_name: str, overrides: dict, k
                     if data is not None:
                         down_seq += 1
                         if leader.leads:
-                            down[tracker_id(d.node)].put(data)
+                            down[tracker_id(d.node)].put(data, attachment=sender)
                 # Fed-back nodes, and every many-target node, wait for the horizon; said again
                 # each second for a node that missed it (stopped, or restarting its handshake)
                 # and would wait for its feedback timeout, holding the merge back meanwhile.
@@ -550,7 +553,7 @@ def run(process_id: str, scenario_ref: str, method_name: str, overrides: dict, k
                     horizon = method.horizon
                     down_seq += 1
                     for p in down.values() if leader.leads else ():
-                        p.put(horizon_message(identity, down_seq, horizon))
+                        p.put(horizon_message(identity, down_seq, horizon), attachment=sender)
             for src, n in recovery.take_misses() if recovery is not None else ():
                 if src in core.merger.sources:
                     core.merger.sources[src].missed += n

@@ -19,7 +19,7 @@ waiting for it would hold the fuser's merge for ever. Sensors are never restarte
 scenario run; live, the tracker waits for its sensor.
 
 A *restarted* fuser (a liveliness token of a new incarnation, i.e. Zenoh session, of
-the fuser appears) knows nothing of this node: the node drops its tracks (one, or a
+the fuser appears, or a downlink whose attachment names one) knows nothing of this node: the node drops its tracks (one, or a
 many-target node's ``L<n>`` and ``A<n>``) and re-runs the initialisation handshake,
 sending its next plots up as requests (:mod:`services.fuser`, "Restart"). A restarted
 tracker is a new node to the fuser: it asks to join and starts from the latest fused
@@ -51,6 +51,7 @@ from .source import recovery_cache
 # its source timeout (3 s for trackers), passing over the request it waits on.
 ALIVE_S = 1.0
 ALIVE_MAX = 4096  # liveliness tokens kept (the deployment's processes; more are not tracked)
+RETIRED_MAX = 1024  # replaced fuser incarnations remembered (restarts; more are not remembered)
 
 
 class _Feed:
@@ -104,15 +105,35 @@ def run(sensor: str, scenario_ref: str, method_name: str, overrides: dict, keys:
                                                                           scenario.sensor(sensor).period)})
         utc = time.time if live is not None else lambda: None
         recovery = None
+        last_sender: list[str] = []  # the fuser incarnation that sent the latest downlink
+
+        def on_downlink_sample(sample: zenoh.Sample) -> None:
+            """Zenoh's callback for a downlink: first the incarnation of the fuser that sent
+            it (its attachment, ``<process>/<session id>``), so that a restarted fuser's
+            first downlink restarts the handshake before it is applied even when its
+            liveliness token, on another path through the fabric, comes later (a node that
+            took the new fuser's horizon first sent its old tracks' reports, which the new
+            centre drops, instead of its plots as requests). A standby's downlinks (another
+            process) change nothing: it continues the leader's centre."""
+            try:
+                process, _, incarnation = (sample.attachment.to_bytes() if sample.attachment is not None
+                                           else b"").decode().partition("/")
+            except UnicodeDecodeError:
+                process = incarnation = ""
+            if process == fuser_id and incarnation and last_sender != [incarnation]:
+                last_sender[:] = [incarnation]
+                fuser_token.put(incarnation)
+            inbox(sample)
+
         if live is not None:  # live: its sensor's and the fuser's publishers give back what a cut-off missed
             recovery = Recovery(node.processes_by_session())
-            for key in (keys.meas(sensor), keys.feedback(me)):
-                node.recovering_subscriber(key, inbox, recovery.on_miss)
+            node.recovering_subscriber(keys.meas(sensor), inbox, recovery.on_miss)
+            node.recovering_subscriber(keys.feedback(me), on_downlink_sample, recovery.on_miss)
             # Its uplinks: at most one per measurement of its sensor, and a watermark per scan.
             pub = node.recoverable_publisher(keys.local(me), recovery_cache(scenario, sensor))
         else:
             node.subscribe(keys.meas(sensor), inbox)
-            node.subscribe(keys.feedback(me), inbox)
+            node.subscribe(keys.feedback(me), on_downlink_sample)
             pub = node.publisher(keys.local(me))
         watch = node.session.liveliness().declare_subscriber(
             keys.alive(fuser_id),
@@ -179,16 +200,23 @@ def run(sensor: str, scenario_ref: str, method_name: str, overrides: dict, keys:
             alone, waiting_since = False, None
             sent_wm = -math.inf  # the new fuser has heard no watermark from us yet
 
+        retired: set[str] = set()  # incarnations of the fuser this node has seen replaced
+
         def heard_fuser() -> None:
-            """The incarnations of the fuser that appeared: a new one restarts the handshake.
-            Before each downlink, so that the new fuser's first horizon is not forgotten by
-            a handshake that comes after it (the node, which then knows no horizon, would
-            wait for its init until its feedback timeout, holding the fuser's merge back)."""
+            """The incarnations of the fuser that appeared (tokens, downlinks' senders): a
+            new one restarts the handshake, a replaced one is never taken back. Before each
+            downlink, so that the new fuser's first horizon is not forgotten by a handshake
+            that comes after it (the node, which then knows no horizon, would wait for its
+            init until its feedback timeout, holding the fuser's merge back)."""
             nonlocal fuser_incarnation
             while not fuser_token.empty():
                 incarnation = fuser_token.get()
-                if fuser_incarnation is not None and incarnation != fuser_incarnation:
+                if incarnation in retired or incarnation == fuser_incarnation:
+                    continue
+                if fuser_incarnation is not None:
                     restart_handshake()
+                    if len(retired) < RETIRED_MAX:
+                        retired.add(fuser_incarnation)
                 fuser_incarnation = incarnation
 
         alive: set[tuple[str, str]] = set()  # (process, incarnation) of the tokens up, at most ALIVE_MAX
