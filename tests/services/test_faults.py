@@ -426,6 +426,27 @@ def _stop(proc: subprocess.Popen, watch: FusedWatch, routers: list[subprocess.Po
                     r.wait()
 
 
+def _router_restarted_at_7_s(tmp_path, deployment, *extra: str) -> tuple[dict, str]:
+    """patent-3d at speed 1, every process a client of one router, killed -9 once the
+    fused output reaches 7 s and restarted on the same port: the summary and stderr."""
+    ep = f"tcp/127.0.0.1:{free_port()}"
+    config = _client_config(tmp_path, ep)
+    routers = [_router(ep)]
+    watch = FusedWatch(deployment, connect=ep)
+    proc = subprocess.Popen(run_cmd(tmp_path, "patent-3d", deployment, "--speed", "1", "--zenoh-config", str(config),
+                                    *extra), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        launcher = psutil.Process(proc.pid)
+        assert "--zenoh-config" in child(launcher, "fuser", "fuser").cmdline()  # children are clients too
+        watch.wait_until(7.0, proc)
+        routers.append(_restarted(routers[0], ep))
+        _, err = proc.communicate(timeout=120)
+    finally:
+        _stop(proc, watch, routers)
+    assert proc.returncode == 0, err[-3000:]
+    return json.loads((tmp_path / "out.json").read_text()), err
+
+
 def test_router_restart_in_client_mode(tmp_path, deployment):
     """Every process a Zenoh client of one router; kill -9 of the router mid-run and a
     new one on the same port seconds later. The sessions reconnect by themselves (zenoh
@@ -437,19 +458,7 @@ def test_router_restart_in_client_mode(tmp_path, deployment):
     ep = f"tcp/127.0.0.1:{free_port()}"
     config = _client_config(tmp_path, ep)
     routers = [_router(ep)]
-    watch = FusedWatch(deployment, connect=ep)
-    proc = subprocess.Popen(run_cmd(tmp_path, "patent-3d", deployment, "--speed", "1", "--zenoh-config", str(config)),
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
-        launcher = psutil.Process(proc.pid)
-        assert "--zenoh-config" in child(launcher, "fuser", "fuser").cmdline()  # children are clients too
-        watch.wait_until(7.0, proc)
-        routers.append(_restarted(routers[0], ep))
-        _, err = proc.communicate(timeout=120)
-    finally:
-        _stop(proc, watch, routers)
-    assert proc.returncode == 0, err[-3000:]
-    doc = json.loads((tmp_path / "out.json").read_text())
+    doc, _ = _router_restarted_at_7_s(tmp_path, deployment)
     assert doc["outages"] == {} and set(doc["exit_codes"].values()) == {0}
     t = doc["methods"]["SS"]["series"]["t"]
     n = next(i for i in range(1, len(t)) if t[i] - t[i - 1] > 1.0)
@@ -470,22 +479,8 @@ def test_router_restart_under_trackers_ends_no_tracker(tmp_path, deployment):
     every one exits 0 after the scenario's end, and the fused output comes back after the
     reconnection and goes on to 30 s. (Judging its sensor's token alone, both trackers
     took their streams as ended at t = 8 s, during the outage.)"""
-    ep = f"tcp/127.0.0.1:{free_port()}"
-    config = _client_config(tmp_path, ep)
-    routers = [_router(ep)]
-    watch = FusedWatch(deployment, connect=ep)
-    proc = subprocess.Popen(run_cmd(tmp_path, "patent-3d", deployment, "--speed", "1", "--topology", "distributed",
-                                    "--zenoh-config", str(config)),
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
-        watch.wait_until(7.0, proc)
-        routers.append(_restarted(routers[0], ep))
-        _, err = proc.communicate(timeout=120)
-    finally:
-        _stop(proc, watch, routers)
-    assert proc.returncode == 0, err[-3000:]
+    doc, err = _router_restarted_at_7_s(tmp_path, deployment, "--topology", "distributed")
     assert "gone for more than" not in err, err
-    doc = json.loads((tmp_path / "out.json").read_text())
     assert set(doc["exit_codes"].values()) == {0}, doc["exit_codes"]
     t = doc["methods"]["HNV"]["series"]["t"]
     n = next(i for i in range(1, len(t)) if t[i] - t[i - 1] > 1.0)
