@@ -455,9 +455,6 @@ def test_router_restart_in_client_mode(tmp_path, deployment):
     the scenario, and fuses the measurements sent after the reconnection. At speed 1: in
     ci62, at speed 2 with a core kept busy, the fused output came back 6.5 s of wall time
     after the router did, at t = 29 s of the 30."""
-    ep = f"tcp/127.0.0.1:{free_port()}"
-    config = _client_config(tmp_path, ep)
-    routers = [_router(ep)]
     doc, _ = _router_restarted_at_7_s(tmp_path, deployment)
     assert doc["outages"] == {} and set(doc["exit_codes"].values()) == {0}
     t = doc["methods"]["SS"]["series"]["t"]
