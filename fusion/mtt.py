@@ -124,7 +124,7 @@ class MultiTargetMethod(GroupedMethod):
         if association.revisit_s is not None:  # rotating radars: a frame is a sweep
             self.tracker = SweepTracker(initiator, updater, association.table(),
                                         association.associator(confirmed_first=True), association.gate_prob,
-                                        association.rule(), association.revisit_s)
+                                        association.rule(), association.revisit_s, association.pair_window_s)
             return
         self.tracker = MultiTargetTracker(
             PlotHypothesiser(self.n_x, association.gate_prob),

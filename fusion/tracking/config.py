@@ -38,10 +38,11 @@ class AssociationConfig:
     existence_confirm: float = ExistenceRule.existence_confirm
     existence_delete: float = ExistenceRule.existence_delete
     revisit_s: float | None = None  # rotating radars: frames are sweeps (fusion.tracking.sweep)
+    pair_window_s: float = 0.0  # sweeps: a 2D radar and an angle plot this far apart still start a track
 
     KEYS = ("association", "gate_prob", "confirm_m", "confirm_n", "delete_misses", "max_pos_std",
             "local_max_pos_std", "merge_frames", "p_detect", "p_survive", "existence_birth", "existence_confirm",
-            "existence_delete", "revisit_s")
+            "existence_delete", "revisit_s", "pair_window_s")
 
     @classmethod
     def split(cls, config: dict | None) -> tuple["AssociationConfig | None", dict]:
@@ -72,6 +73,11 @@ class AssociationConfig:
             raise ValueError(f"tracker config 'p_detect' must lie in (0, 1], got {cfg.p_detect}")
         if cfg.revisit_s is not None and not cfg.revisit_s > 0.0:
             raise ValueError(f"tracker config 'revisit_s' must be > 0, got {cfg.revisit_s}")
+        if not cfg.pair_window_s >= 0.0:
+            raise ValueError(f"tracker config 'pair_window_s' must be >= 0, got {cfg.pair_window_s}")
+        if cfg.pair_window_s and cfg.revisit_s is None:
+            raise ValueError("tracker config 'pair_window_s' pairs plots across the frames of rotating radars: "
+                             "it needs 'revisit_s'")
         cfg.rule()  # M <= N, K >= 1
         cfg.duplicate_watch()  # F >= 0
         try:

@@ -12,12 +12,23 @@ if nothing in its frame could pair with it (a 2D radar plot in a frame without a
 plots, or the reverse; a 3D radar plot always): a lone plot's broad prior attracts
 clutter. The reasons and the cases: docs/algorithms.md, "Initiation from sensors that
 see part of the position".
+
+Across frames (:meth:`Initiator.groups_across`, the sweep tracker's): a rotating radar
+crosses a target at a time fixed by its azimuth, an angle sensor looks at fixed times,
+and the two may never fall in one frame. A 2D radar plot then pairs with an angle plot
+up to ``window`` seconds apart, *moved* to the angle plot's time (:func:`moved`): the
+target went ``v·Δt`` meanwhile, ``v ~ N(0, σ_v² I)`` by the velocity prior, which adds
+``(σ_v Δt)²`` to the range's variance and ``(σ_v Δt / r)²`` to the azimuth's. The pair's
+state is at the angle plot's time. (That error is correlated with the velocity the
+track will estimate; the initial state takes it as independent, a little conservative
+in position.)
 """
 
 from __future__ import annotations
 
 import heapq
 import math
+from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
@@ -56,7 +67,12 @@ class Initiator:
         return {}, self.groups(sorted(left, key=lambda m: m.order_key))
 
     def groups(self, left: list[Measurement]) -> list[tuple[list[Measurement], list[Measurement], np.ndarray, np.ndarray]]:
-        """``(first, more, x, P)`` per new track from the unclaimed plots: the plots it
+        """``(first, more, x, P)`` per new track from the unclaimed plots of one frame
+        (:meth:`groups_across` without earlier plots)."""
+        return self.groups_across(left)[0]
+
+    def groups_across(self, left: list[Measurement], earlier: Sequence[Measurement] = (), window: float = 0.0):
+        """``(groups, moved)``: ``(first, more, x, P)`` per new track from the unclaimed plots: the plots it
         starts from, those it gathers in the same frame (module docstring) and the
         initial state ``(x, P)`` it starts from (``first``'s).
 
@@ -68,29 +84,52 @@ class Initiator:
         again from what is left and waits its turn with its new support. When the angle
         sensor is outside the radar's range sphere its ray crosses it twice ahead of it:
         each crossing in the gate is a candidate of its own (:meth:`pair_consistency`),
-        and the support decides between them as between any two pairs."""
+        and the support decides between them as between any two pairs.
+
+        ``earlier``: plots of earlier frames that nothing took (module docstring), each
+        paired only with a plot of this frame up to ``window`` seconds apart, its radar
+        plot moved to the angle plot's time; such a pair comes after a pair within the
+        frame of the same support. ``moved`` maps each moved plot in ``groups`` (by
+        ``id``) to the plot it was moved from."""
+        current = {m.order_key for m in left}
+        pool = [*left, *earlier]
+        radars = [r for r in pool if KINDS[r.kind].start == SPHERE]
+        vel_std = self._priors.vel_std
         candidates = []
-        radars = [r for r in left if KINDS[r.kind].start == SPHERE]
-        for a in left:
+        for a in pool:
             if KINDS[a.kind].start != RAY:
                 continue  # the ray: an angle sensor's az/el
-            for r, roots in _near_spheres(a, [r for r in radars if r.sensor != a.sensor],
-                                          _PAIR_PREFILTER * math.sqrt(self._gate(1))):
+            a_now = a.order_key in current
+            near = []
+            for r in radars:
+                if r.sensor == a.sensor:
+                    continue
+                if a_now and r.order_key in current:
+                    near.append(r)
+                elif (a_now or r.order_key in current) and abs(r.t - a.t) <= window:
+                    near.append(moved(r, a.t, vel_std))
+            for r, roots in _near_spheres(a, near, _PAIR_PREFILTER * math.sqrt(self._gate(1))):
                 candidates += [(a, r, *pair) for pair in self.pair_consistency(a, r, roots)]
+        origin = {id(r): r for r in radars}
+        moved_from = {}
         used: set[tuple] = set()
         queue = []
         for a, r, root, d2, x, P in candidates:
+            plot = origin.get(id(r))
+            if plot is None:
+                plot = moved_from[id(r)] = r.moved_from
             more, d2_more = self._gather(a, r, x, P, left, used)
-            queue.append((-len(more), d2 + d2_more, a.order_key, r.order_key, root, d2, a, r, x, P, more))
+            queue.append((-len(more), plot is not r, d2 + d2_more, a.order_key, plot.order_key, root, d2, a, r, x, P,
+                          more))
         heapq.heapify(queue)  # (ka, kr, root) is unique: the comparison never reaches the plots
         groups = []
         while queue:
-            _, _, ka, kr, root, d2, a, r, x, P, more = heapq.heappop(queue)
+            _, across, _, ka, kr, root, d2, a, r, x, P, more = heapq.heappop(queue)
             if ka in used or kr in used:
                 continue
             if any(m.order_key in used for m in more):  # a better group took some: gather again
                 more, d2_more = self._gather(a, r, x, P, left, used)
-                heapq.heappush(queue, (-len(more), d2 + d2_more, ka, kr, root, d2, a, r, x, P, more))
+                heapq.heappush(queue, (-len(more), across, d2 + d2_more, ka, kr, root, d2, a, r, x, P, more))
                 continue
             used |= {ka, kr, *(m.order_key for m in more)}
             groups.append((sorted([a, r], key=lambda m: m.order_key), sorted(more, key=lambda m: m.order_key), x, P))
@@ -99,7 +138,8 @@ class Initiator:
         kinds = {m.kind for m in left}
         alone = [m for m in left if m.order_key not in used and not (partners(m.kind) & kinds)]
         alone.sort(key=lambda m: (not KINDS[m.kind].fixes_range, m.order_key))  # radars first
-        return groups + [([m], [], *initial_state([m], self.n_x, self._priors)) for m in alone]
+        kept = {id(m): moved_from[id(m)] for g in groups for m in g[0] if id(m) in moved_from}
+        return groups + [([m], [], *initial_state([m], self.n_x, self._priors)) for m in alone], kept
 
     def _gather(self, a: Measurement, r: Measurement, x: np.ndarray, P: np.ndarray, left: list[Measurement],
                 used: set):
@@ -134,6 +174,23 @@ class Initiator:
             if d2 <= self._gate(1) and not any(np.array_equal(x, o[2]) for o in out):  # one state: one candidate
                 out.append((root, d2, x, P))
         return out
+
+
+@dataclass(frozen=True, eq=False)
+class Moved(Measurement):
+    """A 2D radar plot moved to another time (:func:`moved`); ``moved_from``: the plot."""
+
+    moved_from: Measurement | None = None
+
+
+def moved(r: Measurement, t: float, vel_std: float) -> Moved:
+    """The 2D radar plot ``r`` (azimuth, range) as a plot at time ``t``: the target moved
+    ``v·Δt`` meanwhile, ``v ~ N(0, vel_std² I)``, which adds ``(vel_std Δt)²`` to the
+    range's variance and ``(vel_std Δt / range)²`` to the azimuth's (module docstring)."""
+    step = vel_std * abs(t - r.t)
+    std = np.asarray(r.std, dtype=float)
+    std = np.hypot(std, [step / max(float(r.z[1]), 1.0), step])
+    return Moved(t, r.sensor, r.kind, r.z, std, r.site, r.seq, r.corr, r.identity, moved_from=r)
 
 
 def _near_spheres(a: Measurement, radars: list[Measurement], k: float) -> list[tuple[Measurement, tuple[int, ...]]]:

@@ -68,6 +68,17 @@ changes (switched on by ``revisit_s`` in ``[tracker]``):
    every frame; the angle sensor's next plots, on the same ray, scored it above Wald's
    threshold at once (the first 60 s of ``region-4000``: 12 of its 29 false tracks, on
    an aircraft's ray kilometres from it, while that aircraft's own track held it).
+8. **pairs across frames** (``pair_window_s``): a 2D radar plot and an angle plot pair
+   only within a frame, and a rotating radar's crossing of an aircraft may stay apart
+   from an angle sensor's looks turn after turn (``paris-real``: 0.42 s every turn, for
+   minutes). The plots of the last ``pair_window_s`` that nothing took are kept
+   (``earlier``), and a frame's plots pair with them too, the radar plot moved to the
+   angle plot's time (:meth:`fusion.tracking.initiators.Initiator.groups_across`).
+9. **a position report's own look twice**: a track hit on two looks of one sensor that
+   reports positions (ADS-B: the aircraft's own report of where it is, with no false
+   plots of the kind a radar's extractor passes) has seen enough sensors (3.): near an
+   airport an aircraft may be heard before any radar sees it, and on two sensors' hits
+   alone it was never confirmed (``paris-real``: 27 s of one departure).
 
 A frame reports the confirmed tracks it updated or confirmed (the others' estimates have
 not changed). No duplicate review: few false tracks are near an aircraft another track
@@ -87,7 +98,7 @@ from .. import batch
 from ..angles import wrap_pi
 from ..ekf import TrackEKF
 from ..measurement.components import AZ, EL, RANGE
-from ..measurement.kinds import KINDS, SPHERE, model_of
+from ..measurement.kinds import KINDS, RAY, SPHERE, model_of
 from ..measurement.models import SphericalModel
 from ..motion import ConstantAcceleration, ConstantVelocity
 from ..types import Estimate
@@ -102,6 +113,7 @@ MAX_ACC = 20.0  # m/s²: what a track's velocity may be off by, per second, beyo
 REVISIT_SLACK_S = 1.0
 P_DETECT = 0.9  # a sensor's detection probability, in the track score (module docstring, 5.)
 FALSE_CONFIRM_PROB = 1e-4  # α: the probability that a false track's score reaches the confirmation threshold
+EARLIER_MAX = 20_000  # plots kept for pairing across frames (module docstring, 8.; region-4000 leaves ~300 a second)
 
 
 @dataclass
@@ -122,6 +134,8 @@ class SweepLogic:
     llr: float | None = None  # its score (module docstring, 5.); None: confirmed by counting hits
     counted: tuple = ()  # the sensors of its birth's plots that the false-plot density counted (6.)
     ranged: bool = False  # whether a plot measuring range has hit it besides the one it started from (7.)
+    reporters: frozenset = frozenset()  # the sensors of the position reports that hit it (9.)
+    reported_twice: bool = False  # whether one of them has hit it on two of its looks (9.)
     #: no existence probability (the protocol of a track's logic, fusion.tracking.table.Track)
     existence = None
 
@@ -136,16 +150,19 @@ class SweepLogic:
     def _confirm(self) -> None:
         if self.status != TENTATIVE or not self.elevation:
             return
+        seen = len(self.sensors) >= 2 or self.reported_twice
         if self.llr is not None:
-            if self.llr >= confirm_threshold() and len(self.sensors) >= 2 and self.ranged:
+            if self.llr >= confirm_threshold() and seen and self.ranged:
                 self.status = CONFIRMED
-        elif self.hits >= self.rule.confirm_m and len(self.sensors) >= 2 and self.repeated:
+        elif self.hits >= self.rule.confirm_m and seen and self.repeated:
             self.status = CONFIRMED
 
     def record(self, hit: bool, P_pos: np.ndarray | None = None, t: float | None = None,
-               sensors=(), elevation: bool = False, score: float = 0.0, ranged: bool = False) -> str:
+               sensors=(), elevation: bool = False, score: float = 0.0, ranged: bool = False,
+               reporters=()) -> str:
         """``score``: the hit's plots' log-likelihood ratio (module docstring, 5.), added
-        to ``llr`` when it is kept; ``ranged``: whether a plot of the hit measures range."""
+        to ``llr`` when it is kept; ``ranged``: whether a plot of the hit measures range;
+        ``reporters``: the sensors of its position reports (9.)."""
         if self.status == DELETED:
             raise ValueError("a deleted track records no more frames")
         t = self.last_hit if t is None else t
@@ -159,6 +176,8 @@ class SweepLogic:
             self.sensors = self.sensors | frozenset(sensors)
             self.elevation = self.elevation or elevation
             self.ranged = self.ranged or ranged
+            self.reported_twice = self.reported_twice or bool(self.reporters & frozenset(reporters))
+            self.reporters = self.reporters | frozenset(reporters)
             if self.llr is not None:
                 self.llr += score
             self._confirm()
@@ -418,12 +437,19 @@ class SweepTracker(MultiTargetTracker):
     ``revisit_s`` the management (:class:`SweepLogic`)."""
 
     def __init__(self, initiator, updater, table, associator, gate_prob: float, rule: ManagementRule,
-                 revisit_s: float):
+                 revisit_s: float, pair_window_s: float = 0.0):
         super().__init__(None, associator, initiator, updater, table, None)
         if not revisit_s > 0.0:
             raise ValueError(f"revisit_s must be > 0, got {revisit_s}")
+        if not pair_window_s >= 0.0:
+            raise ValueError(f"pair_window_s must be >= 0, got {pair_window_s}")
         self.gate_prob, self.rule, self.revisit_s = gate_prob, rule, float(revisit_s)
+        self.pair_window_s = float(pair_window_s)
         self.clutter = ClutterDensity()
+        # (module docstring, 8.) the plots of the last pair_window_s that nothing took, and
+        # the order keys of those the false-plot density counted
+        self.earlier: list = []
+        self.earlier_counted: set = set()
 
     def frame(self, plots: Sequence) -> list[Track]:
         """One frame; returns the confirmed tracks it updated or confirmed, in id order."""
@@ -432,12 +458,15 @@ class SweepTracker(MultiTargetTracker):
         tracks = list(self.table.tracks)
         self.clutter.start_frame()
         taken, left = self.associate(tracks, frame)
-        continued, births = self.initiator.initiate(left, tracks, frame)
+        births, moved = self.initiator.groups_across(sorted(left, key=lambda m: m.order_key), self.earlier,
+                                                     self.pair_window_s)
         births = [g for g in births if starts_alone(g)]
+        counted = self.clutter.counted | self.earlier_counted
+        origin = lambda m: moved.get(id(m), m)  # noqa: E731
         changed = set()
         for i, track in enumerate(tracks):
             was = track.confirmed
-            mine = taken[i] + continued.get(i, [])
+            mine = taken[i]
             plots_i = sorted((m for tk in mine for m in tk.plots), key=lambda m: m.order_key)
             score = 0.0
             if plots_i:
@@ -446,7 +475,8 @@ class SweepTracker(MultiTargetTracker):
             hit = bool(plots_i) and scores_hit([m.kind for m in {m.sensor: m for m in plots_i}.values()],
                                                track.confirmed, 1)
             track.logic.record(hit, track.filter.P[:3, :3] if plots_i else None, t_end, {m.sensor for m in plots_i},
-                               any(_measures(m, EL) for m in plots_i), score, any(_measures(m, RANGE) for m in plots_i))
+                               any(_measures(m, EL) for m in plots_i), score, any(_measures(m, RANGE) for m in plots_i),
+                               _reporters(plots_i))
             if track.confirmed and not was:
                 self.clutter.unsee(track.logic.counted)
             if plots_i or (track.confirmed and not was):
@@ -457,13 +487,25 @@ class SweepTracker(MultiTargetTracker):
             track.logic = SweepLogic(self.rule, self.revisit_s, track.last.t, frozenset(m.sensor for m in (*first, *more)),
                                      any(_measures(m, EL) for m in (*first, *more)), llr=score,
                                      ranged=any(_measures(m, RANGE) for m in more),
-                                     counted=tuple(m.sensor for m in (*first, *more) if m.order_key in self.clutter.counted))
+                                     reporters=_reporters((*first, *more)),
+                                     counted=tuple(m.sensor for m in (*first, *more) if origin(m).order_key in counted))
             if track.confirmed:
                 self.clutter.unsee(track.logic.counted)
             self.table.add(track)
             track.claim(initial_plots(group))
             changed.add(id(track))
+        self._keep_earlier(left, {origin(m).order_key for g in births for m in (*g[0], *g[1])}, counted, t_end)
         return [tr for tr in self.table.close_frame() if id(tr) in changed]
+
+    def _keep_earlier(self, left: list, used: set, counted: set, t: float) -> None:
+        """The plots a later frame may still pair with (module docstring, 8.): the 2D radar
+        and angle plots of the last ``pair_window_s`` that no track took and none started."""
+        if not self.pair_window_s:
+            return
+        self.earlier = [m for m in (*self.earlier, *left)
+                        if m.order_key not in used and t - m.t <= self.pair_window_s
+                        and KINDS[m.kind].start in (RAY, SPHERE)][-EARLIER_MAX:]
+        self.earlier_counted = {m.order_key for m in self.earlier if m.order_key in counted}
 
     def associate(self, tracks: list[Track], frame: Frame) -> tuple[list[list[Taken]], list]:
         """Scan by scan (one sensor's plots), each pair scored at the plot's time; the
@@ -579,6 +621,11 @@ def starts_alone(group) -> bool:
     docstring, 4.): a pair, or a plot that is not a 2D radar's range sphere."""
     first = group[0]
     return len(first) > 1 or KINDS[first[0].kind].start != SPHERE
+
+
+def _reporters(plots) -> frozenset:
+    """The sensors of the position reports among ``plots`` (module docstring, 9.)."""
+    return frozenset(m.sensor for m in plots if not KINDS[m.kind].sited)
 
 
 def _measures(m, component) -> bool:

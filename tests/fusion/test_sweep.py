@@ -343,3 +343,77 @@ def test_the_false_plot_density_counts_no_plot_in_a_gate_nor_one_that_started_a_
     assert tracker.table.tracks[0].confirmed
     assert tracker.clutter.seen["b"].left == 1  # the far plot: not the one in the track's gate
     assert tracker.clutter.seen["a"].left == 0  # it started the track now confirmed
+
+
+def test_a_radar_that_never_crosses_an_aircraft_in_an_angle_sensors_sweep_pairs_across_sweeps():
+    """An aircraft flying away from a 2D radar turning in 10 s, crossed at 0.5 s past
+    every look of an angle sensor (3 s), in frames each with another radar's plot (so a
+    lone angle plot waits for a partner, as in a dense picture): within sweeps of 0.25 s
+    its plots never pair and no track starts in 60 s; with ``pair_window_s`` = 1.5 the
+    radar plot pairs with the angle plot of 0.5 s before, the track starts then and is
+    confirmed at the radar's next look, within 300 m of the aircraft from there on. The
+    kept plots are those of the last 1.5 s."""
+    sc = load_scenario(str(ROTATING))
+    vel = 150.0 * np.array([0.6, 0.8, 0.0])
+    start = np.array([12e3, 16e3, 4e3])
+    radar, eo, other = np.zeros(3), np.array([10e3, 5e3, 0.0]), np.array([-60e3, 0.0, 0.0])
+
+    def plot(kind, sensor, site, t, seq, p=None):
+        d = (start + vel * t if p is None else p) - site
+        az, r = math.atan2(d[0], d[1]) % (2 * math.pi), float(np.linalg.norm(d))
+        z, std = {"range_az": ([az, r], [math.radians(0.2), 60.0]),
+                  "azel": ([az, math.asin(d[2] / r)], [math.radians(0.05)] * 2)}[kind]
+        return Measurement(t, sensor, kind, np.array(z), np.array(std), tuple(site), seq=seq)
+
+    frames = []
+    for k in range(20):  # the angle sensor's looks at 3k s, the radar's at 0.5 + 10j s
+        t = 3.0 * k
+        far = plot("range_az", "other", other, t + 0.1, k, p=np.array([-90e3, 40e3, 8e3]))
+        frames.append([plot("azel", "eo", eo, t, k), far])
+        if k % 10 in (0, 3, 6):
+            frames.append([plot("range_az", "radar", radar, 10.0 * ((k + 1) // 3) + 0.5, k)])
+    frames.sort(key=lambda f: f[0].t)
+    assert not any({m.kind for m in f} == {"azel", "range_az"} and "radar" in {m.sensor for m in f} for f in frames)
+
+    def run(window):
+        method = make_method("SS", method_config(_method(sc, revisit_s=10.0, pair_tol=0.25,
+                                                         pair_window_s=window).tracker, "SS"))
+        out = [(tr, tr.last) for f in frames for tr in method.tracker.frame(f)]  # each track's estimate then
+        return method.tracker, out
+
+    tracker, out = run(0.0)
+    assert out == [] and not [tr for tr in tracker.table.tracks if "radar" in tr.logic.sensors]
+    tracker, out = run(1.5)
+    ours = [tr for tr in tracker.table.tracks if tr.logic.sensors == {"radar", "eo"}]
+    assert len(ours) == 1 and ours[0].confirmed and ours[0].logic.born == 0.0
+    assert out and all(tr is ours[0] for tr, _ in out)
+    reported = [e for _, e in out]
+    assert reported[0].t == pytest.approx(10.5)  # confirmed at the radar's next look
+    err = [np.linalg.norm(e.x[:3] - (start + vel * e.t)) for e in reported]
+    assert max(err) < 300.0, err
+    assert tracker.earlier and all(frames[-1][-1].t - m.t <= 1.5 for m in tracker.earlier)
+
+
+def test_a_position_reporter_heard_twice_confirms_a_track_alone():
+    """A track that two looks of one position reporter (ADS-B: the aircraft's own
+    report) have hit is confirmed on its score without a second sensor; two looks of one
+    radar are not (clutter's signature)."""
+    threshold = math.log(1.0 / sweep.FALSE_CONFIRM_PROB)
+    heard = SweepLogic(RULE, 10.0, 0.0, frozenset({"adsb"}), llr=0.0, reporters=frozenset({"adsb"}))
+    assert heard.record(True, None, 5.0, {"adsb"}, elevation=True, score=2 * threshold, ranged=True,
+                        reporters={"adsb"}) == CONFIRMED
+    radar = SweepLogic(RULE, 10.0, 0.0, frozenset({"r3d"}), llr=0.0)
+    assert radar.record(True, None, 5.0, {"r3d"}, elevation=True, score=2 * threshold, ranged=True) == TENTATIVE
+    two = SweepLogic(RULE, 10.0, 0.0, frozenset({"adsb"}), llr=0.0, reporters=frozenset({"adsb"}))
+    assert two.record(True, None, 5.0, {"adsb2"}, elevation=True, score=2 * threshold, ranged=True,
+                      reporters={"adsb2"}) == CONFIRMED  # two sensors, as before
+
+
+@pytest.mark.parametrize("keys, says", [
+    ({"pair_window_s": -1.0, "revisit_s": 10.0}, "'pair_window_s' must be >= 0"),
+    ({"pair_window_s": 1.5}, "it needs 'revisit_s'"),
+])
+def test_a_pair_window_needs_sweeps_and_a_length(keys, says):
+    from fusion.tracking.config import AssociationConfig
+    with pytest.raises(ValueError, match=says):
+        AssociationConfig.split({"association": "gnn", **keys})
