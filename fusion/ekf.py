@@ -10,6 +10,16 @@ model's ``f(x)`` and its Jacobian), update with any
 (Gauss–Newton on the MAP cost). :func:`ekf_update_weighted` is the weighted (PDA) update
 of several plots of one scan, linearised at the prediction (:mod:`fusion.pda`).
 :class:`TrackEKF` is the filter of the :class:`fusion.filters.Filter` protocol built on them.
+
+A target's vertical speed is bounded (an airliner climbs or descends at 25 m/s at most),
+and a filter that has not seen the vertical for a while (a track fed by 2D radars) has a
+vertical velocity so uncertain that the next height it sees becomes a vertical speed no
+aircraft has (``paris-real``: −150 m/s, the track 3 km below its aircraft). With
+``max_climb`` the estimate is projected onto ``|v_up| ≤ max_climb`` after each update
+(:func:`climb_projected`): the state of least ``(x̃ − x)ᵀ P⁻¹ (x̃ − x)`` on the bound,
+``x̃ = x − P e (eᵀ P e)⁻¹ (eᵀ x − d)``, ``e`` the unit vector of ``v_up`` and ``d`` the
+bound on its side (Simon & Chia's estimate projection), which moves every state
+correlated with ``v_up`` (the height with it); ``P`` is kept, conservative.
 """
 
 from __future__ import annotations
@@ -103,6 +113,18 @@ def ekf_update_weighted(model: MeasurementModel, x: np.ndarray, P: np.ndarray, Z
     return WeightedUpdate(x_new, P_new, nus, nu, one.S, one.K), H
 
 
+V_UP = 5  # the index of the vertical velocity in a 3D track's state [p v (a)]
+
+
+def climb_projected(x: np.ndarray, P: np.ndarray, max_climb: float) -> np.ndarray:
+    """``x`` projected onto ``|v_up| ≤ max_climb`` in the metric of ``P`` (module
+    docstring); ``x`` itself if it is inside."""
+    v = float(x[V_UP])
+    if abs(v) <= max_climb:
+        return x
+    return x - P[:, V_UP] / P[V_UP, V_UP] * (v - np.copysign(max_climb, v))
+
+
 class TrackEKF:
     r"""Extended Kalman filter of one 3D track.
 
@@ -110,12 +132,15 @@ class TrackEKF:
     model (``x ← F x``, ``P ← F P Fᵀ + Q``); :meth:`update` linearises a measurement
     model (:class:`~fusion.measurement.models.MeasurementModel`) at the predicted state and
     applies the shared Kalman step (angle-wrapped innovation, Joseph form, NIS; see
-    :mod:`fusion.kalman`).
+    :mod:`fusion.kalman`). ``max_climb`` (m/s): the bound each update's estimate is
+    projected onto (:func:`climb_projected`); None: none.
     """
 
-    def __init__(self, motion, x: np.ndarray, P: np.ndarray, t: float, iterations: int = 1):
+    def __init__(self, motion, x: np.ndarray, P: np.ndarray, t: float, iterations: int = 1,
+                 max_climb: float | None = None):
         self.motion = motion
         self.iterations = int(iterations)  # > 1: iterated EKF updates (iterated_ekf_update)
+        self.max_climb = max_climb
         self.set_state(x, P, t)
 
     def set_state(self, x: np.ndarray, P: np.ndarray, t: float) -> None:
@@ -144,8 +169,11 @@ class TrackEKF:
             res, self.H = iterated_ekf_update(model, self.x, self.P, z, self.iterations)
         else:
             res, self.H = _ekf_update(model, self.x, self.P, z)
-        self.x, self.P, self._K = res.x, res.P, res.K
+        self.x, self.P, self._K = self._bounded(res.x, res.P), res.P, res.K
         return res
+
+    def _bounded(self, x: np.ndarray, P: np.ndarray) -> np.ndarray:
+        return x if self.max_climb is None else climb_projected(x, P, self.max_climb)
 
     def innovations(self, model: MeasurementModel, Z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The plots' innovations against the filter's state and their covariance ``S``
@@ -158,7 +186,7 @@ class TrackEKF:
         once at the prediction, whatever ``iterations``. ``K·H`` is then the gain of the
         combined innovation."""
         res, self.H = ekf_update_weighted(model, self.x, self.P, Z, beta, beta0)
-        self.x, self.P, self._K = res.x, res.P, res.K
+        self.x, self.P, self._K = self._bounded(res.x, res.P), res.P, res.K
         return res
 
     @property

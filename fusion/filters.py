@@ -62,29 +62,31 @@ class Filter(Protocol):
 NewFilter = Callable[[np.ndarray, np.ndarray, float], Filter]
 
 
-def _ekf(motion, iterations: int = 1) -> NewFilter:
-    return partial(TrackEKF, motion, iterations=iterations)
+def _ekf(motion, iterations: int = 1, **options) -> NewFilter:
+    return partial(TrackEKF, motion, iterations=iterations, **options)
 
 
 def _ukf(motion, iterations: int = 1) -> NewFilter:  # (iterations: the EKF's)
     return partial(TrackUKF, motion)
 
 
-#: name -> ``factory(motion, iterations)`` giving a :data:`NewFilter`; ``iterations``
-#: is the centralised methods' ``ekf_iterations`` (1 for a local tracker)
+#: name -> ``factory(motion, iterations, **options)`` giving a :data:`NewFilter`;
+#: ``iterations`` is the centralised methods' ``ekf_iterations`` (1 for a local tracker),
+#: ``options`` what the filter alone takes (the EKF's ``max_climb``)
 FILTERS: dict[str, Callable[..., NewFilter]] = {
     "ekf": _ekf,
     "ukf": _ukf,
 }
 
 
-def filter_factory(name: str, motion, iterations: int = 1) -> NewFilter:
-    """The filter ``name`` of ``motion``; for a :class:`~fusion.imm.ModelSet`, an IMM of
-    such filters."""
+def filter_factory(name: str, motion, iterations: int = 1, **options) -> NewFilter:
+    """The filter ``name`` of ``motion`` (with ``options``, those given); for a
+    :class:`~fusion.imm.ModelSet`, an IMM of such filters."""
     try:
         make = FILTERS[name]
     except KeyError:
         raise ValueError(f"unknown filter {name!r} (known: {', '.join(FILTERS)})") from None
+    options = {k: v for k, v in options.items() if v is not None}
     if isinstance(motion, ModelSet):
-        return partial(TrackIMM, motion, [make(m, iterations) for m in motion.models])
-    return make(motion, iterations)
+        return partial(TrackIMM, motion, [make(m, iterations, **options) for m in motion.models])
+    return make(motion, iterations, **options)

@@ -95,6 +95,7 @@ class TrackerConfig:
     imm_sojourn_turn: float = 15.0
     imm_sojourn_ca: float = 2.0
     max_gap_s: float = MAX_GAP_S
+    max_climb: float = math.inf  # m/s; the EKF's estimate projected onto |v_up| <= it (fusion.ekf)
 
     @classmethod
     def from_dict(cls, config: dict | None) -> "TrackerConfig":
@@ -125,6 +126,11 @@ class TrackerConfig:
             raise ValueError(f"tracker config 'pair_tol' must be >= 0, got {self.pair_tol}")
         if not self.max_gap_s > 0.0:
             raise ValueError(f"tracker config 'max_gap_s' must be > 0, got {self.max_gap_s}")
+        if not self.max_climb > 0.0:
+            raise ValueError(f"tracker config 'max_climb' must be > 0, got {self.max_climb}")
+        if math.isfinite(self.max_climb) and self.filter != "ekf":
+            raise ValueError(f"tracker config 'max_climb' bounds the 'ekf' filter's estimate; "
+                             f"filter is {self.filter!r}")
         for key in ("init_range", "init_range_std", "init_el_std", "init_vel_std", "init_vel_std_up", "init_acc_std", "init_acc_std_up"):
             if getattr(self, key) <= 0.0:
                 raise ValueError(f"tracker config {key!r} must be > 0, got {getattr(self, key)}")
@@ -167,7 +173,8 @@ class TrackerConfig:
 
     def new_filter(self, motion, centralised: bool = False) -> NewFilter:
         """The track filter's factory; ``ekf_iterations`` applies to the centralised methods."""
-        return filter_factory(self.filter, motion, self.ekf_iterations if centralised else 1)
+        return filter_factory(self.filter, motion, self.ekf_iterations if centralised else 1,
+                              max_climb=self.max_climb if math.isfinite(self.max_climb) else None)
 
     def priors(self) -> InitPriors:
         return InitPriors(

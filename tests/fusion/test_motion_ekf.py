@@ -485,3 +485,79 @@ def test_F_and_Q_are_the_kronecker_products_of_the_axis_blocks(motion):
             ref = np.kron(axis, np.eye(3))
             assert got.shape == ref.shape and np.array_equal(got, ref)
             assert np.array_equal(np.signbit(got), np.signbit(ref))
+
+
+def test_the_climb_bound_is_the_nearest_state_on_it_in_the_covariances_metric():
+    """climb_projected (fusion.ekf): against a direct minimisation of
+    (x̃ − x)ᵀ P⁻¹ (x̃ − x) under v_up = ±max_climb (scipy, SLSQP) on random states and
+    covariances, to 1e-6; a state inside the bound unchanged."""
+    from scipy.optimize import minimize
+
+    from fusion.ekf import V_UP, climb_projected
+    rng = np.random.default_rng(11)
+    for _ in range(20):
+        A = rng.normal(size=(9, 9))
+        P = A @ A.T + 0.1 * np.eye(9)
+        x = rng.normal(0.0, 50.0, 9)
+        x[V_UP] = rng.choice([-1, 1]) * rng.uniform(31.0, 200.0)
+        Pinv = np.linalg.inv(P)
+        d = np.copysign(30.0, x[V_UP])
+        best = minimize(lambda y: (y - x) @ Pinv @ (y - x), x, jac=lambda y: 2.0 * Pinv @ (y - x), method="SLSQP",
+                        constraints=[{"type": "eq", "fun": lambda y: y[V_UP] - d}], options={"ftol": 1e-14})
+        got = climb_projected(x, P, 30.0)
+        assert got[V_UP] == pytest.approx(d, abs=1e-9)
+        np.testing.assert_allclose(got, best.x, atol=1e-6 * (1.0 + np.abs(x).max()))
+        inside = x.copy()
+        inside[V_UP] = 29.0
+        assert climb_projected(inside, P, 30.0) is inside
+
+
+def test_a_track_blind_in_height_for_a_minute_takes_a_height_without_a_climb_no_aircraft_makes():
+    """A level aircraft at 5 km tracked by a 2D radar alone (azimuth, slant range) for
+    60 s, its height open by 1.5 km by then, then seen by an angle sensor (az, el) that
+    puts it 1 km lower than the track: the EKF makes of it a descent of 40 m/s, faster
+    than any airliner's (28 m/s at most in the paris-real recording), and a
+    ``max_climb`` of 30 m/s holds the estimate at that bound."""
+    motion = ConstantAcceleration(q=0.5, q_up=0.05)
+    truth = lambda t: np.array([20e3 + 200.0 * t, 40e3, 5000.0])  # noqa: E731
+    radar, eo = np.zeros(3), np.array([30e3, 20e3, 0.0])
+    m2d = SphericalModel(("az", "range"), radar, [np.radians(0.15), 60.0], 9)
+    mel = SphericalModel(("az", "el"), eo, [np.radians(0.05)] * 2, 9)
+    x0 = np.zeros(9)
+    x0[:3] = truth(0.0) + [0.0, 0.0, 1000.0]  # the track's height 1 km off from the start
+    x0[3] = 200.0
+    P0 = np.diag([100.0, 100.0, 50.0, 10.0, 10.0, 3.0, 1.0, 1.0, 0.3]) ** 2
+
+    def run(max_climb):
+        f = TrackEKF(motion, x0, P0, 0.0, max_climb=max_climb)
+        for t in np.arange(4.0, 61.0, 4.0):
+            f.predict(t)
+            f.update(m2d, m2d.h(np.r_[truth(t), np.zeros(6)]))
+        assert np.sqrt(f.P[2, 2]) > 1000.0  # the radar alone: the height a kilometre open
+        f.predict(61.0)
+        f.update(mel, mel.h(np.r_[truth(61.0), np.zeros(6)]))
+        return f.x
+
+    assert run(None)[5] < -35.0  # faster than any airliner descends
+    bounded = run(30.0)
+    assert bounded[5] == pytest.approx(-30.0)
+
+
+@pytest.mark.parametrize("keys, says", [
+    ({"max_climb": 0.0}, "'max_climb' must be > 0"),
+    ({"max_climb": 30.0, "filter": "ukf"}, "bounds the 'ekf' filter's estimate"),
+])
+def test_the_climb_bound_is_checked(keys, says):
+    from fusion.patent import TrackerConfig
+    with pytest.raises(ValueError, match=says):
+        TrackerConfig.from_dict(keys)
+
+
+def test_the_climb_bound_reaches_every_ekf_of_a_method():
+    """``max_climb`` in [tracker] gives each EKF the bound, the IMM's model-matched ones too."""
+    from fusion.patent import TrackerConfig
+    for motion in ("ca", "imm"):
+        cfg = TrackerConfig.from_dict({"max_climb": 25.0, "motion": motion})
+        f = cfg.new_filter(cfg.motion_model())(np.zeros(9), np.eye(9), 0.0)
+        ekfs = getattr(f, "filters", [f])
+        assert ekfs and {e.max_climb for e in ekfs} == {25.0}
