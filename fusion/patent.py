@@ -120,8 +120,8 @@ class TrackerConfig:
             raise ValueError(f"tracker config 'ci_criterion' must be one of {CI_CRITERIA}, got {self.ci_criterion!r}")
         if self.q < 0.0:
             raise ValueError(f"tracker config 'q' must be >= 0, got {self.q}")
-        if not math.isnan(self.q_up) and not (self.q_up >= 0.0 and self.q > 0.0 and self.motion != "imm"):
-            raise ValueError(f"tracker config 'q_up' must be >= 0, with q > 0 and motion 'ca' or 'cv', got {self.q_up}")
+        if not math.isnan(self.q_up) and self.motion != "imm" and not (self.q_up >= 0.0 and self.q > 0.0):
+            raise ValueError(f"tracker config 'q_up' must be >= 0, with q > 0, got {self.q_up}")
         if self.pair_tol < 0.0:
             raise ValueError(f"tracker config 'pair_tol' must be >= 0, got {self.pair_tol}")
         if not self.max_gap_s > 0.0:

@@ -561,3 +561,14 @@ def test_the_climb_bound_reaches_every_ekf_of_a_method():
         f = cfg.new_filter(cfg.motion_model())(np.zeros(9), np.eye(9), 0.0)
         ekfs = getattr(f, "filters", [f])
         assert ekfs and {e.max_climb for e in ekfs} == {25.0}
+
+
+def test_q_up_is_the_ca_and_cv_models_and_left_aside_by_the_imm():
+    """A scenario's ``q_up`` (for its CA tracker) does not stop ``--set motion=imm``: the
+    IMM's models have their own q's (paris-real sets q_up and its IMM runs)."""
+    from fusion.imm import ModelSet
+    from fusion.patent import TrackerConfig
+    assert isinstance(TrackerConfig.from_dict({"motion": "imm", "q_up": 0.05}).motion_model(), ModelSet)
+    assert TrackerConfig.from_dict({"motion": "ca", "q": 0.5, "q_up": 0.05}).motion_model().q_up == 0.05
+    with pytest.raises(ValueError, match="'q_up' must be >= 0"):
+        TrackerConfig.from_dict({"motion": "ca", "q_up": -1.0})
