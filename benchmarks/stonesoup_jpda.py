@@ -255,20 +255,35 @@ def build_tracker(scenario, detector, min_points: int, alt0: float = 6000.0, alt
                                      detector=detector, data_associator=JPDAwithEHM2(hypothesiser), updater=updater)
 
 
+def sensor_model(s):
+    """The Stone Soup model of a 2D radar or an angle sensor (None: another kind)."""
+    site = StateVector(np.asarray(s.site.position(0.0), dtype=float).reshape(3, 1))
+    std = s.std
+    if s.measurement_kind == "range_az":
+        return CartesianToBearingSlantRange(ndim_state=9, mapping=POS, translation_offset=site,
+                                            noise_covar=np.diag([std[0] ** 2, std[1] ** 2]))
+    if s.measurement_kind == "azel":
+        return AnalyticElevationBearing(ndim_state=9, mapping=POS, translation_offset=site,
+                                        noise_covar=np.diag([std[1] ** 2, std[0] ** 2]))
+    return None
+
+
 def _models(scenario):
     out = {}
     for sid, s in scenario.sensors.items():
-        site = StateVector(np.asarray(s.site.position(0.0), dtype=float).reshape(3, 1))
-        std = s.std
-        if s.measurement_kind == "range_az":
-            out[sid] = CartesianToBearingSlantRange(ndim_state=9, mapping=POS, translation_offset=site,
-                                                    noise_covar=np.diag([std[0] ** 2, std[1] ** 2]))
-        elif s.measurement_kind == "azel":
-            out[sid] = AnalyticElevationBearing(ndim_state=9, mapping=POS, translation_offset=site,
-                                                noise_covar=np.diag([std[1] ** 2, std[0] ** 2]))
-        else:
+        out[sid] = sensor_model(s)
+        if out[sid] is None:
             raise SystemExit(f"{sid}: this reference handles 2D radars and angle sensors, not {s.measurement_kind}")
     return out
+
+
+def to_detection(m, model) -> Detection:
+    """A 2D radar's or an angle sensor's plot as a Stone Soup detection (bearing converted)."""
+    bearing = Bearing(math.pi / 2 - m.z[0])
+    z = (StateVector([Bearing(bearing), m.z[1]]) if m.kind == "range_az"
+         else StateVector([Elevation(m.z[1]), Bearing(bearing)]))
+    t = T0 + datetime.timedelta(seconds=float(m.t))
+    return Detection(z, timestamp=t, measurement_model=model, metadata={"sensor": m.sensor})
 
 
 def _scans(scenario, plots):
@@ -280,11 +295,7 @@ def _scans(scenario, plots):
             yield scan
             scan = []
         key = (m.t, m.sensor)
-        bearing = Bearing(math.pi / 2 - m.z[0])
-        z = (StateVector([Bearing(bearing), m.z[1]]) if m.kind == "range_az"
-             else StateVector([Elevation(m.z[1]), Bearing(bearing)]))
-        t = T0 + datetime.timedelta(seconds=float(m.t))
-        scan.append(Detection(z, timestamp=t, measurement_model=models[m.sensor], metadata={"sensor": m.sensor}))
+        scan.append(to_detection(m, models[m.sensor]))
     if scan:
         yield scan
 
