@@ -1,9 +1,10 @@
 """Site and scenario files: find, parse, validate, convert to SI (the format is in README.md).
 
-A site file holds ``[origin]``, ``[defaults]``, ``[tracker]`` and ``[sensors.<id>]``; a
-scenario file adds ``seed``, ``duration_s``, ``[targets]`` and ``[jammers]``, and its
-sensors' ``targets`` and ``latency_s``. :func:`load_site` takes either (a file with any
-scenario key is read as a scenario); :func:`load_scenario` takes only scenarios.
+A site file holds ``[origin]``, ``[defaults]``, ``[tracker]``, ``[sensors.<id>]`` and,
+optionally, ``recovery_s`` (the live publishers' recovery window); a scenario file adds
+``seed``, ``duration_s``, ``[targets]`` and ``[jammers]``, and its sensors' ``targets``
+and ``latency_s``. :func:`load_site` takes either (a file with any scenario key is
+read as a scenario); :func:`load_scenario` takes only scenarios.
 
 Every problem raises :class:`ScenarioError` naming the file, the line and the field,
 e.g. ``patent-3d.toml:14: sensors.radar2d.std_range_m: must be > 0 (got -20)``.
@@ -31,6 +32,8 @@ from .noise import OUTLIER_LAWS
 from .spec import (
     DF_KINDS,
     JAM_MODES,
+    MAX_RECOVERY_S,
+    RECOVERY_S,
     SENSOR_KINDS,
     TOPOLOGIES,
     TRUTH_PROCESS,
@@ -130,9 +133,11 @@ def _read(name_or_path, what: str = "scenario file") -> tuple[str, str, str]:
 
 
 def _header(root: Reader, scenario: bool) -> dict:
-    """``description``, ``[origin]``, ``[defaults]`` and ``[tracker]``: what a site and a
-    scenario share besides their sensors (:class:`SiteSpec` keyword arguments)."""
+    """``description``, ``recovery_s``, ``[origin]``, ``[defaults]`` and ``[tracker]``:
+    what a site and a scenario share besides their sensors (:class:`SiteSpec` keyword
+    arguments)."""
     description = root.string("description") if scenario else root.string("description", "")
+    recovery = root.quantity("recovery", TIME, default=RECOVERY_S, gt=0, le=MAX_RECOVERY_S)
     origin_r = root.table("origin")
     origin = (
         origin_r.number("lat_deg", ge=-90, le=90),
@@ -149,7 +154,8 @@ def _header(root: Reader, scenario: bool) -> dict:
     tracker = root.raw("tracker", {})
     if not isinstance(tracker, dict):
         raise root.error("must be a table", "tracker")
-    return {"description": description, "origin": origin, "tracker": tracker, "defaults": defaults}
+    return {"description": description, "origin": origin, "tracker": tracker, "defaults": defaults,
+            "recovery": recovery}
 
 
 def _site_file(root: Reader, name: str, display: str) -> SiteSpec:

@@ -21,6 +21,9 @@ from fusion.topology import TOPOLOGIES
 
 from .segments import Segment
 
+RECOVERY_S = 30.0  # s: a site's recovery window when its file gives no ``recovery_s``
+MAX_RECOVERY_S = 3600.0  # s: the longest (every live publisher holds its window in memory)
+
 
 @dataclass(frozen=True)
 class SensorKind:
@@ -245,6 +248,9 @@ class SiteSpec:
         source: the file it came from (for messages).
         regions: name -> :class:`fusion.regions.Region`, in file order (``[regions]``:
             what each regional fuser holds; empty: one fuser holds everything).
+        recovery: the recovery window (s, ``recovery_s``; default :data:`RECOVERY_S`):
+            in a live session each publisher keeps about this long of its stream, twice
+            over, for a consumer cut off from it to get back (docs/live.md).
     """
 
     name: str
@@ -255,6 +261,7 @@ class SiteSpec:
     defaults: dict
     source: str = ""
     regions: dict = field(default_factory=dict)
+    recovery: float = RECOVERY_S
 
     def sensor(self, sensor_id: str) -> SensorSpec:
         try:

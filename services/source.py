@@ -21,8 +21,9 @@ time of validity: its watermarks never claim a time whose data has not been sent
 live emulator that is stopped marks its latest watermark final (its stream has ended,
 it is not a sensor gone silent). Its measurements and watermarks go out on a recoverable
 publisher (:meth:`services.node.Node.recoverable_publisher`): it keeps the last
-:func:`recovery_cache` samples, ``RECOVERY_S`` seconds of its stream, for a fuser that
-was cut off from it (a router down or restarting) to get back on reconnection.
+:func:`recovery_cache` samples, the site's recovery window ``recovery_s`` (default 30 s)
+of its stream twice over, for a fuser that was cut off from it (a router down or
+restarting) to get back on reconnection.
 """
 
 from __future__ import annotations
@@ -46,17 +47,15 @@ from .scenario import load
 asterix_emit = lazy("services.ingest.asterix_emit")  # only a sensor sending ASTERIX needs these
 asterix_capture = lazy("services.ingest.asterix")
 
-RECOVERY_S = 30.0  # s of a live sensor's stream its publisher keeps for a fuser cut off from it
-
 
 def recovery_cache(scenario, sensor_id: str) -> int:
-    """Samples in ``RECOVERY_S`` of a sensor's stream, twice over: per scan its targets
-    (and at most ``max_alive`` traffic aircraft), its mean clutter and one watermark (a
-    rotating radar: one per sector)."""
+    """Samples in the site's recovery window (``scenario.recovery``, ``recovery_s``) of a
+    sensor's stream, twice over: per scan its targets (and at most ``max_alive`` traffic
+    aircraft), its mean clutter and one watermark (a rotating radar: one per sector)."""
     s = scenario.sensor(sensor_id)
     traffic = getattr(scenario, "traffic", None)
     per_scan = len(s.targets) + (traffic.max_alive if traffic is not None else 0) + s.clutter_rate + max(1, s.sectors)
-    return math.ceil(2.0 * RECOVERY_S * per_scan / s.period)
+    return math.ceil(2.0 * scenario.recovery * per_scan / s.period)
 
 
 class Pacer:

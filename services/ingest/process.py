@@ -43,7 +43,6 @@ from sensors_sim import load_site as load_site_file
 from ..errors import UserError
 from ..logs import chatty, utc_text
 from ..node import Node, Stopped
-from ..source import RECOVERY_S
 from .adsb import AdsbReceiver, PositionReport, SbsClock, position_reading
 from .asterix import AsterixFeed, AsterixIngest, CaptureError, pcap_datagrams, radars, stations
 from .gateway import Gateway, Reading, Rejected, local_frame, sensor_sites
@@ -84,11 +83,11 @@ class Backoff:
 # ------------------------------------------------------------------ shared plumbing
 
 
-def gateway_cache(period: float) -> int:
-    """Samples in ``RECOVERY_S`` of a gateway's stream of one sensor, twice over: a
-    reading and its watermark per nominal ``period``, and a heartbeat watermark per
-    :data:`TICK_S` at most (:meth:`Outlet.tick`)."""
-    return math.ceil(2.0 * RECOVERY_S * (2.0 / period + 1.0 / TICK_S))
+def gateway_cache(period: float, recovery: float) -> int:
+    """Samples in ``recovery`` seconds (the site's ``recovery_s``) of a gateway's stream
+    of one sensor, twice over: a reading and its watermark per nominal ``period``, and a
+    heartbeat watermark per :data:`TICK_S` at most (:meth:`Outlet.tick`)."""
+    return math.ceil(2.0 * recovery * (2.0 / period + 1.0 / TICK_S))
 
 
 class NotHeard(Exception):
@@ -100,14 +99,16 @@ class Outlet:
 
     Each sensor's stream goes out on the advanced publisher emulated sensors use
     (:meth:`services.node.Node.recoverable_publisher`): a fuser cut off from the gateway
-    (a router restarting) gets back the last :func:`gateway_cache` samples, ``RECOVERY_S``
-    seconds of it, and counts them ``recovered``; what the cache no longer held, ``missed``."""
+    (a router restarting) gets back the last :func:`gateway_cache` samples, the site's
+    ``recovery`` seconds of it twice over, and counts them ``recovered``; what the cache no
+    longer held, ``missed``."""
 
-    def __init__(self, node: Node, gateway: Gateway, extra: Callable[[], dict] | None = None):
+    def __init__(self, node: Node, gateway: Gateway, recovery: float, extra: Callable[[], dict] | None = None):
         self.node = node
         self.gateway = gateway
         self.extra = extra or dict
-        self.pubs = {gateway.keys.meas(s): node.recoverable_publisher(gateway.keys.meas(s), gateway_cache(site.period))
+        self.pubs = {gateway.keys.meas(s): node.recoverable_publisher(gateway.keys.meas(s),
+                                                                      gateway_cache(site.period, recovery))
                      for s, site in gateway.sensors.items()}
         self.skipped: dict[str, int] = {}
         self.adsb_sensor = next(iter(gateway.sensors), "")  # the receiver's id (an ADS-B gateway has one)
@@ -178,14 +179,15 @@ class Outlet:
             self.node.counters.update(self.extra())
             self.node.publish_status(state, self.t_last)
 def _site_sensors(args, ids: list[str]):
-    """The site's frame and these sensors (before any session is opened)."""
+    """The site's frame, these sensors and its recovery window (before any session is
+    opened)."""
     for flag in ("max_skew", "max_age", "watermark_lag", "poll_s", "timeout_s"):
         v = getattr(args, flag, 1.0)
         if not (v >= 0 if flag == "watermark_lag" else v > 0) or v == float("inf"):
             raise UserError(f"--{flag.replace('_', '-')} must be a positive number of seconds, not {v}")
     site = load_site(args.site)
     try:
-        return local_frame(site), sensor_sites(site, ids)
+        return local_frame(site), sensor_sites(site, ids), site.recovery
     except ValueError as e:
         raise UserError(str(e)) from None
 
@@ -231,23 +233,24 @@ def run_krakensdr(args, keys: KeySpace, zopts) -> int:
     options = kraken_options(args)
     url = poll_url(args.url, args.format) if args.url else None
     listen = _host_port(args.listen, "--listen") if args.listen else None
-    frame, sensors = _site_sensors(args, options.channel_ids(args.id))
+    frame, sensors, recovery = _site_sensors(args, options.channel_ids(args.id))
     with Node(args.id, "ingest", keys, zopts, live=True) as node:
         gateway = _gateway(node, args, frame, sensors)
         station = KrakenStation(args.id, options)
         if url:
             fmt = "auto" if args.format == "auto" else args.format
             # The page is served as text/html whatever it holds: the content decides.
-            return _poll(node, gateway, url, args,
+            return _poll(node, gateway, recovery, url, args,
                          lambda data, ctype: station.receive(data, fmt, None if "html" in (ctype or "") else ctype))
-        return _listen(node, gateway, station, listen, args)
+        return _listen(node, gateway, recovery, station, listen, args)
 
 
-def _poll(node: Node, gateway: Gateway, url: str, args, receive: Callable[[bytes, str | None], list]) -> int:
+def _poll(node: Node, gateway: Gateway, recovery: float, url: str, args,
+          receive: Callable[[bytes, str | None], list]) -> int:
     """Poll ``url`` every ``--poll-s``; ``receive(body, content_type)`` parses each answer
     into readings (or bearings, position reports) and refusals."""
     counts = {"polls": 0, "http_errors": 0}
-    outlet = Outlet(node, gateway, lambda: counts)
+    outlet = Outlet(node, gateway, recovery, lambda: counts)
     backoff = Backoff(args.poll_s)
     outlet.ready(args.wait_for)
     failing = False
@@ -385,7 +388,8 @@ class _PostHandler(BaseHTTPRequestHandler):
         pass
 
 
-def _listen(node: Node, gateway: Gateway, station: KrakenStation, where: tuple[str, int], args) -> int:
+def _listen(node: Node, gateway: Gateway, recovery: float, station: KrakenStation, where: tuple[str, int],
+            args) -> int:
     inbox: queue.Queue = queue.Queue(QUEUE_SIZE)
     counts = {"posts": 0, "dropped": 0}
     handler = type("Handler", (_PostHandler,), {"inbox": inbox, "counts": counts})
@@ -398,7 +402,7 @@ def _listen(node: Node, gateway: Gateway, station: KrakenStation, where: tuple[s
     thread.start()
     fmt = "auto" if args.format == "auto" else args.format
     try:
-        outlet = Outlet(node, gateway, lambda: counts)
+        outlet = Outlet(node, gateway, recovery, lambda: counts)
         outlet.ready(args.wait_for)
         node.event(f"listening on http://{where[0]}:{server.server_address[1]}/")
         while not node.stop.is_set():
@@ -426,7 +430,7 @@ def _listen(node: Node, gateway: Gateway, station: KrakenStation, where: tuple[s
 def run_adsb(args, keys: KeySpace, zopts) -> int:
     """``zfusion ingest adsb``: a receiver's ``aircraft.json`` polled (``--url``) or its
     BaseStation feed read (``--sbs HOST:PORT``, a TCP client, reconnecting with backoff)."""
-    frame, sensors = _site_sensors(args, [args.id])
+    frame, sensors, recovery = _site_sensors(args, [args.id])
     if sensors[args.id].kind != "position":
         raise UserError(f"[sensors.{args.id}] is a {sensors[args.id].kind} sensor: an ADS-B receiver is kind = \"adsb\"")
     try:
@@ -438,13 +442,14 @@ def run_adsb(args, keys: KeySpace, zopts) -> int:
     with Node(args.id, "ingest", keys, zopts, live=True) as node:
         gateway = _gateway(node, args, frame, sensors)
         if args.url:
-            return _poll(node, gateway, args.url, args, lambda data, ctype: receiver.receive_json(data))
-        return _sbs(node, gateway, receiver, where, args)
+            return _poll(node, gateway, recovery, args.url, args, lambda data, ctype: receiver.receive_json(data))
+        return _sbs(node, gateway, recovery, receiver, where, args)
 
 
-def _sbs(node: Node, gateway: Gateway, receiver: AdsbReceiver, where: tuple[str, int], args) -> int:
+def _sbs(node: Node, gateway: Gateway, recovery: float, receiver: AdsbReceiver, where: tuple[str, int],
+         args) -> int:
     counts = {"connections": 0, "connection_errors": 0, "lines": 0}
-    outlet = Outlet(node, gateway, lambda: counts)
+    outlet = Outlet(node, gateway, recovery, lambda: counts)
     backoff = Backoff(args.poll_s)
     outlet.ready(args.wait_for)
     while not node.stop.is_set():
@@ -497,10 +502,10 @@ def run_jsonl(args, keys: KeySpace, zopts) -> int:
     source = _input(args.input)
     if replays(source):  # the watermark follows the file, not the wall clock: no heartbeats
         args.watermark_lag = 0.0
-    frame, sensors = _site_sensors(args, [args.id])
+    frame, sensors, recovery = _site_sensors(args, [args.id])
     with Node(args.id, "ingest", keys, zopts, live=True) as node:
         gateway = _gateway(node, args, frame, sensors)
-        return _jsonl(node, gateway, source, args)
+        return _jsonl(node, gateway, recovery, source, args)
 
 
 def _input(text: str) -> tuple[str, tuple[str, int] | str | None]:
@@ -715,11 +720,12 @@ def _beat(outlet: Outlet, reader: _Reader, inbox: queue.Queue) -> None:
     outlet.tick(time.time(), heartbeat=inbox.empty(), read_until=until)
 
 
-def _jsonl(node: Node, gateway: Gateway, source: tuple[str, tuple[str, int] | None], args) -> int:
+def _jsonl(node: Node, gateway: Gateway, recovery: float, source: tuple[str, tuple[str, int] | None],
+           args) -> int:
     inbox: queue.Queue = queue.Queue(QUEUE_SIZE)
     reader = _Reader(source[0], source[1], inbox, node.stop)
     counts = {"lines": 0}
-    outlet = Outlet(node, gateway, lambda: {**counts, **reader.counts})
+    outlet = Outlet(node, gateway, recovery, lambda: {**counts, **reader.counts})
     outlet.ready(args.wait_for)
     reader.start()
     where = {"stdin": "stdin", "file": str(source[1])}.get(source[0]) or f"{source[0]}://{source[1][0]}:{source[1][1]}"
@@ -784,7 +790,7 @@ def run_asterix(args, keys: KeySpace, zopts) -> int:
     except ValueError as e:
         raise UserError(str(e)) from None
     adsb_stations = stations(site)
-    _, sensors = _site_sensors(args, [r.sensor for r in rs.values()] + list(adsb_stations.values()))
+    _, sensors, recovery = _site_sensors(args, [r.sensor for r in rs.values()] + list(adsb_stations.values()))
     senders = [s for s in (args.scenario_run or "").split(",") if s]
     if args.scenario_run is not None and (args.pcap or not senders):
         raise UserError("--scenario-run SENDERS: the process ids of the scenario's senders, with --udp")
@@ -801,7 +807,7 @@ def run_asterix(args, keys: KeySpace, zopts) -> int:
         gateway = Gateway(sensors, frame, node.keys, node.reject, max_skew=math.inf, max_age=math.inf, lag=0.0) \
             if senders else _gateway(node, args, frame, sensors)
         ingest = AsterixIngest(feed, gateway, node.reject, src=args.id, stations=adsb_stations)
-        outlet = Outlet(node, ingest.gateway, ingest.counters)
+        outlet = Outlet(node, ingest.gateway, recovery, ingest.counters)
         done = _done_of(node, senders)
         outlet.ready(args.wait_for)
         if args.pcap:

@@ -12,6 +12,7 @@ import subprocess
 import threading
 import time
 from contextlib import contextmanager
+from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
@@ -21,12 +22,23 @@ import zenoh
 from scipy.stats import chi2
 
 from _runs import child, run_cmd
+from conftest import ROOT
 from schemas import KeySpace, decode, to_estimate
 from services.launcher import free_port
 from services.node import ZenohOptions
 
 pytestmark = pytest.mark.slow
 LONG = "ZFUSION_LONG_TESTS"  # set: the long live tests run too
+RECOVERY_S = 10.0  # the runs' recovery window: the sources' caches hold 2 x 10 s of stream, not 2 x 30 s
+
+
+def _short_recovery(tmp_path: Path, scenario: str) -> str:
+    """A copy of the built-in ``scenario`` with ``recovery_s = RECOVERY_S``: a run is past
+    its sources' caches after 20 s of stream instead of 60 s."""
+    path = tmp_path / f"{scenario}.toml"
+    text = (ROOT / "sensors_sim" / "scenarios" / f"{scenario}.toml").read_text(encoding="utf-8")
+    path.write_text(f"recovery_s = {RECOVERY_S}\n{text}", encoding="utf-8")
+    return str(path)
 
 
 class Fused:
@@ -157,13 +169,13 @@ def test_a_restarted_fuser_rebuilds_the_track_and_takes_over_in_turn(tmp_path, d
     the new leader: the restarted fuser leads, under one identity, with the same track
     id, seq numbers going on, no gap in ``fused`` longer than one update period plus
     1 s, and each takeover within 3σ of the estimate before it. Without the rebuild the
-    restarted fuser's picture differs (its track started afresh from the 60 s its
-    sources' caches give back) and the test fails."""
-    with _standby_run(tmp_path, deployment, "patent-3d-orbit", 240) as run:
+    restarted fuser's picture differs (its track started afresh from the 20 s its
+    sources' caches give back: the run's recovery window is 10 s) and the test fails."""
+    with _standby_run(tmp_path, deployment, _short_recovery(tmp_path, "patent-3d-orbit"), 240) as run:
         watch, proc = run.watch, run.proc
-        # Past the sensors' recovery caches (60 s of stream): the restarted fuser cannot
-        # get the track's whole history back from them, only rebuild it from the picture.
-        watch.wait(lambda: len(watch.got) >= 70, proc, timeout=150)
+        # Past the sensors' recovery caches (20 s of stream, 1 Hz): the restarted fuser
+        # cannot get the track's whole history back from them, only rebuild it from the picture.
+        watch.wait(lambda: len(watch.got) >= 2 * RECOVERY_S + 10, proc, timeout=150)
         kills = [time.monotonic()]
         run.first.kill()
         child(run.launcher, "fuser", "fuser", exclude=(run.first.pid,))  # restarted by the launcher
@@ -192,7 +204,7 @@ def test_a_restarted_fuser_rebuilds_the_track_and_takes_over_in_turn(tmp_path, d
                     period)
 
 
-@pytest.mark.skipif(not os.environ.get(LONG), reason=f"about 110 s: run with {LONG}=1 (left out of the default suite "
+@pytest.mark.skipif(not os.environ.get(LONG), reason=f"about 80 s: run with {LONG}=1 (left out of the default suite "
                                                      f"for time)")
 def test_many_targets_a_restarted_fuser_rebuilds_the_table_and_takes_over(tmp_path, deployment):
     """Live air-picture-live (SS, GNN, up to 20 aircraft crossing, clutter) with
@@ -204,10 +216,12 @@ def test_many_targets_a_restarted_fuser_rebuilds_the_table_and_takes_over(tmp_pa
     of where the last frame before the kill, moved along its velocity, put it, no gap in
     ``fused`` longer than one update period plus 1 s. The restarted fuser stood by from
     its start (it never led, so it never yielded)."""
-    with _standby_run(tmp_path, deployment, "air-picture-live", 300) as run:
+    with _standby_run(tmp_path, deployment, _short_recovery(tmp_path, "air-picture-live"), 300) as run:
         watch, proc = run.watch, run.proc
         frames = lambda: len({m.t for _, m in watch.got})  # noqa: E731
-        watch.wait(lambda: frames() >= 70, proc, timeout=200)
+        # Past the sources' caches: sized for max_alive = 20 aircraft at 1 Hz, they span
+        # about 30 s of stream at the dozen that usually fly (a recovery window of 10 s).
+        watch.wait(lambda: frames() >= 45, proc, timeout=200)
         run.first.kill()
         child(run.launcher, "fuser", "fuser", exclude=(run.first.pid,))
         at = frames()
