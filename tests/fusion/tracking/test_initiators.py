@@ -162,3 +162,141 @@ def test_a_pair_within_the_frame_goes_before_a_pair_across_frames_of_the_same_su
     assert d2_before < d2_now  # the premise: by d² alone the earlier plot would win
     groups, _ = ini.groups_across([a, now], [before], 1.5)
     assert [g[0] for g in groups] == [[a, now]]
+
+
+# The batched screens: they drop only what the one-pair path would -----------------------
+def _dense_frame(rng, n_angle=60, n_radar=120, radar_az_std_deg=1.0, n_aircraft=12):
+    """One frame as air-picture-dense's: two angle sensors (0.05°) and two 2D radars (az σ
+    ``radar_az_std_deg``, 20 m), each with the noisy plots of ``n_aircraft`` aircraft and
+    false plots uniform in its measurement space."""
+    sites = {"angle1": np.array([50e3, 0.0, 0.0]), "angle2": np.array([0.0, 55e3, 0.0]),
+             "radar1": np.zeros(3), "radar2": np.array([50e3, 55e3, 0.0])}
+    plots, seq = [], 0
+    std = {"azel": np.radians([0.05, 0.05]), "range_az": np.array([math.radians(radar_az_std_deg), 20.0])}
+    for p in np.column_stack([rng.uniform(10e3, 45e3, (n_aircraft, 2)), rng.uniform(3e3, 8e3, n_aircraft)]):
+        for s, site in sites.items():
+            e, n, u = p - site
+            kind = "azel" if s.startswith("angle") else "range_az"
+            z = (np.array([math.atan2(e, n) % (2 * math.pi), math.atan2(u, math.hypot(e, n))]) if kind == "azel" else
+                 np.array([math.atan2(e, n) % (2 * math.pi), float(np.linalg.norm(p - site))]))
+            seq += 1
+            plots.append(Measurement(0.0, s, kind, z + std[kind] * rng.standard_normal(2), std[kind], site, seq))
+    for s in ("angle1", "angle2"):
+        for _ in range(n_angle):
+            seq += 1
+            plots.append(Measurement(0.0, s, "azel", np.array([rng.uniform(0, 2 * math.pi), rng.uniform(0.0, 0.5)]),
+                                     np.radians([0.05, 0.05]), sites[s], seq))
+    for s in ("radar1", "radar2"):
+        for _ in range(n_radar):
+            seq += 1
+            plots.append(Measurement(0.0, s, "range_az", np.array([rng.uniform(0, 2 * math.pi), rng.uniform(2e3, 80e3)]),
+                                     np.array([math.radians(radar_az_std_deg), 20.0]), sites[s], seq))
+    return plots
+
+
+@pytest.mark.parametrize("radar_az_std_deg", [1.0, 0.02])  # the angle plot's direction, or the radar's
+def test_the_crossing_screen_keeps_every_pair_in_the_gate(radar_az_std_deg):
+    """``_near_spheres`` with the gate drops a (radar plot, crossing) only where
+    :meth:`Initiator.pair_consistency` finds it outside the χ²(1) gate: over a dense
+    frame of random rays and spheres, both give the same candidate pairs (where the
+    radar measures azimuth better than the angle sensor the direction is the radar's and
+    the screen does not apply)."""
+    from fusion.tracking import initiators
+
+    rng = np.random.default_rng(7)
+    ini = Initiator(9, InitPriors(range=35e3, range_std=20e3, el=0.3, el_std=0.3), 0.999)
+    plots = _dense_frame(rng, n_angle=15, n_radar=60, radar_az_std_deg=radar_az_std_deg)
+    angles = [m for m in plots if m.kind == "azel"]
+    gate, k = ini._gate(1), initiators._PAIR_PREFILTER * math.sqrt(ini._gate(1))
+    kept = dropped = 0
+    for a in angles:
+        radars = [m for m in plots if m.kind == "range_az"]
+        wide = {id(r): roots for r, roots in initiators._near_spheres(a, radars, k)}
+        tight = {id(r): roots for r, roots in initiators._near_spheres(a, radars, k, gate)}
+        for r in radars:
+            full = [c[0] for c in ini.pair_consistency(a, r, wide.get(id(r), ()))]
+            assert [c[0] for c in ini.pair_consistency(a, r, tight.get(id(r), ()))] == full
+            kept += len(full)
+            dropped += len(wide.get(id(r), ())) - len(tight.get(id(r), ()))
+    assert kept > 30  # the frame is dense enough to have pairs in the gate
+    assert (dropped > 500) == (radar_az_std_deg == 1.0)  # and the screen does its work where it applies
+
+
+def test_groups_are_the_same_with_and_without_the_screens(monkeypatch):
+    """The initiation groups of a dense frame (pairs, gathered plots, states) are those of
+    the one-pair path: the crossing screen and the gathering screen switched off give
+    the very same groups."""
+    from fusion.tracking import initiators
+
+    rng = np.random.default_rng(11)
+    plots = _dense_frame(rng, n_angle=40, n_radar=150)
+    ini = Initiator(9, InitPriors(range=35e3, range_std=20e3, el=0.3, el_std=0.3), 0.999)
+    screened = ini.groups(plots)
+    near = initiators._near_spheres
+    monkeypatch.setattr(initiators, "_near_spheres", lambda a, radars, k, gate=math.inf: near(a, radars, k))
+    monkeypatch.setattr(initiators._BySensor, "screen", lambda self, cands, gate: [[None] * len(self.groups)] * len(cands))
+    plain = ini.groups(plots)
+    assert len(screened) > 10 and any(g[1] for g in screened)  # pairs, some of which gathered plots
+    assert len(screened) == len(plain)
+    for (f1, m1, x1, P1), (f2, m2, x2, P2) in zip(screened, plain):
+        assert [m.seq for m in f1] == [m.seq for m in f2] and [m.seq for m in m1] == [m.seq for m in m2]
+        assert np.array_equal(x1, x2) and np.array_equal(P1, P2)
+
+
+def test_the_crossing_screen_computes_the_one_pair_d2():
+    """The crossing screen's ``d²`` is :meth:`Initiator.pair_consistency`'s to 1e-6: for
+    every pair in the gate, a gate just under its ``d²`` drops the crossing and one just
+    over keeps it."""
+    from fusion.tracking import initiators
+
+    rng = np.random.default_rng(5)
+    ini = Initiator(9, InitPriors(range=35e3, range_std=20e3, el=0.3, el_std=0.3), 0.999)
+    plots = _dense_frame(rng, n_angle=20, n_radar=60)
+    radars = [m for m in plots if m.kind == "range_az"]
+    k = initiators._PAIR_PREFILTER * math.sqrt(ini._gate(1))
+    checked = 0
+    for a in (m for m in plots if m.kind == "azel"):
+        for r in radars:
+            for root, d2, _, _ in ini.pair_consistency(a, r):
+                if d2 < 1e-3:
+                    continue
+                roots = lambda g: next((rs for _, rs in initiators._near_spheres(a, [r], k, g)), ())  # noqa: E731
+                assert root not in roots(d2 * (1.0 - 1e-5)) and root in roots(d2 * (1.0 + 1e-5)), (a, r, root, d2)
+                checked += 1
+    assert checked > 30
+
+
+def test_the_gathering_screen_keeps_exactly_the_plots_in_the_gate():
+    """``_BySensor.screen`` names, per candidate pair and sensor, the plots whose
+    one-pair ``d²`` (:func:`mahalanobis2`) is inside the χ² gate of the sensor's ``n_z``:
+    plots placed at ``d²`` from 0.2 to 2 gates of each pair's state, in random
+    directions, are named exactly when under the gate."""
+    from fusion.measurement.kinds import model_of
+    from fusion.tracking.hypotheses import mahalanobis2
+    from fusion.tracking.initiators import _BySensor
+
+    rng = np.random.default_rng(9)
+    ini = Initiator(9, InitPriors(range=35e3, range_std=20e3, el=0.3, el_std=0.3), 0.999)
+    frame = _dense_frame(rng, n_angle=0, n_radar=0, n_aircraft=8)
+    a_plots = [m for m in frame if m.sensor == "angle1"]
+    r_plots = [m for m in frame if m.sensor == "radar1"]
+    candidates = [(a, r, *c) for a, r in zip(a_plots, r_plots) for c in ini.pair_consistency(a, r)]
+    assert len(candidates) >= 6
+    others = []
+    for sensor, tmpl in (("angle2", next(m for m in frame if m.sensor == "angle2")),
+                         ("radar2", next(m for m in frame if m.sensor == "radar2"))):
+        model = model_of(tmpl, 9)
+        G = ini._gate(model.n_z)
+        for _, _, _, _, x, P in candidates:
+            H = model.jacobian(x)
+            L = np.linalg.cholesky(H @ P @ H.T + model.R)
+            for f in (0.2, 0.6, 0.95, 1.05, 1.4, 2.0):
+                v = rng.standard_normal(model.n_z)
+                z = model.h(x) + L @ (v / np.linalg.norm(v) * math.sqrt(f * G))
+                others.append(Measurement(0.0, sensor, tmpl.kind, z, tmpl.std, tmpl.site, len(others) + 1000))
+    sensors = _BySensor(others)
+    near = sensors.screen(candidates, ini._gate)
+    for (_, _, _, _, x, P), named in zip(candidates, near):
+        for g, (plots, Z, _) in enumerate(sensors.groups):
+            d2 = mahalanobis2(model_of(plots[0], 9), x, P, Z)
+            assert named[g] == set(np.flatnonzero(d2 <= ini._gate(model_of(plots[0], 9).n_z)).tolist())
