@@ -44,6 +44,18 @@ SENSORS = """
 """
 
 
+# The origin and defaults every such file starts with.
+HEADER = """\
+[origin]
+lat_deg = 21.0
+lon_deg = 105.0
+alt_m = 0.0
+[defaults]
+topology = "centralised"
+method = "SS"
+"""
+
+
 def write_scenario(tmp_path, sensors: str = SENSORS, targets: str | None = None, duration=N_SCANS - 0.5,
                    seed=11, name="emu.toml"):
     targets = targets or f"""
@@ -55,14 +67,7 @@ def write_scenario(tmp_path, sensors: str = SENSORS, targets: str | None = None,
         description = "emulator test"
         seed = {seed}
         duration_s = {duration}
-        [origin]
-        lat_deg = 21.0
-        lon_deg = 105.0
-        alt_m = 0.0
-        [defaults]
-        topology = "centralised"
-        method = "SS"
-    """) + textwrap.dedent(targets) + textwrap.dedent(sensors)
+    """) + HEADER + textwrap.dedent(targets) + textwrap.dedent(sensors)
     path = tmp_path / name
     path.write_text(text)
     return load_scenario(path)

@@ -14,6 +14,7 @@ from types import SimpleNamespace
 
 import pytest
 
+from _scenarios import HEADER
 from conftest import ROOT
 from sensors_sim.spec import RECOVERY_S
 from services.errors import UserError
@@ -21,15 +22,7 @@ from services.ingest.process import TICK_S, _site_sensors, gateway_cache
 from services.scenario import load, load_site
 from services.source import recovery_cache
 
-SITE = textwrap.dedent("""\
-    recovery_s = 5.0
-    [origin]
-    lat_deg = 21.0
-    lon_deg = 105.0
-    alt_m = 0.0
-    [defaults]
-    topology = "centralised"
-    method = "SS"
+SITE = "recovery_s = 5.0\n" + HEADER + textwrap.dedent("""\
     [sensors.df]
     kind = "df"
     pos_m = [0.0, 0.0, 0.0]
