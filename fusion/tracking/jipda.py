@@ -37,6 +37,8 @@ from scipy.special import gammaln
 
 from .. import kalman
 from ..angles import TWO_PI
+from ..measurement.components import RANGE
+from ..measurement.kinds import KINDS, RAY, SPHERE
 from .associators import Weights
 from .hypotheses import Hypotheses, gate_threshold
 from .table import CONFIRMED, DELETED, TENTATIVE
@@ -91,10 +93,16 @@ class ExistenceLogic:
     position σ (√trace P_pos) exceeds ``max_pos_std``. The tracker moves ``existence``:
     :meth:`survive` at each frame, the associator's ``r⁺`` after each scan.
 
+    A track whose range one plot fixed (``range_pending``: started from an angle plot's
+    ray and one 2D radar plot's range sphere, :meth:`born_from`) is confirmed only once
+    a plot measuring its range has hit it since (:meth:`see`): an angle sensor's plots
+    keep a track on their ray wherever along it a false radar plot put it.
+
     Attributes:
         status: ``tentative``, ``confirmed`` or ``deleted``.
         existence: the probability that the track's target exists, at ``t``.
         t: the time of ``existence`` (None before the track's first frame).
+        range_pending: no plot has confirmed the range its birth pair gave it.
     """
 
     rule: ExistenceRule
@@ -102,6 +110,7 @@ class ExistenceLogic:
     status: str = TENTATIVE
     existence: float = field(default=None)
     t: float | None = None
+    range_pending: bool = False
 
     def __post_init__(self):
         if self.existence is None:
@@ -113,6 +122,21 @@ class ExistenceLogic:
             self.existence = float(self.rule.predict(self.existence, t - self.t))
         self.t = float(t)
 
+    def born_from(self, plots) -> None:
+        """A new track's plots: its range is pending if they are an angle plot's ray and
+        one 2D radar plot's range sphere, with no other plot that measures range."""
+        plots = list(plots)
+        self.range_pending = ({KINDS[m.kind].start for m in plots} == {RAY, SPHERE}
+                              and sum(_measures_range(m) for m in plots) == 1)
+
+    def see(self, taken) -> None:
+        """A frame's association of the track (:class:`~fusion.tracking.manager.Taken` s):
+        a plot that measures range, made by the track with weight at least :data:`USED`,
+        confirms the range of its birth."""
+        if self.range_pending and any(b >= USED and _measures_range(m) for tk in taken
+                                      for m, b in zip(tk.plots, tk.beta)):
+            self.range_pending = False
+
     def record(self, hit: bool, P_pos: np.ndarray | None = None) -> str:
         """The end of a frame: the status the existence now gives (``hit`` plays no part);
         returns it."""
@@ -121,9 +145,15 @@ class ExistenceLogic:
         if self.existence < self.rule.existence_delete or (
                 P_pos is not None and math.sqrt(float(np.trace(P_pos))) > self.max_pos_std):
             self.status = DELETED
-        elif self.status == TENTATIVE and self.existence >= self.rule.existence_confirm:
+        elif self.status == TENTATIVE and self.existence >= self.rule.existence_confirm and not self.range_pending:
             self.status = CONFIRMED
         return self.status
+
+
+def _measures_range(m) -> bool:
+    """Whether a plot fixes its target's range: it measures range, or is a position."""
+    kind = KINDS[m.kind]
+    return RANGE in kind.components or not kind.sited
 
 
 def existence_update(r, beta0, p_detect: float, gate_prob: float, assigned=None):

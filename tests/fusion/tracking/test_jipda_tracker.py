@@ -213,3 +213,41 @@ def test_a_track_born_without_a_sensor_of_its_frame_is_charged_that_sensors_miss
         (track,) = method.tracker.tracks
         odds = birth / (1 - birth) * (1 - p_detect * gate_prob) ** missed
         assert track.existence == pytest.approx(odds / (1 + odds), rel=1e-12)
+
+
+def test_a_track_whose_range_one_radar_plot_gave_is_confirmed_only_by_a_plot_measuring_range():
+    """An aircraft seen by a 2D radar and an angle sensor at birth, then by the angle
+    sensor alone: its existence passes ``existence_confirm`` on the angle plots, but the
+    track stays tentative (its range is that of one radar plot, which could have been a
+    false alarm: an angle sensor's plots hold a track anywhere on their ray); the first
+    frame with a radar plot confirms it. Born with both radars' plots (two ranges) it
+    is confirmed by its existence alone."""
+    target = np.array([20000.0, 30000.0, 6000.0])
+    r1_site, r2_site, angle_site = np.zeros(3), np.array([50000.0, 55000.0, 0.0]), np.array([50000.0, 0.0, 0.0])
+    radar_std, angle_std = np.array([1.0 * DEG, 20.0]), np.array([0.05 * DEG, 0.05 * DEG])
+    rng = np.random.default_rng(3)
+
+    def frame(t, radars=()):
+        plots = [Measurement(t, "angle1", "azel", _az_el_range(target, angle_site)[:2], angle_std, angle_site, 0)]
+        plots += [Measurement(t, "angle1", "azel", np.array([rng.uniform(3.5, 6.0), rng.uniform(0.0, 1.0)]), angle_std,
+                              angle_site, k + 1) for k in range(20)]  # false plots far from the aircraft
+        for name, site in radars:
+            plots.append(Measurement(t, name, "range_az", _az_el_range(target, site)[[0, 2]], radar_std, site, 0))
+        return sorted(plots, key=lambda m: m.order_key)
+
+    method = make_method("SS", {"association": "jipda", "p_detect": 0.9, "gate_prob": 0.999})
+    method.tracker.frame(frame(0.0, [("radar1", r1_site)]))
+    (track,) = [tr for tr in method.tracker.tracks if tr.logic.range_pending]
+    for t in (1.0, 2.0, 3.0, 4.0):
+        method.tracker.frame(frame(t))
+    assert track.existence > 0.99 and track.logic.status == TENTATIVE
+    method.tracker.frame(frame(5.0, [("radar1", r1_site)]))
+    assert track.logic.status == CONFIRMED and not track.logic.range_pending
+
+    both = make_method("SS", {"association": "jipda", "p_detect": 0.9, "gate_prob": 0.999})
+    both.tracker.frame(frame(0.0, [("radar1", r1_site), ("radar2", r2_site)]))
+    (track,) = [tr for tr in both.tracker.tracks if np.linalg.norm(tr.filter.x[:3] - target) < 1000.0]
+    assert not track.logic.range_pending
+    for t in (1.0, 2.0, 3.0, 4.0):
+        both.tracker.frame(frame(t))
+    assert track.logic.status == CONFIRMED
