@@ -136,6 +136,13 @@ def partners(name: str) -> frozenset[str]:
     return frozenset(o.name for o in KINDS.values() if o.family == k.family and o.start == other)
 
 
+def fixes(m, component: Component) -> bool:
+    """Whether the report ``m`` fixes its target's ``component``: its kind measures it, or
+    it is a position (a report that is not sited states the whole point)."""
+    k = KINDS[m.kind]
+    return component in k.components or not k.sited
+
+
 def model_for(name: str, site, std, n_x: int = 9, corr=None) -> MeasurementModel:
     """The model of a sensor of kind ``name`` at ``site`` stating ``std`` (and, for a
     kind whose reports state their own noise, ``corr``)."""

@@ -189,13 +189,12 @@ class _BySensor:
     def __init__(self, left: Sequence[Measurement]):
         self.groups = [(plots, np.array([m.z for m in plots], dtype=float), [m.order_key for m in plots])
                        for plots in by_sensor(left)]
-        self.place = {plots[0].sensor: g for g, (plots, _, _) in enumerate(self.groups)}
         self.index = {id(m): i for i, m in enumerate(left)}
 
     def free(self, used: set, skip: tuple, gated: list):
-        """``(plots, Z, free)`` per sensor not in ``skip`` with a plot not ``used``, sensors in
-        order of their first plot not used; ``free``: the indices of its plots not used, of
-        those ``gated`` names for it (all if None)."""
+        """``(plots, Z, free, first)`` per sensor not in ``skip`` with a plot not ``used``,
+        sensors in order of their first plot not used (``first``, its index); ``free``: the
+        indices of its plots not used, of those ``gated`` names for it (all if None)."""
         out = []
         for g, (plots, Z, keys) in enumerate(self.groups):
             if plots[0].sensor in skip:

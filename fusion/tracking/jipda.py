@@ -38,7 +38,7 @@ from scipy.special import gammaln
 from .. import kalman
 from ..angles import TWO_PI
 from ..measurement.components import RANGE
-from ..measurement.kinds import KINDS, RAY, SPHERE
+from ..measurement.kinds import KINDS, RAY, SPHERE, fixes
 from .associators import Weights
 from .hypotheses import Hypotheses, gate_threshold
 from .table import CONFIRMED, DELETED, TENTATIVE
@@ -127,13 +127,13 @@ class ExistenceLogic:
         one 2D radar plot's range sphere, with no other plot that measures range."""
         plots = list(plots)
         self.range_pending = ({KINDS[m.kind].start for m in plots} == {RAY, SPHERE}
-                              and sum(_measures_range(m) for m in plots) == 1)
+                              and sum(fixes(m, RANGE) for m in plots) == 1)
 
     def see(self, taken) -> None:
         """A frame's association of the track (:class:`~fusion.tracking.manager.Taken` s):
         a plot that measures range, made by the track with weight at least :data:`USED`,
         confirms the range of its birth."""
-        if self.range_pending and any(b >= USED and _measures_range(m) for tk in taken
+        if self.range_pending and any(b >= USED and fixes(m, RANGE) for tk in taken
                                       for m, b in zip(tk.plots, tk.beta)):
             self.range_pending = False
 
@@ -148,12 +148,6 @@ class ExistenceLogic:
         elif self.status == TENTATIVE and self.existence >= self.rule.existence_confirm and not self.range_pending:
             self.status = CONFIRMED
         return self.status
-
-
-def _measures_range(m) -> bool:
-    """Whether a plot fixes its target's range: it measures range, or is a position."""
-    kind = KINDS[m.kind]
-    return RANGE in kind.components or not kind.sited
 
 
 def existence_update(r, beta0, p_detect: float, gate_prob: float, assigned=None):

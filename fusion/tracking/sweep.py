@@ -98,7 +98,7 @@ from .. import batch
 from ..angles import wrap_pi
 from ..ekf import TrackEKF
 from ..measurement.components import AZ, EL, RANGE
-from ..measurement.kinds import KINDS, RAY, SPHERE, model_of
+from ..measurement.kinds import KINDS, RAY, SPHERE, fixes, model_of
 from ..measurement.models import SphericalModel
 from ..motion import ConstantAcceleration, ConstantVelocity
 from ..types import Estimate
@@ -475,7 +475,7 @@ class SweepTracker(MultiTargetTracker):
             hit = bool(plots_i) and scores_hit([m.kind for m in {m.sensor: m for m in plots_i}.values()],
                                                track.confirmed, 1)
             track.logic.record(hit, track.filter.P[:3, :3] if plots_i else None, t_end, {m.sensor for m in plots_i},
-                               any(_measures(m, EL) for m in plots_i), score, any(_measures(m, RANGE) for m in plots_i),
+                               any(fixes(m, EL) for m in plots_i), score, any(fixes(m, RANGE) for m in plots_i),
                                _reporters(plots_i))
             if track.confirmed and not was:
                 self.clutter.unsee(track.logic.counted)
@@ -485,8 +485,8 @@ class SweepTracker(MultiTargetTracker):
             track, score = self.start(group)
             first, more = group[0], group[1]
             track.logic = SweepLogic(self.rule, self.revisit_s, track.last.t, frozenset(m.sensor for m in (*first, *more)),
-                                     any(_measures(m, EL) for m in (*first, *more)), llr=score,
-                                     ranged=any(_measures(m, RANGE) for m in more),
+                                     any(fixes(m, EL) for m in (*first, *more)), llr=score,
+                                     ranged=any(fixes(m, RANGE) for m in more),
                                      reporters=_reporters((*first, *more)),
                                      counted=tuple(m.sensor for m in (*first, *more) if origin(m).order_key in counted))
             if track.confirmed:
@@ -626,10 +626,3 @@ def starts_alone(group) -> bool:
 def _reporters(plots) -> frozenset:
     """The sensors of the position reports among ``plots`` (module docstring, 9.)."""
     return frozenset(m.sensor for m in plots if not KINDS[m.kind].sited)
-
-
-def _measures(m, component) -> bool:
-    """Whether a plot fixes its target's ``component`` (``EL``: its height, ``RANGE``: its
-    range from the site): it measures it, or is a position."""
-    kind = KINDS[m.kind]
-    return component in kind.components or not kind.sited
