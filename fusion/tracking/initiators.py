@@ -115,8 +115,8 @@ class Initiator:
         used: set[tuple] = set()
         sensors = _BySensor(left)
         queue = []
-        near = sensors.screen(candidates, self._gate)
-        for (a, r, root, d2, x, P), gated in zip(candidates, near):
+        screens = sensors.screen(candidates, self._gate)
+        for (a, r, root, d2, x, P), gated in zip(candidates, screens):
             plot = origin.get(id(r))
             if plot is None:
                 plot = moved_from[id(r)] = r.moved_from
