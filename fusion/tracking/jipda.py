@@ -38,7 +38,7 @@ from scipy.special import gammaln
 from .. import kalman
 from ..angles import TWO_PI
 from ..measurement.components import RANGE
-from ..measurement.kinds import KINDS, RAY, SPHERE, fixes
+from ..measurement.kinds import fixes
 from .associators import Weights
 from .hypotheses import Hypotheses, gate_threshold
 from .table import CONFIRMED, DELETED, TENTATIVE
@@ -93,16 +93,10 @@ class ExistenceLogic:
     position σ (√trace P_pos) exceeds ``max_pos_std``. The tracker moves ``existence``:
     :meth:`survive` at each frame, the associator's ``r⁺`` after each scan.
 
-    A track whose range one plot fixed (``range_pending``: started from an angle plot's
-    ray and one 2D radar plot's range sphere, :meth:`born_from`) is confirmed only once
-    a plot measuring its range has hit it since (:meth:`see`): an angle sensor's plots
-    keep a track on their ray wherever along it a false radar plot put it.
-
     Attributes:
         status: ``tentative``, ``confirmed`` or ``deleted``.
         existence: the probability that the track's target exists, at ``t``.
         t: the time of ``existence`` (None before the track's first frame).
-        range_pending: no plot has confirmed the range its birth pair gave it.
     """
 
     rule: ExistenceRule
@@ -110,7 +104,6 @@ class ExistenceLogic:
     status: str = TENTATIVE
     existence: float = field(default=None)
     t: float | None = None
-    range_pending: bool = False
 
     def __post_init__(self):
         if self.existence is None:
@@ -122,21 +115,6 @@ class ExistenceLogic:
             self.existence = float(self.rule.predict(self.existence, t - self.t))
         self.t = float(t)
 
-    def born_from(self, plots) -> None:
-        """A new track's plots: its range is pending if they are an angle plot's ray and
-        one 2D radar plot's range sphere, with no other plot that measures range."""
-        plots = list(plots)
-        self.range_pending = ({KINDS[m.kind].start for m in plots} == {RAY, SPHERE}
-                              and sum(fixes(m, RANGE) for m in plots) == 1)
-
-    def see(self, taken) -> None:
-        """A frame's association of the track (:class:`~fusion.tracking.manager.Taken` s):
-        a plot that measures range, made by the track with weight at least :data:`USED`,
-        confirms the range of its birth."""
-        if self.range_pending and any(b >= USED and fixes(m, RANGE) for tk in taken
-                                      for m, b in zip(tk.plots, tk.beta)):
-            self.range_pending = False
-
     def record(self, hit: bool, P_pos: np.ndarray | None = None) -> str:
         """The end of a frame: the status the existence now gives (``hit`` plays no part);
         returns it."""
@@ -145,7 +123,7 @@ class ExistenceLogic:
         if self.existence < self.rule.existence_delete or (
                 P_pos is not None and math.sqrt(float(np.trace(P_pos))) > self.max_pos_std):
             self.status = DELETED
-        elif self.status == TENTATIVE and self.existence >= self.rule.existence_confirm and not self.range_pending:
+        elif self.status == TENTATIVE and self.existence >= self.rule.existence_confirm:
             self.status = CONFIRMED
         return self.status
 
@@ -522,6 +500,16 @@ class JIPDA:
     frame's scans the existence odds ``r/(1 − r)`` are multiplied by each scan's
     ``1 − δ`` in turn (a lone track: ``δ = P_D P_G − P_D Σⱼ Nⱼ/ρ`` of that scan).
 
+    *Rays.* Once a scan has fixed range (:attr:`ranged`: a radar's, or a position
+    report's), a scan that fixes none (an angle sensor's rays) may lower existence but
+    not raise it: ``r⁺ ← min(r⁺, r)``; its weights update the track as they are. A ray
+    plot in a track's gate is as likely from any target on the ray as from one at the
+    track's range, so its evidence ``P_D Nⱼ/ρ`` (10²–10⁴ for a track tight in angle) is
+    no evidence that the track's target exists, and a track at a false range on a real
+    aircraft's ray would live on that aircraft's plots; no plot on the ray where the
+    track is, though, is a miss like any other. A network of angle sensors alone has
+    nothing else: there every scan counts in full.
+
     Args:
         p_detect: the detection probability ``P_D`` of every sensor not in ``p_detect_by_sensor``.
         gate_prob: the gate's ``P_G`` (the hypotheses' gates must be ``χ²⁻¹(P_G; n_z)``).
@@ -541,6 +529,11 @@ class JIPDA:
         self.clutter_scans, self.exact_events = int(clutter_scans), exact_events
         self._clutter: dict[str, ClutterWindow] = {}
         self.density: dict[str, float] = {}  # the latest clutter density of each sensor
+        self.ranged = False  # whether a scan has fixed range (then rays raise no existence)
+
+    def raises_existence(self, plot) -> bool:
+        """Whether the scan of ``plot``'s sensor may raise existence (*Rays*, above)."""
+        return fixes(plot, RANGE) or not self.ranged
 
     def detection(self, sensor: str) -> float:
         """``P_D`` of ``sensor``: its own if named, else :attr:`p_detect`."""
@@ -559,6 +552,7 @@ class JIPDA:
         n, m = hyp.d2.shape
         r = np.ones(n) if hyp.existence is None else np.asarray(hyp.existence, dtype=float)
         sensor = hyp.plots[0].sensor
+        self.ranged = self.ranged or fixes(hyp.plots[0], RANGE)
         p_detect = self.detection(sensor)
         pdg = p_detect * self.gate_prob
         gated = [np.flatnonzero(g) for g in hyp.gated]
@@ -578,4 +572,6 @@ class JIPDA:
         c = np.zeros((n, m))
         c[alive] = beta[alive, 1:] / r_post[alive, None]
         used = frozenset(int(j) for j in np.flatnonzero(beta[:, 1:].sum(axis=0) >= USED))
+        if not self.raises_existence(hyp.plots[0]):
+            r_post = np.minimum(r_post, r)
         return Weights(c, np.where(alive, c0, 1.0), used, r_post)

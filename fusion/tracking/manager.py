@@ -149,9 +149,6 @@ class MultiTargetTracker:
             mine = taken[i] + continued.get(i, [])
             hit = self.updater.update(track, mine, frame)
             if not track.deleted:  # (an updater deletes a track it cannot update)
-                see = getattr(track.logic, "see", None)  # JIPDA's: a plot that confirms the birth's range
-                if see is not None:
-                    see(mine)
                 track.logic.record(hit, self.updater.position_cov(track))
             track.claim([m for tk in mine if not tk.weighted for m in tk.plots])
         if self.reviewer is not None:
@@ -166,7 +163,6 @@ class MultiTargetTracker:
                     seen = {m.sensor for m in initial_plots(group)}
                     missed = [s for s in dict.fromkeys(m.sensor for m in frame.plots) if s not in seen]
                     track.logic.existence = born(track.existence, missed)
-                    track.logic.born_from(initial_plots(group))
         return self.table.close_frame()
 
     def associate(self, tracks: list[Track], frame: Frame) -> tuple[list[list[Taken]], list]:

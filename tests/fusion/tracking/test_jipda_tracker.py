@@ -215,39 +215,69 @@ def test_a_track_born_without_a_sensor_of_its_frame_is_charged_that_sensors_miss
         assert track.existence == pytest.approx(odds / (1 + odds), rel=1e-12)
 
 
-def test_a_track_whose_range_one_radar_plot_gave_is_confirmed_only_by_a_plot_measuring_range():
-    """An aircraft seen by a 2D radar and an angle sensor at birth, then by the angle
-    sensor alone: its existence passes ``existence_confirm`` on the angle plots, but the
-    track stays tentative (its range is that of one radar plot, which could have been a
-    false alarm: an angle sensor's plots hold a track anywhere on their ray); the first
-    frame with a radar plot confirms it. Born with both radars' plots (two ranges) it
-    is confirmed by its existence alone."""
+ANGLE_STD = np.array([0.05 * DEG, 0.05 * DEG])
+RADAR_STD = np.array([1.0 * DEG, 20.0])
+
+
+def _plot(t, sensor, kind, point, site, k=0):
+    z = _az_el_range(point, site)
+    z = z[:2] if kind == "azel" else z[[0, 2]]
+    return Measurement(t, sensor, kind, z, ANGLE_STD if kind == "azel" else RADAR_STD, site, k)
+
+
+def test_a_track_at_a_false_range_on_an_aircrafts_ray_does_not_live_on_its_angle_plots():
+    """An aircraft seen every second by an angle sensor and a 2D radar; at t = 0 the
+    radar's one plot is a false alarm whose range sphere crosses the angle sensor's ray to
+    the aircraft 12 km short of it, and a track starts there, on the ray. The angle
+    sensor's plots of the aircraft then lie in its gate every frame, tighter than any
+    false alarm: they tell that something is on the ray, not that it is at this range.
+    So they do not raise its existence, the radar's misses take it below
+    ``existence_delete`` at 2 s and it is never confirmed; the aircraft's own track,
+    started once the ghost no longer holds its angle plot, is confirmed on the radar's
+    plots by 5 s. (Counted as detections, the angle plots raise the ghost's odds more
+    than the radar's misses lower them: it is confirmed at 2 s.)"""
     target = np.array([20000.0, 30000.0, 6000.0])
-    r1_site, r2_site, angle_site = np.zeros(3), np.array([50000.0, 55000.0, 0.0]), np.array([50000.0, 0.0, 0.0])
-    radar_std, angle_std = np.array([1.0 * DEG, 20.0]), np.array([0.05 * DEG, 0.05 * DEG])
+    radar_site, angle_site = np.zeros(3), np.array([50000.0, 0.0, 0.0])
+    ray = (target - angle_site) / np.linalg.norm(target - angle_site)
+    ghost = target - 12000.0 * ray
     rng = np.random.default_rng(3)
 
-    def frame(t, radars=()):
-        plots = [Measurement(t, "angle1", "azel", _az_el_range(target, angle_site)[:2], angle_std, angle_site, 0)]
-        plots += [Measurement(t, "angle1", "azel", np.array([rng.uniform(3.5, 6.0), rng.uniform(0.0, 1.0)]), angle_std,
-                              angle_site, k + 1) for k in range(20)]  # false plots far from the aircraft
-        for name, site in radars:
-            plots.append(Measurement(t, name, "range_az", _az_el_range(target, site)[[0, 2]], radar_std, site, 0))
-        return sorted(plots, key=lambda m: m.order_key)
+    def frame(t, radar_plot):
+        clutter = [Measurement(t, "angle1", "azel", np.array([rng.uniform(3.5, 6.0), rng.uniform(0.0, 1.0)]), ANGLE_STD,
+                               angle_site, k + 1) for k in range(20)]  # false plots far from the aircraft
+        return sorted([_plot(t, "angle1", "azel", target, angle_site), *clutter,
+                       _plot(t, "radar1", "range_az", radar_plot, radar_site)], key=lambda m: m.order_key)
 
     method = make_method("SS", {"association": "jipda", "p_detect": 0.9, "gate_prob": 0.999})
-    method.tracker.frame(frame(0.0, [("radar1", r1_site)]))
-    (track,) = [tr for tr in method.tracker.tracks if tr.logic.range_pending]
-    for t in (1.0, 2.0, 3.0, 4.0):
-        method.tracker.frame(frame(t))
-    assert track.existence > 0.99 and track.logic.status == TENTATIVE
-    method.tracker.frame(frame(5.0, [("radar1", r1_site)]))
-    assert track.logic.status == CONFIRMED and not track.logic.range_pending
+    method.tracker.frame(frame(0.0, ghost))
+    (born,) = [tr for tr in method.tracker.tracks if np.linalg.norm(tr.filter.x[:3] - ghost) < 300.0]
+    for t in (1.0, 2.0, 3.0, 4.0, 5.0):
+        method.tracker.frame(frame(t, target))
+        assert born.logic.status != CONFIRMED
+    assert born.logic.status == DELETED and born not in method.tracker.tracks
+    (held,) = [tr for tr in method.tracker.tracks if tr.logic.status == CONFIRMED]
+    assert np.linalg.norm(held.filter.x[:3] - target) < 300.0
 
-    both = make_method("SS", {"association": "jipda", "p_detect": 0.9, "gate_prob": 0.999})
-    both.tracker.frame(frame(0.0, [("radar1", r1_site), ("radar2", r2_site)]))
-    (track,) = [tr for tr in both.tracker.tracks if np.linalg.norm(tr.filter.x[:3] - target) < 1000.0]
-    assert not track.logic.range_pending
-    for t in (1.0, 2.0, 3.0, 4.0):
-        both.tracker.frame(frame(t))
-    assert track.logic.status == CONFIRMED
+
+def test_rays_raise_existence_until_a_scan_fixes_range():
+    """An angle sensor's scan (the tracks of ``_scene`` against their plots' azimuth and
+    elevation, and a fourth track that gates none of them) moves existence as
+    ``scan_update`` does while no scan has fixed range (a network of angle sensors has
+    nothing else); once a 2D radar's scan has, the same scan may lower existence (the
+    fourth track's miss) but not raise it (the three others'), with the same weights."""
+    states, r, ms = _scene(0)
+    states = [*states, (np.array([-20000.0, 5000.0, 3000.0, 0.0, 0.0, 0.0]), np.diag([200.0**2] * 3 + [30.0**2] * 3))]
+    r = np.append(r, 0.8)
+    rays = [Measurement(0.0, "angle1", "azel", m.z[:2], STD[:2], SITE, m.seq) for m in ms]
+    hyp = PlotHypothesiser(6, 0.999).hypotheses(states, rays, [True, False, True, True], r)
+    alone = JIPDA(0.75, 0.999).associate(hyp)
+    ref = scan_update(hyp.model, states, r, np.array([m.z for m in rays]), 0.75, 0.999)
+    np.testing.assert_allclose(alone.existence, ref.r, rtol=0, atol=1e-12)
+    assert (alone.existence[:3] > r[:3] + 1e-3).all() and alone.existence[3] < r[3] - 0.1
+    ranged = JIPDA(0.75, 0.999)
+    radar = Measurement(0.0, "radar1", "range_az", np.array([0.5, 20000.0]), RADAR_STD, np.zeros(3), 0)
+    ranged.associate(PlotHypothesiser(6, 0.999).hypotheses([], [radar], [], np.zeros(0)))
+    w = ranged.associate(hyp)
+    np.testing.assert_array_equal(w.existence, np.minimum(alone.existence, r))
+    np.testing.assert_allclose(w.beta, alone.beta, rtol=0, atol=1e-15)
+    np.testing.assert_allclose(w.miss, alone.miss, rtol=0, atol=1e-15)
