@@ -7,6 +7,7 @@ to 1e-9, ids included, whatever the processes' timing."""
 from __future__ import annotations
 
 import json
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -87,16 +88,23 @@ def test_a_regional_run_needs_regions_and_a_centralised_method():
 @pytest.mark.slow
 def test_a_killed_regional_fuser_leaves_no_gap_in_the_system_picture(tmp_path, deployment):
     """kill -9 of the west region's fuser while the aircraft crosses the overlap (t =
-    140 s, 3 km east of the boundary, in both regions' margins): the launcher restarts
+    75 s, 3 km east of the boundary, in both regions' margins): the launcher restarts
     it, the east region holds the aircraft meanwhile, and the system track (one id)
     never misses more than two of the radars' 1 s periods; the outage is in the summary.
     The run ends 100 s after the kill, 20 s of wall time for the restart (ci80, busy: at
     35 s after the kill, 7 s of wall time, the new west fuser had not come up when the
-    run ended)."""
-    doc, err = disturb(tmp_path, str(TWO_REGIONS), deployment, 5.0, [(140.0, "fuser", "west")],
-                       "--topology", "regional", "--duration-s", "240", timeout=300)
+    run ended). two-regions' aircraft starts 13 km further east than the file's (12 km
+    west of the boundary: in the west region alone for 20 s, in the overlap from 20 to
+    100 s), the file's first 65 s of flight across the west region alone not played."""
+    text, n = re.subn(r"^pos_km = \[-25\.0, 5\.0, 6\.0\]$", "pos_km = [-12.0, 5.0, 6.0]", TWO_REGIONS.read_text(),
+                      count=1, flags=re.M)
+    assert n == 1
+    scenario = tmp_path / "two-regions.toml"
+    scenario.write_text(text)
+    doc, err = disturb(tmp_path, str(scenario), deployment, 5.0, [(75.0, "fuser", "west")],
+                       "--topology", "regional", "--duration-s", "175", timeout=300)
     (out,) = doc["outages"]["west"]
     assert out["exit_code"] == -9 and out["t_up"] is not None and doc["exit_codes"]["west"] == -9
     t = np.array(doc["methods"]["SS"]["series"]["t"])
-    assert t[-1] == 240.0 and np.max(np.diff(t[t > 10.0])) <= 2.0, np.max(np.diff(t))
+    assert t[-1] == 175.0 and np.max(np.diff(t[t > 10.0])) <= 2.0, np.max(np.diff(t))
     assert "west killed (signal 9): restarting it" in err

@@ -30,14 +30,15 @@ from services.node import ZenohOptions
 pytestmark = pytest.mark.slow
 LONG = "ZFUSION_LONG_TESTS"  # set: the long live tests run too
 RECOVERY_S = 10.0  # the runs' recovery window: the sources' caches hold 2 x 10 s of stream, not 2 x 30 s
+REBUILD_RECOVERY_S = 5.0  # the one-track rebuild test's: its sources' caches hold 2 x 5 s of stream
 
 
-def _short_recovery(tmp_path: Path, scenario: str) -> str:
-    """A copy of the built-in ``scenario`` with ``recovery_s = RECOVERY_S``: a run is past
-    its sources' caches after 20 s of stream instead of 60 s."""
+def _short_recovery(tmp_path: Path, scenario: str, recovery_s: float = RECOVERY_S) -> str:
+    """A copy of the built-in ``scenario`` with ``recovery_s``: a run is past its
+    sources' caches after ``2 x recovery_s`` of stream (20 s by default) instead of 60 s."""
     path = tmp_path / f"{scenario}.toml"
     text = (ROOT / "sensors_sim" / "scenarios" / f"{scenario}.toml").read_text(encoding="utf-8")
-    path.write_text(f"recovery_s = {RECOVERY_S}\n{text}", encoding="utf-8")
+    path.write_text(f"recovery_s = {recovery_s}\n{text}", encoding="utf-8")
     return str(path)
 
 
@@ -169,13 +170,14 @@ def test_a_restarted_fuser_rebuilds_the_track_and_takes_over_in_turn(tmp_path, d
     the new leader: the restarted fuser leads, under one identity, with the same track
     id, seq numbers going on, no gap in ``fused`` longer than one update period plus
     1 s, and each takeover within 3σ of the estimate before it. Without the rebuild the
-    restarted fuser's picture differs (its track started afresh from the 20 s its
-    sources' caches give back: the run's recovery window is 10 s) and the test fails."""
-    with _standby_run(tmp_path, deployment, _short_recovery(tmp_path, "patent-3d-orbit"), 240) as run:
+    restarted fuser's picture differs (its track started afresh from the 10 s its
+    sources' caches give back: the run's recovery window is 5 s) and the test fails."""
+    scenario = _short_recovery(tmp_path, "patent-3d-orbit", REBUILD_RECOVERY_S)
+    with _standby_run(tmp_path, deployment, scenario, 240) as run:
         watch, proc = run.watch, run.proc
-        # Past the sensors' recovery caches (20 s of stream, 1 Hz): the restarted fuser
+        # Past the sensors' recovery caches (10 s of stream, 1 Hz) by 10 s: the restarted fuser
         # cannot get the track's whole history back from them, only rebuild it from the picture.
-        watch.wait(lambda: len(watch.got) >= 2 * RECOVERY_S + 10, proc, timeout=150)
+        watch.wait(lambda: len(watch.got) >= 2 * REBUILD_RECOVERY_S + 10, proc, timeout=150)
         kills = [time.monotonic()]
         run.first.kill()
         child(run.launcher, "fuser", "fuser", exclude=(run.first.pid,))  # restarted by the launcher
