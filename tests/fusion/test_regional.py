@@ -96,13 +96,7 @@ def _last_nees(sc, runs, systems):
         tee = _Systems({key: (RegionalMethod.system_fuser("SS", config, regions, rule), set(regions))
                         for key, (rule, regions) in systems.items()})
         method = RegionalMethod("SS", [RegionalFuser(g, make_method("SS", config)) for g in used.values()], tee)
-        t_prev = None
-        for m in merged_measurements(sc, r):
-            if t_prev is not None and m.t > t_prev:
-                method.advance(t_prev)
-            method.process(m)
-            t_prev = m.t
-        method.finish()
+        run_method(sc, "SS", None, r, method=method)  # the frames go to ``tee``
         for key, out in tee.out.items():
             last = out[-1]
             err = last.x - truth_trajectory(sc, "A", r).state(last.t)[: last.x.size]
