@@ -14,12 +14,13 @@ import pytest
 from scipy.stats import multivariate_normal
 
 from fusion.ekf import TrackEKF
-from fusion.methods import make_method, spec
+from fusion.methods import make_method, method_config, spec
 from fusion.motion import make_motion
 from fusion.tracking.hypotheses import PlotHypothesiser
 from fusion.tracking.jipda import JIPDA, ExistenceLogic, ExistenceRule, scan_update
 from fusion.tracking.table import CONFIRMED, DELETED, TENTATIVE
 from fusion.types import Measurement
+from sensors_sim import load_scenario
 from services.evaluation import run_method, score_tracks_run
 
 DEG = math.pi / 180.0
@@ -281,3 +282,47 @@ def test_rays_raise_existence_until_a_scan_fixes_range():
     np.testing.assert_array_equal(w.existence, np.minimum(alone.existence, r))
     np.testing.assert_allclose(w.beta, alone.beta, rtol=0, atol=1e-15)
     np.testing.assert_allclose(w.miss, alone.miss, rtol=0, atol=1e-15)
+
+
+@pytest.mark.parametrize("p_survive, kept", [(None, True), (0.98, False)])
+def test_a_held_aircraft_outlives_two_seconds_of_misses_in_the_dense_scenario(p_survive, kept):
+    """One aircraft seen every second by air-picture-dense's four sensors (its sites and
+    σ), each scan with false plots far from it; then 2 s in which every sensor misses it
+    (8 scans), then seen again. With the scenario's ``[tracker]`` (``p_survive`` 0.999 a
+    second) its track lives through the gap and holds it after, under the same id: at
+    each frame's start a held track's odds are 999 and 8 misses take them to
+    ``999 · 0.25⁸ ≈ 0.015 > 0.0101`` (existence 0.01). With the default 0.98 its odds are
+    49 and the 8 misses delete it (``49 · 0.25⁸ < 0.0101``): a new track starts after the
+    gap."""
+    sc = load_scenario("air-picture-dense")
+    sites = {s: sc.sensors[s].site.position(0.0) for s in ("radar1", "radar2", "angle1", "angle2")}
+    overrides = {"association": "jipda"} | ({} if p_survive is None else {"p_survive": p_survive})
+    method = make_method("SS", method_config(sc.tracker, "SS", overrides))
+    start, vel = np.array([20000.0, 30000.0, 6000.0]), np.array([150.0, 100.0, 0.0])
+    rng = np.random.default_rng(5)
+
+    def frame(t, seen):
+        target = start + vel * t
+        plots = []
+        for name, site in sites.items():
+            kind = "azel" if name.startswith("angle") else "range_az"
+            if seen:
+                plots.append(_plot(t, name, kind, target, site))
+            for k in range(5):  # false plots on the far side of the sensor
+                far = site + rng.uniform(-1.0, 1.0, 3) * [5000.0, 5000.0, 500.0] + [-40000.0, -40000.0, 3000.0]
+                plots.append(_plot(t, name, kind, far, site, k + 1))
+        return sorted(plots, key=lambda m: m.order_key)
+
+    def held(t):
+        return [tr for tr in method.tracker.tracks
+                if tr.logic.status == CONFIRMED and np.linalg.norm(tr.filter.x[:3] - (start + vel * t)) < 300.0]
+
+    for t in range(10):
+        method.tracker.frame(frame(float(t), True))
+    (before,) = held(9.0)
+    for t in (10.0, 11.0):
+        method.tracker.frame(frame(t, False))
+    for t in (12.0, 13.0, 14.0, 15.0):
+        method.tracker.frame(frame(t, True))
+    (after,) = held(15.0)
+    assert (after is before) == kept and (before.logic.status != DELETED) == kept
