@@ -14,6 +14,8 @@ from types import SimpleNamespace
 
 import pytest
 
+import services  # noqa: F401  (before any NumPy: one BLAS thread here and in the workers, as in the services)
+
 ROOT = Path(__file__).resolve().parents[1]  # the repository
 DATA = Path(__file__).resolve().parent / "data"
 CROSSING = DATA / "crossing.toml"  # three aircraft crossing in clutter: the many-target scenario
