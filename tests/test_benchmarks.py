@@ -25,6 +25,8 @@ CASES = {
     "profile_fuser.py": (["--measurements", "400", "--repeats", "1", "--top", "5"], ["encode_estimate"]),
     "bench_region.py": (["--aircraft", "20", "--duration", "3", "--layout", "rotating", "--against", str(ROOT)],
                         ["## rotating: CPU seconds", "## Against"]),
+    "bench_regional.py": (["--scenario", "region-400", "--duration-s", "3", "--repeats", "1"],
+                          ["# Regional scale-out: region-400", "busiest ÷ single", "| 0 |"]),
 }
 
 
