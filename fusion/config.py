@@ -15,8 +15,8 @@ def config_values(cls: type, config: Mapping[str, Any] | None, what: str,
                   string_options: Mapping[str, tuple[str, ...]] | None = None) -> dict[str, Any]:
     """The table's values, type-checked against the dataclass ``cls``.
 
-    Unknown keys are an error. A field whose default is a string takes a string; any
-    other field takes a finite number (not a bool), or, for a field named in
+    Unknown keys are an error. A field whose default is a string takes a string, one
+    whose default is a bool a bool; any other field takes a finite number (not a bool), or, for a field named in
     ``string_options``, one of the strings listed there. Range checks are the class's.
     ``what`` names the table in the errors (e.g. ``"tracker config"``).
     """
@@ -33,6 +33,9 @@ def config_values(cls: type, config: Mapping[str, Any] | None, what: str,
         if isinstance(known[key].default, str):
             if not isinstance(value, str):
                 raise ValueError(f"{what} {key!r} must be a string, got {value!r}")
+        elif isinstance(known[key].default, bool):
+            if not isinstance(value, bool):
+                raise ValueError(f"{what} {key!r} must be true or false, got {value!r}")
         elif key in string_options and isinstance(value, str):
             if value not in string_options[key]:
                 raise ValueError(f"{what} {key!r} must be a positive number or one of {string_options[key]}, "

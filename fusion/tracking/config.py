@@ -37,12 +37,13 @@ class AssociationConfig:
     existence_birth: float = ExistenceRule.existence_birth
     existence_confirm: float = ExistenceRule.existence_confirm
     existence_delete: float = ExistenceRule.existence_delete
+    jpda_star: bool = False  # JIPDA keeps only the likeliest of permuted joint events (no coalescence)
     revisit_s: float | None = None  # rotating radars: frames are sweeps (fusion.tracking.sweep)
     pair_window_s: float = 0.0  # sweeps: a 2D radar and an angle plot this far apart still start a track
 
     KEYS = ("association", "gate_prob", "confirm_m", "confirm_n", "delete_misses", "max_pos_std",
             "local_max_pos_std", "merge_frames", "p_detect", "p_survive", "existence_birth", "existence_confirm",
-            "existence_delete", "revisit_s", "pair_window_s")
+            "existence_delete", "jpda_star", "revisit_s", "pair_window_s")
 
     @classmethod
     def split(cls, config: dict | None) -> tuple["AssociationConfig | None", dict]:
@@ -115,7 +116,7 @@ class AssociationConfig:
             raise ValueError(f"association {self.association!r} answers weights, which this method cannot use: "
                              f"use 'gnn' ('jipda' serves the centralised 3D methods and the local trackers of "
                              f"HNV and PHHNV)")
-        return JIPDA(self.p_detect, self.gate_prob)
+        return JIPDA(self.p_detect, self.gate_prob, jpda_star=self.jpda_star)
 
     def track_to_track(self) -> "AssociationConfig":
         """The configuration of a network's centre, which associates the nodes' tracks

@@ -11,7 +11,9 @@ track (the rest are clutter). With ``Nᵢⱼ = N(νᵢⱼ; 0, Sᵢ)``::
 
 Marginals ``βᵢⱼ = Σ_{ε ∋ (i←j)} P(ε)``, ``βᵢ₀ = 1 − Σⱼ βᵢⱼ``; with every ``rᵢ = 1`` this
 is JPDA. The sum runs per *cluster* (tracks joined by shared plots), exactly where it is
-small (:data:`EXACT_EVENTS`), by loopy belief propagation where not. Then per track::
+small (:data:`EXACT_EVENTS`), by loopy belief propagation where not; JPDA* (``jpda_star``)
+keeps of the events that permute plots among the same tracks only the likeliest, so
+tracks close together do not coalesce. Then per track::
 
     rᵢ⁺ = 1 − βᵢ₀ + βᵢ₀ aᵢ,    aᵢ = (1 − P_D P_G) rᵢ / (1 − P_D P_G rᵢ)
     c₀ = βᵢ₀ aᵢ / rᵢ⁺,  cⱼ = βᵢⱼ / rᵢ⁺            (association weights given existence)
@@ -334,6 +336,45 @@ def exact_marginals(w0: np.ndarray, W: np.ndarray) -> np.ndarray:
     return beta
 
 
+def best_permutation_marginals(w0: np.ndarray, W: np.ndarray) -> np.ndarray:
+    """Marginals of JPDA* (Blom and Bloem, 2000): of the joint events that detect the same
+    tracks with the same plots — permutations of one another — only the likeliest is
+    kept; same arguments and result as :func:`exact_marginals`.
+
+    Two tracks close together share their plots; JPDA weights both pairings of their two
+    plots, so each track is pulled toward the other's plot and the pair coalesces.
+    JPDA* keeps one pairing of the pair, the likelier: the tracks stay apart. A track
+    alone in its cluster has no permutation: its marginals are JPDA's.
+
+    The maxima are a dynamic programme over the tracks whose state is (tracks detected,
+    plots taken) so far: a class's likeliest event extends the likeliest prefix of each
+    state, so merging events that reach one state by keeping the heavier is exact.
+    """
+    w0 = np.asarray(w0, dtype=float)
+    W = np.asarray(W, dtype=float)
+    n, m = W.shape
+    if m > 62 or n > 62:
+        raise ValueError(f"JPDA* marginals take at most 62 tracks and 62 plots a cluster, got {n} and {m}")
+    scale = np.maximum(w0, W.max(axis=1, initial=0.0))  # every event has each row once: the argmax is unmoved
+    w0, W = w0 / scale, W / scale[:, None]
+    options = [[(j, 1 << j, float(W[i, j])) for j in np.flatnonzero(W[i] > 0.0)] for i in range(n)]
+    states: dict[tuple[int, int], tuple[float, tuple[int, ...]]] = {(0, 0): (1.0, ())}
+    for k in range(n):
+        nxt: dict[tuple[int, int], tuple[float, tuple[int, ...]]] = {}
+        miss = float(w0[k])
+        for (det, used), (weight, event) in states.items():
+            for key, w, j in [((det, used), weight * miss, -1)] + [
+                    ((det | 1 << k, used | bit), weight * wj, j) for j, bit, wj in options[k] if not used & bit]:
+                if w > nxt.get(key, (-1.0, ()))[0]:
+                    nxt[key] = (w, event + (j,))
+        states = nxt
+    beta = np.zeros((n, m + 1))
+    rows = np.arange(n)
+    for weight, event in states.values():
+        beta[rows, 1 + np.asarray(event)] += weight  # plot -1 (missed) lands in column 0
+    return beta / beta.sum(axis=1, keepdims=True)
+
+
 def lbp_marginals(w0: np.ndarray, W: np.ndarray, tol: float = LBP_TOL, max_iter: int = LBP_MAX_ITER) -> np.ndarray:
     """Marginal association probabilities by loopy belief propagation (Williams and Lau,
     2014), the approximation for clusters too large to sum; same arguments and result as
@@ -365,19 +406,21 @@ def lbp_marginals(w0: np.ndarray, W: np.ndarray, tol: float = LBP_TOL, max_iter:
     return beta / beta.sum(axis=1, keepdims=True)
 
 
-def marginals(w0: np.ndarray, W: np.ndarray, exact_events: float = EXACT_EVENTS) -> tuple[np.ndarray, bool]:
-    """``(β, exact)``: :func:`exact_marginals` if the cluster has at most ``exact_events``
-    joint events by :func:`n_events_bound`, else :func:`lbp_marginals`."""
+def marginals(w0: np.ndarray, W: np.ndarray, exact_events: float = EXACT_EVENTS,
+              jpda_star: bool = False) -> tuple[np.ndarray, bool]:
+    """``(β, exact)``: :func:`exact_marginals` (:func:`best_permutation_marginals` with
+    ``jpda_star``) if the cluster has at most ``exact_events`` joint events by
+    :func:`n_events_bound`, else :func:`lbp_marginals`."""
     if n_events_bound(W) <= exact_events and np.shape(W)[1] <= 62:
-        return exact_marginals(w0, W), True
+        return (best_permutation_marginals if jpda_star else exact_marginals)(w0, W), True
     return lbp_marginals(w0, W), False
 
 
 def joint_association(gated: Sequence[np.ndarray], ratios: Sequence[np.ndarray], r: np.ndarray, n_plots: int,
                       p_detect: float, gate_prob: float,
-                      exact_events: float = EXACT_EVENTS) -> tuple[np.ndarray, list[bool]]:
+                      exact_events: float = EXACT_EVENTS, jpda_star: bool = False) -> tuple[np.ndarray, list[bool]]:
     """``(β, exact)``: the joint association probabilities of one scan (module docstring)
-    and, per cluster, whether they were summed exactly.
+    and, per cluster, whether they were summed exactly (``jpda_star``: :func:`marginals`).
 
     ``gated[i]``: the plots in track i's gate (indices among ``n_plots``); ``ratios[i]``:
     their ``Nᵢⱼ/ρ``; ``r``: the tracks' existence. ``β (n, n_plots + 1)``: column 0
@@ -394,7 +437,7 @@ def joint_association(gated: Sequence[np.ndarray], ratios: Sequence[np.ndarray],
         Wc = np.zeros((len(tracks), len(plots)))
         for a, i in enumerate(tracks):
             Wc[a, col[gated[i]]] = np.asarray(ratios[i]) * (p_detect * r[i])  # P_D rᵢ Nᵢⱼ / ρ
-        bc, is_exact = marginals(w0[tracks], Wc, exact_events)
+        bc, is_exact = marginals(w0[tracks], Wc, exact_events, jpda_star)
         beta[tracks, 0] = bc[:, 0]
         beta[np.ix_(tracks, plots + 1)] = bc[:, 1:]
         exact.append(is_exact)
@@ -445,7 +488,7 @@ class ScanUpdate:
 
 def scan_update(model, states: Sequence[tuple[np.ndarray, np.ndarray]], r: Sequence[float], Z: np.ndarray,
                 p_detect: float, gate_prob: float, density: float | None = None,
-                exact_events: float = EXACT_EVENTS) -> ScanUpdate:
+                exact_events: float = EXACT_EVENTS, jpda_star: bool = False) -> ScanUpdate:
     """JIPDA update of every track with one sensor scan (module docstring).
 
     Args:
@@ -457,6 +500,7 @@ def scan_update(model, states: Sequence[tuple[np.ndarray, np.ndarray]], r: Seque
         density: the clutter density ρ; None estimates it from the scan
             (:func:`clutter_density`).
         exact_events: the cluster size up to which probabilities are summed exactly.
+        jpda_star: keep only the likeliest of permuted events (:func:`best_permutation_marginals`).
     """
     r = np.asarray(r, dtype=float)
     Z = np.asarray(Z, dtype=float).reshape(-1, model.n_z)
@@ -468,7 +512,8 @@ def scan_update(model, states: Sequence[tuple[np.ndarray, np.ndarray]], r: Seque
     if not density > 0.0:
         raise ValueError(f"clutter density must be > 0, got {density}")
     ratios = [np.exp(h.log_lik) / density for h in hyps]  # Nᵢⱼ / ρ
-    beta, exact = joint_association([h.plots for h in hyps], ratios, r, m, p_detect, gate_prob, exact_events)
+    beta, exact = joint_association([h.plots for h in hyps], ratios, r, m, p_detect, gate_prob, exact_events,
+                                    jpda_star)
     r_post, c0 = existence_update(r, beta[:, 0], p_detect, gate_prob, beta[:, 1:].sum(axis=1))
     xs, Ps = [], []
     for i, (x, P) in enumerate(states):
@@ -516,10 +561,14 @@ class JIPDA:
         clutter_scans: the scans of a sensor its clutter density is estimated from.
         exact_events: the cluster size up to which probabilities are summed exactly.
         p_detect_by_sensor: ``P_D`` of named sensors (sensor id → P_D).
+        jpda_star: of the joint events that permute plots among tracks keep only the
+            likeliest (:func:`best_permutation_marginals`): tracks close together do
+            not coalesce.
     """
 
     def __init__(self, p_detect: float, gate_prob: float, clutter_scans: int = CLUTTER_SCANS,
-                 exact_events: float = EXACT_EVENTS, p_detect_by_sensor: Mapping[str, float] | None = None):
+                 exact_events: float = EXACT_EVENTS, p_detect_by_sensor: Mapping[str, float] | None = None,
+                 jpda_star: bool = False):
         by_sensor = {str(k): float(v) for k, v in (p_detect_by_sensor or {}).items()}
         for name, pd in [("p_detect", p_detect), *((f"p_detect of {k!r}", v) for k, v in by_sensor.items())]:
             if not 0.0 < pd <= 1.0:
@@ -527,6 +576,7 @@ class JIPDA:
         self.p_detect, self.gate_prob = float(p_detect), float(gate_prob)
         self.p_detect_by_sensor = by_sensor
         self.clutter_scans, self.exact_events = int(clutter_scans), exact_events
+        self.jpda_star = bool(jpda_star)
         self._clutter: dict[str, ClutterWindow] = {}
         self.density: dict[str, float] = {}  # the latest clutter density of each sensor
         self.ranged = False  # whether a scan has fixed range (then rays raise no existence)
@@ -566,7 +616,8 @@ class JIPDA:
                             float(np.max(volumes[np.isfinite(volumes)], initial=0.0)))
         self.density[sensor] = rho
         ratios = [np.exp(hyp.log_norm[i] - 0.5 * hyp.d2[i, g]) / rho for i, g in enumerate(gated)]
-        beta, _ = joint_association(gated, ratios, r, m, p_detect, self.gate_prob, self.exact_events)
+        beta, _ = joint_association(gated, ratios, r, m, p_detect, self.gate_prob, self.exact_events,
+                                    self.jpda_star)
         r_post, c0 = existence_update(r, beta[:, 0], p_detect, self.gate_prob, beta[:, 1:].sum(axis=1))
         alive = r_post > 0.0
         c = np.zeros((n, m))

@@ -95,6 +95,8 @@ def _timelines(path: Path) -> dict[str, str]:
     (["run", "--scenario", "patent-3d", "--set", "foo=1"], "zfusion run: unknown tracker config key 'foo'"),
     (["eval", "--scenario", "patent-3d", "--runs", "1", "--methods", "SS", "--set", "q='high'"],
      "zfusion eval: tracker config 'q' must be a finite number"),
+    (["eval", "--scenario", "patent-3d", "--runs", "1", "--methods", "SS", "--set", "association='jipda'",
+      "--set", "jpda_star=1"], "zfusion eval: tracker config 'jpda_star' must be true or false"),
     (["fuser", "--site", "no-such-site.toml"], "zfusion fuser: no-such-site.toml: cannot read"),
     (["fuser", "--site", "patent-3d", "--max-delay", "-1"], "--max-delay: expected a non-negative number"),
 ])

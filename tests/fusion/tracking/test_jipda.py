@@ -30,7 +30,7 @@ from stonesoup.updater.kalman import ExtendedKalmanUpdater
 from stonesoup.updater.probability import PDAUpdater
 
 from fusion import kalman
-from fusion.tracking.jipda import (EXACT_EVENTS, JIPDA, ClutterWindow, ExistenceRule, clusters, clutter_density, exact_marginals, existence_update,
+from fusion.tracking.jipda import (EXACT_EVENTS, JIPDA, ClutterWindow, ExistenceRule, best_permutation_marginals, clusters, clutter_density, exact_marginals, existence_update,
                           hypothesise, ipda_existence, lbp_marginals, marginals, n_events_bound, pda_update,
                           scan_update)
 from fusion.measurement.models import SphericalModel
@@ -222,19 +222,39 @@ def test_stonesoup_reference_sees_the_conversion():
 
 
 # Exact sum -----------------------------------------------------------------------------------
-def _brute_force(w0, W):
-    """β by listing every joint event (itertools.product, as Stone Soup's JPDA does)."""
-    n, m = W.shape
-    beta = np.zeros((n, m + 1))
+def _events(w0, W):
+    """Every joint event and its weight, listed (itertools.product, as Stone Soup's JPDA
+    does): ``event[i]`` 0 for a miss, ``1 + j`` for plot j."""
+    n = W.shape[0]
     options = [[0] + [1 + j for j in np.flatnonzero(W[i] > 0)] for i in range(n)]
     for event in itertools.product(*options):
         taken = [a for a in event if a]
-        if len(taken) != len(set(taken)):
-            continue
-        weight = np.prod([w0[i] if a == 0 else W[i, a - 1] for i, a in enumerate(event)])
+        if len(taken) == len(set(taken)):
+            yield event, np.prod([w0[i] if a == 0 else W[i, a - 1] for i, a in enumerate(event)])
+
+
+def _marginals_of(events, shape):
+    beta = np.zeros((shape[0], shape[1] + 1))
+    for event, weight in events:
         for i, a in enumerate(event):
             beta[i, a] += weight
     return beta / beta.sum(axis=1, keepdims=True)
+
+
+def _brute_force(w0, W):
+    """β by listing every joint event."""
+    return _marginals_of(_events(w0, W), W.shape)
+
+
+def _best_permutation_brute_force(w0, W):
+    """JPDA*'s β by listing every joint event, grouping them by (tracks detected, plots
+    taken) and keeping the heaviest of each group (Blom and Bloem's pruning, read directly)."""
+    best = {}
+    for event, weight in _events(w0, W):
+        key = (frozenset(i for i, a in enumerate(event) if a), frozenset(a for a in event if a))
+        if weight > best.get(key, (None, -1.0))[1]:
+            best[key] = (event, weight)
+    return _marginals_of(best.values(), W.shape)
 
 
 def _random_cluster(rng, n, m, density=0.5):
@@ -248,6 +268,38 @@ def test_exact_marginals_equal_enumeration(seed):
     rng = np.random.default_rng(seed)
     w0, W = _random_cluster(rng, int(rng.integers(1, 6)), int(rng.integers(1, 7)), rng.uniform(0.3, 1.0))
     np.testing.assert_allclose(exact_marginals(w0, W), _brute_force(w0, W), rtol=1e-12, atol=1e-14)
+
+
+@pytest.mark.parametrize("seed", range(20))
+def test_best_permutation_marginals_equal_enumeration(seed):
+    rng = np.random.default_rng(100 + seed)
+    w0, W = _random_cluster(rng, int(rng.integers(1, 6)), int(rng.integers(1, 7)), rng.uniform(0.3, 1.0))
+    np.testing.assert_allclose(best_permutation_marginals(w0, W), _best_permutation_brute_force(w0, W),
+                               rtol=1e-12, atol=1e-14)
+    if W.shape[0] == 1:  # one track has no permutation: JPDA's marginals
+        np.testing.assert_allclose(best_permutation_marginals(w0, W), exact_marginals(w0, W), rtol=1e-12)
+
+
+def test_jpda_star_keeps_two_close_tracks_apart():
+    """Two tracks 500 m apart along x (σ 300 m, position plots of σ 300 m: gain ½), each
+    aircraft's plot 50 m short of its track: the plots are 500 m apart as the tracks are.
+    JPDA weights the crossed pairing too (β ≈ 0.1) and pulls the tracks together by
+    ``½ β_cross · 1000`` m; JPDA* keeps only the likelier pairing, so both tracks move by
+    ``½ β_own · (−50)`` and stay 500 m apart (all rᵢ = 1: JPDA and JPDA*). Clutter so
+    sparse (ρ = 1e-14 m⁻³) that events with one track missed weigh < 1e-6: JPDA* prunes
+    only among events that detect the same tracks, and those events are not pruned."""
+    model = PositionModel(300.0, n_x=3)
+    P = np.eye(3) * 300.0**2
+    states = [(np.zeros(3), P), (np.array([500.0, 0.0, 0.0]), P)]
+    Z = np.array([[-50.0, 0.0, 0.0], [450.0, 0.0, 0.0]])
+    plain = scan_update(model, states, [1.0, 1.0], Z, 0.99, 0.999, density=1e-14)
+    star = scan_update(model, states, [1.0, 1.0], Z, 0.99, 0.999, density=1e-14, jpda_star=True)
+    assert plain.beta[0, 2] > 0.05 and plain.beta[1, 1] > 0.05
+    assert star.beta[0, 2] < 1e-6 and star.beta[1, 1] < 1e-6  # the crossed pairing is pruned
+    assert plain.x[1][0] - plain.x[0][0] == pytest.approx(500.0 - 500.0 * plain.beta[0, 2], abs=1e-3)
+    assert star.x[1][0] - star.x[0][0] == pytest.approx(500.0, abs=1e-3)
+    for i in range(2):
+        assert star.x[i][0] == pytest.approx(states[i][0][0] - 25.0, abs=1e-3)
 
 
 def test_lbp_error_against_exact():

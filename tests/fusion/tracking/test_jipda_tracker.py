@@ -18,6 +18,7 @@ from fusion.methods import make_method, method_config, spec
 from fusion.motion import make_motion
 from fusion.tracking.hypotheses import PlotHypothesiser
 from fusion.tracking.jipda import JIPDA, ExistenceLogic, ExistenceRule, scan_update
+from fusion.tracking.config import AssociationConfig
 from fusion.tracking.table import CONFIRMED, DELETED, TENTATIVE
 from fusion.types import Measurement
 from sensors_sim import load_scenario
@@ -150,6 +151,10 @@ def test_jipda_keys_are_checked():
         make_method("SS", {"association": "jipda", "p_detect": 0.0})
     with pytest.raises(ValueError, match="p_survive"):
         make_method("SS", {"association": "jipda", "p_survive": 1.5})
+    with pytest.raises(ValueError, match="'jpda_star' must be true or false"):
+        make_method("SS", {"association": "jipda", "jpda_star": 1})
+    assert AssociationConfig.split({"association": "jipda", "jpda_star": True})[0].associator(True).jpda_star
+    assert not AssociationConfig.split({"association": "jipda"})[0].associator(True).jpda_star
     cfg = {"association": "jipda"}
     with pytest.raises(ValueError, match="cannot use"):
         spec("DDHNV").split.node("radar", cfg)  # its nodes send plots for the centre's update
