@@ -16,8 +16,9 @@ def config_values(cls: type, config: Mapping[str, Any] | None, what: str,
     """The table's values, type-checked against the dataclass ``cls``.
 
     Unknown keys are an error. A field whose default is a string takes a string, one
-    whose default is a bool a bool; any other field takes a finite number (not a bool), or, for a field named in
-    ``string_options``, one of the strings listed there. Range checks are the class's.
+    whose default is a bool a bool; any other field takes a finite number (not a bool),
+    or, for a field named in ``string_options``, one of the strings listed there. Range
+    checks are the class's.
     ``what`` names the table in the errors (e.g. ``"tracker config"``).
     """
     config = dict(config or {})

@@ -45,9 +45,10 @@ TRACKER_KEYS = frozenset((
     "imm_p", "imm_q_ca", "imm_q_ct", "imm_q_cv", "imm_q_turn", "imm_sigma2", "imm_sojourn_ca", "imm_sojourn_ct",
     "imm_sojourn_cv", "imm_sojourn_turn", "imm_transition", "imm_turn_rates", "init", "init_acc_std",
     "init_acc_std_up", "init_el", "init_el_std", "init_epochs", "init_range", "init_range_std", "init_vel_std",
-    "init_vel_std_up", "ipu_cov", "ipu_max_rel", "jpda_star", "local_max_pos_std", "max_climb", "max_gap_s", "max_pos_std",
-    "mekf_handoff", "merge_frames", "motion", "p_detect", "p_survive", "pair_tol", "pair_window_s", "process_noise", "q",
-    "q11", "q22", "q_up", "revisit_s", "sigma", "smoother_q", "torrieri_bearings", "torrieri_iterations",
+    "init_vel_std_up", "ipu_cov", "ipu_max_rel", "jpda_star", "local_max_pos_std", "max_climb", "max_gap_s",
+    "max_pos_std", "mekf_handoff", "merge_frames", "motion", "p_detect", "p_survive", "pair_tol", "pair_window_s",
+    "process_noise", "q", "q11", "q22", "q_up", "revisit_s", "sigma", "smoother_q", "torrieri_bearings",
+    "torrieri_iterations",
 ))
 
 

@@ -353,8 +353,6 @@ def best_permutation_marginals(w0: np.ndarray, W: np.ndarray) -> np.ndarray:
     w0 = np.asarray(w0, dtype=float)
     W = np.asarray(W, dtype=float)
     n, m = W.shape
-    if m > 62 or n > 62:
-        raise ValueError(f"JPDA* marginals take at most 62 tracks and 62 plots a cluster, got {n} and {m}")
     scale = np.maximum(w0, W.max(axis=1, initial=0.0))  # every event has each row once: the argmax is unmoved
     w0, W = w0 / scale, W / scale[:, None]
     options = [[(j, 1 << j, float(W[i, j])) for j in np.flatnonzero(W[i] > 0.0)] for i in range(n)]
