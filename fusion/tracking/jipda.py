@@ -294,6 +294,16 @@ def n_events_bound(W: np.ndarray) -> float:
     return float(np.prod(1.0 + np.count_nonzero(W > 0.0, axis=1).astype(float)))
 
 
+def _rows_scaled(w0: np.ndarray, W: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(w0, W)`` as floats, each track's row divided by its largest weight: every joint
+    event holds each row once, so the scale cancels in the marginals and moves no argmax,
+    and it keeps the products in range."""
+    w0 = np.asarray(w0, dtype=float)
+    W = np.asarray(W, dtype=float)
+    scale = np.maximum(w0, W.max(axis=1, initial=0.0))
+    return w0 / scale, W / scale[:, None]
+
+
 def exact_marginals(w0: np.ndarray, W: np.ndarray) -> np.ndarray:
     """Marginal association probabilities of a cluster by summing every joint event.
 
@@ -305,13 +315,10 @@ def exact_marginals(w0: np.ndarray, W: np.ndarray) -> np.ndarray:
     taken so far (events that reach the same set merge), once per track with that
     track left out: ``βᵢⱼ ∝ Wᵢⱼ · T₋ᵢ(j free)``, ``βᵢ₀ ∝ w0ᵢ · T₋ᵢ``.
     """
-    w0 = np.asarray(w0, dtype=float)
-    W = np.asarray(W, dtype=float)
-    n, m = W.shape
+    n, m = np.shape(W)
     if m > 62:
         raise ValueError(f"exact marginals take at most 62 plots a cluster, got {m}")
-    scale = np.maximum(w0, W.max(axis=1, initial=0.0))  # a row's scale cancels: keeps products in range
-    w0, W = w0 / scale, W / scale[:, None]
+    w0, W = _rows_scaled(w0, W)
     options = [[(1 << j, float(W[i, j])) for j in np.flatnonzero(W[i] > 0.0)] for i in range(n)]
     beta = np.zeros((n, m + 1))
     for i in range(n):
@@ -350,11 +357,8 @@ def best_permutation_marginals(w0: np.ndarray, W: np.ndarray) -> np.ndarray:
     plots taken) so far: a class's likeliest event extends the likeliest prefix of each
     state, so merging events that reach one state by keeping the heavier is exact.
     """
-    w0 = np.asarray(w0, dtype=float)
-    W = np.asarray(W, dtype=float)
+    w0, W = _rows_scaled(w0, W)
     n, m = W.shape
-    scale = np.maximum(w0, W.max(axis=1, initial=0.0))  # every event has each row once: the argmax is unmoved
-    w0, W = w0 / scale, W / scale[:, None]
     options = [[(j, 1 << j, float(W[i, j])) for j in np.flatnonzero(W[i] > 0.0)] for i in range(n)]
     states: dict[tuple[int, int], tuple[float, tuple[int, ...]]] = {(0, 0): (1.0, ())}
     for k in range(n):
@@ -387,10 +391,7 @@ def lbp_marginals(w0: np.ndarray, W: np.ndarray, tol: float = LBP_TOL, max_iter:
     iteration converges for this problem (Williams and Lau); its error against the
     exact sum is measured in docs/algorithms.md, "JIPDA: association with track existence".
     """
-    w0 = np.asarray(w0, dtype=float)
-    W = np.asarray(W, dtype=float)
-    scale = np.maximum(w0, W.max(axis=1, initial=0.0))
-    w0, W = w0 / scale, W / scale[:, None]
+    w0, W = _rows_scaled(w0, W)
     nu = np.ones_like(W)
     for _ in range(int(max_iter)):
         wn = W * nu

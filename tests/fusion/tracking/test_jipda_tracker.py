@@ -16,9 +16,9 @@ from scipy.stats import multivariate_normal
 from fusion.ekf import TrackEKF
 from fusion.methods import make_method, method_config, spec
 from fusion.motion import make_motion
+from fusion.tracking.config import AssociationConfig
 from fusion.tracking.hypotheses import PlotHypothesiser
 from fusion.tracking.jipda import JIPDA, ExistenceLogic, ExistenceRule, scan_update
-from fusion.tracking.config import AssociationConfig
 from fusion.tracking.table import CONFIRMED, DELETED, TENTATIVE
 from fusion.types import Measurement
 from sensors_sim import load_scenario
