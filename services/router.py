@@ -10,7 +10,10 @@ signal to: Python runs its handler in the main thread only when that thread next
 Python code, and a signal taken by one of Zenoh's threads does not wake a main thread
 blocked without a timeout (it waited for ever). And it does not wait on Zenoh for ever
 either: a session that has not closed :data:`CLOSE_WAIT_S` after the stop is left, with
-one line on stderr.
+one line on stderr. Once the session is closed there is nothing left to flush but stdio,
+and the router leaves without the interpreter's teardown of its modules, which was most
+of the time from signal to exit (50 ms on a quiet machine, 250 ms with eight busy
+processes on two cores, against 10 ms for the close; over a second once in CI).
 """
 
 from __future__ import annotations
@@ -20,6 +23,7 @@ import os
 import signal
 import sys
 import threading
+from typing import NoReturn
 
 import zenoh
 
@@ -38,8 +42,9 @@ def _close(session: zenoh.Session) -> None:
         print(f"zfusion router: closing its Zenoh session failed: {e}", file=sys.stderr, flush=True)
 
 
-def run(listen: list[str] | None = None, config_file: str | None = None, overrides: list[str] = ()) -> int:
-    """Serve until SIGINT/SIGTERM. ``listen`` (if given) replaces the config file's
+def run(listen: list[str] | None = None, config_file: str | None = None, overrides: list[str] = ()) -> NoReturn:
+    """Serve until SIGINT/SIGTERM, then close the session and end the process with
+    status 0 (it does not return). ``listen`` (if given) replaces the config file's
     endpoints; without a file the router listens on ``DEFAULT_LISTEN``."""
     more = [f"listen/endpoints={json.dumps(listen)}"] if config_file and listen else []
     conf = ZenohOptions(mode="router", listen=listen or [DEFAULT_LISTEN], config_file=config_file,
@@ -61,4 +66,6 @@ def run(listen: list[str] | None = None, config_file: str | None = None, overrid
             print(f"zfusion router: its Zenoh session had not closed {CLOSE_WAIT_S:g} s after the stop; exiting "
                   "without it", file=sys.stderr, flush=True)
             os._exit(0)
-    return 0
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(0)  # closed: without the interpreter's teardown (module docstring)
