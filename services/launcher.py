@@ -59,7 +59,11 @@ END_GRACE = 10.0  # s after the last source ends, when no fuser is left to say i
 START_LEAD_MAX = 15.0  # s: the most a paced run's sources are given to start (Launch.start)
 RECORDER_STALL = 30.0  # s: at the end, the recorder is stopped once it has recorded nothing new this long
 RECORDER_DONE_WAIT = 5.0  # s the recorder has to end by itself once everyone else has (it ends on their "done")
-END_WAIT = 10.0  # s the sources and trackers have to end by themselves once the fuser is done
+# s the sources and trackers have to end by themselves once the fuser is done, beyond the source
+# timeout: a tracker cut off from its sensor (stopped past Zenoh's lease) ends a feedback timeout
+# (the source timeout) after it is back (services/tracker.py); with 10 s in all at speed 3, CI's
+# load once kept one from ending in time
+END_WAIT = 10.0
 END_STALL = 10.0  # s beyond its source timeout a fuser may show no progress once every source has ended
 STOP_GRACE = 2.0  # s a process has to stop after SIGTERM before it is killed (it should take < 1 s)
 # s the recorder has at the run's end: killed, its file loses its footer and the rows it had not
@@ -310,7 +314,8 @@ class Launch:
         """The end of a scenario run: the sources and trackers end by themselves; the
         recorder once it has drawn its backlog (at --speed max, seconds of it)."""
         children, stop = self.children, self.node.stop
-        until = time.monotonic() + END_WAIT
+        wait = END_WAIT + self.timeout
+        until = time.monotonic() + wait
         ending = self.plan.ids("source", "tracker")
         while any(children.procs[s].poll() is None for s in ending) and time.monotonic() < until \
                 and not stop.is_set():
@@ -318,7 +323,7 @@ class Launch:
         never_back = [n for n, outs in self.sup.outages.items() if outs[-1]["t_up"] is None]
         stuck = [s for s in ending if children.procs[s].poll() is None]
         if stuck and not stop.is_set():  # their last status says "stopped"; one that does not stop is killed
-            log.warning("%s did not end %g s after the fuser was done: stopping", ", ".join(stuck), END_WAIT)
+            log.warning("%s did not end %g s after the fuser was done: stopping", ", ".join(stuck), wait)
             children.terminate(stuck, self.drain, grace=STOP_GRACE)
         # It may have missed the "done" of processes that ended before it came up, and a
         # process killed and not restarted (--no-restart), or one that did not end, sends
