@@ -74,8 +74,8 @@ def run(args, out: Path) -> tuple[list[tuple[float, float, str, np.ndarray]], fl
                 span = got[-1][1] - got[0][1] if got else 0.0
             if span >= args.kill_after:
                 victim = next(c for c in psutil.Process(proc.pid).children(recursive=True)
-                              if "--region" in (cmd := c.cmdline()) and cmd[cmd.index("--region") + 1] == args.region
-                              and "--standby" not in cmd)
+                              if "--region" in (argv := c.cmdline()) and argv[argv.index("--region") + 1] == args.region
+                              and "--standby" not in argv)  # the primary, not its standby
                 victim.kill()
                 killed = time.time()
             time.sleep(0.05)
@@ -123,8 +123,9 @@ def absences(sc, got, killed: float, region: str, epoch: float,
         if not len(a) or a[0] > killed:
             continue  # not held before the kill
         gaps, starts, ends = np.diff(a), a[:-1], a[1:]
+        across = (starts <= killed) & (ends > killed)
         before = [tr for at, tr in arrivals if at <= killed]
-        out.append((i, float(max(gaps[ends <= killed], default=0.0)), float(max(gaps[(starts <= killed) & (ends > killed)])),
+        out.append((i, float(max(gaps[ends <= killed], default=0.0)), float(gaps[across].max()),
                     float(max(gaps[starts > killed], default=0.0)),
                     arrivals[-1][1] != before[-1] or arrivals[-1][0] <= killed))
     return out
@@ -176,7 +177,8 @@ def main(argv=None) -> int:
             worst = max(rows, key=lambda r: r[col])
             print(f"  {name}: longest {gaps.max():.2f} s ({gaps.max() / periods[0]:.2f} / "
                   f"{gaps.max() / periods[-1]:.2f}; {worst[0]}), median {np.median(gaps):.2f} s, "
-                  f"over 2 fastest periods: {int(np.sum(gaps > 2 * periods[0]))}")
+                  f"over 2 fastest / slowest periods: {int(np.sum(gaps > 2 * periods[0]))} / "
+                  f"{int(np.sum(gaps > 2 * periods[-1]))}")
         print(f"  on another system id (or none) at the end: {sum(r[4] for r in rows)}")
     cpu = {n: u for n, u in doc.get("processes", {}).items()}
     busiest = sorted(cpu.items(), key=lambda kv: -(kv[1].get("cpu_s") or 0))[:8]
