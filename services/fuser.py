@@ -54,6 +54,7 @@ from .logs import utc_text
 from .node import Inbox, Node, Recovery, RejectLog
 from .ordering import DEFAULT_MAX_HELD, WatermarkMerger, hold_cap
 from .picture import Picture, pictures
+from .plan import standby_id
 from .scenario import load, load_site
 from .source import recovery_cache
 
@@ -412,7 +413,8 @@ def run(process_id: str, scenario_ref: str, method_name: str, overrides: dict, k
     ``standby_for``: a hot standby of that fuser (:mod:`services.leader`): the same work,
     published under that fuser's identity only once it leads.
     ``region``: the regional fuser of that ``[regions]`` entry (its id is the region's
-    name), publishing regional frames and their watermarks on ``regional/<region>``;
+    name; its standby's, ``standby_for`` the region, another), publishing regional frames
+    and their watermarks on ``regional/<region>``;
     ``system``: the system fuser over every region's fuser (:mod:`fusion.regional`).
     ``json_path``: a scenario run's summary, scored against its truth, written there when
     done (the result of a deployment started by hand; it keeps every estimate until then)."""
@@ -421,8 +423,16 @@ def run(process_id: str, scenario_ref: str, method_name: str, overrides: dict, k
         raise UserError(f"{scenario_ref} has no [regions.<name>] tables: no regional topology (docs/regional.md)")
     if region is not None and region not in scenario.regions:
         raise UserError(f"--region {region}: {scenario_ref} has regions {', '.join(scenario.regions)}")
-    if region is not None and process_id != region:
+    if standby_for is not None and process_id == standby_for:
+        raise UserError(f"--standby {standby_for}: a standby's --id is its own, not its fuser's (e.g. "
+                        f"{standby_id(standby_for)})")
+    if region is not None and standby_for is not None and standby_for != region:
+        raise UserError(f"--region {region} --standby {standby_for}: a regional fuser stands by for its region's "
+                        f"fuser only (--standby {region})")
+    if region is not None and standby_for is None and process_id != region:
         raise UserError(f"--region {region}: a regional fuser's --id is its region's name, not {process_id!r}")
+    if system and (standby_for or process_id) in scenario.regions:
+        raise UserError(f"--system: {standby_for or process_id!r} is a region's fuser, not the system fuser")
     config = method_config(scenario.tracker, method_name, overrides)
     distributed = METHODS[method_name].split is not None
     stage: RegionalStage | None = None

@@ -7,8 +7,10 @@ processes it waits for and whether it is restarted when killed. In start order:
 
 1. the router, when the processes are started by hand (each a client of it);
 2. the fuser (with ``--json``: it prints the result table and writes the summary when
-   the sources are done), the recorder (with ``--expect``: it stops once every process
-   has reported done, else it runs until signalled) and the exporters;
+   the sources are done), a regional topology's regional fusers, the recorder (with
+   ``--expect``: it stops once every process has reported done, else it runs until
+   signalled) and the exporters; with ``--standby``, each fuser's hot standby
+   (:func:`standby_id`) once its fuser is up;
 3. the local trackers of a distributed, feedback or two-stage method, once the fuser
    is up (they ask it for their initial states);
 4. the sources (sensors, the truth clock, jammers), each with ``--wait-for`` its
@@ -38,10 +40,16 @@ from typing import Mapping, Sequence
 from schemas import tracker_id
 from schemas.keys import DEFAULT_FUSER
 
+
+def standby_id(fuser: str) -> str:
+    """The process id of ``fuser``'s hot standby (``zfusion run --standby``): ``<fuser>-standby``."""
+    return f"{fuser}-standby"
+
+
 FUSER_ID = DEFAULT_FUSER
+STANDBY_ID = standby_id(FUSER_ID)
 RECORDER_ID = "recorder"
 ASTERIX_ID = "asterix-in"  # the ASTERIX gateway of a run with --asterix-in
-STANDBY_ID = "fuser-standby"
 ROUTER_ID = "router"
 ROLES = ("router", "fuser", "recorder", "exporter", "gateway", "tracker", "source")
 # s of silence after which a source is dead at --speed max: nothing is paced there, so a
@@ -131,7 +139,8 @@ class RunPlan:
             live: a live session; spawn, rotate_s: the recorder's ``--spawn``, ``--rotate-s``.
             outputs: exporters, process id -> (name, option, value) of
                 :data:`services.export.outputs.OUTPUTS`.
-            standby: a hot standby of the fuser, :data:`STANDBY_ID` (:mod:`services.leader`).
+            standby: a hot standby of the fuser, :data:`STANDBY_ID`, and of each regional
+                fuser, :func:`standby_id` of its region (:mod:`services.leader`).
             asterix: sensors that send ASTERIX to a gateway, :data:`ASTERIX_ID`.
         """
         timeout = source_timeout(scenario, speed)
@@ -145,6 +154,7 @@ class RunPlan:
         trackers = {s: tracker_id(s) for s in scenario.sensors} if split else {}
         regions = dict(scenario.regions) if topology == "regional" else {}  # region -> its fuser, of that id
         sources = list(scenario.process_ids())
+        standbys = [standby_id(f) for f in (*regions, FUSER_ID)] if standby else []
         specs = [ProcessSpec(ROUTER_ID, "router", ("router", "--listen", router))] if router else []
         specs.append(ProcessSpec(FUSER_ID, "fuser", (
             "fuser", *given, "--method", method, "--id", FUSER_ID, *(["--system"] if regions else []),
@@ -155,6 +165,11 @@ class RunPlan:
             specs.append(ProcessSpec(region, "fuser", (
                 "fuser", *given, "--method", method, "--region", region, "--source-timeout", str(timeout), *tuned,
                 *fabric), restartable=True))
+        for region in regions if standby else ():  # its frames again, published only once its fuser is gone
+            specs.append(ProcessSpec(standby_id(region), "fuser", (
+                "fuser", *given, "--method", method, "--region", region, "--id", standby_id(region),
+                "--standby", region, "--source-timeout", str(timeout), *tuned, *fabric),
+                waits_for=(region,), restartable=True))  # started after: the younger (services/leader.py)
         if standby:  # the fuser's work again, published only when the fuser's process is gone
             specs.append(ProcessSpec(STANDBY_ID, "fuser", (
                 "fuser", *given, "--method", method, "--id", STANDBY_ID, "--standby", FUSER_ID,
@@ -165,7 +180,7 @@ class RunPlan:
         specs.append(ProcessSpec(RECORDER_ID, "recorder", (
             "record", "--rrd", rrd, "--id", RECORDER_ID, *given, *(["--spawn"] if spawn else []),
             *(["--rotate-s", str(rotate_s)] if rotate_s else []),
-            "--expect", ",".join([FUSER_ID, *regions, *trackers.values(), *sources,
+            "--expect", ",".join([FUSER_ID, *regions, *standbys, *trackers.values(), *sources,
                                   *([ASTERIX_ID] if asterix and not live else [])]), *fabric), restartable=True))
         for pid, (name, option, value) in outputs.items():  # listeners like the recorder, up before the sources
             specs.append(ProcessSpec(pid, "exporter", (

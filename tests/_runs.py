@@ -16,7 +16,7 @@ import numpy as np
 import psutil
 import zenoh
 
-from schemas import KeySpace, decode
+from schemas import KeySpace, Message, decode
 from services.launcher import FUSER_ID, free_port
 from services.node import ZenohOptions
 from services.evaluation import run_method
@@ -50,8 +50,9 @@ def same_series(got: dict, ref: dict) -> None:
 
 def child(launcher: psutil.Process, command: str, ident: str, timeout: float = 120,
           exclude: tuple[int, ...] = ()) -> psutil.Process:
-    """The launcher's child ``zfusion COMMAND`` for process ``ident`` (``--id``, a
-    tracker's ``--sensor``, a regional fuser's ``--region``); ``exclude`` skips pids (a killed incarnation). A loaded
+    """The launcher's child ``zfusion COMMAND`` for process ``ident`` (``--id``, else a
+    tracker's ``--sensor``, a regional fuser's ``--region``: a regional standby's is its
+    ``--id``); ``exclude`` skips pids (a killed incarnation). A loaded
     machine can take over 30 s to bring a run's processes up (the launcher starts the
     recorder and the fuser before the sources)."""
     deadline = time.monotonic() + timeout
@@ -63,7 +64,8 @@ def child(launcher: psutil.Process, command: str, ident: str, timeout: float = 1
                 continue
             if c.pid in exclude or "services.cli" not in cmd or cmd[cmd.index("services.cli") + 1] != command:
                 continue
-            if any(cmd[i + 1] == ident for i, a in enumerate(cmd[:-1]) if a in ("--id", "--sensor", "--region")):
+            named = {a: cmd[i + 1] for i, a in enumerate(cmd[:-1]) if a in ("--id", "--sensor", "--region")}
+            if named.get("--id", named.get("--sensor", named.get("--region"))) == ident:
                 return c
         time.sleep(0.1)
     raise AssertionError(f"no {command} {ident} process")
@@ -133,17 +135,21 @@ class FusedWatch:
     """A Zenoh session of the test that the run's processes dial (``--connect``, or the
     router's endpoint): it follows the fused output, so a test disturbs a run at a point
     of its *output* (under load, sources may start late and catch up in a burst; the
-    wall clock says little about how far the run is)."""
+    wall clock says little about how far the run is). ``got``: every message, with its
+    arrival (monotonic)."""
 
     def __init__(self, deployment: str, connect: str | None = None):
         self.endpoint = f"tcp/127.0.0.1:{free_port()}"
         opts = ZenohOptions(connect=[connect], mode="client") if connect else ZenohOptions(listen=[self.endpoint])
         self.session = zenoh.open(opts.to_config())
         self.t = -1.0
+        self.got: list[tuple[float, Message]] = []
         self._sub = self.session.declare_subscriber(KeySpace(deployment).fused("fuser"), self._on_fused)
 
     def _on_fused(self, sample) -> None:
-        self.t = max(self.t, decode(sample.payload.to_bytes()).t)
+        msg = decode(sample.payload.to_bytes())
+        self.got.append((time.monotonic(), msg))
+        self.t = max(self.t, msg.t)
 
     def wait_until(self, t: float, proc, timeout: float = 60, expire: bool = False) -> None:
         """Until the fused output has reached scenario time ``t``; at most ``timeout``

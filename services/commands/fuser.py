@@ -7,6 +7,7 @@ from fusion.lazy import lazy
 from . import options
 
 fuser = lazy("services.fuser")
+plan = lazy("services.plan")
 values = lazy("services.commands.values")
 
 
@@ -20,10 +21,12 @@ def register(sub) -> None:
                         "(out of sequence); older ones are refused as stale (default %(default)s)")
     options.method(p)
     options.fusion_rule(p)
-    p.add_argument("--id", default="fuser", help="process id (default: %(default)s)")
+    p.add_argument("--id", help="process id (default: fuser; a --region fuser's is its region's name, a --standby "
+                                "FUSER's FUSER-standby)")
     p.add_argument("--standby", metavar="FUSER",
                    help="a hot standby of the fuser FUSER on the same inputs: the same work, published under "
-                        "FUSER's identity only once FUSER's process is gone (leadership by Zenoh liveliness)")
+                        "FUSER's identity only once FUSER's process is gone (leadership by Zenoh liveliness); "
+                        "a regional fuser's standby: --region NAME --standby NAME")
     role = p.add_mutually_exclusive_group()
     role.add_argument("--region", metavar="NAME", type=options.key_id,
                       help="regional topology: the fuser of region NAME of the scenario's [regions] (its --id is NAME), "
@@ -44,8 +47,8 @@ def run(args) -> int:
     if args.json:  # written when the run is done: checked before it starts
         options.writable_file(args.json, "--json")
     method = args.method or values.defaults(args).get("method")
-    if args.region is not None and args.id == "fuser":
-        args.id = args.region  # a regional fuser is named by its region
+    if args.id is None:  # a regional fuser is named by its region, a standby after its fuser
+        args.id = plan.standby_id(args.standby) if args.standby else args.region or plan.FUSER_ID
     return fuser.run(args.id, args.site or args.scenario, method, options.overrides(args), values.keys(args),
                      values.zopts(args), args.source_timeout, args.start_grace, seed=args.seed,
                      live=values.live(args), duration=args.duration_s, json_path=args.json,

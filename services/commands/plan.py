@@ -28,6 +28,8 @@ def register(sub) -> None:
     p.add_argument("--asterix-in", nargs="?", const="127.0.0.1:8600", metavar="HOST:PORT",
                    help="the radars and ADS-B stations send ASTERIX to a zfusion ingest asterix on HOST:PORT "
                         "(default %(const)s); writes the scenario with their SAC/SIC beside --rrd (docs/asterix.md)")
+    p.add_argument("--standby", action="store_true",
+                   help="a hot standby beside the fuser and beside each regional fuser (docs/reliability.md)")
     p.set_defaults(main=run)
 
 
@@ -39,5 +41,6 @@ def run(args) -> int:
     asterix = launcher.asterix_route(args.scenario, scenario, Path(args.rrd), args.asterix_in) \
         if args.asterix_in else None
     print(plan.RunPlan.build(args.scenario, scenario, topology, method, fabric=fabric, speed=args.speed,
-                             rrd=args.rrd, json_path=args.json, router=args.connect, asterix=asterix).format())
+                             rrd=args.rrd, json_path=args.json, router=args.connect, standby=args.standby,
+                             asterix=asterix).format())
     return 0

@@ -44,8 +44,8 @@ def register(sub) -> None:
                    help="run the scenario's processes as a live session on UTC time (scenario time 0 = start), "
                         "until Ctrl-C, --for, or the sources' end")
     g.add_argument("--standby", action="store_true",
-                   help="live: a hot standby fuser beside the fuser, which takes over within a second if the "
-                        "fuser's process dies (docs/reliability.md)")
+                   help="live: a hot standby fuser beside the fuser (and beside each regional fuser), which takes "
+                        "over within a second if its fuser's process dies (docs/reliability.md)")
     g.add_argument("--for", dest="for_s", type=options.seconds, metavar="SECONDS", help="live: stop after this long")
     g.add_argument("--oosm-window", type=options.seconds, default=10.0, metavar="S",
                    help="live: the fuser's re-filtering window (default %(default)s s; docs/live.md)")
