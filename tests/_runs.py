@@ -122,13 +122,24 @@ def disturb(tmp_path, scenario, deployment, speed, kills, *extra, timeout=120, k
                 held.resume()
         proc.wait(timeout)
     finally:
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGINT)
-            proc.wait(30)
-        watch.close()
+        stop_run(proc, watch)
+    err = run_log(proc, tmp_path)
+    return json.loads((tmp_path / "out.json").read_text()), err
+
+
+def stop_run(proc: subprocess.Popen, watch: "FusedWatch") -> None:
+    """A run's end in a test's ``finally``: SIGINT if it still runs, then the watch closed."""
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGINT)
+        proc.wait(30)
+    watch.close()
+
+
+def run_log(proc: subprocess.Popen, tmp_path) -> str:
+    """The launcher's stderr (``run.log``), once it has exited 0."""
     err = (tmp_path / "run.log").read_text()
     assert proc.returncode == 0, err[-3000:]
-    return json.loads((tmp_path / "out.json").read_text()), err
+    return err
 
 
 class FusedWatch:

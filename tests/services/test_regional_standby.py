@@ -23,7 +23,7 @@ from services.fuser import run as run_fuser
 from services.plan import FUSER_ID, RECORDER_ID, STANDBY_ID, Live, RunPlan, standby_id
 from sensors_sim import load_scenario
 
-from _runs import FusedWatch, child, run_cmd
+from _runs import FusedWatch, child, run_cmd, run_log, stop_run
 
 TWO_REGIONS = Path(__file__).resolve().parents[1] / "data" / "two-regions.toml"
 PERIOD = 1.0  # two-regions' radars scan once a second
@@ -89,12 +89,8 @@ def _kill_west(tmp_path: Path, deployment: str, *extra: str) -> tuple[np.ndarray
         proc.send_signal(signal.SIGINT)  # ends a live run as --for would: in order, with its summary
         proc.wait(120)
     finally:
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGINT)
-            proc.wait(30)
-        watch.close()
-    err = (tmp_path / "run.log").read_text()
-    assert proc.returncode == 0, err[-3000:]
+        stop_run(proc, watch)
+    err = run_log(proc, tmp_path)
     tracks = [(a, m) for a, m in watch.got if m.kind == "track"]
     return np.array([a for a, _ in tracks]), np.array([m.t for _, m in tracks]), {m.body["track"] for _, m in tracks}, \
         json.loads((tmp_path / "out.json").read_text()), err
