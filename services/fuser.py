@@ -457,7 +457,7 @@ def run(process_id: str, scenario_ref: str, method_name: str, overrides: dict, k
         periods = {s: sensors[s].period for s in sources}
     elif system:  # the system picture from the regional fusers' frames
         method = SystemStage(RegionalMethod.system_fuser(method_name, config, scenario.regions))
-        regions_seen = RegionPictures(scenario.regions, _delete_misses(scenario))
+        regions_seen = RegionPictures(scenario.regions)
         intake = RegionalIntake(scenario.regions, regions_seen.frame)
         sources = list(scenario.regions)
         periods = {r: min(scenario.sensors[s].period for s in scenario.regions[r].sensors) for r in sources}

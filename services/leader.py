@@ -55,7 +55,7 @@ from fusion.mtt import MultiTargetMethod
 from fusion.patent import CentralisedMethod
 from fusion.regional import RegionalFuser, RegionalStage
 from fusion.tracking.manager import MultiTargetTracker
-from fusion.tracking.table import CONFIRMED, Track
+from fusion.tracking.table import Track
 from fusion.types import Estimate
 from schemas import KeySpace
 
@@ -263,7 +263,7 @@ def _seed_table(method: MultiTargetMethod, tracks: list[dict]) -> bool:
         x, P = np.asarray(tr["x"], dtype=float), np.asarray(tr["P"], dtype=float)
         track = table.add(Track(tracker.updater.new_filter(x, P, tr["t"]), Estimate(tr["t"], x, P, method.name,
                                                                                       "centre")))
-        track.logic.status, track.logic.hits = CONFIRMED, track.logic.rule.confirm_m
+        tracker.taken_over(track)
         track.id = tr["id"]
     table.ids.issued = max(numbers.values())
     return True

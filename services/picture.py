@@ -19,7 +19,7 @@ last estimate ``regional/<region>`` carried for it, as a ``track`` message from 
 region) and answers ``picture/<region>`` with it: a regional fuser serves no picture of
 its own, and the one restarted with no standby to join rebuilds its tracks from its
 region's picture (:mod:`services.leader`), where a joining standby rebuilds from its
-leader's. Memory: one message per confirmed track of each region.
+leader's. Memory: one message per track each region publishes (until a frame drops it).
 """
 
 from __future__ import annotations
@@ -73,7 +73,7 @@ class Picture:
     """The fuser's live tracks (module docstring). :meth:`published` is called by the
     fuser's loop, :meth:`replies` by Zenoh's query thread: a lock keeps them apart."""
 
-    def __init__(self, src: str, delete_misses: int = AssociationConfig.delete_misses):
+    def __init__(self, src: str, delete_misses: float = AssociationConfig.delete_misses):
         self.src = src
         self.delete_misses = delete_misses
         self.t = -math.inf
@@ -116,14 +116,15 @@ class Picture:
 class RegionPictures:
     """The system fuser's picture of each region's stream (module docstring): one
     :class:`Picture` a region, under the region's name, fed the frames the system fuser
-    takes from ``regional/<region>`` (:meth:`frame`, from the fuser's loop). A frame
-    reports every confirmed track its region holds; the ids it says it no longer
-    publishes leave the picture at once (and a track whose frames were lost, after
-    ``delete_misses`` frames), so the picture is the region's latest frame's tracks. A
+    takes from ``regional/<region>`` (:meth:`frame`, from its intake). A frame carries
+    the confirmed tracks its region's tracker reported in it (a sweep tracker's: those a
+    sector updated) and the ids its region no longer publishes, which leave the picture
+    at once; no frame count ends a track here (a sweep's track goes unreported for
+    frames), so the picture is the region's published tracks, each as last carried. A
     frame older than the picture (a publisher's cache given again) changes nothing."""
 
-    def __init__(self, regions: Iterable[str], delete_misses: int = AssociationConfig.delete_misses):
-        self.pictures = {r: Picture(r, delete_misses) for r in regions}
+    def __init__(self, regions: Iterable[str]):
+        self.pictures = {r: Picture(r, delete_misses=math.inf) for r in regions}
 
     def frame(self, f: "RegionalFrame", seq: int) -> None:
         """Region ``f.region``'s frame ``f``, the message ``seq`` of its stream."""

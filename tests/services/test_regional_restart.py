@@ -24,7 +24,6 @@ from fusion.methods import make_method, method_config
 from fusion.regional import RegionalFuser, RegionalStage
 from sensors_sim import load_scenario
 from services.evaluation import merged_measurements, run_method
-from services.fuser import _delete_misses
 from services.leader import rebuild
 from schemas import KeySpace, decode
 from services.picture import RegionPictures, documents, pictures
@@ -44,7 +43,7 @@ def _west(sc) -> RegionalStage:
 
 def _pictures(sc, frames, until: float) -> RegionPictures:
     """The system fuser's pictures once it has taken ``frames`` (seq 1, 2, ...) up to ``until``."""
-    seen = RegionPictures(sc.regions, _delete_misses(sc))
+    seen = RegionPictures(sc.regions)
     for seq, f in enumerate(frames, 1):
         if f.t <= until:
             seen.frame(f, seq)
@@ -108,14 +107,15 @@ def test_a_region_s_picture_is_its_latest_frame():
 def test_a_restarted_regional_fuser_without_a_standby_starts_from_its_region_s_picture(tmp_path, deployment):
     """Live two-regions without ``--standby``, its sources' caches 10 s long
     (``recovery_s = 5``): kill -9 of the west fuser after 20 s of system output, the
-    aircraft over the west region alone. The launcher restarts west, which finds no older
-    member of its region, asks ``picture/west`` (the system fuser answers) and says it
-    rebuilt ``west.T1`` (the picture, asked from outside before the kill, held it); its first frame on ``regional/west`` carries the aircraft under
-    that id, later than the last frame before the kill (what came up to the picture's
-    scan is not fused again), and the system track keeps its one id. Without the warm
-    start (``rebuild`` given no picture in services/fuser.py) the restarted west's first
-    frames carry no track (its track is tentative again, from the caches' last 10 s) and
-    the test fails."""
+    aircraft over the west region alone. Before the kill the system fuser answers
+    ``picture/west`` with ``west.T1``. The launcher restarts west, which finds no older
+    member of its region, asks that picture and says it rebuilt ``west.T1``; its first
+    frame on ``regional/west`` carries the aircraft under that id, later than the last
+    frame before the kill (what came up to the picture's scan is not fused again), and
+    the system track keeps its one id. Without the warm start (the regional fuser's ask
+    removed in services/fuser.py: ``asks = leader.joins and stage is None``) the
+    restarted west's first frame is the caches' replay, 12.5 s of output, with no track
+    (its track tentative again), and the test fails."""
     site = tmp_path / "two-regions.toml"
     site.write_text(f"recovery_s = {RECOVERY_S}\n{TWO_REGIONS.read_text()}", encoding="utf-8")
     watch = FusedWatch(deployment)
