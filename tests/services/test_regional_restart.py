@@ -1,12 +1,13 @@
 """A regional fuser restarted with no standby starts warm (issue 28, "Losing a region"):
 the system fuser keeps the picture of each region's stream (services/picture.py
-``RegionPictures``: the tracks of the region's latest frame, as ``regional/<region>``
-carried them) and answers ``picture/<region>`` with it; a regional fuser that finds no
-older member of its region running rebuilds its table from that picture
-(services/leader.py ``rebuild``), so its ids go on and the system track ids stay.
-In process, the rebuilt fuser's frames are the killed one's bit for bit; live, kill -9
-of the west fuser once its sources' caches no longer hold the aircraft's first scans,
-and the restarted west's first frame carries the aircraft under its id before the kill."""
+``RegionPictures``: each track the region publishes, as ``regional/<region>`` last
+carried it, until a frame drops it) and answers ``picture/<region>`` with it; a regional
+fuser that finds no older member of its region running rebuilds its table from that
+picture (services/leader.py ``rebuild``), so its ids go on and the system track ids
+stay. In process, a GNN fuser's rebuilt frames are the killed one's bit for bit, and a
+sweep tracker's (region-400) carry its ids; live, kill -9 of the west fuser once its
+sources' caches no longer hold the aircraft's first scans, and the restarted west's
+first frame carries the aircraft under its id before the kill."""
 
 from __future__ import annotations
 
@@ -14,7 +15,6 @@ import json
 import signal
 import subprocess
 import time
-from pathlib import Path
 
 import numpy as np
 import psutil
@@ -22,12 +22,12 @@ import pytest
 
 from fusion.methods import make_method, method_config
 from fusion.regional import RegionalFuser, RegionalStage
+from schemas import KeySpace, decode
 from sensors_sim import load_scenario
 from services.evaluation import merged_measurements, run_method
 from services.leader import rebuild
-from services.scenario import load
-from schemas import KeySpace, decode
 from services.picture import RegionPictures, documents, pictures
+from services.scenario import load
 
 from _runs import FusedWatch, child, run_cmd, run_log, stop_run
 from conftest import ROOT
@@ -107,7 +107,7 @@ def test_a_sweep_tracker_s_region_rebuilt_from_its_picture_carries_its_ids():
         (len(mine & theirs), len(theirs), len(mine - theirs))
 
 
-def test_a_region_s_picture_is_its_latest_frame():
+def test_a_region_s_picture_holds_its_tracks_until_a_frame_drops_them():
     """The ids a frame drops leave the picture at once, a frame older than the picture
     (a cache given again) changes nothing, and each region answers for itself: west
     holds the aircraft until it leaves (165 s), east from when it enters its margin."""
