@@ -54,7 +54,7 @@ import heapq
 import itertools
 import math
 from dataclasses import dataclass, field
-from typing import Callable, Mapping, Sequence
+from typing import Callable, Iterable, Mapping, Sequence
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -228,6 +228,13 @@ class RegionalFuser:
 
     def finish(self) -> list[RegionalFrame]:
         return [self._frame(g) for g in self.method._grouper.finish()]
+
+    def resume(self, published: Iterable[str]) -> None:
+        """Started again where an earlier run of this region's fuser was: its method's
+        table seeded with those tracks (by the caller), ``published`` their ids as its
+        frames carried them (``<region>.<id>``), so its next frame says which of them it
+        no longer publishes."""
+        self._published = set(published)
 
     def open_since(self) -> float:
         """The time of the frame it holds open (its next frame's time), ``inf`` if none:

@@ -10,7 +10,9 @@ down on ``feedback/<node>``. Either way it validates and orders its input
 It keeps no state on disk: restarted after kill -9, it joins mid-stream at the first scan
 it has heard whole (after a watermark of every sensor: ``schedule``), and in the distributed topologies the nodes re-run the start-up
 handshake, which rebuilds the common prior and cross-covariances the fusion rules need
-(docs/reliability.md, "Faults", says why and what is counted). It finishes when every
+(docs/reliability.md, "Faults", says why and what is counted); a regional fuser
+restarted with no standby starts from its region's picture, which the system fuser keeps
+(:func:`services.leader.rebuild`). It finishes when every
 source is final or dead and at least one is final: sources all dead at once (a router
 restart) are not the end (if their end is lost, the launcher stops it: docs/reliability.md).
 Live (``--site``, docs/live.md): UTC time, no end, stamps from
@@ -53,12 +55,12 @@ from .live import ClockGuard, LiveOptions
 from .logs import utc_text
 from .node import Inbox, Node, Recovery, RejectLog
 from .ordering import DEFAULT_MAX_HELD, WatermarkMerger, hold_cap
-from .picture import Picture, pictures
+from .picture import Picture, RegionPictures, pictures
 from .plan import standby_id
 from .scenario import load, load_site
 from .source import recovery_cache
 
-JOIN_PATIENCE_S = 5.0  # how long a standby joining a leader waits for its picture (a new session finds its route by gossip: seconds under load)
+JOIN_PATIENCE_S = 5.0  # how long a standby joining a leader (or a regional fuser starting) waits for its picture (a new session finds its route by gossip: seconds under load)
 
 # --json only: the scorer (scipy.stats, the scenario's truth) loads when a summary is written
 summary = lazy("services.summary")
@@ -115,17 +117,23 @@ class UplinkIntake:
 
 class RegionalIntake:
     """What the system fuser takes from ``regional/<region>``: the frames of the regions'
-    fusers (:func:`schemas.links.regional_frame`), one source a region."""
+    fusers (:func:`schemas.links.regional_frame`), one source a region. Each frame taken
+    also goes to ``on_frame`` (with its seq), if given: the regions' pictures
+    (:class:`services.picture.RegionPictures`)."""
 
     family = "regional"
 
-    def __init__(self, regions: Mapping[str, Any]):
+    def __init__(self, regions: Mapping[str, Any], on_frame: Callable[[Any, int], None] | None = None):
         self.nodes = dict(regions)
+        self.on_frame = on_frame
 
     def item(self, key_id: str, msg: Message):
         if key_id not in self.nodes:
             return None, "unknown-source"
-        return "item", regional_frame(msg)
+        frame = regional_frame(msg)
+        if self.on_frame is not None:
+            self.on_frame(frame, msg.seq)
+        return "item", frame
 
 
 class JoinGate:
@@ -415,7 +423,11 @@ def run(process_id: str, scenario_ref: str, method_name: str, overrides: dict, k
     ``region``: the regional fuser of that ``[regions]`` entry (its id is the region's
     name; its standby's, ``standby_for`` the region, another), publishing regional frames
     and their watermarks on ``regional/<region>``;
-    ``system``: the system fuser over every region's fuser (:mod:`fusion.regional`).
+    ``system``: the system fuser over every region's fuser (:mod:`fusion.regional`),
+    which also keeps each region's picture and answers ``picture/<region>`` with it; a
+    regional fuser that finds no older member of its region running (started again with
+    no standby to take over) rebuilds its tracks from that picture, as a standby joining
+    a leader does from the leader's (:func:`services.leader.rebuild`).
     ``json_path``: a scenario run's summary, scored against its truth, written there when
     done (the result of a deployment started by hand; it keeps every estimate until then)."""
     scenario = load(scenario_ref, seed, duration) if live is None else load_site(scenario_ref)
@@ -436,6 +448,7 @@ def run(process_id: str, scenario_ref: str, method_name: str, overrides: dict, k
     config = method_config(scenario.tracker, method_name, overrides)
     distributed = METHODS[method_name].split is not None
     stage: RegionalStage | None = None
+    regions_seen: RegionPictures | None = None  # the system fuser's pictures of the regions' streams
     if region is not None:  # one region's centralised tracker, its frames for the system fuser
         stage = method = RegionalStage(RegionalFuser(scenario.regions[region], make_method(method_name, config)))
         sensors = {s: scenario.sensors[s] for s in scenario.regions[region].sensors}
@@ -444,7 +457,8 @@ def run(process_id: str, scenario_ref: str, method_name: str, overrides: dict, k
         periods = {s: sensors[s].period for s in sources}
     elif system:  # the system picture from the regional fusers' frames
         method = SystemStage(RegionalMethod.system_fuser(method_name, config, scenario.regions))
-        intake = RegionalIntake(scenario.regions)
+        regions_seen = RegionPictures(scenario.regions)
+        intake = RegionalIntake(scenario.regions, regions_seen.frame)
         sources = list(scenario.regions)
         periods = {r: min(scenario.sensors[s].period for s in scenario.regions[r].sensors) for r in sources}
     elif distributed:  # distributed, feedback, two-stage: the centre over the local trackers
@@ -462,6 +476,8 @@ def run(process_id: str, scenario_ref: str, method_name: str, overrides: dict, k
         if live is None and not distributed and not system else None
     with Node(process_id, "fuser", keys, zopts, live=live is not None) as node:
         inbox = Inbox(node.stop)
+        for queryable in regions_seen.serve(node.session, keys) if regions_seen is not None else ():
+            node.keep(queryable)  # at once: a regional fuser's start waits for its region's picture
         if isinstance(method, (TrackCentre, MultiTrackCentre)):
             gate = JoinGate if isinstance(method, TrackCentre) else FirstRequests
             method = gate(method, node.reject, node.event)
@@ -471,8 +487,9 @@ def run(process_id: str, scenario_ref: str, method_name: str, overrides: dict, k
         # a regional fuser hears its region's sensors only; the others, every source of its family
         heard = [keys.meas(s) for s in sources] if stage is not None else [keys.all(intake.family)]
         if recovery is not None:  # live sensors' and trackers' publishers give back what a cut-off missed
-            for key in heard:  # (a standby: what they sent before, too, for a rebuild below)
-                node.recovering_subscriber(key, inbox, recovery.on_miss, history=standby_for is not None)
+            for key in heard:  # (a standby, a regional fuser: what they sent before, too, for a rebuild below)
+                node.recovering_subscriber(key, inbox, recovery.on_miss,
+                                           history=standby_for is not None or stage is not None)
             # Its own streams too: a release is at most one estimate per measurement (or uplink) taken.
             cache = sum(recovery_cache(scenario, s) for s in scenario.sensors)
             publisher = functools.partial(node.recoverable_publisher, cache=cache)
@@ -483,9 +500,12 @@ def run(process_id: str, scenario_ref: str, method_name: str, overrides: dict, k
         # The election once the session's links have settled: a member not yet linked is not yet seen.
         leader = Leadership(node.session, keys, identity, standby_for is not None, start_grace, node.event, node.stop)
         node.keep(leader)
-        # Joining a running leader: its tracks from its picture, asked before this process serves its own.
-        found = pictures(node.session, keys, identity, JOIN_PATIENCE_S) if leader.joins and stage is None else []
+        # Joining a running leader: its tracks from its picture, asked before this process serves its own. A
+        # regional fuser with no leader to join (started again, no standby): its region's, the system fuser's.
+        asks = leader.joins if stage is None else not leader.joins
+        found = pictures(node.session, keys, identity, JOIN_PATIENCE_S) if asks else []
         rebuilt = rebuild(method, found[0]) if found else None
+        whose = "the leader's picture" if stage is None else f"{identity}'s picture (the system fuser's)"
         feedback = METHODS[method_name].topology in ("feedback", "two-stage")  # its centre's feedback is final
         core = FuserCore(method, sources, keys, node.reject, timeout, start_grace,
                          horizon=scenario.duration + HORIZON_SLACK_S if live is None else math.inf, now=time.monotonic(),
@@ -496,10 +516,10 @@ def run(process_id: str, scenario_ref: str, method_name: str, overrides: dict, k
         if rebuilt is not None:
             core.merger.join(rebuilt.t)
             seq = rebuilt.seq
-            node.event(f"rebuilt {', '.join(rebuilt.tracks)} from the leader's picture (seq {rebuilt.seq}); fusing "
+            node.event(f"rebuilt {', '.join(rebuilt.tracks)} from {whose} (seq {rebuilt.seq}); fusing "
                        f"what comes after {utc_text(rebuilt.t) if live is not None else f't = {rebuilt.t:g} s'}")
         elif found and found[0]["tracks"]:
-            node.event(f"{method_name}'s tracks cannot be rebuilt from the leader's picture: starting from the "
+            node.event(f"{method_name}'s tracks cannot be rebuilt from {whose}: starting from the "
                        f"first scan heard")
         pub = publisher(keys.regional(identity) if stage is not None else keys.fused(identity))
         encoder = encode_regional_frame if stage is not None else encode_estimate

@@ -35,7 +35,10 @@ after ``t`` alone, so from then on the standby's estimates are the leader's, bit
 bit (many targets: those of the tracks confirmed at the join; a tentative one starts
 again and converges). A method whose state is more than its published tracks (JIPDA,
 DF filters, track-fusion centres) joins as before, from the first scan it hears
-whole; docs/reliability.md says what is equal, what converges and how fast.
+whole; docs/reliability.md says what is equal, what converges and how fast. A regional
+fuser that finds no older member (restarted with no standby) has no leader to ask: it
+rebuilds alike from its region's picture, which the system fuser keeps from the frames
+it takes (:class:`services.picture.RegionPictures`), so the region's ids go on.
 """
 
 from __future__ import annotations
@@ -50,8 +53,9 @@ import zenoh
 
 from fusion.mtt import MultiTargetMethod
 from fusion.patent import CentralisedMethod
+from fusion.regional import RegionalFuser, RegionalStage
 from fusion.tracking.manager import MultiTargetTracker
-from fusion.tracking.table import CONFIRMED, Track
+from fusion.tracking.table import Track
 from fusion.types import Estimate
 from schemas import KeySpace
 
@@ -212,19 +216,40 @@ def rebuild(method: Any, picture: dict | None) -> Rebuilt | None:
     """Start ``method`` from the leader's ``picture`` (:func:`services.picture.pictures`):
     a one-target method's track filter from its one track; a many-target method's table
     (GNN, frame by frame) from the tracks the picture's latest frame reports, confirmed,
-    under their ids, the id counter after them. None (and ``method`` untouched) for any
-    other method, a method that holds a track already, or a picture without tracks."""
+    under their ids, the id counter after them; a regional fuser's
+    (:class:`~fusion.regional.RegionalStage`) likewise from its region's picture, which
+    the system fuser keeps (:class:`services.picture.RegionPictures`). None (and
+    ``method`` untouched) for any other method, a method that holds a track already, or
+    a picture without tracks."""
     if picture is None or not picture["tracks"]:
         return None
-    latest = [tr for tr in picture["tracks"] if tr["t"] == picture["t"]]  # (the others were no longer reported)
-    if isinstance(method, CentralisedMethod):
-        if len(latest) != 1 or latest[0]["id"] != method.track or method.filter is not None:
+    if isinstance(method, RegionalStage):  # a region's picture holds the tracks of its latest frame alone
+        latest = picture["tracks"]
+        if not _seed_region(method.fuser, latest):
             return None
-        track = latest[0]
-        method.start(np.asarray(track["x"], dtype=float), np.asarray(track["P"], dtype=float), track["t"])
-    elif not (isinstance(method, MultiTargetMethod) and _seed_table(method, latest)):
-        return None
+        method = method.fuser.method
+    else:
+        latest = [tr for tr in picture["tracks"] if tr["t"] == picture["t"]]  # (the others were no longer reported)
+        if isinstance(method, CentralisedMethod):
+            if len(latest) != 1 or latest[0]["id"] != method.track or method.filter is not None:
+                return None
+            track = latest[0]
+            method.start(np.asarray(track["x"], dtype=float), np.asarray(track["P"], dtype=float), track["t"])
+        elif not (isinstance(method, MultiTargetMethod) and _seed_table(method, latest)):
+            return None
     return Rebuilt(picture["t"] + method.group_tol, max(tr["seq"] for tr in latest), tuple(tr["id"] for tr in latest))
+
+
+def _seed_region(fuser: RegionalFuser, tracks: list[dict]) -> bool:
+    """A regional fuser's table seeded (:func:`_seed_table`) with its region's tracks,
+    each under its id in the region (``west.T3``: ``T3``), and the fuser told that its
+    frames published them (:meth:`~fusion.regional.RegionalFuser.resume`)."""
+    prefix = f"{fuser.region.name}."
+    if not (isinstance(fuser.method, MultiTargetMethod) and all(tr["id"].startswith(prefix) for tr in tracks)
+            and _seed_table(fuser.method, [{**tr, "id": tr["id"][len(prefix):]} for tr in tracks])):
+        return False
+    fuser.resume(tr["id"] for tr in tracks)
+    return True
 
 
 def _seed_table(method: MultiTargetMethod, tracks: list[dict]) -> bool:
@@ -238,7 +263,7 @@ def _seed_table(method: MultiTargetMethod, tracks: list[dict]) -> bool:
         x, P = np.asarray(tr["x"], dtype=float), np.asarray(tr["P"], dtype=float)
         track = table.add(Track(tracker.updater.new_filter(x, P, tr["t"]), Estimate(tr["t"], x, P, method.name,
                                                                                       "centre")))
-        track.logic.status, track.logic.hits = CONFIRMED, track.logic.rule.confirm_m
+        tracker.taken_over(track)
         track.id = tr["id"]
     table.ids.issued = max(numbers.values())
     return True

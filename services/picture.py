@@ -12,6 +12,14 @@ A track is live until its stream has gone ``delete_misses`` frames without repor
 it (a frame: a distinct time of the fuser's output; :class:`Reports`), the rule the
 trackers delete by: a confirmed track is reported every frame until deleted. Memory:
 one message per live track, plus one frame number per track followed.
+
+The system fuser of the regional topology also keeps the picture of each region's
+stream (:class:`RegionPictures`: each track the region publishes, as the last
+estimate ``regional/<region>`` carried for it, a ``track`` message from the region,
+until a frame of the region drops its id) and answers ``picture/<region>`` with it: a regional fuser serves no picture of
+its own, and the one restarted with no standby to join rebuilds its tracks from its
+region's picture (:mod:`services.leader`), where a joining standby rebuilds from its
+leader's. Memory: one message per track each region publishes (until a frame drops it).
 """
 
 from __future__ import annotations
@@ -21,14 +29,17 @@ import math
 import sys
 import threading
 import time
-from typing import Callable, Iterable
+from typing import TYPE_CHECKING, Callable, Iterable
 
 import zenoh
 
 from fusion.mtt import AssociationConfig
-from schemas import KeySpace, SchemaError, decode, encode, to_estimate
+from schemas import KeySpace, SchemaError, decode, encode, encode_estimate, to_estimate
 from schemas.keys import DEFAULT_FUSER
 from fusion.types import Estimate
+
+if TYPE_CHECKING:
+    from fusion.regional import RegionalFrame
 
 
 class Reports:
@@ -62,7 +73,7 @@ class Picture:
     """The fuser's live tracks (module docstring). :meth:`published` is called by the
     fuser's loop, :meth:`replies` by Zenoh's query thread: a lock keeps them apart."""
 
-    def __init__(self, src: str, delete_misses: int = AssociationConfig.delete_misses):
+    def __init__(self, src: str, delete_misses: float = AssociationConfig.delete_misses):
         self.src = src
         self.delete_misses = delete_misses
         self.t = -math.inf
@@ -77,6 +88,12 @@ class Picture:
                 self._last.pop(gone, None)
             self._last[e.track] = data
             self.t = max(self.t, e.t)
+
+    def forget(self, track: str) -> None:
+        """``track`` has gone from its stream (its fuser says so): no longer in the picture."""
+        with self._lock:
+            self._reports.forget(track)
+            self._last.pop(track, None)
 
     def replies(self) -> list[bytes]:
         """What a query is answered with: every live track's message, then the watermark."""
@@ -94,6 +111,34 @@ class Picture:
                 query.reply(key, data)
 
         return session.declare_queryable(key, on_query)
+
+
+class RegionPictures:
+    """The system fuser's picture of each region's stream (module docstring): one
+    :class:`Picture` a region, under the region's name, fed the frames the system fuser
+    takes from ``regional/<region>`` (:meth:`frame`, from its intake). A frame carries
+    the confirmed tracks its region's tracker reported in it (a sweep tracker's: those a
+    sector updated) and the ids its region no longer publishes, which leave the picture
+    at once; no frame count ends a track here (a sweep's track goes unreported for
+    frames), so the picture is the region's published tracks, each as last carried. A
+    frame older than the picture (a publisher's cache given again) changes nothing."""
+
+    def __init__(self, regions: Iterable[str]):
+        self.pictures = {r: Picture(r, delete_misses=math.inf) for r in regions}
+
+    def frame(self, f: "RegionalFrame", seq: int) -> None:
+        """Region ``f.region``'s frame ``f``, the message ``seq`` of its stream."""
+        picture = self.pictures.get(f.region)
+        if picture is None or f.t < picture.t:
+            return
+        for e in f.tracks:
+            picture.published(e, encode_estimate(e, f.region, seq))
+        for track in f.dropped:
+            picture.forget(track)
+
+    def serve(self, session: zenoh.Session, keys: KeySpace) -> list:
+        """Declare each region's queryable (the caller undeclares them, or closes the session)."""
+        return [p.serve(session, keys) for p in self.pictures.values()]
 
 
 def _track_or_none(data: bytes):
@@ -171,20 +216,29 @@ def pictures(session: zenoh.Session, keys: KeySpace, fuser: str, timeout: float 
 
 def documents(replies: Iterable[bytes]) -> dict[str, dict]:
     """Replies to a picture query, as one dict per answering fuser (by id): ``t`` (None
-    until its watermark has come) and its ``tracks``, each as JSON-ready values."""
+    until its watermark has come) and its ``tracks``, each as JSON-ready values. Several
+    processes may answer for one id (a leader and its standby; a system fuser and its
+    standby, for a region): a track is taken once, its latest message (by time, then
+    seq), and ``t`` is the latest watermark."""
     answers: dict[str, dict] = {}
+    tracks: dict[str, dict[str, dict]] = {}
     for data in replies:
         msg = _track_or_none(data)
         if msg is None:
             continue
         doc = answers.setdefault(msg.src, {"t": None, "fuser": msg.src, "tracks": []})
         if msg.kind == "watermark":
-            doc["t"] = msg.t
+            doc["t"] = msg.t if doc["t"] is None else max(doc["t"], msg.t)
         elif msg.kind == "track":
             e = to_estimate(msg)
-            doc["tracks"].append({"id": e.track, "t": e.t, "x": e.x.tolist(), "P": e.P.tolist(),
-                                  "method": e.method, "node": e.node, "nis": e.nis, "nis_dof": e.nis_dof,
-                                  "existence": e.existence, "seq": msg.seq})
+            mine = tracks.setdefault(msg.src, {})
+            if e.track in mine and (mine[e.track]["t"], mine[e.track]["seq"]) >= (e.t, msg.seq):
+                continue
+            mine[e.track] = {"id": e.track, "t": e.t, "x": e.x.tolist(), "P": e.P.tolist(),
+                             "method": e.method, "node": e.node, "nis": e.nis, "nis_dof": e.nis_dof,
+                             "existence": e.existence, "seq": msg.seq}
+    for src, doc in answers.items():
+        doc["tracks"] = list(tracks.get(src, {}).values())
     return answers
 
 

@@ -37,7 +37,7 @@ import numpy as np
 from ..types import Measurement
 from .associators import Associator
 from .hypotheses import Hypotheses
-from .table import Track, TrackTable
+from .table import CONFIRMED, Track, TrackTable
 
 
 @dataclass(frozen=True)
@@ -137,6 +137,11 @@ class MultiTargetTracker:
     def tracks(self) -> list[Track]:
         """The tracks, in priority order (confirmed in id order, then tentative in birth order)."""
         return self.table.tracks
+
+    def taken_over(self, track: Track) -> None:
+        """``track``, just added to the table, confirmed as one taken over from another
+        tracker's picture (a rebuild: its history is not known, its state is)."""
+        track.logic.status, track.logic.hits = CONFIRMED, track.logic.rule.confirm_m
 
     def frame(self, plots: Sequence) -> list[Track]:
         """One frame (module docstring); returns its confirmed tracks, in id order."""

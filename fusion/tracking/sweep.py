@@ -451,6 +451,13 @@ class SweepTracker(MultiTargetTracker):
         self.earlier: list = []
         self.earlier_counted: set = set()
 
+    def taken_over(self, track: Track) -> None:
+        """``track`` confirmed as one taken over from another tracker's picture: its life
+        kept in time from its estimate's time as a last hit (deleted ``delete_misses``
+        revisits after it, as any confirmed track); its sensors and score are not known."""
+        track.logic = SweepLogic(self.rule, self.revisit_s, track.last.t, status=CONFIRMED, hits=self.rule.confirm_m,
+                                 repeated=True, ranged=True)
+
     def frame(self, plots: Sequence) -> list[Track]:
         """One frame; returns the confirmed tracks it updated or confirmed, in id order."""
         frame = Frame(plots)

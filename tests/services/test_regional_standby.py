@@ -119,8 +119,8 @@ def test_a_killed_regional_fuser_with_a_standby_leaves_no_gap(tmp_path, deployme
 def test_without_a_standby_the_region_s_aircraft_is_absent_until_its_fuser_is_back(tmp_path, deployment):
     """The same kill without ``--standby``, restarted by the launcher: nothing of the
     aircraft arrives until the west fuser is back (the outage in the summary, in wall
-    seconds on a live run); then its frames rejoin (it replays its sensors' caches, the
-    last 60 s: the same track, the same system id). The absence is the restart: 1.7 s on
+    seconds on a live run); then its frames rejoin (it starts from west's picture, which
+    the system fuser keeps: the same track, the same system id; test_regional_restart.py). The absence is the restart: 1.7 s on
     an idle machine, more under load, where the live system fuser, which waits at most
     ``--max-delay`` for a late region, may also have passed some of the estimate times
     (3.5 s of them once, with four test processes on two cores)."""
