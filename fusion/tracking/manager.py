@@ -28,6 +28,7 @@ of it.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from functools import cached_property
 from typing import Any, Protocol, Sequence
@@ -132,6 +133,7 @@ class MultiTargetTracker:
         self.updater = updater
         self.table = table
         self.reviewer = reviewer
+        self._unclaimed: dict[int, float] = {}  # this frame: id of a plot left -> 1 − claimed (Weights.claimed)
 
     @property
     def tracks(self) -> list[Track]:
@@ -143,6 +145,7 @@ class MultiTargetTracker:
         frame = Frame(plots)
         expired = self.table.expire(frame.t)
         tracks = list(self.table.tracks)
+        self._unclaimed = {}
         taken, left = self.associate(tracks, frame)
         continued, births = self.initiator.initiate(left, tracks, frame)
         for i, track in enumerate(tracks):
@@ -160,9 +163,11 @@ class MultiTargetTracker:
                 self.table.add(track).logic.survive(frame.t)
                 track.claim(initial_plots(group))
                 if born is not None and track.existence is not None:
-                    seen = {m.sensor for m in initial_plots(group)}
+                    plots = initial_plots(group)
+                    seen = {m.sensor for m in plots}
                     missed = [s for s in dict.fromkeys(m.sensor for m in frame.plots) if s not in seen]
-                    track.logic.existence = born(track.existence, missed)
+                    unclaimed = math.prod(self._unclaimed.get(id(m), 1.0) for m in plots)
+                    track.logic.existence = born(track.existence, missed, unclaimed)
         return self.table.close_frame()
 
     def associate(self, tracks: list[Track], frame: Frame) -> tuple[list[list[Taken]], list]:
@@ -184,7 +189,11 @@ class MultiTargetTracker:
             for r, cols, beta, miss in association.per_row():
                 taken[hyp.rows[r]].append(Taken(tuple(scan[c] for c in cols), tuple(hyp.d2[r, list(cols)]), beta, miss))
             used = association.used
-            left += self.hypothesiser.unclaimed(hyp, [c for c in range(len(scan)) if c not in used])
+            free = [c for c in range(len(scan)) if c not in used]
+            claimed = getattr(association, "claimed", None)
+            if claimed is not None:
+                self._unclaimed.update((id(scan[c]), 1.0 - float(claimed[c])) for c in free)
+            left += self.hypothesiser.unclaimed(hyp, free)
             if k + 1 < len(scans):
                 self.hypothesiser.condition(states, hyp, association)
         return taken, left
