@@ -50,8 +50,7 @@ LBP_TOL = 1e-12  # loopy belief propagation stops when no message moves by more 
 LBP_MAX_ITER = 1000
 FULL_CIRCLE_TEST = 0.01  # an angle row's plots span the full circle unless their widest gap is this unlikely
 CLUTTER_SCANS = 10  # a sensor's clutter density is estimated from its last this many scans
-USED = 0.99  # a plot some track made with at least this probability starts no new track (its
-#              existence would be under 1 % of existence_birth: JIPDA.born)
+USED = 0.5  # a plot some track made with at least this probability starts no track at full existence
 
 
 # Existence -------------------------------------------------------------------------------
@@ -536,7 +535,9 @@ class JIPDA:
     ``beta``/``miss`` the weights given existence ``(cⱼ, c₀)`` that the PDA update
     takes, ``existence`` the rows' ``r⁺``, ``claimed`` the probability that some track
     made each plot (``Σᵢ βᵢⱼ``), ``used`` the plots claimed with at least :data:`USED`
-    (the others may start tracks, :meth:`born` weighing their existence by ``1 − claimed``).
+    (what a consumer that starts tracks at full existence leaves alone: the local nodes of
+    the distributed topologies; the many-target tracker weighs each birth by
+    ``1 − claimed`` instead, :meth:`born`).
 
     Every scan is the recursion's step with *its* sensor's numbers: that sensor's
     ``P_D`` (:meth:`detection`) in the miss weight ``1 − P_D P_G rᵢ`` and in ``aᵢ``, and

@@ -19,6 +19,7 @@ from fusion.motion import make_motion
 from fusion.tracking.config import AssociationConfig
 from fusion.tracking.hypotheses import PlotHypothesiser
 from fusion.tracking.jipda import JIPDA, USED, ExistenceLogic, ExistenceRule, scan_update
+from fusion.tracking.manager import CLAIMED_MAX
 from fusion.tracking.table import CONFIRMED, DELETED, TENTATIVE
 from fusion.types import Measurement
 from sensors_sim import load_scenario
@@ -340,7 +341,7 @@ def test_a_track_born_from_plots_another_track_may_have_made_exists_as_much_as_t
     36 km), within the gates of A's track, which may then have made B's plots
     (``claimedⱼ = Σᵢ βᵢⱼ`` of the associator's weights). The track started from them
     exists with ``existence_birth · ∏ⱼ (1 − claimedⱼ)``: a new target exists only if its
-    plots are its own. (Before, a plot claimed under 0.5 started a track at
+    plots are its own. (Before, a plot claimed under 0.5 (``USED``) started a track at
     ``existence_birth`` and one claimed more started none: in ``air-picture-dense``'s run
     13 a wingman so lost was not re-born for 21 s while its plots lay in its leader's
     gate.)"""
@@ -372,7 +373,7 @@ def test_a_track_born_from_plots_another_track_may_have_made_exists_as_much_as_t
     method.tracker.frame(frame(4.0, *plots_b))
     claimed = {(p.sensor, p.seq): float(w.claimed[j]) for plots, w in weights for j, p in enumerate(plots)}
     u = [1.0 - claimed[(p.sensor, p.seq)] for p in plots_b]
-    assert all(0.1 < 1.0 - x < USED for x in u), claimed  # B's plots in the gates of A's track
+    assert all(0.1 < 1.0 - x < CLAIMED_MAX for x in u), claimed  # B's plots in the gates of A's track
     (track_b,) = [tr for tr in method.tracker.tracks if np.linalg.norm(tr.filter.x[:3] - b) < 100.0]
     assert track_b.logic.status == TENTATIVE
     assert track_b.existence == pytest.approx(birth * math.prod(u), rel=1e-12)
