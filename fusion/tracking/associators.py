@@ -60,12 +60,16 @@ class Weights:
         existence: ``(rows,)`` each row's probability that its target exists after the
             scan, from an associator that updates it (JIPDA), else None; the tracker
             hands it to the rows' track logic.
+        claimed: ``(plots,)`` the probability that some row's target made each plot,
+            from an associator that weighs existence (JIPDA), else None: a new track
+            started from plot ``j`` exists with its birth existence times ``1 − claimedⱼ``.
     """
 
     beta: np.ndarray
     miss: np.ndarray
     used: frozenset[int] = frozenset()
     existence: np.ndarray | None = None
+    claimed: np.ndarray | None = None
 
     def per_row(self) -> Iterator[RowTaken]:
         """Rows with a plot of positive weight."""

@@ -50,7 +50,7 @@ LBP_TOL = 1e-12  # loopy belief propagation stops when no message moves by more 
 LBP_MAX_ITER = 1000
 FULL_CIRCLE_TEST = 0.01  # an angle row's plots span the full circle unless their widest gap is this unlikely
 CLUTTER_SCANS = 10  # a sensor's clutter density is estimated from its last this many scans
-USED = 0.5  # a plot some track made with at least this probability starts no new track
+USED = 0.5  # a plot some track made with at least this probability starts no track at full existence
 
 
 # Existence -------------------------------------------------------------------------------
@@ -533,8 +533,11 @@ class JIPDA:
     :class:`~fusion.tracking.hypotheses.Hypotheses` (``d²``, ``log_norm``, the rows'
     ``existence``; a row without existence is certain: JPDA) in, :class:`Weights` out —
     ``beta``/``miss`` the weights given existence ``(cⱼ, c₀)`` that the PDA update
-    takes, ``existence`` the rows' ``r⁺``, ``used`` the plots some track made with
-    probability at least :data:`USED` (the others may start tracks).
+    takes, ``existence`` the rows' ``r⁺``, ``claimed`` the probability that some track
+    made each plot (``Σᵢ βᵢⱼ``), ``used`` the plots claimed with at least :data:`USED`
+    (what a consumer that starts tracks at full existence leaves alone: the local nodes of
+    the distributed topologies; the many-target tracker weighs each birth by
+    ``1 − claimed`` instead, :meth:`born`).
 
     Every scan is the recursion's step with *its* sensor's numbers: that sensor's
     ``P_D`` (:meth:`detection`) in the miss weight ``1 − P_D P_G rᵢ`` and in ``aᵢ``, and
@@ -588,10 +591,13 @@ class JIPDA:
         """``P_D`` of ``sensor``: its own if named, else :attr:`p_detect`."""
         return self.p_detect_by_sensor.get(sensor, self.p_detect)
 
-    def born(self, r: float, missed: Sequence[str]) -> float:
+    def born(self, r: float, missed: Sequence[str], unclaimed: float = 1.0) -> float:
         """The existence of a track after its birth frame: ``r`` (``existence_birth``)
-        with the miss of each sensor of the frame that gave its group no plot, as the
-        recursion charges it: odds × ``∏ (1 − P_D P_G)``."""
+        times ``unclaimed``, the probability that no existing track made the plots it
+        starts from (``∏ (1 − claimedⱼ)`` of :class:`Weights`: a new target exists only
+        if its plots are its own), with the miss of each sensor of the frame that gave
+        its group no plot, as the recursion charges it: odds × ``∏ (1 − P_D P_G)``."""
+        r = r * unclaimed
         odds_factor = float(np.prod([1.0 - self.detection(s) * self.gate_prob for s in missed]))
         return r * odds_factor / (1.0 - r + r * odds_factor)
 
@@ -610,7 +616,7 @@ class JIPDA:
         Z = np.array([p.z for p in hyp.plots])
         if n == 0:  # no track: no density needed (one plot alone spans none), the scan still counts
             window.add(Z, 0.0)
-            return Weights(np.zeros((0, m)), np.zeros(0), frozenset(), np.zeros(0))
+            return Weights(np.zeros((0, m)), np.zeros(0), frozenset(), np.zeros(0), np.zeros(m))
         rho = window.update(Z, hyp.model.angles, pdg * float(r.sum()),
                             float(np.max(volumes[np.isfinite(volumes)], initial=0.0)))
         self.density[sensor] = rho
@@ -621,7 +627,8 @@ class JIPDA:
         alive = r_post > 0.0
         c = np.zeros((n, m))
         c[alive] = beta[alive, 1:] / r_post[alive, None]
-        used = frozenset(int(j) for j in np.flatnonzero(beta[:, 1:].sum(axis=0) >= USED))
+        claimed = np.minimum(beta[:, 1:].sum(axis=0), 1.0)
+        used = frozenset(int(j) for j in np.flatnonzero(claimed >= USED))
         if not self.raises_existence(hyp.plots[0]):
             r_post = np.minimum(r_post, r)
-        return Weights(c, np.where(alive, c0, 1.0), used, r_post)
+        return Weights(c, np.where(alive, c0, 1.0), used, r_post, claimed)

@@ -9,14 +9,16 @@ one) at a time:
    the hypothesiser conditions the tracks' gating states on it before the next scan
    (sequential gating);
 2. **initiate**: the initiator groups the plots no track took into new tracks (and
-   may hand a group to a tentative track instead);
+   may hand a group to a tentative track instead); with an associator that says how
+   likely some track made each plot (JIPDA's ``claimed``), every plot claimed under
+   :data:`CLAIMED_MAX`;
 3. **update** each track with what it took, or coast it; record the frame's hit or
    miss in its logic (with JIPDA the logic's existence: it survives to the frame before
    step 1, and takes each scan's ``r⁺`` from the associator);
 4. **review** the table (duplicates; a configuration's own checks);
 5. **start** the new tracks (with an associator that keeps existence, JIPDA's ``born``:
-   a new track's existence is charged the miss of each sensor of its frame that gave
-   its group no plot); **close** the frame: ids at confirmation, the deleted gone, the
+   a new track's existence is ``existence_birth · ∏ (1 − claimedⱼ)`` over its plots,
+   charged the miss of each sensor of its frame that gave its group no plot); **close** the frame: ids at confirmation, the deleted gone, the
    priority order restored (:class:`~fusion.tracking.table.TrackTable`).
 
 The parts are protocols (below). The centralised many-target methods
@@ -28,6 +30,7 @@ of it.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from functools import cached_property
 from typing import Any, Protocol, Sequence
@@ -38,6 +41,8 @@ from ..types import Measurement
 from .associators import Associator
 from .hypotheses import Hypotheses
 from .table import CONFIRMED, Track, TrackTable
+
+CLAIMED_MAX = 0.99  # a plot claimed more starts no weighed birth (its existence: under 1 % of existence_birth)
 
 
 @dataclass(frozen=True)
@@ -132,6 +137,7 @@ class MultiTargetTracker:
         self.updater = updater
         self.table = table
         self.reviewer = reviewer
+        self._unclaimed: dict[int, float] = {}  # this frame: id of a plot left -> 1 − claimed (Weights.claimed)
 
     @property
     def tracks(self) -> list[Track]:
@@ -148,6 +154,7 @@ class MultiTargetTracker:
         frame = Frame(plots)
         expired = self.table.expire(frame.t)
         tracks = list(self.table.tracks)
+        self._unclaimed = {}
         taken, left = self.associate(tracks, frame)
         continued, births = self.initiator.initiate(left, tracks, frame)
         for i, track in enumerate(tracks):
@@ -165,9 +172,11 @@ class MultiTargetTracker:
                 self.table.add(track).logic.survive(frame.t)
                 track.claim(initial_plots(group))
                 if born is not None and track.existence is not None:
-                    seen = {m.sensor for m in initial_plots(group)}
+                    plots = initial_plots(group)
+                    seen = {m.sensor for m in plots}
                     missed = [s for s in dict.fromkeys(m.sensor for m in frame.plots) if s not in seen]
-                    track.logic.existence = born(track.existence, missed)
+                    unclaimed = math.prod(self._unclaimed.get(id(m), 1.0) for m in plots)
+                    track.logic.existence = born(track.existence, missed, unclaimed)
         return self.table.close_frame()
 
     def associate(self, tracks: list[Track], frame: Frame) -> tuple[list[list[Taken]], list]:
@@ -188,8 +197,13 @@ class MultiTargetTracker:
                     tracks[hyp.rows[r]].logic.existence = float(e)
             for r, cols, beta, miss in association.per_row():
                 taken[hyp.rows[r]].append(Taken(tuple(scan[c] for c in cols), tuple(hyp.d2[r, list(cols)]), beta, miss))
-            used = association.used
-            left += self.hypothesiser.unclaimed(hyp, [c for c in range(len(scan)) if c not in used])
+            claimed = getattr(association, "claimed", None)
+            if claimed is None:
+                free = [c for c in range(len(scan)) if c not in association.used]
+            else:  # a birth weighed by 1 − claimed (JIPDA.born)
+                free = [c for c in range(len(scan)) if claimed[c] < CLAIMED_MAX]
+                self._unclaimed.update((id(scan[c]), 1.0 - float(claimed[c])) for c in free)
+            left += self.hypothesiser.unclaimed(hyp, free)
             if k + 1 < len(scans):
                 self.hypothesiser.condition(states, hyp, association)
         return taken, left

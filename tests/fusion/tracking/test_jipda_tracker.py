@@ -18,7 +18,8 @@ from fusion.methods import make_method, method_config, spec
 from fusion.motion import make_motion
 from fusion.tracking.config import AssociationConfig
 from fusion.tracking.hypotheses import PlotHypothesiser
-from fusion.tracking.jipda import JIPDA, ExistenceLogic, ExistenceRule, scan_update
+from fusion.tracking.jipda import JIPDA, USED, ExistenceLogic, ExistenceRule, scan_update
+from fusion.tracking.manager import CLAIMED_MAX
 from fusion.tracking.table import CONFIRMED, DELETED, TENTATIVE
 from fusion.types import Measurement
 from sensors_sim import load_scenario
@@ -70,7 +71,8 @@ def test_associator_equals_the_one_scan_jipda(seed):
         f.update_weighted(hyp.model, np.array([m.z for m in ms]), w.beta[i], w.miss[i])
         np.testing.assert_allclose(f.x, ref.x[i], rtol=0, atol=1e-9 * np.abs(ref.x[i]).max())
         np.testing.assert_allclose(f.P, ref.P[i], rtol=1e-9, atol=1e-9 * np.abs(ref.P[i]).max())
-    assert w.used == frozenset(int(j) for j in np.flatnonzero(ref.beta[:, 1:].sum(axis=0) >= 0.5))
+    np.testing.assert_allclose(w.claimed, ref.beta[:, 1:].sum(axis=0), rtol=0, atol=1e-12)
+    assert w.used == frozenset(int(j) for j in np.flatnonzero(ref.beta[:, 1:].sum(axis=0) >= USED))
 
 
 def _az_el_range(p, site):
@@ -331,3 +333,47 @@ def test_a_held_aircraft_outlives_two_seconds_of_misses_in_the_dense_scenario(p_
         method.tracker.frame(frame(t, True))
     (after,) = held(15.0)
     assert (after is before) == kept and (before.logic.status != DELETED) == kept
+
+
+def test_a_track_born_from_plots_another_track_may_have_made_exists_as_much_as_they_are_its_own():
+    """Aircraft A is tracked from t = 0 by a 2D radar and an angle sensor; at t = 4 s
+    aircraft B appears 300 m from it across the radar's beam (1° in azimuth: 600 m at
+    36 km), within the gates of A's track, which may then have made B's plots
+    (``claimedⱼ = Σᵢ βᵢⱼ`` of the associator's weights). The track started from them
+    exists with ``existence_birth · ∏ⱼ (1 − claimedⱼ)``: a new target exists only if its
+    plots are its own. (Before, a plot claimed under 0.5 (``USED``) started a track at
+    ``existence_birth`` and one claimed more started none: in ``air-picture-dense``'s run
+    13 a wingman so lost was not re-born for 21 s while its plots lay in its leader's
+    gate.)"""
+    a0, va = np.array([20000.0, 30000.0, 6000.0]), np.array([150.0, 0.0, 0.0])
+    radar_site, angle_site = np.zeros(3), np.array([50000.0, 0.0, 0.0])
+    across = np.array([a0[1], -a0[0], 0.0]) / math.hypot(a0[0], a0[1])
+    birth = 0.1
+    method = make_method("SS", {"association": "jipda", "p_detect": 0.9, "gate_prob": 0.999, "existence_birth": birth})
+    rng = np.random.default_rng(5)
+
+    def frame(t, *more):  # A's plots, ``more``, and 20 false plots a sensor far from the aircraft
+        clutter = [m for k in range(20) for m in (
+            Measurement(t, "angle1", "azel", np.array([rng.uniform(3.5, 6.0), rng.uniform(0.0, 1.0)]), ANGLE_STD,
+                        angle_site, 10 + k),
+            Measurement(t, "radar1", "range_az", np.array([rng.uniform(2.0, 6.0), rng.uniform(5e3, 9e4)]), RADAR_STD,
+                        radar_site, 10 + k))]
+        a = a0 + va * t
+        return sorted([_plot(t, "radar1", "range_az", a, radar_site), _plot(t, "angle1", "azel", a, angle_site),
+                       *more, *clutter], key=lambda m: m.order_key)
+
+    weights = []
+    associate = method.tracker.associator.associate
+    method.tracker.associator.associate = lambda hyp: weights.append((hyp.plots, associate(hyp))) or weights[-1][1]
+    for t in (0.0, 1.0, 2.0, 3.0):
+        method.tracker.frame(frame(t))
+    weights.clear()
+    b = a0 + va * 4.0 + 300.0 * across
+    plots_b = [_plot(4.0, "radar1", "range_az", b, radar_site, 1), _plot(4.0, "angle1", "azel", b, angle_site, 1)]
+    method.tracker.frame(frame(4.0, *plots_b))
+    claimed = {(p.sensor, p.seq): float(w.claimed[j]) for plots, w in weights for j, p in enumerate(plots)}
+    u = [1.0 - claimed[(p.sensor, p.seq)] for p in plots_b]
+    assert all(0.1 < 1.0 - x < CLAIMED_MAX for x in u), claimed  # B's plots in the gates of A's track
+    (track_b,) = [tr for tr in method.tracker.tracks if np.linalg.norm(tr.filter.x[:3] - b) < 100.0]
+    assert track_b.logic.status == TENTATIVE
+    assert track_b.existence == pytest.approx(birth * math.prod(u), rel=1e-12)
