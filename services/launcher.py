@@ -325,14 +325,19 @@ class Launch:
         if stuck and not stop.is_set():  # their last status says "stopped"; one that does not stop is killed
             log.warning("%s did not end %g s after the fuser was done: stopping", ", ".join(stuck), wait)
             children.terminate(stuck, self.drain, grace=STOP_GRACE)
-        # It may have missed the "done" of processes that ended before it came up, and a
-        # process killed and not restarted (--no-restart), or one that did not end, sends
-        # none: once it reports an empty backlog it has everything; stop it. So too if it
-        # has not ended RECORDER_DONE_WAIT after everyone else: a "done" it never heard
-        # (a process that failed; a status, published with congestion control DROP, lost
-        # to congestion, or to a lost link) does not hold the run.
+        self.await_recorder(bool(self.sup.restarts.get(RECORDER_ID) or never_back or stuck))
+
+    def await_recorder(self, missing_done: bool) -> None:
+        """Until the recorder ends on everyone's last status ("done"), or has recorded
+        nothing new for RECORDER_STALL. It may have missed the "done" of processes that
+        ended before it came up, and a process killed and not restarted (--no-restart),
+        or one that did not end, sends none (``missing_done``): once it reports an empty
+        backlog it has everything; stop it. So too if it has not ended RECORDER_DONE_WAIT
+        after everyone else: a "done" it never heard (a process that failed; a status,
+        published with congestion control DROP, lost to congestion, or to a lost link)
+        does not hold the run."""
+        children, stop = self.children, self.node.stop
         since, stalled = time.monotonic(), time.monotonic()
-        missing_done = bool(self.sup.restarts.get(RECORDER_ID) or never_back or stuck)
         progress = None
         while children.procs[RECORDER_ID].poll() is None and time.monotonic() - stalled < RECORDER_STALL \
                 and not stop.is_set():
@@ -367,11 +372,9 @@ class Launch:
         while time.monotonic() < until and not node.stop.is_set():
             self.drain(0.1)
         children.terminate([*self.plan.ids("tracker", "fuser")], self.drain)  # the fuser and its standby
-        deadline_rec = time.monotonic() + 30.0  # the recorder ends once it has everyone's last status
-        while children.procs[RECORDER_ID].poll() is None and time.monotonic() < deadline_rec \
-                and not node.stop.is_set():
-            self.drain(0.1)
-        self.drain(0.2)
+        # a process killed and not back (--no-restart) sends no "done": the recorder is not waited for it
+        never_back = [n for n, outs in sup.outages.items() if outs[-1]["t_up"] is None]
+        self.await_recorder(bool(sup.restarts.get(RECORDER_ID) or never_back))
 
 
 def progress_line(scenario, t: float | None, updates: int, sources: dict) -> None:

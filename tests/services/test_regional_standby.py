@@ -3,8 +3,9 @@
 fuser (``zfusion fuser --region R --standby R``), on the region's sensors, publishing the
 region's frames on ``regional/R`` only once it leads (services/leader.py). kill -9 of a
 regional fuser while the aircraft is in its region alone: with the standby the system
-track goes on under one id, no gap longer than two of the radars' periods; without it
-the aircraft is absent from the system picture until the killed fuser is back."""
+track goes on under one id, no gap longer than two of the radars' periods. (Without it
+the launcher restarts the fuser, warm from its region's picture:
+test_regional_restart.py.)"""
 
 from __future__ import annotations
 
@@ -27,8 +28,9 @@ from _runs import FusedWatch, child, run_cmd, run_log, stop_run
 
 TWO_REGIONS = Path(__file__).resolve().parents[1] / "data" / "two-regions.toml"
 PERIOD = 1.0  # two-regions' radars scan once a second
-KILL_AFTER = 15.0  # s of system output before the kill (the aircraft, at e = -25 km + 200 m/s t, is west of the
+KILL_AFTER = 8.0  # s of system output before the kill (the aircraft, at e = -25 km + 200 m/s t, is west of the
 # overlap, in the west region alone, until 85 s)
+AFTER = 8.0  # s of system output after it
 
 
 def _plan(standby: bool) -> RunPlan:
@@ -72,7 +74,7 @@ def test_a_standby_that_makes_no_sense_is_a_user_error(region, standby, pid, say
 def _kill_west(tmp_path: Path, deployment: str, *extra: str) -> tuple[np.ndarray, np.ndarray, set[str], dict, str]:
     """A live regional run of two-regions; after ``KILL_AFTER`` s of system output, kill -9
     of the west fuser (the aircraft over the west region alone), then SIGINT once the
-    system output has gone on 15 s past the kill. The system track estimates' arrivals
+    system output has gone on ``AFTER`` s past the kill. The system track estimates' arrivals
     (monotonic s) and times (UTC s), their track ids, the summary and the launcher's stderr."""
     watch = FusedWatch(deployment)
     proc = subprocess.Popen(run_cmd(tmp_path, str(TWO_REGIONS), deployment, "--topology", "regional", "--live",
@@ -85,7 +87,7 @@ def _kill_west(tmp_path: Path, deployment: str, *extra: str) -> tuple[np.ndarray
         watch.wait_until(first + KILL_AFTER, proc)
         at = watch.t
         west.kill()
-        watch.wait_until(at + 15.0, proc, timeout=90)  # without a standby: once west is back and holds it again
+        watch.wait_until(at + AFTER, proc, timeout=90)
         proc.send_signal(signal.SIGINT)  # ends a live run as --for would: in order, with its summary
         proc.wait(120)
     finally:
@@ -109,25 +111,7 @@ def test_a_killed_regional_fuser_with_a_standby_leaves_no_gap(tmp_path, deployme
     assert doc["exit_codes"]["west"] == -9 and doc["exit_codes"][standby_id("west")] == 0, doc["exit_codes"]
     assert f"{standby_id('west')}: the leader is gone: taking over" in err, err[-3000:]
     assert len(ids) == 1, ids
-    assert t[-1] - t[0] >= KILL_AFTER + 15.0 and np.all(np.diff(t) > 0) and np.max(np.diff(t)) <= PERIOD, \
+    assert t[-1] - t[0] >= KILL_AFTER + AFTER and np.all(np.diff(t) > 0) and np.max(np.diff(t)) <= PERIOD, \
         np.max(np.diff(t))
     print(f"longest wall-time gap {np.max(np.diff(arrivals)):.2f} s")
     assert np.max(np.diff(arrivals)) <= 2 * PERIOD, np.max(np.diff(arrivals))
-
-
-@pytest.mark.slow
-def test_without_a_standby_the_region_s_aircraft_is_absent_until_its_fuser_is_back(tmp_path, deployment):
-    """The same kill without ``--standby``, restarted by the launcher: nothing of the
-    aircraft arrives until the west fuser is back (the outage in the summary, in wall
-    seconds on a live run); then its frames rejoin (it starts from west's picture, which
-    the system fuser keeps: the same track, the same system id; test_regional_restart.py). The absence is the restart: 1.7 s on
-    an idle machine, more under load, where the live system fuser, which waits at most
-    ``--max-delay`` for a late region, may also have passed some of the estimate times
-    (3.5 s of them once, with four test processes on two cores)."""
-    arrivals, t, ids, doc, err = _kill_west(tmp_path, deployment)
-    (out,) = doc["outages"]["west"]
-    assert out["exit_code"] == -9 and out["t_up"] is not None, out
-    gap = np.max(np.diff(arrivals))
-    print(f"longest wall-time gap {gap:.2f} s, outage {out['t_up'] - out['t_down']:.2f} s, ids {ids}")
-    assert gap >= out["t_up"] - out["t_down"] - PERIOD and len(ids) == 1, (gap, out, ids)
-    assert np.all(np.diff(t) > 0) and np.argmax(np.diff(arrivals)) < len(arrivals) - 10, t  # on again after it
