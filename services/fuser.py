@@ -60,7 +60,9 @@ from .plan import standby_id
 from .scenario import load, load_site
 from .source import recovery_cache
 
-JOIN_PATIENCE_S = 5.0  # how long a standby joining a leader (or a regional fuser starting) waits for its picture (a new session finds its route by gossip: seconds under load)
+# how long a standby joining a leader (or a regional fuser starting) waits for its picture (a new
+# session finds its route by gossip: seconds under load)
+JOIN_PATIENCE_S = 5.0
 
 # --json only: the scorer (scipy.stats, the scenario's truth) loads when a summary is written
 summary = lazy("services.summary")

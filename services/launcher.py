@@ -61,8 +61,7 @@ RECORDER_STALL = 30.0  # s: at the end, the recorder is stopped once it has reco
 RECORDER_DONE_WAIT = 5.0  # s the recorder has to end by itself once everyone else has (it ends on their "done")
 # s the sources and trackers have to end by themselves once the fuser is done, beyond the source
 # timeout: a tracker cut off from its sensor (stopped past Zenoh's lease) ends a feedback timeout
-# (the source timeout) after it is back (services/tracker.py); with 10 s in all at speed 3, CI's
-# load once kept one from ending in time
+# (the source timeout) after it is back (services/tracker.py)
 END_WAIT = 10.0
 END_STALL = 10.0  # s beyond its source timeout a fuser may show no progress once every source has ended
 STOP_GRACE = 2.0  # s a process has to stop after SIGTERM before it is killed (it should take < 1 s)
@@ -320,12 +319,16 @@ class Launch:
         while any(children.procs[s].poll() is None for s in ending) and time.monotonic() < until \
                 and not stop.is_set():
             self.drain(0.1)
-        never_back = [n for n, outs in self.sup.outages.items() if outs[-1]["t_up"] is None]
+        never_back = self.never_back()
         stuck = [s for s in ending if children.procs[s].poll() is None]
         if stuck and not stop.is_set():  # their last status says "stopped"; one that does not stop is killed
             log.warning("%s did not end %g s after the fuser was done: stopping", ", ".join(stuck), wait)
             children.terminate(stuck, self.drain, grace=STOP_GRACE)
-        self.await_recorder(bool(self.sup.restarts.get(RECORDER_ID) or never_back or stuck))
+        self.await_recorder(bool(never_back or stuck))
+
+    def never_back(self) -> list[str]:
+        """The processes killed and not restarted (their last outage has no ``t_up``)."""
+        return [n for n, outs in self.sup.outages.items() if outs[-1]["t_up"] is None]
 
     def await_recorder(self, missing_done: bool) -> None:
         """Until the recorder ends on everyone's last status ("done"), or has recorded
@@ -337,6 +340,7 @@ class Launch:
         published with congestion control DROP, lost to congestion, or to a lost link)
         does not hold the run."""
         children, stop = self.children, self.node.stop
+        missing_done = missing_done or bool(self.sup.restarts.get(RECORDER_ID))  # (its "done"s before: lost)
         since, stalled = time.monotonic(), time.monotonic()
         progress = None
         while children.procs[RECORDER_ID].poll() is None and time.monotonic() - stalled < RECORDER_STALL \
@@ -373,8 +377,7 @@ class Launch:
             self.drain(0.1)
         children.terminate([*self.plan.ids("tracker", "fuser")], self.drain)  # the fuser and its standby
         # a process killed and not back (--no-restart) sends no "done": the recorder is not waited for it
-        never_back = [n for n, outs in sup.outages.items() if outs[-1]["t_up"] is None]
-        self.await_recorder(bool(sup.restarts.get(RECORDER_ID) or never_back))
+        self.await_recorder(bool(self.never_back()))
 
 
 def progress_line(scenario, t: float | None, updates: int, sources: dict) -> None:

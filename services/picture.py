@@ -16,10 +16,11 @@ one message per live track, plus one frame number per track followed.
 The system fuser of the regional topology also keeps the picture of each region's
 stream (:class:`RegionPictures`: each track the region publishes, as the last
 estimate ``regional/<region>`` carried for it, a ``track`` message from the region,
-until a frame of the region drops its id) and answers ``picture/<region>`` with it: a regional fuser serves no picture of
-its own, and the one restarted with no standby to join rebuilds its tracks from its
-region's picture (:mod:`services.leader`), where a joining standby rebuilds from its
-leader's. Memory: one message per track each region publishes (until a frame drops it).
+until a frame of the region drops its id) and answers ``picture/<region>`` with it: a
+regional fuser serves no picture of its own, and the one restarted with no standby to
+join rebuilds its tracks from its region's picture (:mod:`services.leader`), where a
+joining standby rebuilds from its leader's. Memory: one message per track each region
+publishes (until a frame drops it).
 """
 
 from __future__ import annotations

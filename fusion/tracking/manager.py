@@ -18,8 +18,9 @@ one) at a time:
 4. **review** the table (duplicates; a configuration's own checks);
 5. **start** the new tracks (with an associator that keeps existence, JIPDA's ``born``:
    a new track's existence is ``existence_birth · ∏ (1 − claimedⱼ)`` over its plots,
-   charged the miss of each sensor of its frame that gave its group no plot); **close** the frame: ids at confirmation, the deleted gone, the
-   priority order restored (:class:`~fusion.tracking.table.TrackTable`).
+   charged the miss of each sensor of its frame that gave its group no plot); **close**
+   the frame: ids at confirmation, the deleted gone, the priority order restored
+   (:class:`~fusion.tracking.table.TrackTable`).
 
 The parts are protocols (below). The centralised many-target methods
 (:class:`fusion.mtt.MultiTargetMethod`), the distributed centre
