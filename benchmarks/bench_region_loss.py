@@ -10,10 +10,14 @@ estimate within ``--near`` m held before it (truth at the estimate's time): the 
 wall-time gap between arrivals of system estimates near each in the 30 s before the kill
 (the undisturbed revisits), the gap across the kill (from the last arrival before it to
 the first after; none after: to 45 s after it) and the longest in the 45 s after it,
-against the region's radar periods; how many ended on another system id than the one
-they had at the kill; and whether the machine kept up (the system output's lag, arrival
-UTC minus estimate time; each process's CPU from the summary). ``--analyse`` reads a run
-kept in ``--keep DIR`` again.
+against the region's radar periods (the gap across the kill is
+:func:`fusion.absence.absences`' absence, on wall-time arrivals); how many ended on another
+system id than the one they had at the kill; and whether the machine kept up (the system
+output's lag, arrival UTC minus estimate time; each process's CPU from the summary). The
+run's own summary says, in the killed fuser's outage, the absences on its scored steps
+(scenario time: ``aircraft``, ``longest_absence_s``, ``absent_over_2_periods``,
+``not_back``, ``period_s``; docs/regional.md, "Losing a region"), printed at the end.
+``--analyse`` reads a run kept in ``--keep DIR`` again.
 
     python benchmarks/bench_region_loss.py --scenario region-400 --region nw --duration-s 120 [--standby]
 """
@@ -37,6 +41,7 @@ import zenoh
 
 from _common import machine_line  # puts the repository on sys.path
 
+from fusion import absence
 from schemas import KeySpace, decode
 from sensors_sim import load_scenario
 from sensors_sim.traffic import population
@@ -116,18 +121,15 @@ def absences(sc, got, killed: float, region: str, epoch: float,
             for i in ids:
                 if i in where and np.hypot(*(where[i] - xy)) <= near:
                     seen[i].append((arrival, track))
+    gone = absence.absences({i: [a for a, _ in seen[i]] for i in ids}, killed, killed + AFTER, since=killed - BEFORE)
     out = []
-    for i in ids:
+    for i, g in gone.items():  # held before the kill
         arrivals = sorted(seen[i])
-        a = np.array([a for a, _ in arrivals] + ([] if any(a > killed for a, _ in arrivals) else [killed + AFTER]))
-        if not len(a) or a[0] > killed:
-            continue  # not held before the kill
+        a = np.array([at for at, _ in arrivals])
         gaps, starts, ends = np.diff(a), a[:-1], a[1:]
-        across = (starts <= killed) & (ends > killed)
         before = [tr for at, tr in arrivals if at <= killed]
-        out.append((i, float(max(gaps[ends <= killed], default=0.0)), float(gaps[across].max()),
-                    float(max(gaps[starts > killed], default=0.0)),
-                    arrivals[-1][1] != before[-1] or arrivals[-1][0] <= killed))
+        out.append((i, float(max(gaps[ends <= killed], default=0.0)), g.s,
+                    float(max(gaps[starts > killed], default=0.0)), g.back is None or arrivals[-1][1] != before[-1]))
     return out
 
 

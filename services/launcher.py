@@ -237,6 +237,21 @@ class Launch:
         except queue.Empty:
             pass
 
+    def poll(self) -> None:
+        """The supervisor's poll (exits, restarts); each new outage to the scorer, which
+        follows the picture's aircraft across it (the outage's absences in the summary)."""
+        self.sup.poll()
+        for name, outs in self.sup.outages.items():
+            for out in outs[len(self.scorer.losses.get(name, ())):]:
+                if out["t_down"] is not None:
+                    self.scorer.lose(name, out["t_down"])
+
+    def outages(self) -> dict[str, list[dict]]:
+        """The supervisor's outages, each with the absences of the picture's aircraft
+        across it (:meth:`services.summary.RunScorer.loss`), once the run is scored."""
+        return {name: [{**out, **self.scorer.loss(name, k)} if k < len(self.scorer.losses.get(name, ())) else out
+                       for k, out in enumerate(outs)] for name, outs in self.sup.outages.items()}
+
     def start(self, live: Live | None) -> None:
         """Start the consumers, then the sources with scenario time 0 as far ahead as the
         first consumers took to come up, so that the sources are running by then (a source
@@ -259,7 +274,7 @@ class Launch:
         last_source_end: float | None = None
         while not self.node.stop.is_set():
             self.drain(0.1)
-            sup.poll()
+            self.poll()
             if show and time.monotonic() - shown >= 1.0:
                 shown = time.monotonic()
                 progress_line(self.scenario, self.clock(), self.scorer.n,
@@ -363,7 +378,7 @@ class Launch:
         sources = self.plan.ids("source")
         while not node.stop.is_set() and time.time() < deadline:
             self.drain(0.1)
-            sup.poll()
+            self.poll()
             code = children.procs[FUSER_ID].poll()
             if code is not None and code >= 0 or children.failed():
                 break  # the fuser ended on its own, or a child failed (a kill is the supervisor's to restart)
@@ -494,7 +509,7 @@ def report(args, launch: Launch, scenario, topology: str, method: str, rrd: str,
         doc["recordings"] = [str(f) for r in doc["recordings"] for f in rotated_files(r)]
         doc["recording"] = doc["recordings"][0] if doc["recordings"] else rrd  # the first file: rrd is only a stem
     doc["exit_codes"] = codes
-    doc["outages"] = launch.sup.outages
+    doc["outages"] = launch.outages()
     usage = dict(launch.usage)
     usage.pop(LAUNCHER_ID, None)  # its own status is not the whole of it: measured here, at the end
     doc["processes"] = {**{n: u.report() for n, u in sorted(usage.items())},

@@ -27,7 +27,10 @@ every run; ``cep50``: the median horizontal miss of the final fixes; ``anees``: 
 One run (``zfusion run``, ``zfusion fuser --json``) is scored by :class:`RunScorer`, in
 one place: a scenario run by the batch above; a live run, open-ended, by settling its
 estimates as they age into a :class:`Running` (the same sums, folded in), so the launcher
-holds a window of estimates and ``SERIES_MAX`` points however long it runs.
+holds a window of estimates and ``SERIES_MAX`` points however long it runs. A process
+lost during the run (killed: ``zfusion run``'s ``outages``) is followed through the same
+steps (:class:`fusion.absence.LossWatch`): its outage in the summary says how long the
+aircraft the picture held at the loss were absent from it (:meth:`RunScorer.loss`).
 """
 
 from __future__ import annotations
@@ -39,12 +42,13 @@ from typing import Sequence
 
 import numpy as np
 
+from fusion.absence import LossWatch, loss_counts
 from fusion.binning import BinnedSeries
 from fusion.metrics import chi2_bounds, median_point_distance
-from fusion.mtt_metrics import TrackScorer
+from fusion.mtt_metrics import Step, TrackScorer
 from fusion.types import Estimate
 
-from .scoring import GOSPA_CUTOFF, TruthFn, many_targets, score_run, score_tracks_of, step_maker, truth_function
+from .scoring import GOSPA_CUTOFF, TruthFn, many_targets, score_run, step_maker, track_steps, truth_function
 
 
 def _rms(values: Sequence[float | None]) -> float | None:
@@ -367,6 +371,41 @@ class RunScorer:
         self.tracks = TrackScorer(GOSPA_CUTOFF, forget_after=FORGET_STEPS, series_max=SERIES_MAX)
         self.settled_before = -math.inf  # live: what is older than this has settled
         self.late = 0  # live: estimates that came after their time had settled (scored as they come)
+        self.losses: dict[str, list[LossWatch]] = {}  # each lost process's losses, in order
+
+    def lose(self, process: str, at: float) -> None:
+        """``process`` was lost at scenario time ``at``: follow the aircraft of its region
+        (its polygon and margin; the whole picture if it is no region's fuser) held in the
+        :func:`radar_period` before it, from the steps not scored yet (a live run's
+        settle well after a kill is seen)."""
+        region = self.scenario.regions.get(process)
+        watch = LossWatch(at, None if region is None else region.holds, at - radar_period(self.scenario, process))
+        self.losses.setdefault(process, []).append(watch)
+
+    def loss(self, process: str, k: int = 0) -> dict:
+        """The ``k``-th loss of ``process`` (:func:`fusion.absence.loss_counts`), against
+        :func:`radar_period`; once :meth:`method_summary` has scored the run."""
+        return loss_counts(self.losses[process][k].absences(), radar_period(self.scenario, process))
+
+    def _fold(self, step: Step) -> None:
+        """Score one many-target step, and show it to the losses."""
+        held = self.tracks.add(step)
+        for watch in self._watches():
+            watch.step(step.t, step.truths, held)
+
+    def _fold_one(self, e: Estimate) -> dict:
+        """One target's estimate (scenario time) scored; shown to the losses as a step of
+        the target, held if within the many-target cut-off of its truth."""
+        record = score_run([e], self.truth, 0, self.node)[0]
+        if self.losses:
+            truth = {e.track: self.truth(0, e.track, e.t)[:3]}
+            held = [e.track] if math.sqrt(record["pos2"]) < GOSPA_CUTOFF else []
+            for watch in self._watches():
+                watch.step(e.t, truth, held)
+        return record
+
+    def _watches(self) -> list[LossWatch]:
+        return [w for ws in self.losses.values() for w in ws]
 
     def add(self, e: Estimate) -> None:
         self.n += 1
@@ -394,9 +433,9 @@ class RunScorer:
                 continue
             if self.many:
                 for step in self.steps.add(e):
-                    self.tracks.add(step)
+                    self._fold(step)
             else:
-                self.running.add(score_run([e], self.truth, 0, self.node)[0])
+                self.running.add(self._fold_one(e))
 
     def played(self) -> float:
         """The scenario time of the newest estimate (0 before any)."""
@@ -407,15 +446,33 @@ class RunScorer:
         score many targets on (live: cut to the time played), if not the run's."""
         scenario = scenario or self.scenario
         if self.epoch is None:
-            return (tracks_summary([score_tracks_of(scenario, self.kept)]) if self.many
-                    else method_summary([self.kept], self.truth, self.node))
+            if not self.many:
+                for e in sorted((e for e in self.kept if e.node == self.node), key=lambda e: e.t):
+                    self._fold_one(e)
+                return method_summary([self.kept], self.truth, self.node)
+            self.tracks = TrackScorer(GOSPA_CUTOFF)  # score_tracks_of's, with the losses shown each step
+            self.losses = {p: [LossWatch(w.at, w.area, w.since) for w in ws] for p, ws in self.losses.items()}
+            for step in track_steps(scenario, self.kept, node=self.node):
+                self._fold(step)
+            return tracks_summary([self.tracks.score()])
         self.settle()
         if self.many:
             for step in self.steps.close(scenario.duration):
-                self.tracks.add(step)
+                self._fold(step)
         scored = tracks_summary([self.tracks.score()]) if self.many else self.running.summary()
         return on_time_base(scored, self.epoch)
 
+
+
+def radar_period(scenario, process: str) -> float:
+    """The period against which a loss's absences are judged (``period_s``): the slowest
+    radar's of the lost process's region (a regional fuser's; any other process: of the
+    scenario), the longest an aircraft the region's radars cover waits between two looks;
+    without radars, the slowest sensor's."""
+    region = scenario.regions.get(process)
+    sensors = [scenario.sensors[s] for s in (region.sensors if region is not None else scenario.sensors)]
+    radars = [s for s in sensors if s.kind.startswith("radar")] or sensors
+    return float(max(s.period for s in radars))
 
 
 def run_summary(scenario, topology: str, method: str, fusion_rule: str | None, scored: dict,

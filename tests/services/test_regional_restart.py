@@ -140,7 +140,11 @@ def test_a_restarted_regional_fuser_without_a_standby_starts_from_its_region_s_p
     member of its region, asks that picture and says it rebuilt ``west.T1``; its first
     frame on ``regional/west`` carries the aircraft under that id, later than the last
     frame before the kill (what came up to the picture's scan is not fused again), and
-    the system track keeps its one id. Without the warm start (the regional fuser's ask
+    the system track keeps its one id; the summary's outage of west: the one aircraft
+    west held, back in the system picture (absent 0.5 s of scenario time, one step, with
+    west back 2.1 s after the kill; 5.0 s, five of the 1 s radars' periods, with two other
+    live runs beside it and west back after 4.6 s: the system fuser had gone on without
+    west before the restarted fuser's frames came). Without the warm start (the regional fuser's ask
     removed in services/fuser.py: ``asks = leader.joins and stage is None``) the
     restarted west's first frame is the caches' replay, 12.5 s of output, with no track
     (its track tentative again), and the test fails."""
@@ -177,6 +181,9 @@ def test_a_restarted_regional_fuser_without_a_standby_starts_from_its_region_s_p
     doc = json.loads((tmp_path / "out.json").read_text())
     (out,) = doc["outages"]["west"]
     assert out["exit_code"] == -9 and out["t_up"] is not None, out
+    print(f"west's outage in the summary: {out}")
+    assert out["aircraft"] == 1 and out["not_back"] == 0 and out["period_s"] == 1.0, out
+    assert out["absent_over_2_periods"] == int(out["longest_absence_s"] > 2.0), out
     assert "west: rebuilt west.T1 from west's picture" in err, err[-3000:]
     shown = [(a, m) for a, m in frames if m.kind == "regional_frame"]
     before = [m for a, m in shown if a < killed_at]

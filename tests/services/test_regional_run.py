@@ -90,7 +90,8 @@ def test_a_killed_regional_fuser_leaves_no_gap_in_the_system_picture(tmp_path, d
     """kill -9 of the west region's fuser while the aircraft crosses the overlap (t =
     75 s, 3 km east of the boundary, in both regions' margins): the launcher restarts
     it, the east region holds the aircraft meanwhile, and the system track (one id)
-    never misses more than two of the radars' 1 s periods; the outage is in the summary.
+    never misses more than two of the radars' 1 s periods; the outage is in the summary,
+    with that absence (``longest_absence_s``) of the one aircraft west held.
     The run ends 100 s after the kill, 20 s of wall time for the restart (ci80, busy: at
     35 s after the kill, 7 s of wall time, the new west fuser had not come up when the
     run ended). two-regions' aircraft starts 13 km further east than the file's (12 km
@@ -107,4 +108,6 @@ def test_a_killed_regional_fuser_leaves_no_gap_in_the_system_picture(tmp_path, d
     assert out["exit_code"] == -9 and out["t_up"] is not None and doc["exit_codes"]["west"] == -9
     t = np.array(doc["methods"]["SS"]["series"]["t"])
     assert t[-1] == 175.0 and np.max(np.diff(t[t > 10.0])) <= 2.0, np.max(np.diff(t))
+    assert out["aircraft"] == 1 and out["longest_absence_s"] <= 2 * out["period_s"] == 2.0, out  # the outage's
+    assert out["absent_over_2_periods"] == out["not_back"] == 0, out
     assert "west killed (signal 9): restarting it" in err

@@ -105,13 +105,18 @@ def test_a_killed_regional_fuser_with_a_standby_leaves_no_gap(tmp_path, deployme
     the region): west-standby takes over, and the system track goes on under its one id,
     its estimates 0.5 s apart as undisturbed (the radars w and s scan half a period
     apart), none arriving more than two radar periods after the one before (measured:
-    0.5 s). Without the standby (the plan's loop removed) nothing more comes after the
-    kill and the test fails."""
+    0.5 s). The summary says so from outside: west's outage with the one aircraft west
+    held, absent from the system picture across the loss no longer than two periods,
+    none over them, none not back. Without the standby (the plan's loop removed) nothing
+    more comes after the kill and the test fails."""
     arrivals, t, ids, doc, err = _kill_west(tmp_path, deployment, "--standby", "--no-restart")
     assert doc["exit_codes"]["west"] == -9 and doc["exit_codes"][standby_id("west")] == 0, doc["exit_codes"]
+    (out,) = doc["outages"]["west"]
+    assert out["aircraft"] == 1 and out["period_s"] == PERIOD, out
+    assert out["longest_absence_s"] <= 2 * PERIOD and out["absent_over_2_periods"] == out["not_back"] == 0, out
     assert f"{standby_id('west')}: the leader is gone: taking over" in err, err[-3000:]
     assert len(ids) == 1, ids
     assert t[-1] - t[0] >= KILL_AFTER + AFTER and np.all(np.diff(t) > 0) and np.max(np.diff(t)) <= PERIOD, \
         np.max(np.diff(t))
-    print(f"longest wall-time gap {np.max(np.diff(arrivals)):.2f} s")
+    print(f"longest wall-time gap {np.max(np.diff(arrivals)):.2f} s; west's outage {out}")
     assert np.max(np.diff(arrivals)) <= 2 * PERIOD, np.max(np.diff(arrivals))

@@ -182,3 +182,27 @@ def test_live_many_target_scorer_memory_is_bounded(monkeypatch):
     assert len(scorer.tracks.binned) <= 500 and scorer.tracks.closed.n_tracks > 200
     assert doc["steps"] == 2_000 and doc["series"]["bin"] == 4 and len(doc["series"]["t"]) == 500
     assert doc["held"] == 1.0 and doc["false_tracks"] == 200 and doc["tracks"] == 200 + len(flown)
+
+
+def _lose(sc, estimates, epoch: float | None, at: float) -> dict:
+    scorer = RunScorer(sc) if epoch is None else RunScorer(sc, epoch, 5.0)
+    scorer.lose("fuser", at)
+    for e in estimates:
+        scorer.add(e if epoch is None else dataclasses.replace(e, t=e.t + epoch))
+    scorer.method_summary(dataclasses.replace(sc, duration=scorer.played()))
+    return scorer.loss("fuser")
+
+
+def test_a_loss_is_followed_through_the_run_s_steps_live_or_not(air_live):
+    """A fuser lost at 100 s and its output gone until 130 s: each of the 13 aircraft the
+    picture held at the loss (its step at 100 s) is absent until the first step after
+    the gap, 131 s (or until it leaves: not back), over two of the 1 s radars' periods;
+    live (settling) and not, the same counts. Undisturbed, one step: 1 s."""
+    sc, estimates = air_live
+    gone = [e for e in estimates if not 100.0 < e.t <= 130.0]
+    got = _lose(sc, gone, None, 100.0)
+    assert got == {"aircraft": 13, "longest_absence_s": 31.0, "absent_over_2_periods": 13, "not_back": 2,
+                   "period_s": 1.0}
+    assert _lose(sc, gone, EPOCH, 100.0) == got
+    assert _lose(sc, estimates, None, 100.0) == {**got, "longest_absence_s": 1.0, "absent_over_2_periods": 0,
+                                                 "not_back": 0}
