@@ -48,7 +48,8 @@ from fusion.metrics import chi2_bounds, median_point_distance
 from fusion.mtt_metrics import Step, TrackScorer
 from fusion.types import Estimate
 
-from .scoring import GOSPA_CUTOFF, TruthFn, many_targets, score_run, step_maker, track_steps, truth_function
+from .scoring import (GOSPA_CUTOFF, TruthFn, many_targets, score_run, score_tracks_of, step_maker, track_steps,
+                      truth_function)
 
 
 def _rms(values: Sequence[float | None]) -> float | None:
@@ -446,6 +447,9 @@ class RunScorer:
         score many targets on (live: cut to the time played), if not the run's."""
         scenario = scenario or self.scenario
         if self.epoch is None:
+            if not self.losses:
+                return (tracks_summary([score_tracks_of(scenario, self.kept)]) if self.many
+                        else method_summary([self.kept], self.truth, self.node))
             if not self.many:
                 for e in sorted((e for e in self.kept if e.node == self.node), key=lambda e: e.t):
                     self._fold_one(e)
