@@ -35,6 +35,8 @@ from typing import Iterable
 
 import numpy as np
 
+from . import linalg
+
 #: default ``max_gap_s`` (s): a track not updated for longer is started afresh
 MAX_GAP_S = 600.0
 #: the most degrees of freedom an estimate's NIS sums (the wire's limit on ``nis_dof``)
@@ -51,7 +53,7 @@ def positive_definite(P: np.ndarray) -> bool:
         return False
     s = 1.0 / np.sqrt(d)
     try:
-        np.linalg.cholesky(P * s[:, None] * s[None, :])
+        linalg.cholesky(P * s[:, None] * s[None, :])
     except np.linalg.LinAlgError:
         return False
     return True

@@ -122,16 +122,24 @@ def update(x: np.ndarray, P: np.ndarray, nu: np.ndarray, H: np.ndarray, R: np.nd
     :func:`inverse_cholesky_factor`), and ``NIS = |L⁻¹ ν|²``, never negative. Then the
     Joseph form, symmetrised.
     """
-    nu = np.atleast_1d(np.asarray(nu, dtype=float))
-    H = np.atleast_2d(H)
-    R = np.atleast_2d(R)
+    nu = np.asarray(nu, dtype=float)
+    if nu.ndim != 1:
+        nu = np.atleast_1d(nu)
+    if not (isinstance(H, np.ndarray) and H.ndim == 2):
+        H = np.atleast_2d(H)
+    if not (isinstance(R, np.ndarray) and R.ndim == 2):
+        R = np.atleast_2d(R)
     PHt = P @ H.T
-    S = symmetrise(H @ PHt + R)
+    S = H @ PHt
+    S += R
+    S = symmetrise(S)
     L_inv = inverse_cholesky_factor(S)
     K = PHt @ (L_inv.T @ L_inv)
     x_new = x + K @ nu
     IKH = _identity(P.shape[0]) - K @ H
-    P_new = symmetrise(IKH @ P @ IKH.T + K @ R @ K.T)
+    P_new = IKH @ P @ IKH.T
+    P_new += K @ R @ K.T
+    P_new = symmetrise(P_new)
     w = L_inv @ nu
     return UpdateResult(x_new, P_new, nu, S, float(w @ w), K)
 

@@ -863,22 +863,30 @@ class NetworkMethod:
         """Deliver downlinks and let the nodes send what they can, until quiet; True if
         anything moved."""
         moved = False
+        centre, nodes, out = self.centre, self.nodes, self._out
         while True:
             delivered = sent = False
+            horizon = centre.horizon  # (changes only when the centre processes an uplink)
             # in the order of their uplinks' keys (t, node, seq), as the fuser merges them:
             # not the order the nodes were created in, which a node joining later changes
-            for node in [self.nodes[name] for name in sorted(self.nodes)]:
+            for node in [nodes[name] for name in sorted(nodes)]:
                 # a scan's downlinks before the horizon that passes it, as the fuser sends them
-                downs = self.centre.take_downlinks()
-                for d in downs:
-                    self.nodes[d.node].receive(d)
-                delivered |= bool(downs)
-                node.set_horizon(self.centre.horizon)
-                for u in node.step():
-                    sent = True
+                downs = centre.take_downlinks()
+                if downs:
+                    for d in downs:
+                        nodes[d.node].receive(d)
+                    delivered = True
+                node.set_horizon(horizon)
+                if not node.pending:  # (what step() would find)
+                    continue
+                ups = node.step()
+                for u in ups:
                     if isinstance(u, (LocalReport, PredictionReport)):
-                        self._out.append(u.estimate)
-                    self._out += self.centre.process(u)
+                        out.append(u.estimate)
+                    out += centre.process(u)
+                if ups:
+                    sent = True
+                    horizon = centre.horizon
             if not delivered and not sent:
                 return moved
             moved = True
@@ -889,7 +897,10 @@ class NetworkMethod:
         for node in self.nodes.values():
             node.set_watermark(t)
         while True:
-            self._out += self.centre.advance(min([t, *(n.upstream_watermark(t) for n in self.nodes.values())]))
+            w = t
+            for n in self.nodes.values():
+                w = min(w, n.upstream_watermark(t))
+            self._out += self.centre.advance(w)
             if not self._pump():
                 out, self._out = self._out, []
                 return out

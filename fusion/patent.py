@@ -43,7 +43,7 @@ from .guards import MAX_GAP_S, epoch_nis, gap_too_long, positive_definite
 from .imm import IMM_MODELS, model_set
 from .links import Gaussian, LocalReport, ModelStates, ModelTerms, PredictionReport
 from .measurement.kinds import KINDS, RAY, SPHERE, kinds_of, model_of
-from .measurement.models import MeasurementModel, SphericalModel, stack
+from .measurement.models import MeasurementModel, spherical, stack
 from .track_fusion import CI_CRITERIA, FUSION_RULES
 from .types import Estimate, Measurement
 
@@ -291,7 +291,8 @@ def pieces_lcdd(scan: Sequence[Measurement], n_x: int) -> list[Piece]:
     pieces = []
     if angle is not None:
         (az, s_az), (el, s_el), (rg, s_rg) = _component(angle, "az"), _component(angle, "el"), _component(radar, "range")
-        model = SphericalModel(("az", "el", "range"), [angle.site, angle.site, radar.site], [s_az, s_el, s_rg], n_x)
+        a, r = (tuple(np.asarray(m.site, dtype=float).tolist()) for m in (angle, radar))
+        model = spherical(("az", "el", "range"), (a, a, r), (s_az, s_el, s_rg), n_x)
         pieces.append((model, np.array([az, el, rg])))
     return pieces + [_model(m, n_x) for m in rest]
 
@@ -316,7 +317,8 @@ def pieces_hndd(scan: Sequence[Measurement], n_x: int) -> list[Piece]:
         w_r = s_i**2 / (s_i**2 + s_r**2)
         az_f = wrap_2pi(az_i + w_r * wrap_pi(az_r - az_i))
         s_f = s_i * s_r / np.hypot(s_i, s_r)
-        model = SphericalModel(("az", "el", "range"), angle.site, [s_f, s_el, s_rg], n_x)
+        model = spherical(("az", "el", "range"), tuple(np.asarray(angle.site, dtype=float).tolist()),
+                          (float(s_f), s_el, s_rg), n_x)
         pieces.append((model, np.array([az_f, el, rg])))
     return pieces + [_model(m, n_x) for m in rest]
 

@@ -31,6 +31,7 @@ import numpy as np
 from scipy.linalg import eigh
 from scipy.optimize import brentq, minimize
 
+from . import linalg
 from .imm import ModelSet, mixed_predictions
 from .kalman import gaussian_loglikelihood, gaussian_mixture, symmetrise
 from .links import ModelStates, Report
@@ -51,10 +52,10 @@ def _inv_spd_many(Ps: Sequence[np.ndarray], what: str = "covariance") -> list[np
     s = 1.0 / np.sqrt(d)
     ss = s[:, :, None] * s[:, None, :]
     try:
-        L = np.linalg.cholesky(A * ss)
+        L = linalg.cholesky(A * ss)
     except np.linalg.LinAlgError:
         raise ValueError(f"{what} is not positive definite") from None
-    Linv = np.linalg.inv(L)  # triangular, condition number √cond of the equilibrated matrix
+    Linv = linalg.inv(L)  # triangular, condition number √cond of the equilibrated matrix
     return list(np.swapaxes(Linv, -1, -2) @ Linv * ss)
 
 

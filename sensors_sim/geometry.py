@@ -43,11 +43,18 @@ VALUES: dict[str, Callable[[np.ndarray, np.ndarray], float]] = {
 }
 
 
+_SPHERICAL = frozenset(("az", "el", "range"))
+
+
 def observe(kind: str, position: np.ndarray, site: np.ndarray) -> np.ndarray:
     """Noise-free measurement of kind ``kind`` of a target at ``position`` seen from ``site``."""
     p = np.asarray(position, dtype=float)
     d = p - np.asarray(site, dtype=float)
-    return np.array([VALUES[c](d, p) for c in KINDS[kind].names])
+    names = KINDS[kind].names
+    if set(names) <= _SPHERICAL:  # the geometry once, not once per component
+        aer = az_el_range(d)
+        return np.array([aer[c] for c in names])
+    return np.array([VALUES[c](d, p) for c in names])
 
 
 def in_coverage(sensor: SensorSpec, d: np.ndarray) -> bool:

@@ -32,6 +32,7 @@ from typing import Callable, Iterator, Sequence
 
 import numpy as np
 
+from fusion import linalg
 from fusion.metrics import chi2_bounds, gospa
 from fusion.mtt_metrics import Step, score_tracks
 from fusion.patent import TrackerConfig
@@ -73,6 +74,8 @@ def chi2_interval(dof: int) -> tuple[float, float]:
     return chi2_bounds(dof, 1)
 
 
+TRUTH_STATES_KEPT = 100_000  # true states a truth function keeps for its callers (0.8 kB each)
+
 TruthFn = Callable[[int, str, float], np.ndarray]  # (run, track, t) -> true state
 
 
@@ -81,16 +84,27 @@ def truth_function(scenario) -> TruthFn:
     see truth; trackers and fusers never do)."""
 
     cache: dict[tuple[int, str], object] = {}
+    # Every method of an evaluation is scored at the same times of a run: each true state
+    # is computed once (read-only), for the latest run asked (a bounded memory).
+    states: dict[tuple[int, str, float], np.ndarray] = {}
     targets = list(scenario.targets)
 
     def truth(run: int, track: str, t: float) -> np.ndarray:
         target = track if track in scenario.targets else (targets[0] if len(targets) == 1 else None)
         if target is None:
             raise KeyError(f"track {track!r} matches no target of {scenario.name}")
+        key = (run, target, t)
+        x = states.get(key)
+        if x is not None:
+            return x
         traj = cache.get((run, target))
         if traj is None:
             traj = cache[(run, target)] = truth_trajectory(scenario, target, run=run)
-        return np.asarray(traj.state(t), dtype=float)
+        if len(states) >= TRUTH_STATES_KEPT or (states and next(iter(states))[0] != run):
+            states.clear()
+        x = states[key] = np.asarray(traj.state(t), dtype=float)
+        x.setflags(write=False)
+        return x
 
     return truth
 
@@ -112,7 +126,7 @@ def _errors(e: Estimate, xt: np.ndarray) -> dict:
     if n >= 9:
         out["acc2"] = float(err[6:9] @ err[6:9])
     try:
-        out["nees"] = float(err @ np.linalg.solve(e.P, err))
+        out["nees"] = float(err @ linalg.solve(e.P, err))
     except np.linalg.LinAlgError:
         out["nees"] = math.nan
     out["nis"] = None if e.nis is None else float(e.nis)

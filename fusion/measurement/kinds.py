@@ -157,7 +157,7 @@ def model_of(m: Measurement, n_x: int = 9) -> MeasurementModel:
         raise ValueError(f"measurement kind {m.kind!r} from sensor {m.sensor!r} is not a 3D sensor kind "
                          f"(expected one of {sorted(kinds_of('3d'))})")
     z = np.asarray(m.z, dtype=float)
-    if z.shape != (len(k.components),) or not np.all(np.isfinite(z)):
+    if z.shape != (len(k.components),) or not np.isfinite(z).all():
         raise ValueError(f"measurement z from sensor {m.sensor!r} must be {k.names}, got {m.z!r}")
     try:
         return _build(k, m.site, m.std, m.corr, n_x)

@@ -252,7 +252,8 @@ def _wrap_pi(a: float) -> float:
 @lru_cache(maxsize=1024)
 def spherical(components: tuple, site: tuple, std: tuple, n_x: int) -> SphericalModel:
     """The (cached, immutable) :class:`SphericalModel` of one sensor: ``components`` seen
-    from one ``site``, with ``std``; arguments are tuples of Python floats."""
+    from one ``site`` (or a site per row, a tuple of them), with ``std``; arguments are
+    tuples of Python floats."""
     return SphericalModel(components, site, std, n_x)
 
 
