@@ -14,8 +14,13 @@ import numpy as np
 TWO_PI = 2.0 * np.pi
 
 
+# One angle (a float, np.float64 included) is wrapped with Python's float ``%``: the same
+# fmod-based remainder as np.mod (bit for bit), without the cost of a 0-d array.
 def wrap_pi(a):
     """Wrap an angle (or array of angles) to (-π, π]."""
+    if isinstance(a, float):
+        w = (a + np.pi) % TWO_PI - np.pi
+        return np.pi if w == -np.pi else float(w)
     w = np.mod(np.asarray(a, dtype=float) + np.pi, TWO_PI) - np.pi
     # np.mod maps π to -π; (-π, π] keeps +π.
     w = np.where(w == -np.pi, np.pi, w)
@@ -24,6 +29,9 @@ def wrap_pi(a):
 
 def wrap_2pi(a):
     """Wrap an angle (or array of angles) to [0, 2π)."""
+    if isinstance(a, float):
+        w = a % TWO_PI
+        return 0.0 if w >= TWO_PI else float(w)
     w = np.mod(np.asarray(a, dtype=float), TWO_PI)
     w = np.where(w >= TWO_PI, 0.0, w)  # np.mod can round up to 2π for tiny negatives
     return float(w) if np.ndim(w) == 0 else w
