@@ -17,6 +17,8 @@ try:  # numpy's own kernels behind numpy.linalg (numpy >= 1.26 and 2.x)
     from numpy.linalg import _umath_linalg as _kernels
 except ImportError:  # pragma: no cover - a numpy without them
     _kernels = None
+if not all(hasattr(_kernels, k) for k in ("cholesky_lo", "inv", "solve1")):  # a private module: names may change
+    _kernels = None  # pragma: no cover
 
 LinAlgError = np.linalg.LinAlgError
 
