@@ -380,6 +380,9 @@ class Feed:
     feeder_nice: int = 10
     sample_period: float = 1.0
     drain_s: float = 120.0  # how long the fuser may take to finish after the last publish
+    # the fuser scores its run against truth (--json): a scenario run's scorer keeps every estimate until the
+    # end (services.summary.RunScorer), which an operator's fuser, with no truth, does not hold
+    score: bool = True
 
 
 class FeedObserver:
@@ -432,8 +435,9 @@ def run_feed(feed: Feed, log_dir: Path | None = None) -> dict:
             node.subscribe(keys.fused("fuser"), obs.on_fused)
             node.subscribe(keys.all("status"), obs.on_status)
             node.announce()
+            scored = ["--json", str(work / "fuser.json")] if feed.score else []
             procs.start("fuser", ["-m", "services.cli", "fuser", "--scenario", feed.scenario, "--duration-s",
-                                  f"{feed.duration:g}", "--method", feed.method, "--json", str(work / "fuser.json"),
+                                  f"{feed.duration:g}", "--method", feed.method, *scored,
                                   "--source-timeout", str(source_timeout(sc, "1")),  # as `zfusion run --speed 1`
                                   *common], log_dir / "fuser.log")
             node.wait_for(["fuser"], 120.0)

@@ -2,7 +2,7 @@
 process publishing to the real fuser process (``zfusion fuser``) on loopback.
 
     python benchmarks/bench_fuser.py [--sensors 4] [--seconds 4] [--repeats 3] [--json out.json]
-    python benchmarks/bench_fuser.py --scenario region-4000 --duration-s 600 [--json out.json]
+    python benchmarks/bench_fuser.py --scenario region-4000 --duration-s 600 [--no-score] [--json out.json]
 
 1. Sustained throughput: the offered rate is doubled from ``--start-rate`` until the
    fuser falls behind, then bisected. A level is *kept up* when every measurement came
@@ -87,7 +87,7 @@ def median_of(rs: list[dict], key: str) -> float:
 
 def fed(args) -> None:
     """``--scenario``: the real fuser fed a scenario in real time (module docstring)."""
-    feed = _rig.Feed(scenario=args.scenario, duration=args.duration_s, method=args.method)
+    feed = _rig.Feed(scenario=args.scenario, duration=args.duration_s, method=args.method, score=not args.no_score)
     print(f"# {args.scenario} fed to `zfusion fuser --method {args.method}` in real time for "
           f"{args.duration_s:g} s — {C.machine_line()}\n", flush=True)
     r = _rig.run_feed(feed)
@@ -131,6 +131,8 @@ def main() -> None:
     ap.add_argument("--scenario", help="feed this scenario's plots in real time instead (module docstring)")
     ap.add_argument("--duration-s", type=float, default=600.0, help="with --scenario: seconds fed")
     ap.add_argument("--method", default="SS", help="with --scenario: the fuser's method")
+    ap.add_argument("--no-score", action="store_true",
+                    help="with --scenario: the fuser without --json (its scorer keeps every estimate of a scenario run)")
     ap.add_argument("--json")
     args = ap.parse_args()
     if args.scenario:
