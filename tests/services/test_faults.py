@@ -33,7 +33,7 @@ from services.plan import source_timeout
 from services.scoring import GOSPA_CUTOFF, score_tracks_of, truth_function
 from services.summary import method_summary, tracks_summary
 
-pytestmark = pytest.mark.slow
+pytestmark = [pytest.mark.slow, pytest.mark.spread]
 
 
 def _outage(doc: dict, name: str, t_kill: float) -> dict:

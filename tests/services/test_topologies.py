@@ -23,7 +23,7 @@ from sensors_sim import load_scenario
 
 from _runs import FusedWatch, child, in_process, run_cmd, same_series
 
-pytestmark = pytest.mark.slow
+pytestmark = [pytest.mark.slow, pytest.mark.spread]
 
 
 def _run(tmp_path: Path, scenario: str, deployment: str, *extra: str, timeout: float = 120) -> dict:
