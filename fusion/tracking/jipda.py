@@ -548,16 +548,16 @@ class JIPDA:
     ``1 − δ`` in turn (a lone track: ``δ = P_D P_G − P_D Σⱼ Nⱼ/ρ`` of that scan).
 
     *Rays.* Once a scan has fixed range (:attr:`ranged`: a radar's, or a position
-    report's), a scan that fixes none (an angle sensor's rays) moves a track's existence
-    only by an empty gate: ``r⁺ ← r`` where the track's gate holds a plot, the miss's
-    ``r⁺ = a`` where it holds none; its weights update the track as they are. A ray
-    plot in a track's gate is as likely from any target on the ray as from one at the
-    track's range, so its evidence ``P_D Nⱼ/ρ`` (10²–10⁴ for a track tight in angle) is
-    no evidence that the track's target exists, and a track at a false range on a real
-    aircraft's ray would live on that aircraft's plots; nor is it evidence against, when
-    the joint events give it to another track on the ray (two aircraft in formation).
-    No plot on the ray where the track is, though, is a miss like any other. A network
-    of angle sensors alone has nothing else: there every scan counts in full.
+    report's), a scan that fixes none (an angle sensor's rays) moves the existence of a
+    track whose gated plots all lie in another track's gate too not at all: ``r⁺ ← r``.
+    Such a plot is as likely from the other track's target on the ray as from one at
+    this track's range, so its evidence ``P_D Nⱼ/ρ`` (10²–10⁴ for a track tight in
+    angle) is no evidence that this track's target exists — a track at a false range on
+    a real aircraft's ray would live on that aircraft's plots — nor, when the joint
+    events give it to the other track, evidence against (two aircraft in formation).
+    A track with a plot in its gate that no other track gates, or with an empty gate,
+    takes the recursion's ``r⁺`` as it is; the weights update every track as they are.
+    A network of angle sensors alone has nothing else: there every scan counts in full.
 
     Args:
         p_detect: the detection probability ``P_D`` of every sensor not in ``p_detect_by_sensor``.
@@ -631,6 +631,8 @@ class JIPDA:
         c[alive] = beta[alive, 1:] / r_post[alive, None]
         claimed = np.minimum(beta[:, 1:].sum(axis=0), 1.0)
         used = frozenset(int(j) for j in np.flatnonzero(claimed >= USED))
-        if not self.raises_existence(hyp.plots[0]):  # a ray scan: only an empty gate counts (Rays)
-            r_post = np.where(hyp.gated.any(axis=1), r, r_post)
+        if not self.raises_existence(hyp.plots[0]):  # a ray scan: plots another track gates too count not (Rays)
+            g = hyp.gated
+            own = (g & (g.sum(axis=0) == 1)).any(axis=1)
+            r_post = np.where(g.any(axis=1) & ~own, r, r_post)
         return Weights(c, np.where(alive, c0, 1.0), used, r_post, claimed)

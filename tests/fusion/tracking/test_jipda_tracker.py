@@ -271,9 +271,9 @@ def test_rays_raise_existence_until_a_scan_fixes_range():
     """An angle sensor's scan (the tracks of ``_scene`` against their plots' azimuth and
     elevation, and a fourth track that gates none of them) moves existence as
     ``scan_update`` does while no scan has fixed range (a network of angle sensors has
-    nothing else); once a 2D radar's scan has, the same scan moves existence only where a
-    track's gate is empty (the fourth track's miss), not where it holds a plot (the three
-    others'), with the same weights."""
+    nothing else); once a 2D radar's scan has, the same scan moves existence where a
+    track's gate is empty (the fourth track's miss), not where every plot it holds lies
+    in another track's gate too (the three others, 300 m apart), with the same weights."""
     states, r, ms = _scene(0)
     states = [*states, (np.array([-20000.0, 5000.0, 3000.0, 0.0, 0.0, 0.0]), np.diag([200.0**2] * 3 + [30.0**2] * 3))]
     r = np.append(r, 0.8)
@@ -287,6 +287,8 @@ def test_rays_raise_existence_until_a_scan_fixes_range():
     radar = Measurement(0.0, "radar1", "range_az", np.array([0.5, 20000.0]), RADAR_STD, np.zeros(3), 0)
     ranged.associate(PlotHypothesiser(6, 0.999).hypotheses([], [radar], [], np.zeros(0)))
     w = ranged.associate(hyp)
+    shared = hyp.gated[:, hyp.gated.sum(axis=0) > 1]
+    assert (shared[:3].any(axis=1) & (hyp.gated[:3].sum(axis=1) == shared[:3].sum(axis=1))).all()
     np.testing.assert_array_equal(w.existence, np.where(hyp.gated.any(axis=1), r, alone.existence))
     np.testing.assert_allclose(w.beta, alone.beta, rtol=0, atol=1e-15)
     np.testing.assert_allclose(w.miss, alone.miss, rtol=0, atol=1e-15)
@@ -294,27 +296,30 @@ def test_rays_raise_existence_until_a_scan_fixes_range():
 
 def test_a_ray_plot_that_another_track_on_the_ray_takes_is_no_miss():
     """Two aircraft in trail, 500 m apart on one angle sensor's ray, each with a track
-    (existence 0.99 and 0.6), and a third track off the ray; the scan has one plot on
-    the ray, at the leader. The joint events give it mostly to the likelier track, so
-    the full recursion (no range fixed yet: ``scan_update``) lowers the wingman's
-    existence as if it were missed. Once range is fixed, the plot in its gate is no
-    evidence either way — it may be either aircraft's — and its existence stays; the
-    track off the ray, whose gate is empty, is charged the miss in closed form,
-    ``a = (1 − P_D P_G) r / (1 − P_D P_G r)``."""
+    (existence 0.99 and 0.6), a third track off every plot and a fourth on a ray of its
+    own; the scan has one plot on the pair's ray, at the leader, and one at the fourth.
+    The joint events give the pair's plot mostly to the likelier track, so the full
+    recursion (no range fixed yet: ``scan_update``) lowers the wingman's existence as if
+    it were missed. Once range is fixed, that plot, in both gates, is no evidence either
+    way — it may be either aircraft's — and both existences stay; the third track, whose
+    gate is empty, is charged the miss in closed form,
+    ``a = (1 − P_D P_G) r / (1 − P_D P_G r)``, and the fourth, whose plot no other track
+    gates, takes the full recursion's ``r⁺``."""
     site = np.array([50000.0, 0.0, 0.0])
     lead = np.array([20000.0, 30000.0, 6000.0])
     ray = (lead - site) / np.linalg.norm(lead - site)
-    far = np.array([-20000.0, 5000.0, 3000.0])
+    far, alone_on_ray = np.array([-20000.0, 5000.0, 3000.0]), np.array([10000.0, 20000.0, 5000.0])
     P = np.diag([150.0**2] * 3 + [30.0**2] * 3)
-    states = [(np.concatenate([p, np.zeros(3)]), P) for p in (lead, lead + 500.0 * ray, far)]
-    r = np.array([0.99, 0.6, 0.8])
+    states = [(np.concatenate([p, np.zeros(3)]), P) for p in (lead, lead + 500.0 * ray, far, alone_on_ray)]
+    r = np.array([0.99, 0.6, 0.8, 0.5])
     rng = np.random.default_rng(4)
-    plots = [_plot(0.0, "angle1", "azel", lead, site)]
+    plots = [_plot(0.0, "angle1", "azel", lead, site), _plot(0.0, "angle1", "azel", alone_on_ray, site, 21)]
     plots += [Measurement(0.0, "angle1", "azel", np.array([rng.uniform(3.5, 6.0), rng.uniform(0.0, 1.0)]), ANGLE_STD,
                           site, k + 1) for k in range(20)]  # false plots far from every track
     pd, pg = 0.75, 0.999
-    hyp = PlotHypothesiser(6, pg).hypotheses(states, plots, [True, True, True], r)
+    hyp = PlotHypothesiser(6, pg).hypotheses(states, plots, [True, True, True, True], r)
     assert hyp.gated[:2, 0].all() and not hyp.gated[2].any()
+    assert hyp.gated[3, 1] and hyp.gated[:, 1].sum() == 1 and hyp.gated[3].sum() == 1
     alone = JIPDA(pd, pg).associate(hyp)
     ref = scan_update(hyp.model, states, r, np.array([m.z for m in plots]), pd, pg)
     np.testing.assert_allclose(alone.existence, ref.r, rtol=0, atol=1e-12)
@@ -326,6 +331,7 @@ def test_a_ray_plot_that_another_track_on_the_ray_takes_is_no_miss():
     assert w.existence[0] == r[0] and w.existence[1] == r[1]
     miss = (1.0 - pd * pg) * r[2] / (1.0 - pd * pg * r[2])
     assert w.existence[2] == pytest.approx(miss, rel=1e-12)
+    assert w.existence[3] == alone.existence[3] and alone.existence[3] > r[3] + 0.4
 
 
 @pytest.mark.parametrize("p_survive, kept", [(None, True), (0.98, False)])
