@@ -583,10 +583,11 @@ class JIPDA:
         self.jpda_star = bool(jpda_star)
         self._clutter: dict[str, ClutterWindow] = {}
         self.density: dict[str, float] = {}  # the latest clutter density of each sensor
-        self.ranged = False  # whether a scan has fixed range (then rays raise no existence)
+        self.ranged = False  # whether a scan has fixed range (then the rays rule applies)
 
     def raises_existence(self, plot) -> bool:
-        """Whether the scan of ``plot``'s sensor may raise existence (*Rays*, above)."""
+        """Whether the scan of ``plot``'s sensor moves every track's existence in full (else
+        *Rays*, above)."""
         return fixes(plot, RANGE) or not self.ranged
 
     def detection(self, sensor: str) -> float:

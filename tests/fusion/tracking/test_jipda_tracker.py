@@ -239,11 +239,13 @@ def test_a_track_at_a_false_range_on_an_aircrafts_ray_does_not_live_on_its_angle
     the aircraft 12 km short of it, and a track starts there, on the ray. The angle
     sensor's plots of the aircraft then lie in its gate every frame, tighter than any
     false alarm: they tell that something is on the ray, not that it is at this range.
-    So they do not raise its existence, the radar's misses take it below
-    ``existence_delete`` at 2 s and it is never confirmed; the aircraft's own track,
-    started once the ghost no longer holds its angle plot, is confirmed on the radar's
-    plots by 5 s. (Counted as detections, the angle plots raise the ghost's odds more
-    than the radar's misses lower them: it is confirmed at 2 s.)"""
+    At 1 s the aircraft's plot raises it (0.80: no other track gates the plot yet), but
+    the aircraft's own track starts that frame, and from 2 s on the plot lies in both
+    gates and moves neither; the radar's misses then take the ghost below
+    ``existence_delete`` and it is never confirmed, while the aircraft's track is
+    confirmed on the radar's plots by 5 s (3 s here). (Counted as detections in every
+    frame, the angle plots raise the ghost's odds more than the radar's misses lower
+    them: it is confirmed at 2 s.)"""
     target = np.array([20000.0, 30000.0, 6000.0])
     radar_site, angle_site = np.zeros(3), np.array([50000.0, 0.0, 0.0])
     ray = (target - angle_site) / np.linalg.norm(target - angle_site)
