@@ -548,8 +548,8 @@ class JIPDA:
     ``1 − δ`` in turn (a lone track: ``δ = P_D P_G − P_D Σⱼ Nⱼ/ρ`` of that scan).
 
     *Rays.* Once a scan has fixed range (:attr:`ranged`: a radar's, or a position
-    report's), a scan that fixes none (an angle sensor's rays) moves the existence of a
-    track whose gated plots all lie in another track's gate too not at all: ``r⁺ ← r``.
+    report's), a scan that fixes none (an angle sensor's rays) leaves unmoved the
+    existence of a track whose gated plots all lie in another track's gate too: ``r⁺ ← r``.
     Such a plot is as likely from the other track's target on the ray as from one at
     this track's range, so its evidence ``P_D Nⱼ/ρ`` (10²–10⁴ for a track tight in
     angle) is no evidence that this track's target exists — a track at a false range on
@@ -585,7 +585,7 @@ class JIPDA:
         self.density: dict[str, float] = {}  # the latest clutter density of each sensor
         self.ranged = False  # whether a scan has fixed range (then the rays rule applies)
 
-    def raises_existence(self, plot) -> bool:
+    def counts_in_full(self, plot) -> bool:
         """Whether the scan of ``plot``'s sensor moves every track's existence in full (else
         *Rays*, above)."""
         return fixes(plot, RANGE) or not self.ranged
@@ -632,7 +632,7 @@ class JIPDA:
         c[alive] = beta[alive, 1:] / r_post[alive, None]
         claimed = np.minimum(beta[:, 1:].sum(axis=0), 1.0)
         used = frozenset(int(j) for j in np.flatnonzero(claimed >= USED))
-        if not self.raises_existence(hyp.plots[0]):  # a ray scan: plots another track gates too count not (Rays)
+        if not self.counts_in_full(hyp.plots[0]):  # a ray scan (Rays)
             g = hyp.gated
             own = (g & (g.sum(axis=0) == 1)).any(axis=1)
             r_post = np.where(g.any(axis=1) & ~own, r, r_post)
